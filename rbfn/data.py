@@ -1,0 +1,66 @@
+"""Training data: seeded joint samples within limits, FK positions, train/val/test splits."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytorch_kinematics as pk
+import torch
+
+from .robots.kinematics import forward_kinematics
+
+__all__ = ["Split", "Dataset", "sample_joints", "make_dataset"]
+
+
+@dataclass
+class Split:
+    """Positions x (N, 3) in m and joints q (N, n_joints)."""
+
+    x: torch.Tensor
+    q: torch.Tensor
+
+    def to(self, **kw) -> "Split":
+        return Split(self.x.to(**kw), self.q.to(**kw))
+
+
+@dataclass
+class Dataset:
+    train: Split
+    val: Split
+    test: Split
+
+
+def sample_joints(low: torch.Tensor, high: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
+    """n joint vectors (n, J) uniform in the box [low, high] (float64)."""
+    u = torch.rand(n, low.shape[0], dtype=torch.float64, generator=generator)
+    return low + u * (high - low)
+
+
+def make_split(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, n: int, seed: int) -> Split:
+    """n FK pairs from joints sampled with `seed` (float64, on the chain's device)."""
+    g = torch.Generator().manual_seed(seed)
+    q = sample_joints(low, high, n, g).to(chain.device)
+    return Split(forward_kinematics(chain, q).to(torch.float64), q)
+
+
+def make_dataset(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor,
+                 sizes: tuple[int, int, int], seed: int) -> Dataset:
+    """Train/val/test splits of (position, joints) pairs, each from its own seeded stream."""
+    # Distinct, seed-derived streams per split; evaluate.py uses a stream training never uses.
+    return Dataset(*(make_split(chain, low, high, n, seed * 1000 + k) for k, n in enumerate(sizes)))
+
+
+def input_scaling(x: torch.Tensor, mode: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(offset, scale) (d,) for inputs x (N, d): "metres" centres only, "standard" also divides by std."""
+    if mode == "metres":
+        return x.mean(0), torch.ones_like(x[0])
+    if mode == "standard":
+        return x.mean(0), x.std(0).clamp_min(1e-12)
+    raise ValueError(f"unknown input scaling {mode!r}; allowed: ['metres', 'standard']")
+
+
+def check_finite(name: str, t: torch.Tensor) -> None:
+    """Raise ValueError if tensor `t` holds NaN or inf, naming it and the first bad row."""
+    bad = ~torch.isfinite(t)
+    if bool(bad.any()):
+        row = int(bad.reshape(t.shape[0], -1).any(-1).nonzero()[0])
+        raise ValueError(f"{name} contains non-finite values (first at row {row}: {t[row].tolist()})")

@@ -1,0 +1,157 @@
+"""Choosing centres and widths: ACO (ACO_R or the paper's Ant System), k-means, random, OLS.
+
+`select` works on scaled inputs z and returns centres (M, d) and widths (M,) in the same units,
+with what the search recorded (time, ACO objective per iteration). Widths not searched by the
+method come from the width rule, scaled by `width_scale` or by the scale with the lowest
+validation error.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+
+from aco import ACOR, AntSystem
+
+from .centers import kmeans_centers, ols_centers, random_centers
+from .config import CentersConfig
+from .objectives import FitObjective, cluster_objective
+from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
+
+__all__ = ["Selection", "select", "choose_widths"]
+
+
+@dataclass
+class Selection:
+    """Centres (M, d), widths (M,), seconds spent, and ACO best/mean objective per iteration."""
+
+    centers: torch.Tensor
+    widths: torch.Tensor
+    seconds: float
+    aco_best: list[float] = field(default_factory=list)
+    aco_mean: list[float] = field(default_factory=list)
+
+
+def choose_widths(objective: FitObjective, centers: torch.Tensor, rule: str,
+                  scale: float | None, max_width: float) -> torch.Tensor:
+    """Widths (M,) = rule's base widths times `scale`, or the grid scale best on validation."""
+    base = base_widths(centers, rule)
+    if rule == "paper" or scale is not None:
+        return (base * (1.0 if scale is None else scale)).clamp(max=max_width)
+    grid = torch.as_tensor(SCALE_GRID, dtype=base.dtype, device=base.device)
+    cand = (grid[:, None] * base).clamp(max=max_width)                          # (S, M)
+    err = objective(centers.expand(len(grid), *centers.shape), cand)
+    return cand[int(err.argmin())]
+
+
+def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_width: float,
+           progress: bool = False, generator: torch.Generator | None = None) -> Selection:
+    """Centres and widths for M = m with the method `cfg.method` on the objective's training inputs."""
+    z = objective.z_train
+    g = generator or torch.Generator().manual_seed(seed)
+    t0 = time.perf_counter()
+    aco_best: list[float] = []
+    aco_mean: list[float] = []
+    if cfg.method == "random":
+        centers = random_centers(z, m, g)
+        widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
+    elif cfg.method == "kmeans":
+        centers = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
+        widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
+    elif cfg.method == "ols":
+        pool = _candidate_pool(z, cfg.aco.candidates, g)
+        base = paper_widths(pool[None])[0, 0] * (pool.shape[0] / m) ** 0.5      # d_max / sqrt(2M)
+        grid = torch.as_tensor(SCALE_GRID, dtype=z.dtype, device=z.device)
+        scales = grid if cfg.width_scale is None else grid.new_tensor([cfg.width_scale])
+        sets = ols_centers(z, objective.y_train, m, (scales * base).clamp(max=max_width), pool, objective.tail)
+        w = (scales * base).clamp(max=max_width)[:, None].expand(-1, m)
+        best = int(objective(sets, w).argmin())
+        centers, widths = sets[best], w[best].clone()
+    elif cfg.aco.colony == "ant_system":
+        centers, widths, res = _ant_system(cfg, objective, m, seed, max_width, progress, g)
+        aco_best, aco_mean = res.best_history, res.mean_history
+    else:
+        centers, widths, res = _acor(cfg, objective, m, seed, max_width, progress, g)
+        aco_best, aco_mean = res.best_history, res.mean_history
+    return Selection(centers, widths, time.perf_counter() - t0, aco_best, aco_mean)
+
+
+def _candidate_pool(z: torch.Tensor, n: int, g: torch.Generator) -> torch.Tensor:
+    """At most n distinct training inputs, uniformly chosen (all of them when n >= N)."""
+    if n >= z.shape[0]:
+        return z
+    return z[torch.randperm(z.shape[0], generator=g)[:n].to(z.device)]
+
+
+def _ant_system(cfg, objective, m, seed, max_width, progress, g):
+    """The paper's colony: ants choose M of the candidate points; widths by the rule."""
+    pool = _candidate_pool(objective.z_train, cfg.aco.candidates, g)
+    scale = cfg.width_scale
+    if cfg.width_rule != "paper" and scale is None:
+        # Fix the width scale once, on a k-means solution, so ants compare centre sets only.
+        km = kmeans_centers(objective.z_train, m, seed, 1)
+        base = base_widths(km, cfg.width_rule)
+        scale = float((choose_widths(objective, km, cfg.width_rule, None, max_width) / base).median())
+
+    def widths_of(c: torch.Tensor) -> torch.Tensor:
+        return (base_widths(c, cfg.width_rule) * (scale or 1.0)).clamp(max=max_width)
+
+    if cfg.aco.objective == "fit":
+        def obj(idx: torch.Tensor) -> torch.Tensor:
+            c = pool[idx.to(pool.device)]
+            return objective(c, widths_of(c))
+    else:
+        def obj(idx: torch.Tensor) -> torch.Tensor:
+            return cluster_objective(objective.z_train, pool[idx.to(pool.device)])
+
+    a = cfg.aco
+    colony = AntSystem(ants=a.ants, iterations=a.iterations, rho=a.rho, Q=a.Q, alpha=a.alpha,
+                       beta=a.beta, progress=progress)
+    res = colony.minimize(obj, pool.shape[0], m, generator=g)
+    centers = pool[res.best.to(pool.device)]
+    return centers, widths_of(centers[None])[0], res
+
+
+def _acor(cfg, objective, m, seed, max_width, progress, g):
+    """ACO_R over centre coordinates (bounded to the data's box) and per-centre log widths.
+
+    The archive is seeded with k-means centres and their validation-tuned widths, plus
+    perturbations of them (so archive members share one centre ordering and the Gaussian
+    sampling compares like with like).
+    """
+    a = cfg.aco
+    z = objective.z_train
+    d = z.shape[1]
+    c0 = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
+    w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
+    lo, hi = z.amin(0), z.amax(0)
+    span = float((hi - lo).norm())
+    log_lo, log_hi = torch.tensor(span * 1e-3).log(), torch.tensor(max_width).log()
+    n_w = m if a.search_widths else 0
+    lower = torch.cat([lo.repeat(m), log_lo.expand(n_w).to(z)])
+    upper = torch.cat([hi.repeat(m), log_hi.expand(n_w).to(z)])
+
+    def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        c = x[:, : m * d].reshape(-1, m, d)
+        w = x[:, m * d:].exp() if n_w else w0.expand(x.shape[0], m)
+        return c, w
+
+    if a.objective == "fit":
+        def obj(x: torch.Tensor) -> torch.Tensor:
+            return objective(*unpack(x))
+    else:
+        def obj(x: torch.Tensor) -> torch.Tensor:
+            return cluster_objective(z, unpack(x)[0])
+
+    seed_vec = torch.cat([c0.reshape(-1), w0.log()[:n_w]])
+    spread = torch.cat([(a.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
+                        torch.full((n_w,), a.init_spread, dtype=z.dtype, device=z.device)])
+    noise = torch.randn(a.archive_size - 1, seed_vec.shape[0], dtype=z.dtype, generator=g).to(z.device)
+    init = torch.cat([seed_vec[None], seed_vec + spread * noise])
+    colony = ACOR(archive_size=a.archive_size, ants=a.ants, q=a.q, xi=a.xi, iterations=a.iterations,
+                  lower=lower, upper=upper, progress=progress)
+    res = colony.minimize(obj, init, generator=g)
+    c, w = unpack(res.best[None])
+    return c[0], w[0].clamp(max=max_width), res

@@ -1,0 +1,45 @@
+import pytest
+import torch
+
+from rbfn.config import CentersConfig
+from rbfn.data import input_scaling
+from rbfn.objectives import FitObjective, cluster_objective
+from rbfn.select import select
+
+
+@pytest.fixture(scope="module")
+def objective(small_data):
+    off, sc = input_scaling(small_data.train.x, "metres")
+    return FitObjective((small_data.train.x - off) / sc, small_data.train.q,
+                        (small_data.val.x - off) / sc, small_data.val.q, eval_dtype=torch.float32)
+
+
+@pytest.mark.parametrize("method,colony", [("random", "acor"), ("kmeans", "acor"), ("ols", "acor"),
+                                           ("aco", "acor"), ("aco", "ant_system")])
+def test_every_method_returns_centres_and_positive_widths(objective, method, colony):
+    cfg = CentersConfig(method=method)
+    cfg.aco.colony, cfg.aco.iterations, cfg.aco.candidates = colony, 5, 100
+    s = select(cfg, objective, 12, seed=0, max_width=2.0)
+    assert s.centers.shape == (12, 3) and s.widths.shape == (12,)
+    assert (s.widths > 0).all() and (s.widths <= 2.0).all()
+    if method == "aco":
+        assert len(s.aco_best) == 5 or colony == "ant_system"
+
+
+def test_acor_is_no_worse_than_its_kmeans_seed(objective):
+    km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
+    cfg = CentersConfig(method="aco")
+    cfg.aco.iterations = 10
+    aco = select(cfg, objective, 10, seed=0, max_width=2.0)
+    e_km = objective(km.centers[None], km.widths[None]).item()
+    e_aco = objective(aco.centers[None], aco.widths[None]).item()
+    assert e_aco <= e_km * (1 + 1e-12)
+    # ACO's centres stay inside the training inputs' box.
+    z = objective.z_train
+    assert ((aco.centers >= z.amin(0)) & (aco.centers <= z.amax(0))).all()
+
+
+def test_cluster_objective_is_kmeans_inertia():
+    z = torch.tensor([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]], dtype=torch.float64)
+    c = torch.tensor([[[0.0, 0.0], [5.0, 4.0]]], dtype=torch.float64)
+    assert cluster_objective(z, c).item() == pytest.approx(1.0 + 1.0)
