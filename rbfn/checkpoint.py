@@ -83,7 +83,7 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
     sd, a = ckpt["state_dict"], ckpt["model_args"]
     model = RBFNetwork(sd["centers"], sd["widths"], a["out_features"], tail=a["tail"])
     model.load_state_dict(sd)
-    return model.eval()
+    return model.eval().requires_grad_(False)
 
 
 def load_model(path: str | Path) -> RBFNetwork:

@@ -25,9 +25,10 @@ def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
     Squared distances use |z|^2 + |c|^2 - 2 z.c (one matmul), which is fast and exact enough in
     float64, the precision fitting runs in; the module evaluates by broadcasting instead.
     """
-    d2 = (z.square().sum(-1, keepdim=True) + centers.square().sum(-1).unsqueeze(-2)
-          - 2.0 * z @ centers.transpose(-1, -2)).clamp_min(0.0)
-    phi = torch.exp(-d2 / (2.0 * widths.unsqueeze(-2).square()))
+    # |z|^2 + |c|^2 - 2 z c^T, then exp(-max(., 0) / (2 sigma^2)), in place on one buffer.
+    phi = (z @ centers.transpose(-1, -2)).mul_(-2.0)
+    phi.add_(z.square().sum(-1, keepdim=True)).add_(centers.square().sum(-1).unsqueeze(-2))
+    phi.clamp_(min=0.0).div_(widths.unsqueeze(-2).square() * -2.0).exp_()
     if not tail:
         return phi
     shape = phi.shape[:-1]
