@@ -36,19 +36,19 @@ class RBFNetwork(nn.Module):
             raise ValueError(f"widths must have shape ({m},), got {tuple(widths.shape)}")
         if not bool((widths > 0).all()):
             raise ValueError(f"widths must be positive, got min {widths.min().item():.3g}")
-        dt = centers.dtype
-        self.register_buffer("offset", torch.zeros(d, dtype=dt) if offset is None else offset.to(dt))
-        self.register_buffer("scale", torch.ones(d, dtype=dt) if scale is None else scale.to(dt))
+        kw = {"dtype": centers.dtype, "device": centers.device}
+        self.register_buffer("offset", torch.zeros(d, **kw) if offset is None else offset.to(**kw))
+        self.register_buffer("scale", torch.ones(d, **kw) if scale is None else scale.to(**kw))
         self.register_buffer("centers", centers.clone())
         self.register_buffer("widths", widths.clone())
-        self.head = nn.Linear(m, out_features, dtype=dt)
-        self.tail = nn.Linear(d, out_features, bias=False, dtype=dt) if tail else None
+        self.head = nn.Linear(m, out_features, **kw)
+        self.tail = nn.Linear(d, out_features, bias=False, **kw) if tail else None
         # Trained region, set by `set_domain` after fitting (defaults: unbounded).
-        self.register_buffer("in_low", torch.full((d,), -torch.inf, dtype=dt))
-        self.register_buffer("in_high", torch.full((d,), torch.inf, dtype=dt))
-        self.register_buffer("out_low", torch.full((out_features,), -torch.inf, dtype=dt))
-        self.register_buffer("out_high", torch.full((out_features,), torch.inf, dtype=dt))
-        self.register_buffer("cover_radius", torch.tensor(torch.inf, dtype=dt))
+        self.register_buffer("in_low", torch.full((d,), -torch.inf, **kw))
+        self.register_buffer("in_high", torch.full((d,), torch.inf, **kw))
+        self.register_buffer("out_low", torch.full((out_features,), -torch.inf, **kw))
+        self.register_buffer("out_high", torch.full((out_features,), torch.inf, **kw))
+        self.register_buffer("cover_radius", torch.tensor(torch.inf, **kw))
 
     @property
     def num_centers(self) -> int:

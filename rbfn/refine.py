@@ -8,6 +8,7 @@ is kept (early stopping).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -39,7 +40,7 @@ def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_
                         requires_grad=learn_input_scale)
     params = [c, log_w] + ([log_s] if learn_input_scale else [])
     opt = torch.optim.Adam(params, lr=lr)
-    log_max = torch.tensor(max_width, dtype=z_train.dtype).log()
+    log_max = math.log(max_width)
 
     def val_error() -> float:
         with torch.no_grad():
