@@ -1,10 +1,14 @@
 """Checkpoints: a plain dict that `torch.load(weights_only=True)` reads, written atomically.
 
 Keys: format_version, kind, package_version, model_args, state_dict, robot (URDF text, end
-link, joint names and sampled range), config (plain data), metrics.
+link, joint names and sampled range), config (plain data), metrics. The zip archive's comment
+holds the SHA-256 of the archive, so any changed byte is caught before unpickling; the file is
+still a plain torch.save archive that `torch.load(path, weights_only=True)` reads.
 """
 from __future__ import annotations
 
+import hashlib
+import io
 import os
 import tempfile
 from pathlib import Path
@@ -37,6 +41,31 @@ def atomic_write_bytes(path: Path, write) -> None:
         raise
 
 
+_SEAL = b"aco-rbfn-sha256:"
+_SEAL_LEN = len(_SEAL) + 64
+
+
+def seal(data: bytes) -> bytes:
+    """Put the SHA-256 of a zip archive `data` (no comment) into its end-of-directory comment."""
+    if len(data) < 22 or data[-22:-18] != b"PK\x05\x06" or data[-2:] != b"\x00\x00":
+        raise ValueError("expected a zip archive without a comment")
+    comment = _SEAL + hashlib.sha256(data).hexdigest().encode()
+    return data[:-2] + len(comment).to_bytes(2, "little") + comment
+
+
+def unseal(data: bytes, path: Path) -> bytes:
+    """The archive as written before sealing; ValueError if any byte of `data` changed."""
+    tail = data[-_SEAL_LEN:]
+    if len(data) < 22 + _SEAL_LEN or not tail.startswith(_SEAL):
+        raise ValueError(f"{path} is not a readable checkpoint (truncated or corrupted?): its "
+                         "checksum seal is missing. Re-run training or restore the file from a copy.")
+    original = data[:-_SEAL_LEN - 2] + b"\x00\x00"
+    if hashlib.sha256(original).hexdigest().encode() != tail[len(_SEAL):]:
+        raise ValueError(f"{path} is corrupted: its bytes do not match its SHA-256 checksum. "
+                         "Re-run training or restore the file from a copy.")
+    return original
+
+
 def save_checkpoint(path: str | Path, model: RBFNetwork, robot: dict[str, Any], config: dict[str, Any],
                     metrics: dict[str, Any]) -> None:
     """Write the checkpoint dict for `model` to `path` atomically."""
@@ -53,7 +82,10 @@ def save_checkpoint(path: str | Path, model: RBFNetwork, robot: dict[str, Any], 
         "config": config,
         "metrics": metrics,
     }
-    atomic_write_bytes(Path(path), lambda f: torch.save(ckpt, f))
+    buf = io.BytesIO()
+    torch.save(ckpt, buf)
+    sealed = seal(buf.getvalue())
+    atomic_write_bytes(Path(path), lambda f: f.write(sealed))
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -61,8 +93,9 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
+    data = unseal(path.read_bytes(), path)
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+        ckpt = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as e:  # truncated or corrupted archives raise various errors
         raise ValueError(f"{path} is not a readable checkpoint (truncated or corrupted?): {e}. "
                          "Re-run training or restore the file from a copy.") from e
