@@ -22,12 +22,13 @@ from torch.utils.tensorboard import SummaryWriter
 from rbfn.checkpoint import atomic_write_bytes, save_checkpoint
 from rbfn.config import TrainConfig, register_configs, validate_train
 from rbfn.data import check_finite, input_scaling, make_dataset
-from rbfn.fit import deployed_design, design_matrix, lms_weights, ridge_fit
+from rbfn.fit import RidgeFit, deployed_design, design_matrix, lms_weights, ridge_fit
 from rbfn.growth import grow, growth_schedule
 from rbfn.layer import assemble
 from rbfn.metrics import ik_metrics
 from rbfn.objectives import FitObjective
 from rbfn.refine import refine
+from rbfn.resume import StateFile
 from rbfn.robots import joint_limits, load_serial_chain
 from rbfn.robots import scara
 from rbfn.select import select
@@ -76,26 +77,65 @@ def run(cfg: TrainConfig, out_dir: Path) -> dict:
                              eval_dtype=torch.float32)
     gen = torch.Generator().manual_seed(cfg.seed)
 
+    # A run directory holding last.pt from an interrupted run continues it (same config).
+    states = StateFile(out_dir)
+    state = states.load(asdict(cfg))
+    if state.finished is not None:
+        print(f"{out_dir} holds a finished run; nothing to do (delete last.pt to train again)")
+        return state.finished
+    if state.done or state.current:
+        print(f"resuming from {states.path}: {len(state.done)} growth step(s) done")
+    if state.gen_after is not None:
+        gen.set_state(state.gen_after)
+
     # 2-4. Centres and widths, then output weights; grow M until E <= goal.
-    select_seconds = 0.0
+    select_seconds = sum(d["select_seconds"] for d in state.done)
 
     def fit_at(m: int):
         nonlocal select_seconds
-        sel = select(cfg.centers, objective, m, cfg.seed, cfg.rbfn.max_width, cfg.progress, gen)
+        resume = None
+        if state.current is not None and state.current["num_centers"] == m:
+            gen.set_state(state.current["gen_start"])
+            resume = state.current["colony"]
+        else:
+            state.current = {"num_centers": m, "gen_start": gen.get_state(), "colony": None}
+
+        def on_state(colony_state: dict) -> None:
+            state.current["colony"] = colony_state
+            states.save(state, force=False)
+
+        sel = select(cfg.centers, objective, m, cfg.seed, cfg.rbfn.max_width, cfg.progress, gen,
+                     resume, on_state)
         select_seconds += sel.seconds
         for it, (b, mean) in enumerate(zip(sel.aco_best, sel.aco_mean)):
             writer.add_scalar(f"aco/M{m}/best_objective", b, it)
             writer.add_scalar(f"aco/M{m}/mean_objective", mean, it)
         fit = fit_weights(cfg, data, offset, scale, sel.centers, sel.widths, gen)
-        return (sel, fit), 0.5 * float(fit.val_mse)
+        err = 0.5 * float(fit.val_mse)
+        state.done.append({"num_centers": m, "val_E": err, "select_seconds": sel.seconds})
+        state.last_fit = {"centers": sel.centers.cpu(), "widths": sel.widths.cpu(),
+                          "weights": fit.weights.cpu(), "ridge": float(fit.ridge), "val_mse": float(fit.val_mse)}
+        state.gen_after, state.current = gen.get_state(), None
+        states.save(state)
+        return (sel.centers, sel.widths, fit), err
 
     def log_growth(m: int, err: float) -> None:
         writer.add_scalar("growth/val_E", err, m)
         print(f"M = {m:4d}: validation E = {err:.3e}")
 
     schedule = growth_schedule(cfg.rbfn.growth.start, cfg.rbfn.growth.factor, cfg.rbfn.num_centers)
-    (sel, fit), curve = grow(fit_at, schedule, cfg.rbfn.growth.goal, log_growth)
-    centers, widths = sel.centers, sel.widths
+    curve = [(d["num_centers"], d["val_E"]) for d in state.done]
+    if curve and (curve[-1][1] <= cfg.rbfn.growth.goal or curve[-1][0] == schedule[-1]):
+        schedule = []                                   # growth had finished before the interruption
+    else:
+        schedule = [m for m in schedule if m not in {c[0] for c in curve}]
+    if schedule:
+        (centers, widths, fit), more = grow(fit_at, schedule, cfg.rbfn.growth.goal, log_growth)
+        curve += more
+    else:
+        lf = state.last_fit
+        centers, widths = lf["centers"].to(dev), lf["widths"].to(dev)
+        fit = RidgeFit(lf["weights"].to(dev), torch.tensor(lf["ridge"]), torch.tensor(lf["val_mse"]))
 
     # 5. Optional refinement of centres, widths and input scales (weights solved inside the loss).
     if cfg.centers.refine.enabled:
@@ -126,6 +166,8 @@ def run(cfg: TrainConfig, out_dir: Path) -> dict:
              "joint_names": chain.get_joint_parameter_names(),
              "joint_low": list(cfg.robot.joint_low), "joint_high": list(cfg.robot.joint_high)}
     save_checkpoint(out_dir / "checkpoint.pt", model, robot, asdict(cfg), metrics)
+    state.finished = metrics
+    states.save(state)
     text = json.dumps(metrics, indent=2).encode()
     atomic_write_bytes(out_dir / "metrics.json", lambda f: f.write(text))
     scalars = {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and k != "num_centers"}

@@ -47,25 +47,36 @@ class ACOR:
 
     def minimize(self, objective: Callable[[torch.Tensor], torch.Tensor], init: torch.Tensor,
                  generator: torch.Generator | None = None,
-                 callback: Callable[[int, float, float], None] | None = None) -> ACOResult:
+                 callback: Callable[[int, float, float], None] | None = None,
+                 state: dict | None = None, on_state: Callable[[dict], None] | None = None) -> ACOResult:
         """Minimize `objective` from an initial population `init` (n >= 2, D); returns ACOResult.
 
         The archive is the best min(n, k) of `init`; it is filled to k by sampling around them.
-        `callback(iteration, best, mean)` is called after every iteration.
+        `callback(iteration, best, mean)` is called after every iteration. `on_state(state)`
+        receives after every iteration a snapshot (archive, values, iteration, histories and the
+        generator's state) that, passed back as `state`, continues the run exactly where it was.
         """
-        x = self._clip(init)
-        values = objective(x)
-        order = values.argsort()
-        arch, vals = x[order][: self.k], values[order][: self.k]
-        if arch.shape[0] < self.k:
-            extra = self._sample(arch, vals, self.k - arch.shape[0], generator)
-            arch, vals = self._merge(arch, vals, extra, objective(extra))
+        if state is not None:
+            arch, vals = state["archive"].to(init), state["values"].to(init)
+            res = ACOResult(best=arch[0].clone(), best_value=float(vals[0]), iterations=state["iteration"],
+                            best_history=list(state["best_history"]), mean_history=list(state["mean_history"]))
+            if generator is not None:
+                generator.set_state(state["generator"])
+        else:
+            x = self._clip(init)
+            values = objective(x)
+            order = values.argsort()
+            arch, vals = x[order][: self.k], values[order][: self.k]
+            if arch.shape[0] < self.k:
+                extra = self._sample(arch, vals, self.k - arch.shape[0], generator)
+                arch, vals = self._merge(arch, vals, extra, objective(extra))
+            res = ACOResult(best=arch[0].clone(), best_value=float(vals[0]), iterations=0)
         k = arch.shape[0]
         ranks = torch.arange(k, dtype=arch.dtype, device=arch.device)
         w = torch.exp(-ranks.square() / (2 * (self.q * k) ** 2)) / (self.q * k * math.sqrt(2 * math.pi))
         self._probs = w / w.sum()
-        res = ACOResult(best=arch[0].clone(), best_value=float(vals[0]), iterations=0)
-        for it in tqdm(range(self.iterations), desc="ACO_R", disable=not self.progress, leave=False):
+        for it in tqdm(range(res.iterations, self.iterations), desc="ACO_R", disable=not self.progress,
+                       leave=False, initial=res.iterations, total=self.iterations):
             ants = self._sample(arch, vals, self.ants, generator)
             ant_vals = objective(ants)
             arch, vals = self._merge(arch, vals, ants, ant_vals)
@@ -74,6 +85,10 @@ class ACOR:
             res.iterations = it + 1
             if callback is not None:
                 callback(it, res.best_history[-1], res.mean_history[-1])
+            if on_state is not None:
+                on_state({"archive": arch.cpu(), "values": vals.cpu(), "iteration": it + 1,
+                          "best_history": list(res.best_history), "mean_history": list(res.mean_history),
+                          "generator": generator.get_state() if generator is not None else torch.get_rng_state()})
         res.best, res.best_value = arch[0].clone(), float(vals[0])
         return res
 

@@ -36,18 +36,32 @@ class AntSystem:
     def minimize(self, objective: Callable[[torch.Tensor], torch.Tensor], n_candidates: int,
                  subset_size: int, eta: torch.Tensor | None = None,
                  generator: torch.Generator | None = None,
-                 callback: Callable[[int, float, float], None] | None = None) -> ACOResult:
+                 callback: Callable[[int, float, float], None] | None = None,
+                 state: dict | None = None, on_state: Callable[[dict], None] | None = None) -> ACOResult:
         """Minimize `objective` over subsets; it maps indices (K, M) (long) to positive values (K,).
 
         eta: optional heuristic desirability (N,) of each candidate. Returns ACOResult whose
-        `best` is the best subset's indices (M,), sorted.
+        `best` is the best subset's indices (M,), sorted. `on_state(state)` receives after every
+        iteration a snapshot (pheromone, best, iteration, histories, generator state) that,
+        passed back as `state`, continues the run exactly where it was.
         """
         if not 1 <= subset_size <= n_candidates:
             raise ValueError(f"subset_size must be in [1, {n_candidates}], got {subset_size}")
-        tau = torch.full((n_candidates,), self.tau0, dtype=torch.float64)
-        eta_b = torch.ones_like(tau) if eta is None else eta.to(torch.float64).cpu().clamp_min(0) ** self.beta
-        res = ACOResult(best=torch.empty(0, dtype=torch.long), best_value=float("inf"), iterations=0)
-        for it in tqdm(range(self.iterations), desc="Ant System", disable=not self.progress, leave=False):
+        eta_b = (torch.ones(n_candidates, dtype=torch.float64) if eta is None
+                 else eta.to(torch.float64).cpu().clamp_min(0) ** self.beta)
+        if state is not None:
+            tau = state["pheromone"].clone()
+            res = ACOResult(best=state["best"].clone(), best_value=state["best_value"],
+                            iterations=state["iteration"], best_history=list(state["best_history"]),
+                            mean_history=list(state["mean_history"]), converged=state["converged"])
+            if generator is not None:
+                generator.set_state(state["generator"])
+        else:
+            tau = torch.full((n_candidates,), self.tau0, dtype=torch.float64)
+            res = ACOResult(best=torch.empty(0, dtype=torch.long), best_value=float("inf"), iterations=0)
+        start = self.iterations if res.converged else res.iterations
+        for it in tqdm(range(start, self.iterations), desc="Ant System", disable=not self.progress,
+                       leave=False, initial=start, total=self.iterations):
             p = (tau.clamp_min(_TAU_FLOOR) ** self.alpha) * eta_b
             p = (p / p.sum()).clamp_min(_TAU_FLOOR)
             choice = torch.multinomial(p.expand(self.ants, -1), subset_size, replacement=False,
@@ -66,8 +80,13 @@ class AntSystem:
             res.iterations = it + 1
             if callback is not None:
                 callback(it, res.best_value, res.mean_history[-1])
-            if bool((choice == choice[0]).all()):
-                res.converged = True
+            res.converged = bool((choice == choice[0]).all())
+            if on_state is not None:
+                on_state({"pheromone": tau.clone(), "best": res.best.clone(), "best_value": res.best_value,
+                          "iteration": it + 1, "best_history": list(res.best_history),
+                          "mean_history": list(res.mean_history), "converged": res.converged,
+                          "generator": generator.get_state() if generator is not None else torch.get_rng_state()})
+            if res.converged:
                 break
         self.pheromone = tau  # the final pheromone (N,), for inspection
         return res

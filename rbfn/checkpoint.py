@@ -18,7 +18,7 @@ import torch
 
 from .layer import RBFNetwork
 
-__all__ = ["FORMAT_VERSION", "KIND", "save_checkpoint", "read_checkpoint", "load_model", "model_from_checkpoint"]
+__all__ = ["FORMAT_VERSION", "KIND", "save_checkpoint", "save_sealed", "load_sealed", "read_checkpoint", "load_model", "model_from_checkpoint"]
 
 FORMAT_VERSION = 1
 KIND = "rbfn-ik"
@@ -82,23 +82,34 @@ def save_checkpoint(path: str | Path, model: RBFNetwork, robot: dict[str, Any], 
         "config": config,
         "metrics": metrics,
     }
+    save_sealed(path, ckpt)
+
+
+def save_sealed(path: str | Path, obj: Any) -> None:
+    """torch.save `obj` (plain data and tensors) to `path`, sealed and atomically."""
     buf = io.BytesIO()
-    torch.save(ckpt, buf)
+    torch.save(obj, buf)
     sealed = seal(buf.getvalue())
     atomic_write_bytes(Path(path), lambda f: f.write(sealed))
 
 
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The checkpoint dict at `path`, checked for format and kind; clear errors otherwise."""
+def load_sealed(path: str | Path) -> Any:
+    """What `save_sealed` wrote at `path` (weights-only unpickling); clear errors when damaged."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
     data = unseal(path.read_bytes(), path)
     try:
-        ckpt = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as e:  # truncated or corrupted archives raise various errors
         raise ValueError(f"{path} is not a readable checkpoint (truncated or corrupted?): {e}. "
                          "Re-run training or restore the file from a copy.") from e
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The checkpoint dict at `path`, checked for format and kind; clear errors otherwise."""
+    path = Path(path)
+    ckpt = load_sealed(path)
     if not isinstance(ckpt, dict) or any(k not in ckpt for k in _REQUIRED):
         missing = [k for k in _REQUIRED if not isinstance(ckpt, dict) or k not in ckpt]
         raise ValueError(f"{path} is missing checkpoint keys {missing}; it was not written by aco-rbfn")

@@ -47,8 +47,13 @@ def choose_widths(objective: FitObjective, centers: torch.Tensor, rule: str,
 
 
 def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_width: float,
-           progress: bool = False, generator: torch.Generator | None = None) -> Selection:
-    """Centres and widths for M = m with the method `cfg.method` on the objective's training inputs."""
+           progress: bool = False, generator: torch.Generator | None = None,
+           resume: dict | None = None, on_state: Callable[[dict], None] | None = None) -> Selection:
+    """Centres and widths for M = m with the method `cfg.method` on the objective's training inputs.
+
+    For the ACO methods, `on_state` receives the colony's snapshots and `resume` continues from
+    one; the generator must then be in the state it had when this selection first started.
+    """
     z = objective.z_train
     g = generator or torch.Generator().manual_seed(seed)
     t0 = time.perf_counter()
@@ -70,10 +75,10 @@ def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_w
         best = int(objective(sets, w).argmin())
         centers, widths = sets[best], w[best].clone()
     elif cfg.aco.colony == "ant_system":
-        centers, widths, res = _ant_system(cfg, objective, m, seed, max_width, progress, g)
+        centers, widths, res = _ant_system(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
         aco_best, aco_mean = res.best_history, res.mean_history
     else:
-        centers, widths, res = _acor(cfg, objective, m, seed, max_width, progress, g)
+        centers, widths, res = _acor(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
         aco_best, aco_mean = res.best_history, res.mean_history
     return Selection(centers, widths, time.perf_counter() - t0, aco_best, aco_mean)
 
@@ -85,7 +90,7 @@ def _candidate_pool(z: torch.Tensor, n: int, g: torch.Generator) -> torch.Tensor
     return z[torch.randperm(z.shape[0], generator=g)[:n].to(z.device)]
 
 
-def _ant_system(cfg, objective, m, seed, max_width, progress, g):
+def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
     """The paper's colony: ants choose M of the candidate points; widths by the rule."""
     pool = _candidate_pool(objective.z_train, cfg.aco.candidates, g)
     scale = cfg.width_scale
@@ -109,12 +114,12 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g):
     a = cfg.aco
     colony = AntSystem(ants=a.ants, iterations=a.iterations, rho=a.rho, Q=a.Q, alpha=a.alpha,
                        beta=a.beta, progress=progress)
-    res = colony.minimize(obj, pool.shape[0], m, generator=g)
+    res = colony.minimize(obj, pool.shape[0], m, generator=g, state=resume, on_state=on_state)
     centers = pool[res.best.to(pool.device)]
     return centers, widths_of(centers[None])[0], res
 
 
-def _acor(cfg, objective, m, seed, max_width, progress, g):
+def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
     """ACO_R over centre coordinates (bounded to the data's box) and per-centre log widths.
 
     The archive is seeded with k-means centres and their validation-tuned widths, plus
@@ -152,6 +157,6 @@ def _acor(cfg, objective, m, seed, max_width, progress, g):
     init = torch.cat([seed_vec[None], seed_vec + spread * noise])
     colony = ACOR(archive_size=a.archive_size, ants=a.ants, q=a.q, xi=a.xi, iterations=a.iterations,
                   lower=lower, upper=upper, progress=progress)
-    res = colony.minimize(obj, init, generator=g)
+    res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     c, w = unpack(res.best[None])
     return c[0], w[0].clamp(max=max_width), res

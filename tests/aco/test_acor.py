@@ -27,3 +27,21 @@ def test_best_so_far_never_worsens_and_is_no_worse_than_init():
     h = torch.tensor(res.best_history)
     assert (h[1:] <= h[:-1]).all()
     assert res.best_value <= obj(init).min().item()
+
+
+def test_resume_from_state_continues_exactly():
+    def obj(x):
+        return (x - 0.3).square().sum(-1)
+
+    def run(stop_at=None, state=None):
+        g = torch.Generator().manual_seed(7)
+        init = torch.rand(6, 5, generator=g, dtype=torch.float64)
+        snaps = []
+        colony = ACOR(archive_size=6, ants=4, iterations=stop_at or 30)
+        res = colony.minimize(obj, init, generator=g, state=state, on_state=snaps.append)
+        return res, snaps
+
+    full, _ = run()
+    _, snaps = run(stop_at=12)               # "interrupted" after 12 iterations
+    resumed, _ = run(state=snaps[-1])
+    assert resumed.best_history == full.best_history and torch.equal(resumed.best, full.best)

@@ -54,3 +54,19 @@ def test_pheromone_update_as_printed():
 def test_bad_subset_size():
     with pytest.raises(ValueError, match="subset_size"):
         AntSystem().minimize(lambda i: torch.ones(i.shape[0]), 5, 6)
+
+
+def test_resume_from_state_continues_exactly():
+    obj = _subset_problem(25, seed=2)
+
+    def run(iterations, state=None):
+        snaps = []
+        colony = AntSystem(ants=6, iterations=iterations, rho=0.5)
+        res = colony.minimize(obj, 25, 5, generator=torch.Generator().manual_seed(3), state=state,
+                              on_state=snaps.append)
+        return res, snaps
+
+    full, _ = run(30)
+    _, snaps = run(9)
+    resumed, _ = run(30, snaps[-1])
+    assert resumed.best_history == full.best_history and torch.equal(resumed.best, full.best)

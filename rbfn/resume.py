@@ -1,0 +1,67 @@
+"""Resumable training: what a preempted run needs to continue, kept in RUN_DIR/last.pt.
+
+The state holds the growth steps already completed (their (M, E) and the last step's fitted
+centres, widths and weights), the step in progress (its M, the generator's state when it
+started, and the colony's latest snapshot), the generator's state between steps, and, once
+the run finished, its metrics. Written sealed and atomically, at most every `every` seconds
+while a colony runs and at once at each step's end.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .checkpoint import load_sealed, save_sealed
+
+__all__ = ["TrainState", "StateFile"]
+
+KIND = "rbfn-train-state"
+FORMAT_VERSION = 1
+# Keys that may differ between the interrupted run and its resumption.
+_FREE_KEYS = ("progress", "num_threads", "device")
+
+
+@dataclass
+class TrainState:
+    config: dict
+    done: list[dict] = field(default_factory=list)      # {"num_centers", "val_E", "select_seconds", "aco_best", "aco_mean"}
+    last_fit: dict | None = None                        # {"centers", "widths", "weights", "ridge", "val_mse"}
+    gen_after: Any = None                               # generator state after the last completed step
+    current: dict | None = None                         # {"num_centers", "gen_start", "colony"}
+    finished: dict | None = None                        # final metrics
+
+
+def _comparable(cfg: dict) -> dict:
+    return {k: v for k, v in cfg.items() if k not in _FREE_KEYS}
+
+
+class StateFile:
+    """Reads and writes the TrainState of one run directory."""
+
+    def __init__(self, run_dir: Path, every: float = 2.0) -> None:
+        self.path = Path(run_dir) / "last.pt"
+        self.every = every
+        self._last_write = 0.0
+
+    def load(self, config: dict) -> TrainState:
+        """The saved state if there is one for this config, else a fresh state."""
+        if not self.path.exists():
+            return TrainState(config=config)
+        raw = load_sealed(self.path)
+        if raw.get("kind") != KIND or raw.get("format_version") != FORMAT_VERSION:
+            raise ValueError(f"{self.path} is not a training state this aco-rbfn can resume "
+                             f"(kind {raw.get('kind')!r}, format {raw.get('format_version')}); "
+                             "delete it to start over")
+        if _comparable(raw["state"]["config"]) != _comparable(config):
+            raise ValueError(f"{self.path} belongs to a run with a different configuration; resume it "
+                             "with the same overrides, use another hydra.run.dir, or delete last.pt")
+        return TrainState(**raw["state"])
+
+    def save(self, state: TrainState, force: bool = True) -> None:
+        """Write `state` now (force) or if `every` seconds passed since the last write."""
+        now = time.monotonic()
+        if force or now - self._last_write >= self.every:
+            save_sealed(self.path, {"kind": KIND, "format_version": FORMAT_VERSION, "state": asdict(state)})
+            self._last_write = now
