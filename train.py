@@ -21,6 +21,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.checkpoint import atomic_write_bytes, save_checkpoint
 from rbfn.config import TrainConfig, register_configs, validate_train
+from rbfn.export import export_all
 from rbfn.data import check_finite, input_scaling, make_dataset
 from rbfn.fit import RidgeFit, deployed_design, design_matrix, lms_weights, ridge_fit
 from rbfn.growth import grow, growth_schedule
@@ -166,6 +167,8 @@ def run(cfg: TrainConfig, out_dir: Path) -> dict:
              "joint_names": chain.get_joint_parameter_names(),
              "joint_low": list(cfg.robot.joint_low), "joint_high": list(cfg.robot.joint_high)}
     save_checkpoint(out_dir / "checkpoint.pt", model, robot, asdict(cfg), metrics)
+    if cfg.export:
+        export_all(model, out_dir)                      # ik.onnx, ik.pt2: deploy without this package
     state.finished = metrics
     states.save(state)
     text = json.dumps(metrics, indent=2).encode()

@@ -105,6 +105,7 @@ class TrainConfig:
     device: str = "cpu"
     num_threads: int = 0               # torch threads; 0 leaves torch's default
     progress: bool = True
+    export: bool = True                # write ik.onnx and ik.pt2 next to checkpoint.pt
 
 
 def _allowed(name: str, value: Any, allowed: tuple) -> None:
