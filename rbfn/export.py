@@ -46,11 +46,20 @@ def export_pt2(net: RBFNetwork, path: str | Path) -> Path:
 def export_onnx(net: RBFNetwork, path: str | Path) -> Path:
     """Write a single-file ONNX model (input "positions", outputs "joints", "in_workspace")."""
     import io
+    import logging
 
     batch = torch.export.Dim("batch", min=1)
-    prog = torch.onnx.export(DeployedIK(net), (_example(net),), dynamo=True, external_data=False,
-                             input_names=["positions"], output_names=["joints", "in_workspace"],
-                             dynamic_shapes={"positions": {0: batch}}, verbose=False)
+    quiet = [logging.getLogger(n) for n in ("onnx_ir", "onnxscript", "torch.onnx")]
+    levels = [lg.level for lg in quiet]
+    for lg in quiet:  # the exporter's per-pass INFO lines would flood a Hydra run's log
+        lg.setLevel(logging.WARNING)
+    try:
+        prog = torch.onnx.export(DeployedIK(net), (_example(net),), dynamo=True, external_data=False,
+                                 input_names=["positions"], output_names=["joints", "in_workspace"],
+                                 dynamic_shapes={"positions": {0: batch}}, verbose=False)
+    finally:
+        for lg, level in zip(quiet, levels):
+            lg.setLevel(level)
     buf = io.BytesIO()
     prog.save(buf)
     atomic_write_bytes(Path(path), lambda f: f.write(buf.getvalue()))
