@@ -21,6 +21,7 @@ OBJECTIVES = ("fit", "cluster")
 SOLVERS = ("lstsq", "lms")
 INPUT_SCALINGS = ("metres", "standard")
 WIDTH_RULES = ("paper", "global", "per_center")
+WIDTH_SEARCH = ("per_center", "scale", "none")
 
 
 @dataclass
@@ -48,7 +49,7 @@ class ACOConfig:
     q: float = 0.2                     # ACO_R rank locality
     xi: float = 0.85                   # ACO_R spread
     init_spread: float = 0.3           # ACO_R seed perturbation, in nearest-centre distances
-    search_widths: bool = True         # ACO_R also searches per-centre log widths
+    search_widths: str = "per_center"  # ACO_R also searches: per_center log widths | scale (one global) | none
     rho: float = 0.9                   # Ant System evaporation
     Q: float = 100.0                   # Ant System deposit
     alpha: float = 1.0                 # Ant System pheromone exponent
@@ -121,6 +122,7 @@ def validate_train(cfg: TrainConfig) -> None:
     _allowed("centers.width_rule", c.width_rule, WIDTH_RULES)
     _allowed("centers.aco.colony", a.colony, COLONIES)
     _allowed("centers.aco.objective", a.objective, OBJECTIVES)
+    _allowed("centers.aco.search_widths", a.search_widths, WIDTH_SEARCH)
     _allowed("rbfn.solver", r.solver, SOLVERS)
     _allowed("rbfn.input_scaling", r.input_scaling, INPUT_SCALINGS)
     for name in ("n_train", "n_val", "n_test"):

@@ -24,7 +24,7 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
     if (~inside).any():
         ax.scatter(x[~inside, 0], x[~inside, 1], c="0.6", s=8, marker="x", label="flagged outside")
         ax.legend(loc="lower left")
-    fig.colorbar(sc, ax=ax, label="FK position error (mm)")
+    fig.colorbar(sc, ax=ax, label="FK position error (mm)", shrink=0.75)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")

@@ -7,6 +7,7 @@ validation error.
 """
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -120,7 +121,8 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
 
 
 def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
-    """ACO_R over centre coordinates (bounded to the data's box) and per-centre log widths.
+    """ACO_R over centre coordinates (bounded to the data's box) and widths (per-centre log
+    widths, one log scale of the seed widths, or none: `cfg.aco.search_widths`).
 
     The archive is seeded with k-means centres and their validation-tuned widths, plus
     perturbations of them (so archive members share one centre ordering and the Gaussian
@@ -133,14 +135,23 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
-    log_lo, log_hi = torch.tensor(span * 1e-3).log(), torch.tensor(max_width).log()
-    n_w = m if a.search_widths else 0
-    lower = torch.cat([lo.repeat(m), log_lo.expand(n_w).to(z)])
-    upper = torch.cat([hi.repeat(m), log_hi.expand(n_w).to(z)])
+    # Width coordinates: M log widths, one log scale of the seed widths, or none.
+    n_w = {"per_center": m, "scale": 1, "none": 0}[a.search_widths]
+    if a.search_widths == "per_center":
+        w_lo, w_hi, w_seed = math.log(span * 1e-3), math.log(max_width), w0.log()
+    else:
+        w_lo, w_hi, w_seed = math.log(1 / 16), math.log(16), torch.zeros(n_w, dtype=z.dtype, device=z.device)
+    lower = torch.cat([lo.repeat(m), torch.full((n_w,), w_lo, dtype=z.dtype, device=z.device)])
+    upper = torch.cat([hi.repeat(m), torch.full((n_w,), w_hi, dtype=z.dtype, device=z.device)])
 
     def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         c = x[:, : m * d].reshape(-1, m, d)
-        w = x[:, m * d:].exp() if n_w else w0.expand(x.shape[0], m)
+        if a.search_widths == "per_center":
+            w = x[:, m * d:].exp()
+        elif a.search_widths == "scale":
+            w = (w0 * x[:, m * d:].exp()).clamp(max=max_width)
+        else:
+            w = w0.expand(x.shape[0], m)
         return c, w
 
     if a.objective == "fit":
@@ -150,7 +161,7 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
         def obj(x: torch.Tensor) -> torch.Tensor:
             return cluster_objective(z, unpack(x)[0])
 
-    seed_vec = torch.cat([c0.reshape(-1), w0.log()[:n_w]])
+    seed_vec = torch.cat([c0.reshape(-1), w_seed])
     spread = torch.cat([(a.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
                         torch.full((n_w,), a.init_spread, dtype=z.dtype, device=z.device)])
     noise = torch.randn(a.archive_size - 1, seed_vec.shape[0], dtype=z.dtype, generator=g).to(z.device)

@@ -39,6 +39,20 @@ def test_acor_is_no_worse_than_its_kmeans_seed(objective):
     assert ((aco.centers >= z.amin(0)) & (aco.centers <= z.amax(0))).all()
 
 
+@pytest.mark.parametrize("search", ["per_center", "scale", "none"])
+def test_acor_width_search_options(objective, search):
+    cfg = CentersConfig(method="aco")
+    cfg.aco.iterations, cfg.aco.search_widths = 5, search
+    s = select(cfg, objective, 10, seed=0, max_width=2.0)
+    km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
+    assert (s.widths > 0).all() and (s.widths <= 2.0).all()
+    if search == "none":
+        assert torch.allclose(s.widths, km.widths)
+    if search == "scale":  # one common factor on the seed's widths
+        ratio = s.widths / km.widths
+        assert torch.allclose(ratio, ratio[0].expand_as(ratio)) or (s.widths == 2.0).any()
+
+
 def test_cluster_objective_is_kmeans_inertia():
     z = torch.tensor([[0.0, 0.0], [1.0, 0.0], [5.0, 5.0]], dtype=torch.float64)
     c = torch.tensor([[[0.0, 0.0], [5.0, 4.0]]], dtype=torch.float64)
