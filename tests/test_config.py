@@ -85,3 +85,24 @@ def test_joint_range_outside_urdf_limits():
     cfg = _cfg("robot.joint_high=[2.0,3.0,1.5]", "progress=false")
     with pytest.raises(ValueError, match="joint2 .* leaves the URDF limits"):
         train.load_robot(cfg, "cpu")
+
+
+@pytest.mark.parametrize("experiment", ["paper", "aco_vs_kmeans"])
+def test_experiment_presets_compose(experiment):
+    validate_train(_cfg(f"experiment={experiment}"))
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose("train", overrides=[f"experiment={experiment}"], return_hydra_config=True)
+    if experiment == "paper":
+        assert cfg.centers.aco.colony == "ant_system" and cfg.centers.width_rule == "paper"
+        assert (cfg.centers.aco.rho, cfg.centers.aco.Q, cfg.centers.aco.iterations) == (0.9, 100.0, 100)
+    else:
+        assert cfg.hydra.sweeper.params["seed"] == "0,1,2,3,4"
+
+
+@pytest.mark.parametrize("launcher,target", [("joblib", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
+def test_launchers_compose(launcher, target):
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher" if launcher == "joblib"
+                        else "hydra_plugins.hydra_submitit_launcher")
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose("train", overrides=[f"hydra/launcher={launcher}"], return_hydra_config=True)
+    assert cfg.hydra.launcher._target_.endswith(target)
