@@ -1,7 +1,16 @@
-"""The paper's 3-DOF SCARA: parameters, URDF, closed-form kinematics.
+"""The paper's 3-DOF SCARA: parameters, URDF, closed-form kinematics and corrected dynamics.
 
 Joints q = (q1, q2, q3): rad, rad, m. Base frame at joint 1's axis, in the arm's plane:
 x = l1 cos q1 + l2 cos(q1 + q2), y = l1 sin q1 + l2 sin(q1 + q2), z = -q3.
+
+Dynamics M(q) qdd + C(q, qd) qd + G(q) = tau (DESIGN section 5, the paper's typos corrected):
+links 1 and 2 are uniform rods in the horizontal plane, m3 plus any payload a point mass on the
+vertical axis through the tip of link 2. With c2 = cos q2, s2 = sin q2 and
+p1 = l1^2 (m1/3 + m2 + m3) + l2^2 (m2/3 + m3), p2 = l1 l2 (m2/2 + m3), p3 = l2^2 (m2/3 + m3):
+M = [[p1 + 2 p2 c2, p3 + p2 c2, 0], [p3 + p2 c2, p3, 0], [0, 0, m3]],
+C = [[-p2 s2 qd2, -p2 s2 (qd1 + qd2), 0], [p2 s2 qd1, 0, 0], [0, 0, 0]], G = [0, 0, -m3 g].
+Every function takes `payload` (kg, a float or a (B,) tensor) added to m3, is batched over the
+leading dimension, and keeps the dtype and device of q.
 """
 from __future__ import annotations
 
@@ -11,7 +20,8 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik"]
+__all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
+           "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -48,3 +58,67 @@ def ik(pos: torch.Tensor, p: ScaraParams = ScaraParams(), elbow: int = 1) -> tor
     q2 = elbow * torch.acos(c2)
     q1 = torch.atan2(y, x) - torch.atan2(p.l2 * torch.sin(q2), p.l1 + p.l2 * torch.cos(q2))
     return torch.stack([q1, q2, -z], dim=-1)
+
+
+def inertia_params(payload: float | torch.Tensor = 0.0, p: ScaraParams = ScaraParams()):
+    """(p1, p2, p3, m3) in kg m^2, kg m^2, kg m^2, kg for a payload (kg, float or (B,))."""
+    m3 = p.m3 + payload
+    p1 = p.l1**2 * (p.m1 / 3 + p.m2 + m3) + p.l2**2 * (p.m2 / 3 + m3)
+    p2 = p.l1 * p.l2 * (p.m2 / 2 + m3)
+    p3 = p.l2**2 * (p.m2 / 3 + m3)
+    return p1, p2, p3, m3
+
+
+def _full(x, like: torch.Tensor) -> torch.Tensor:
+    """x (float or (B,) tensor) broadcast to the batch shape of `like` (B,)."""
+    return torch.as_tensor(x, dtype=like.dtype, device=like.device).expand_as(like)
+
+
+def mass_matrix(q: torch.Tensor, payload: float | torch.Tensor = 0.0,
+                p: ScaraParams = ScaraParams()) -> torch.Tensor:
+    """Inertia matrix M(q) (B, 3, 3) for joints q (B, 3)."""
+    p1, p2, p3, m3 = inertia_params(payload, p)
+    c2 = torch.cos(q[..., 1])
+    zero = torch.zeros_like(c2)
+    m12 = p3 + p2 * c2
+    rows = [torch.stack([p1 + 2 * p2 * c2, m12, zero], -1),
+            torch.stack([m12, _full(p3, c2), zero], -1),
+            torch.stack([zero, zero, _full(m3, c2)], -1)]
+    return torch.stack(rows, -2)
+
+
+def mass_matrix_dot(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0,
+                    p: ScaraParams = ScaraParams()) -> torch.Tensor:
+    """Time derivative of M along the motion, dM/dt (B, 3, 3), for q, qd (B, 3)."""
+    _, p2, _, _ = inertia_params(payload, p)
+    d = -p2 * torch.sin(q[..., 1]) * qd[..., 1]
+    zero = torch.zeros_like(d)
+    rows = [torch.stack([2 * d, d, zero], -1), torch.stack([d, zero, zero], -1),
+            torch.stack([zero, zero, zero], -1)]
+    return torch.stack(rows, -2)
+
+
+def coriolis(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0,
+             p: ScaraParams = ScaraParams()) -> torch.Tensor:
+    """Coriolis and centrifugal matrix C(q, qd) (B, 3, 3), with dM/dt - 2C skew-symmetric."""
+    _, p2, _, _ = inertia_params(payload, p)
+    h = p2 * torch.sin(q[..., 1])
+    zero = torch.zeros_like(h)
+    rows = [torch.stack([-h * qd[..., 1], -h * (qd[..., 0] + qd[..., 1]), zero], -1),
+            torch.stack([h * qd[..., 0], zero, zero], -1),
+            torch.stack([zero, zero, zero], -1)]
+    return torch.stack(rows, -2)
+
+
+def gravity(q: torch.Tensor, payload: float | torch.Tensor = 0.0,
+            p: ScaraParams = ScaraParams()) -> torch.Tensor:
+    """Gravity torques G(q) (B, 3): (0, 0, -m3 g) N m, N m, N (q3 is positive downward)."""
+    _, _, _, m3 = inertia_params(payload, p)
+    zero = torch.zeros_like(q[..., 0])
+    return torch.stack([zero, zero, -_full(m3, zero) * p.g], -1)
+
+
+def kinetic_energy(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0,
+                   p: ScaraParams = ScaraParams()) -> torch.Tensor:
+    """Kinetic energy 1/2 qd^T M qd (B,) in J."""
+    return 0.5 * torch.einsum("bi,bij,bj->b", qd, mass_matrix(q, payload, p), qd)
