@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.checkpoint import atomic_write_bytes, save_checkpoint
-from rbfn.config import TrainConfig, register_configs, validate_train
+from rbfn.config import SELECTORS, TrainConfig, register_configs, validate_train
 from rbfn.export import export_all
 from rbfn.data import check_finite, input_scaling, make_dataset
 from rbfn.fit import RidgeFit, deployed_design, design_matrix, lms_weights, ridge_fit
@@ -174,8 +174,12 @@ def run(cfg: TrainConfig, out_dir: Path) -> dict:
     text = json.dumps(metrics, indent=2).encode()
     atomic_write_bytes(out_dir / "metrics.json", lambda f: f.write(text))
     scalars = {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and k != "num_centers"}
+    # One HParams session per job, in the job's own run (run_name="."). Every job writes the same
+    # experiment summary (same hparams, metrics and selector domain), so whichever one TensorBoard
+    # reads describes the whole sweep.
     writer.add_hparams({"centers": cfg.centers.name, "num_centers": model.num_centers, "seed": cfg.seed},
-                       {f"hparam/{k}": v for k, v in scalars.items()}, run_name=".")
+                       {f"hparam/{k}": v for k, v in scalars.items()},
+                       hparam_domain_discrete={"centers": list(SELECTORS)}, run_name=".")
     writer.close()
     print(f"M = {model.num_centers}, test position error median {m64['pos_err_mm_median']:.3f} mm, "
           f"p95 {m64['pos_err_mm_p95']:.3f} mm, max {m64['pos_err_mm_max']:.3f} mm "
