@@ -1,11 +1,13 @@
 """Summarize a Hydra multirun: one row per swept setting, mean +- std over seeds.
 
-    python -m rbfn.summarize SWEEP_DIR [--metrics KEY ...] [--out PREFIX]
+    python -m rbfn.summarize SWEEP_DIR [--metrics KEY ...] [--out PREFIX] [--compare KEY=A,B ...]
 
 Reads every job's metrics.json and .hydra/overrides.yaml under SWEEP_DIR, groups the jobs by the
 overrides that vary across the sweep (all but `seed`), prints a Markdown table and writes
 SWEEP_DIR/summary.md, summary.csv and, when `rbfn.num_centers` is swept, summary.png (error
-against M, one line per other setting).
+against M, one line per other setting). `--compare centers=aco,kmeans_refine` adds a paired
+table: for jobs that differ only in that key (same seed, so the same data), A - B per metric
+(mean +- std over the pairs), the mean ratio A / B and how many pairs A wins (lower is better).
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-__all__ = ["load_jobs", "summarize", "main"]
+__all__ = ["load_jobs", "summarize", "compare", "main"]
 
 DEFAULT_METRICS = ("test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max",
                    "test_pos_err_mm_median_float32", "select_seconds", "train_seconds")
@@ -65,11 +67,60 @@ def summarize(jobs, metrics=DEFAULT_METRICS, ignore=("seed",)):
         for key in metrics:
             vals = [float(m[key]) for m in groups[g] if key in m and m[key] is not None]
             if vals:
-                mean = sum(vals) / len(vals)
-                std = math.sqrt(sum((v - mean) ** 2 for v in vals) / (len(vals) - 1)) if len(vals) > 1 else 0.0
-                stats[key] = (mean, std)
+                stats[key] = _mean_std(vals)
         rows.append((g, len(groups[g]), stats))
     return swept, rows
+
+
+def _mean_std(vals: list[float]) -> tuple[float, float]:
+    mean = sum(vals) / len(vals)
+    std = math.sqrt(sum((v - mean) ** 2 for v in vals) / (len(vals) - 1)) if len(vals) > 1 else 0.0
+    return mean, std
+
+
+def compare(jobs, key: str, a: str, b: str, metrics=DEFAULT_METRICS, ignore=("seed",)):
+    """Paired comparison of `key`=a against `key`=b, pairing jobs whose other overrides all agree.
+
+    Returns (group keys, rows): each row = (group values, n pairs, {metric: (mean diff, std diff,
+    mean ratio a / b, pairs where a is lower)}), grouped by the other swept keys (not `ignore`).
+    """
+    swept = [k for k in summarize(jobs, (), ignore)[0] if k != key]
+    by_rest = {tuple(sorted((k, v) for k, v in o.items() if k != key)): m for o, m in jobs if o.get(key) == b}
+    groups: dict[tuple, list[tuple[dict, dict]]] = defaultdict(list)
+    for o, m in jobs:
+        if o.get(key) == a:
+            partner = by_rest.get(tuple(sorted((k, v) for k, v in o.items() if k != key)))
+            if partner is not None:
+                groups[tuple(o.get(k, "") for k in swept)].append((m, partner))
+    if not groups:
+        raise ValueError(f"no pairs of jobs with {key}={a} and {key}={b} agreeing on every other override")
+    rows = []
+    for g in sorted(groups, key=lambda t: tuple((isinstance(_num(x), float), _num(x)) for x in t)):
+        stats = {}
+        for metric in metrics:
+            pairs = [(float(ma[metric]), float(mb[metric])) for ma, mb in groups[g]
+                     if ma.get(metric) is not None and mb.get(metric) is not None]
+            if pairs:
+                mean, std = _mean_std([x - y for x, y in pairs])
+                ratio = sum(x / y for x, y in pairs) / len(pairs) if all(y for _, y in pairs) else math.nan
+                stats[metric] = (mean, std, ratio, sum(x < y for x, y in pairs))
+        rows.append((g, len(groups[g]), stats))
+    return swept, rows
+
+
+def compare_to_markdown(key, a, b, swept, rows, metrics) -> str:
+    head = [*swept, "pairs"] + [c for m in metrics for c in (f"{m}: {a} − {b}", f"{a} / {b}", f"{a} lower")]
+    lines = [f"{key}: {a} against {b}, paired by seed", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for g, n, stats in rows:
+        cells = [*g, str(n)]
+        for m in metrics:
+            if m in stats:
+                d, sd, r, wins = stats[m]
+                cells += [f"{d:+.3g} ± {sd:.2g}", f"{r:.3f}", f"{wins}/{n}"]
+            else:
+                cells += ["", "", ""]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def to_markdown(swept, rows, metrics) -> str:
@@ -125,9 +176,18 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("sweep_dir", type=Path)
     p.add_argument("--metrics", nargs="+", default=list(DEFAULT_METRICS))
     p.add_argument("--out", type=Path, default=None, help="output prefix (default SWEEP_DIR/summary)")
+    p.add_argument("--compare", action="append", default=[], metavar="KEY=A,B",
+                   help="paired table of KEY=A against KEY=B (repeatable)")
     a = p.parse_args(argv)
-    swept, rows = summarize(load_jobs(a.sweep_dir), a.metrics)
+    jobs = load_jobs(a.sweep_dir)
+    swept, rows = summarize(jobs, a.metrics)
     md = to_markdown(swept, rows, a.metrics)
+    for spec in a.compare:
+        key, _, values = spec.partition("=")
+        pair = values.split(",")
+        if not key or len(pair) != 2:
+            p.error(f"--compare {spec!r}: expected KEY=A,B")
+        md += "\n" + compare_to_markdown(key, *pair, *compare(jobs, key, *pair, a.metrics), a.metrics)
     prefix = a.out or a.sweep_dir / "summary"
     Path(f"{prefix}.md").write_text(md)
     Path(f"{prefix}.csv").write_text(to_csv(swept, rows, a.metrics))

@@ -1,6 +1,6 @@
 import json
 
-from rbfn.summarize import load_jobs, main, summarize
+from rbfn.summarize import compare, load_jobs, main, summarize
 
 
 def _job(root, num, overrides, metrics):
@@ -29,3 +29,20 @@ def test_groups_by_swept_keys_over_seeds(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| aco | 10 | 2 |" in out
     assert (tmp_path / "summary.csv").is_file() and (tmp_path / "summary.png").is_file()
+
+
+def test_compare_pairs_jobs_by_seed(tmp_path, capsys):
+    n = 0
+    for c, err in (("aco", (1.0, 3.0)), ("kmeans", (2.0, 2.5)), ("random", (9.0, 9.0))):
+        for seed in (0, 1):
+            _job(tmp_path, n, [f"centers={c}", "rbfn.num_centers=10", f"seed={seed}"],
+                 {"test_pos_err_mm_median": err[seed]})
+            n += 1
+    swept, rows = compare(load_jobs(tmp_path), "centers", "aco", "kmeans", ("test_pos_err_mm_median",))
+    assert swept == []                                      # M is not swept here
+    ((g, pairs, stats),) = rows
+    diff, std, ratio, wins = stats["test_pos_err_mm_median"]
+    assert (pairs, diff, wins) == (2, -0.25, 1)             # (1 - 2 + 3 - 2.5) / 2; seed 0 only
+    assert abs(std - 0.75 * 2 ** 0.5) < 1e-12 and abs(ratio - (0.5 + 1.2) / 2) < 1e-12
+    main([str(tmp_path), "--metrics", "test_pos_err_mm_median", "--compare", "centers=aco,kmeans"])
+    assert "| 2 | -0.25 ± 1.1 | 0.850 | 1/2 |" in capsys.readouterr().out
