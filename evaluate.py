@@ -1,15 +1,18 @@
-"""Evaluate a trained IK network on a fresh test set (and, later, the closed-loop scenarios).
+"""Evaluate: IK accuracy of a trained network on a fresh test set, and the closed-loop scenario.
 
-    python evaluate.py                          # newest outputs/**/checkpoint.pt
+    python evaluate.py                          # newest outputs/**/checkpoint.pt, then control
     python evaluate.py checkpoint=PATH n_test=20000
+    python evaluate.py gains=paper ik=false     # the closed loop alone, the paper's gains
 
-Writes metrics.json, workspace_error_map.png and TensorBoard events into the Hydra run directory.
+With no checkpoint given and none found, the IK part is skipped and the control part runs alone.
+Writes metrics.json (`ik`, `control`), workspace_error_map.png, control_<controller>.png and
+TensorBoard events into the Hydra run directory.
 """
 from __future__ import annotations
 
 import copy
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
@@ -22,6 +25,8 @@ from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
+from rbfn.config import ControlConfig, GainsConfig, validate_control
+from rbfn.control.study import print_control_table, run_control
 from rbfn.checkpoint import atomic_write_bytes, model_from_checkpoint, read_checkpoint
 from rbfn.data import make_split
 from rbfn.plots import workspace_error_map
@@ -35,24 +40,33 @@ EVAL_STREAM = 777
 class EvalConfig:
     checkpoint: Optional[str] = None   # null: the newest checkpoint.pt under outputs_dir
     outputs_dir: str = "outputs"
+    ik: bool = True                    # the IK part (needs a checkpoint)
     n_test: int = 10000
     seed: Optional[int] = None         # null: the training seed's fresh evaluation stream
     device: str = "cpu"
     num_threads: int = 0
+    gains: GainsConfig = field(default_factory=GainsConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
 
 
 ConfigStore.instance().store(name="evaluate_schema", node=EvalConfig)
+ConfigStore.instance().store(group="gains", name="gains_schema", node=GainsConfig)
 
 
-def find_checkpoint(cfg: EvalConfig) -> Path:
-    """The checkpoint to evaluate: `cfg.checkpoint`, or the newest one under `cfg.outputs_dir`."""
+def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
+    """The checkpoint to evaluate: `cfg.checkpoint`, or the newest one under `cfg.outputs_dir`
+    (None when there is none)."""
     if cfg.checkpoint:
-        return Path(to_absolute_path(cfg.checkpoint))
+        path = Path(to_absolute_path(cfg.checkpoint))
+        if not path.is_file():
+            raise FileNotFoundError(f"checkpoint={cfg.checkpoint}: no such file ({path})")
+        return path
     root = Path(to_absolute_path(cfg.outputs_dir))
     found = sorted(root.glob("**/checkpoint.pt"), key=lambda p: p.stat().st_mtime)
     if not found:
-        raise FileNotFoundError(f"no checkpoint.pt under {root}; run `python train.py` first or "
-                                "pass checkpoint=PATH")
+        print(f"no checkpoint.pt under {root} (run `python train.py` or pass checkpoint=PATH): "
+              "skipping the IK part")
+        return None
     print(f"evaluating the newest checkpoint: {found[-1]}")
     return found[-1]
 
@@ -109,13 +123,22 @@ def main(dcfg: DictConfig) -> None:
     cfg: EvalConfig = OmegaConf.to_object(dcfg)
     if cfg.n_test <= 0:
         raise ValueError(f"n_test={cfg.n_test} must be > 0")
+    validate_control(cfg.control, cfg.gains)
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     writer = SummaryWriter(log_dir=str(out_dir))
-    metrics = {"ik": evaluate_ik(find_checkpoint(cfg), cfg, out_dir, writer)}
-    # Flat IK keys at the top level too, as train.py writes them.
-    metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
+    metrics: dict = {}
+    ckpt = find_checkpoint(cfg) if cfg.ik else None
+    if ckpt is not None:
+        metrics["ik"] = evaluate_ik(ckpt, cfg, out_dir, writer)
+        # Flat IK keys at the top level too, as train.py writes them.
+        metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
+    if cfg.control.enabled:
+        control = run_control(cfg.control, cfg.gains, cfg.device, writer, out_dir)
+        metrics["control_info"] = control.pop("_info")
+        metrics["control"] = control
+        print_control_table(control)
     writer.close()
     text = json.dumps(metrics, indent=2).encode()
     atomic_write_bytes(out_dir / "metrics.json", lambda f: f.write(text))

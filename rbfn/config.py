@@ -12,7 +12,7 @@ from typing import Any, Optional
 
 __all__ = ["RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
            "RBFNConfig", "TrainConfig", "validate_train", "register_configs",
-           "SELECTORS", "COLONIES", "OBJECTIVES", "SOLVERS", "INPUT_SCALINGS"]
+           "GainsConfig", "NetworkConfig", "ControlConfig", "validate_control", "SELECTORS", "COLONIES", "OBJECTIVES", "SOLVERS", "INPUT_SCALINGS"]
 
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
 METHODS = ("aco", "kmeans", "random", "ols")
@@ -109,6 +109,54 @@ class TrainConfig:
     export: bool = True                # write ik.onnx and ik.pt2 next to checkpoint.pt
 
 
+@dataclass
+class GainsConfig:
+    """Feedback and adaptation gains shared by every controller of a comparison (group `gains`)."""
+
+    K: float = 50.0                # N m s / rad (N s / m): s feedback
+    Lambda: float = 20.0           # 1/s: sliding-surface slope
+    epsilon: float = 0.05          # N m (N): robust term amplitude
+    robust: str = "sat"            # sign | sat
+    boundary: float = 0.01         # rad/s (m/s): saturation boundary layer width of sat(s / boundary)
+    observer_gain: float = 1000.0   # 1/s: momentum-observer bandwidth
+    gamma: float = 500.0           # adaptation rate Gamma of dW/dt = Gamma h s^T (alpha = gamma dt)
+    gamma_decay: float = 1e9       # s: Gamma(t) = gamma / (1 + t / gamma_decay)
+    leakage: float = 0.0           # 1/s: sigma-modification
+    pd_kp: float = 0.0             # PD gains; 0: K Lambda and K, the same feedback as smc's K s
+    pd_kd: float = 0.0
+
+
+@dataclass
+class NetworkConfig:
+    """The adaptive controller's RBF network (controllers arbfn_<method>)."""
+
+    num_centers: int = 25
+    observer: bool = True              # combine the network with the momentum observer
+    warm_start: bool = False           # start W at the ridge fit of the pilot run's residual torque
+    seed: int = 0
+    aco: ACOConfig = field(default_factory=lambda: ACOConfig(iterations=100, ants=20))
+
+
+@dataclass
+class ControlConfig:
+    """The closed-loop scenario of evaluate.py (times in s, masses in kg)."""
+
+    enabled: bool = True
+    controllers: list[str] = field(default_factory=lambda: ["pd", "ctc", "smc", "smc_obs", "arbfn_aco",
+                                                            "arbfn_kmeans"])
+    payloads: list[float] = field(default_factory=lambda: [0.0, 10.0, 20.0])
+    duration: float = 10.0
+    dt: float = 1e-3
+    integrator: str = "rk4"            # rk4 | euler (semi-implicit)
+    payload_on: float = 1.0
+    payload_off: float = 4.0
+    friction: str = "sign"             # sign | smooth (tanh(qd / 0.01))
+    dtype: str = "float64"             # float64 | float32
+    compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
+    figure_payload: float = 10.0       # the payload case drawn in the 3x3 figures
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+
+
 def _allowed(name: str, value: Any, allowed: tuple) -> None:
     if value not in allowed:
         raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
@@ -161,6 +209,35 @@ def validate_train(cfg: TrainConfig) -> None:
         raise ValueError(f"num_threads={cfg.num_threads} must be >= 0")
     if not (cfg.device == "cpu" or cfg.device.startswith("cuda")):
         raise ValueError(f"device={cfg.device!r} is not allowed; use 'cpu' or 'cuda[:N]'")
+
+
+def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
+    """Raise ValueError naming the first bad value in the control part of evaluate's config."""
+    from .control.controllers import CONTROLLERS, ROBUST_TERMS
+    from .control.network import CENTER_METHODS
+
+    for name in c.controllers:
+        if name in CONTROLLERS[:-1]:
+            continue
+        if not (name.startswith("arbfn_") and name[6:] in CENTER_METHODS):
+            raise ValueError(f"control.controllers: unknown controller {name!r}; choose from "
+                             f"{list(CONTROLLERS[:-1])} or arbfn_<{'|'.join(CENTER_METHODS)}>")
+    for k, v in vars(gains).items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"gains.{k}={v} must be finite")
+    for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay"):
+        if not getattr(gains, k) > 0:
+            raise ValueError(f"gains.{k}={getattr(gains, k)} must be > 0")
+    for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd"):
+        if getattr(gains, k) < 0:
+            raise ValueError(f"gains.{k}={getattr(gains, k)} must be >= 0")
+    _allowed("gains.robust", gains.robust, ROBUST_TERMS)
+    _allowed("control.dtype", c.dtype, ("float64", "float32"))
+    _allowed("control.friction", c.friction, ("sign", "smooth"))
+    if any(not (math.isfinite(p) and p >= 0) for p in c.payloads) or not c.payloads:
+        raise ValueError(f"control.payloads={list(c.payloads)} must be a non-empty list of masses >= 0 kg")
+    if c.network.num_centers < 1:
+        raise ValueError(f"control.network.num_centers={c.network.num_centers} must be >= 1")
 
 
 def register_configs() -> None:

@@ -1,4 +1,4 @@
-"""Figures (matplotlib, Agg backend): the IK workspace error map."""
+"""Figures (matplotlib, Agg backend): the IK workspace error map, the closed loop's 3x3 figure."""
 from __future__ import annotations
 
 import matplotlib
@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 
-__all__ = ["workspace_error_map"]
+__all__ = ["workspace_error_map", "tracking_figure"]
 
 
 def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, title: str):
@@ -29,4 +29,32 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
     ax.set_title(title)
+    return fig
+
+
+def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.ndarray, title: str,
+                    window: tuple[float, float] | None = None):
+    """The paper's 3x3 figure: per joint (rows), position vs desired, error, control input.
+
+    t (T,) s; q, q_des (T, 3) rad, rad, m; tau (T, 3) N m, N m, N; `window` shades the payload.
+    """
+    units = (("rad", "N m"), ("rad", "N m"), ("m", "N"))
+    fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
+    for j in range(3):
+        panels = ((q[:, j], f"q{j + 1} [{units[j][0]}]"), (q_des[:, j] - q[:, j], f"e{j + 1} [{units[j][0]}]"),
+                  (tau[:, j], f"tau{j + 1} [{units[j][1]}]"))
+        for c, (y, label) in enumerate(panels):
+            ax = axes[j, c]
+            ax.plot(t, y, lw=0.8, label="actual" if c == 0 else None)
+            if c == 0:
+                ax.plot(t, q_des[:, j], "--", lw=0.8, label="desired")
+                ax.legend(loc="upper right", fontsize=7)
+            if window is not None:
+                ax.axvspan(*window, color="0.9", zorder=0)
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
     return fig

@@ -1,0 +1,22 @@
+"""Desired joint trajectories, precomputed on the whole time grid (no per-step Python work)."""
+from __future__ import annotations
+
+import torch
+
+__all__ = ["paper_trajectory"]
+
+
+def paper_trajectory(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The paper's desired joints, velocities and accelerations, each (T, 3), at times t (T,) in s.
+
+    q_d1 = 1 + 0.1 (sin t + sin 2t), q_d2 = 1 + 0.1 (cos 2t + cos 3t), q_d3 = 1 + 0.1 (sin 3t + sin 4t)
+    (rad, rad, m).
+    """
+    s, c = torch.sin, torch.cos
+    q = torch.stack([1 + 0.1 * (s(t) + s(2 * t)), 1 + 0.1 * (c(2 * t) + c(3 * t)),
+                     1 + 0.1 * (s(3 * t) + s(4 * t))], -1)
+    qd = torch.stack([0.1 * (c(t) + 2 * c(2 * t)), -0.1 * (2 * s(2 * t) + 3 * s(3 * t)),
+                      0.1 * (3 * c(3 * t) + 4 * c(4 * t))], -1)
+    qdd = torch.stack([-0.1 * (s(t) + 4 * s(2 * t)), -0.1 * (4 * c(2 * t) + 9 * c(3 * t)),
+                       -0.1 * (9 * s(3 * t) + 16 * s(4 * t))], -1)
+    return q, qd, qdd
