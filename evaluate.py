@@ -5,8 +5,11 @@
     python evaluate.py gains=paper ik=false     # the closed loop alone, the paper's gains
 
 With no checkpoint given and none found, the IK part is skipped and the control part runs alone.
-Writes metrics.json (`ik`, `control`), workspace_error_map.png, control_<controller>.png and
-TensorBoard events into the Hydra run directory.
+Parts: `ik` (accuracy on a fresh test set), `online` (the network adapting by LMS on a robot
+whose kinematics differ from its model; writes checkpoint_online.pt), `control` (every
+controller on every payload case). Writes metrics.json (`ik`, `online`, `control`),
+workspace_error_map.png, online_task_error.png, control_<controller>.png and TensorBoard events
+into the Hydra run directory.
 """
 from __future__ import annotations
 
@@ -25,7 +28,8 @@ from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
-from rbfn.config import ControlConfig, GainsConfig, validate_control
+from rbfn.config import ControlConfig, GainsConfig, OnlineConfig, validate_control, validate_online
+from rbfn.control.online_study import evaluate_online
 from rbfn.control.study import print_control_table, run_control
 from rbfn.checkpoint import atomic_write_bytes, model_from_checkpoint, read_checkpoint
 from rbfn.data import make_split
@@ -47,6 +51,7 @@ class EvalConfig:
     num_threads: int = 0
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
+    online: OnlineConfig = field(default_factory=OnlineConfig)
 
 
 ConfigStore.instance().store(name="evaluate_schema", node=EvalConfig)
@@ -124,6 +129,7 @@ def main(dcfg: DictConfig) -> None:
     if cfg.n_test <= 0:
         raise ValueError(f"n_test={cfg.n_test} must be > 0")
     validate_control(cfg.control, cfg.gains)
+    validate_online(cfg.online)
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
@@ -134,6 +140,8 @@ def main(dcfg: DictConfig) -> None:
         metrics["ik"] = evaluate_ik(ckpt, cfg, out_dir, writer)
         # Flat IK keys at the top level too, as train.py writes them.
         metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
+    if cfg.online.enabled and ckpt is not None:
+        metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
     if cfg.control.enabled:
         control = run_control(cfg.control, cfg.gains, cfg.device, writer, out_dir)
         metrics["control_info"] = control.pop("_info")

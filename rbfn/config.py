@@ -12,7 +12,7 @@ from typing import Any, Optional
 
 __all__ = ["RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
            "RBFNConfig", "TrainConfig", "validate_train", "register_configs",
-           "GainsConfig", "NetworkConfig", "ControlConfig", "validate_control", "SELECTORS", "COLONIES", "OBJECTIVES", "SOLVERS", "INPUT_SCALINGS"]
+           "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig", "validate_control", "validate_online", "SELECTORS", "COLONIES", "OBJECTIVES", "SOLVERS", "INPUT_SCALINGS"]
 
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
 METHODS = ("aco", "kmeans", "random", "ols")
@@ -157,6 +157,25 @@ class ControlConfig:
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
 
+@dataclass
+class OnlineConfig:
+    """Online IK adaptation in the closed loop (evaluate.py's `online` part; needs a checkpoint)."""
+
+    enabled: bool = True
+    duration: float = 20.0             # s
+    dt: float = 1e-3                   # s
+    path: str = "paper"                # paper (FK of the paper's joint trajectory) | circle | figure8
+    link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])    # relative, l1 and l2
+    offset_error: list[float] = field(default_factory=lambda: [0.02, 0.0, 0.0])  # rad, rad, m
+    sizes: list[float] = field(default_factory=lambda: [0.0, 0.01, 0.03, 0.05])  # sweep: link-1 error
+    learner: str = "nlms"              # nlms | rls
+    alpha0: float = 0.5                # NLMS step alpha(0)
+    decay: float = 0.0                 # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
+    forgetting: float = 0.9995         # RLS forgetting factor
+    update_every: int = 10             # control periods per update (the pairs of one mini-batch)
+    save_checkpoint: bool = True       # write checkpoint_online.pt (the default perturbation's network)
+
+
 def _allowed(name: str, value: Any, allowed: tuple) -> None:
     if value not in allowed:
         raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
@@ -238,6 +257,26 @@ def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
         raise ValueError(f"control.payloads={list(c.payloads)} must be a non-empty list of masses >= 0 kg")
     if c.network.num_centers < 1:
         raise ValueError(f"control.network.num_centers={c.network.num_centers} must be >= 1")
+
+
+def validate_online(c: OnlineConfig) -> None:
+    """Raise ValueError naming the first bad value in the `online` part of evaluate's config."""
+    from .control.task_space import PATHS
+    from .online import LEARNERS
+
+    _allowed("online.path", c.path, PATHS)
+    _allowed("online.learner", c.learner, LEARNERS)
+    if not (math.isfinite(c.dt) and c.dt > 0) or not (math.isfinite(c.duration) and c.duration >= 4.0):
+        raise ValueError(f"online.dt={c.dt} must be > 0 and online.duration={c.duration} >= 4 s "
+                         "(the metrics use the first and last 2 s)")
+    if len(c.link_error) != 2 or len(c.offset_error) != 3:
+        raise ValueError(f"online.link_error needs 2 values (l1, l2) and online.offset_error 3 "
+                         f"(joints 1-3); got {list(c.link_error)} and {list(c.offset_error)}")
+    if 0.03 not in c.sizes:
+        raise ValueError(f"online.sizes={list(c.sizes)} must include 0.03, the default perturbation")
+    if not 0 <= c.alpha0 < 2 or c.decay < 0 or not 0 < c.forgetting <= 1 or c.update_every < 1:
+        raise ValueError(f"online needs 0 <= alpha0 < 2, decay >= 0, 0 < forgetting <= 1, "
+                         f"update_every >= 1; got {c.alpha0}, {c.decay}, {c.forgetting}, {c.update_every}")
 
 
 def register_configs() -> None:

@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 
-__all__ = ["workspace_error_map", "tracking_figure"]
+__all__ = ["workspace_error_map", "tracking_figure", "online_figure"]
 
 
 def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, title: str):
@@ -55,6 +55,26 @@ def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.nda
             ax.grid(alpha=0.3)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def online_figure(t: np.ndarray, adapted: np.ndarray, frozen: np.ndarray, analytic: np.ndarray,
+                  t_update: np.ndarray, dw: np.ndarray, title: str):
+    """Task-space error (mm) over time for the adapted and frozen networks and the nominal
+    analytic IK, and the norm of the weight change."""
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for y, label in ((adapted, "adapted network"), (frozen, "network, no adaptation"),
+                     (analytic, "nominal analytic IK")):
+        a1.semilogy(t, np.maximum(y, 1e-6), lw=0.8, label=label)
+    a1.set_ylabel("task-space error [mm]")
+    a1.legend(fontsize=8)
+    a1.grid(alpha=0.3, which="both")
+    a2.plot(t_update, dw, lw=0.8)
+    a2.set_ylabel("|W - W0|")
+    a2.set_xlabel("t [s]")
+    a2.grid(alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
     return fig

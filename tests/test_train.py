@@ -68,3 +68,23 @@ def test_evaluate_fresh_test_set(trained, tmp_path):
     assert m["test_seed"] not in (0, 1, 2)  # training streams are seed * 1000 + {0, 1, 2}
     assert (tmp_path / "workspace_error_map.png").is_file()
     assert abs(m["test_pos_err_mm_median_float32"] / m["test_pos_err_mm_median"] - 1) < 0.05
+
+
+def test_online_adaptation_end_to_end(trained, tmp_path):
+    from rbfn.config import OnlineConfig
+    from rbfn.control.online_study import evaluate_online
+    from rbfn.config import GainsConfig
+
+    out, _ = trained
+    cfg = OnlineConfig(duration=4.0, sizes=[0.0, 0.03])
+    m = evaluate_online(out / "checkpoint.pt", cfg, GainsConfig(), out_dir=tmp_path)
+    for key in ("task_err_mm_rms_first_2s", "task_err_mm_rms_last_2s", "task_err_mm_rms_no_adapt",
+                "task_err_mm_rms_analytic_nominal"):
+        assert m[key] > 0 and m[key] == m[key]
+    # On the perturbed robot the adapted network ends better than the frozen one.
+    assert m["task_err_mm_rms_last_2s"] < m["task_err_mm_rms_no_adapt"]
+    assert [r["size"] for r in m["sweep"]] == [0.0, 0.03]
+    assert (tmp_path / "online_task_error.png").is_file()
+    adapted, original = load_model(tmp_path / "checkpoint_online.pt"), load_model(out / "checkpoint.pt")
+    assert not torch.equal(adapted.head.weight, original.head.weight)
+    assert torch.equal(adapted.centers, original.centers)

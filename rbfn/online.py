@@ -1,0 +1,86 @@
+"""Online learners for a network's output weights, batched over environments.
+
+Both adapt W (B, P, out) from design rows a (B, n, P) and targets y (B, n, out) (n recent pairs
+per update). `NLMS`: W <- W + alpha(t) mean_i a_i e_i^T / (|a_i|^2 + eps), alpha(t) = alpha0 /
+(1 + t / decay) (the paper's LMS with alpha(0) = 0.5). `RLS`: recursive least squares with
+forgetting factor lambda, which converges in a few passes where LMS crawls on the
+ill-conditioned bases of accurate wide-width fits. A pair with a non-finite row or target is
+skipped (its environment's weights are left as they were) and counted in `rejected`.
+"""
+from __future__ import annotations
+
+import torch
+
+__all__ = ["NLMS", "RLS", "LEARNERS", "make_learner"]
+
+LEARNERS = ("nlms", "rls")
+
+
+class NLMS:
+    """Normalised least mean squares; weights (B, P, out)."""
+
+    def __init__(self, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0, eps: float = 1e-6) -> None:
+        if not 0.0 <= alpha0 < 2.0:
+            raise ValueError(f"alpha0={alpha0} must be in [0, 2) for normalised LMS to be stable")
+        if decay < 0:
+            raise ValueError(f"decay={decay} must be >= 0 (0: no decay)")
+        self.w, self.alpha0, self.decay, self.eps = weights.clone(), alpha0, decay, eps
+        self.rejected = 0
+
+    def alpha(self, t: float) -> float:
+        return self.alpha0 / (1.0 + t / self.decay) if self.decay else self.alpha0
+
+    def update(self, a: torch.Tensor, y: torch.Tensor, t: float = 0.0) -> torch.Tensor:
+        """One step on pairs a (B, n, P), y (B, n, out); returns the prior errors (B, n, out)."""
+        ok = _finite(a, y)
+        a, y = torch.where(ok[..., None], a, 0.0), torch.where(ok[..., None], y, 0.0)
+        e = (y - a @ self.w) * ok[..., None]
+        norm = a.square().sum(-1, keepdim=True) + self.eps
+        n = ok.sum(-1).clamp_min(1)[:, None, None]
+        self.w = self.w + self.alpha(t) * (a / norm).transpose(1, 2) @ e / n
+        self.rejected += int((~ok).sum())
+        return e
+
+
+class RLS:
+    """Recursive least squares with exponential forgetting; weights (B, P, out), P (B, P, P)."""
+
+    def __init__(self, weights: torch.Tensor, forgetting: float = 0.999, delta: float = 1e2) -> None:
+        if not 0.0 < forgetting <= 1.0:
+            raise ValueError(f"forgetting={forgetting} must be in (0, 1]")
+        if not delta > 0:
+            raise ValueError(f"delta={delta} must be > 0 (initial inverse-covariance scale)")
+        b, p, _ = weights.shape
+        self.w, self.lam = weights.clone(), forgetting
+        self.p = delta * torch.eye(p, dtype=weights.dtype, device=weights.device).expand(b, p, p).clone()
+        self.rejected = 0
+
+    def update(self, a: torch.Tensor, y: torch.Tensor, t: float = 0.0) -> torch.Tensor:
+        ok = _finite(a, y)
+        errs = []
+        for i in range(a.shape[1]):                      # rank-one updates, pair by pair
+            ai, yi, oki = a[:, i], y[:, i], ok[:, i]
+            ai, yi = torch.where(oki[:, None], ai, 0.0), torch.where(oki[:, None], yi, 0.0)
+            e = yi - (ai[:, None, :] @ self.w)[:, 0]
+            pa = (self.p @ ai[..., None])[..., 0]                              # (B, P)
+            k = pa / (self.lam + (ai * pa).sum(-1, keepdim=True))
+            k = k * oki[:, None]
+            self.w = self.w + k[..., None] * e[:, None, :]
+            lam = torch.where(oki, self.lam, 1.0)[:, None, None]
+            self.p = (self.p - k[..., None] * pa[:, None, :]) / lam
+            errs.append(e * oki[:, None])
+        self.rejected += int((~ok).sum())
+        return torch.stack(errs, 1)
+
+
+def _finite(a: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    return torch.isfinite(a).all(-1) & torch.isfinite(y).all(-1)
+
+
+def make_learner(name: str, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0,
+                 forgetting: float = 0.999):
+    if name == "nlms":
+        return NLMS(weights, alpha0, decay)
+    if name == "rls":
+        return RLS(weights, forgetting)
+    raise ValueError(f"unknown online learner {name!r}; choose one of {list(LEARNERS)}")
