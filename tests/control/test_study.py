@@ -77,3 +77,16 @@ def test_gains_group_composes(gains, k):
         cfg = OmegaConf.to_object(compose("evaluate", overrides=[f"gains={gains}"]))
     assert cfg.gains.K == k and cfg.gains.Lambda <= 20 and cfg.control.controllers[-2:] == ["arbfn_aco", "arbfn_kmeans"]
     validate_control(cfg.control, cfg.gains)
+
+
+def test_control_gains_preset_composes():
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    import evaluate  # noqa: F401
+
+    conf = str(Path(__file__).resolve().parents[2] / "conf")
+    with initialize_config_dir(config_dir=conf, version_base="1.3"):
+        cfg = compose("evaluate", overrides=["experiment=control_gains"], return_hydra_config=True)
+    assert cfg.hydra.sweeper.params["gains.K"] == "15,30,50" and cfg.ik is False
