@@ -1,88 +1,135 @@
-"""IK queries per second at a large batch: the RBF network (torch module, ONNX under
-onnxruntime) against the closed-form SCARA IK, float32, CPU, with each one's accuracy.
+"""IK queries per second at a large batch, float32: the RBF network (torch module, ONNX under
+onnxruntime) against the closed-form SCARA IK and pytorch-kinematics' iterative IK, each with
+its accuracy (median FK position error of its answers).
 
-    python bench/ik_throughput.py CHECKPOINT [--batch 100000] [--threads 1] [--repeats 7]
-
-Prints a Markdown table (median of --repeats timed calls after a warm-up) with the thread count.
+Positions are FK images of joints drawn uniformly in the trained branch (in the workspace).
+pytorch-kinematics' damped least squares is position-only (orientation weight 0) with restarts
+drawn uniformly within the URDF limits; of each query's restarts the one with the smallest
+position error on the trained elbow (q2 > 0) is kept. It is slow, so it runs on a smaller batch
+and its rate is per query.
 """
 from __future__ import annotations
 
-import argparse
-import os
-import platform
-import statistics
+import copy
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
+from rbfn import RBFNetwork, load_model
+from rbfn.robots import joint_limits, load_serial_chain, scara
 
-def _time(fn, repeats: int) -> float:
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts)
+from .timing import median_seconds, timed
+
+__all__ = ["BRANCH_LOW", "BRANCH_HIGH", "build_network", "workspace_positions", "ik_rows"]
+
+BRANCH_LOW, BRANCH_HIGH = (0.0, 0.3, 0.5), (2.0, 2.0, 1.5)   # the trained joint box: rad, rad, m
 
 
-def main() -> None:
-    p = argparse.ArgumentParser()
-    p.add_argument("checkpoint", type=Path)
-    p.add_argument("--batch", type=int, default=100_000)
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--repeats", type=int, default=7)
-    a = p.parse_args()
-    torch.set_num_threads(a.threads)
+def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine: bool = True,
+                  threads: int = 1) -> RBFNetwork:
+    """The network under test: a checkpoint's, or one trained here by train.py's pipeline
+    (k-means centres with gradient refinement, `num_centers` centres, default data)."""
+    if checkpoint is not None:
+        return load_model(checkpoint)
+    import train
+    from rbfn.config import CentersConfig, RefineConfig, TrainConfig
 
-    from rbfn import load_model
-    from rbfn.export import export_onnx
-    from rbfn.robots import scara
+    cfg = TrainConfig(centers=CentersConfig(name="kmeans_refine", method="kmeans",
+                                            refine=RefineConfig(enabled=refine)),
+                      num_threads=threads, progress=False, export=False)
+    cfg.rbfn.num_centers = num_centers
+    with tempfile.TemporaryDirectory() as d:
+        train.run(cfg, Path(d))
+        return load_model(Path(d) / "checkpoint.pt")
 
-    net = load_model(a.checkpoint).float()
-    g = torch.Generator().manual_seed(123)
-    low, high = torch.tensor([0.0, 0.3, 0.5]), torch.tensor([2.0, 2.0, 1.5])
-    q = low + torch.rand(a.batch, 3, generator=g) * (high - low)
-    x = scara.fk(q.double()).float()
 
-    def err_mm(q_hat: torch.Tensor) -> float:
-        return float(((scara.fk(q_hat.double()) - x.double()).norm(dim=-1) * 1000).median())
+def workspace_positions(n: int, seed: int = 123) -> tuple[torch.Tensor, torch.Tensor]:
+    """(joints (n, 3) float64 drawn in the trained branch, their positions (n, 3) float32 in m)."""
+    g = torch.Generator().manual_seed(seed)
+    low, high = torch.tensor(BRANCH_LOW, dtype=torch.float64), torch.tensor(BRANCH_HIGH, dtype=torch.float64)
+    q = low + torch.rand(n, 3, dtype=torch.float64, generator=g) * (high - low)
+    return q, scara.fk(q).float()
 
+
+def _err_mm(q_hat: torch.Tensor, x: torch.Tensor) -> float:
+    """Median FK position error (mm) of joints q_hat (B, 3) for targets x (B, 3)."""
+    q_hat, x = q_hat.detach().cpu().double(), x.detach().cpu().double()
+    return float((scara.fk(q_hat) - x).norm(dim=-1).median() * 1000)
+
+
+def pk_iterative_ik(chain, x: torch.Tensor, retries: int, seed: int = 0) -> tuple[torch.Tensor, float]:
+    """pytorch-kinematics' PseudoInverseIK, position only; (joints (B, 3), share on the q2 > 0 elbow)."""
+    import pytorch_kinematics as pk
+
+    low, high = joint_limits(chain)
+    limits = torch.stack([low, high], -1).to(dtype=chain.dtype, device=x.device)
+    torch.manual_seed(seed)   # the solver draws its restarts from the global generator
+    ik = pk.PseudoInverseIK(chain, num_retries=retries, joint_limits=limits, max_iterations=50,
+                            pos_tolerance=1e-4, rot_tolerance=1e9, orientation_weight=0.0)
+    sol = ik.solve(pk.Transform3d(pos=x, dtype=chain.dtype, device=x.device))
+    score = sol.err_pos + 1e3 * (sol.solutions[..., 1] <= 0)          # (B, retries): wrong elbow last
+    best = sol.solutions[torch.arange(x.shape[0], device=x.device), score.argmin(1)]
+    return best, float((best[:, 1] > 0).float().mean())
+
+
+def ik_rows(net: RBFNetwork, batch: int = 100_000, device: str = "cpu", repeats: int = 7,
+            pk_batch: int = 1000, pk_retries: int = 10, pk_repeats: int = 3, threads: int = 1,
+            onnx: bool = True, compiled: bool = False) -> list[dict]:
+    """One row per IK method: queries/s, its ratio to the closed form and to pytorch-kinematics,
+    and the median FK error (mm) of its answers. `compiled` adds the torch.compile'd module
+    (its compile seconds in the note); `onnx` the ONNX model under onnxruntime, if installed."""
+    _, x_cpu = workspace_positions(batch)
+    x = x_cpu.to(device)
+    net32 = copy.deepcopy(net).float().to(device).eval()
     rows = []
+
+    def add(name: str, dev: str, n: int, seconds: float, answer: torch.Tensor, note: str = "") -> None:
+        rows.append({"method": name, "device": dev, "batch": n, "queries_per_s": n / seconds,
+                     "median_err_mm": _err_mm(answer, x_cpu[:n]), "note": note})
+
     with torch.inference_mode():
-        t = _time(lambda: net(x), a.repeats)
-        rows.append(("RBF network, torch module", t, err_mm(net(x))))
-        t = _time(lambda: net.solve(x), a.repeats)
-        rows.append(("RBF network + workspace flag, torch", t, err_mm(net(x))))
-        t = _time(lambda: scara.ik(x), a.repeats)
-        rows.append(("closed-form SCARA IK, torch", t, err_mm(scara.ik(x))))
+        t, _ = median_seconds(lambda: net32(x), repeats, device)
+        add(f"RBF network, torch (M = {net.num_centers})", device, batch, t, net32(x))
+        t, _ = median_seconds(lambda: net32.solve(x), repeats, device)
+        add("RBF network + workspace flag, torch", device, batch, t, net32(x))
+        if compiled:
+            fast = torch.compile(net32)
+            first = timed(lambda: fast(x), device)
+            t, _ = median_seconds(lambda: fast(x), repeats, device)
+            add("RBF network, torch.compile", device, batch, t, fast(x), f"compile {first - t:.1f} s")
+        t, _ = median_seconds(lambda: scara.ik(x), repeats, device)
+        add("closed-form SCARA IK, torch", device, batch, t, scara.ik(x))
     try:
         import onnxruntime as ort
+    except ImportError:
+        ort = None
+        rows.append({"method": "RBF network + flag, ONNX (onnxruntime)", "device": "cpu", "batch": batch,
+                     "queries_per_s": None, "median_err_mm": None, "note": "onnxruntime not installed"})
+    if ort is not None and onnx:
+        from rbfn.export import export_onnx
 
         with tempfile.TemporaryDirectory() as d:
-            path = export_onnx(load_model(a.checkpoint), Path(d) / "ik.onnx")
+            path = export_onnx(net, Path(d) / "ik.onnx")
             so = ort.SessionOptions()
-            so.intra_op_num_threads = a.threads
-            so.inter_op_num_threads = 1
+            so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
             sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-            xn = x.numpy()
-            t = _time(lambda: sess.run(None, {"positions": xn}), a.repeats)
-            rows.append(("RBF network + flag, ONNX (onnxruntime)", t,
-                         err_mm(torch.from_numpy(sess.run(None, {"positions": xn})[0]))))
-    except ImportError:
-        print("onnxruntime not installed: ONNX row skipped")
+        xn = x_cpu.numpy()
+        t, _ = median_seconds(lambda: sess.run(None, {"positions": xn}), repeats)
+        add("RBF network + flag, ONNX (onnxruntime)", "cpu", batch, t,
+            torch.from_numpy(sess.run(None, {"positions": xn})[0]), f"onnxruntime {ort.__version__}")
 
-    closed = next(r[1] for r in rows if r[0].startswith("closed"))
-    print(f"# IK throughput, batch {a.batch}, float32, CPU, {a.threads} thread(s); torch {torch.__version__}; "
-          f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; "
-          f"M = {net.num_centers}")
-    print("| method | queries/s | time / closed form | median FK error (mm) |\n|---|---|---|---|")
-    for name, t, e in rows:
-        print(f"| {name} | {a.batch / t:.3g} | {t / closed:.2f} | {e:.4g} |")
+    chain = load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float32, device)
+    xs = x[:pk_batch]
+    t, _ = median_seconds(lambda: pk_iterative_ik(chain, xs, pk_retries), pk_repeats, device, warmup=1)
+    best, right = pk_iterative_ik(chain, xs, pk_retries)
+    add(f"pytorch-kinematics PseudoInverseIK ({pk_retries} restarts)", device, pk_batch, t, best,
+        f"position only, 50 iterations max, tol 0.1 mm; right elbow {100 * right:.1f} %")
 
-
-if __name__ == "__main__":
-    main()
+    closed = next(r["queries_per_s"] for r in rows if r["method"].startswith("closed"))
+    iterative = rows[-1]["queries_per_s"]
+    for r in rows:
+        qps = r["queries_per_s"]
+        r["x_closed_form"] = qps / closed if qps else None
+        r["x_pk_iterative"] = qps / iterative if qps else None
+    return rows

@@ -1,84 +1,107 @@
-"""Centre-selection time: ACO_R and the paper's Ant System against k-means, and where ACO's time goes.
+"""Centre-selection time: ACO (ACO_R, and the paper's Ant System) at the paper's NC_max = 100
+against scikit-learn KMeans (k-means++, n_init = 10), on the SCARA IK training set.
 
-    python bench/select_time.py [--n 2000] [--m 40] [--iterations 100] [--threads 1] [--device cpu]
-
-Times (median of --repeats runs) the selection alone on the SCARA IK training set: `aco`
-(ACO_R over centres and per-centre widths, fit objective), `aco_paper` (Ant System, paper
-width rule, fit objective), the Ant System with the `cluster` objective, and scikit-learn
-KMeans (k-means++, n_init = 10). Then profiles one ACO_R run with torch.profiler.
+`aco` is ACO_R over centres and per-centre widths on the validation fit objective (seeded by
+k-means), `aco_paper` the Ant System over 500 candidate points with the paper's width rule, both
+with 20 ants. The colony reports after every iteration (`on_state`), which times each one: a
+run's time is its set-up (k-means seed, first archive, candidate pool) plus its iterations. Where
+a full run would take longer than the caller allows, the time of 100 iterations is extrapolated
+from a short probe run (set-up + 100 x the median iteration) and marked so.
 """
 from __future__ import annotations
 
-import argparse
-import os
-import platform
 import statistics
 import time
 
 import torch
 
+from rbfn.config import CentersConfig
+from rbfn.data import input_scaling, make_dataset
+from rbfn.objectives import FitObjective
+from rbfn.robots import load_serial_chain, scara
+from rbfn.select import select
 
-def main() -> None:
-    p = argparse.ArgumentParser()
-    p.add_argument("--n", type=int, default=2000)
-    p.add_argument("--m", type=int, default=40)
-    p.add_argument("--iterations", type=int, default=100)
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--device", default="cpu")
-    a = p.parse_args()
-    torch.set_num_threads(a.threads)
+from .ik_throughput import BRANCH_HIGH, BRANCH_LOW
+from .timing import median_seconds, sync
 
+__all__ = ["COLONIES", "selection_objective", "aco_config", "time_aco", "time_kmeans", "select_rows"]
+
+COLONIES = {"aco": ("acor", "per_center"), "aco_paper": ("ant_system", "paper")}   # colony, width rule
+NC_MAX = 100
+
+
+def selection_objective(n: int, device: str = "cpu", seed: int = 0) -> FitObjective:
+    """The fit objective on N training pairs (N / 2 validation pairs), inputs centred in metres."""
+    chain = load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float64)
+    low, high = torch.tensor(BRANCH_LOW, dtype=torch.float64), torch.tensor(BRANCH_HIGH, dtype=torch.float64)
+    data = make_dataset(chain, low, high, (n, n // 2, 10), seed=seed)
+    off, sc = input_scaling(data.train.x, "metres")
+    tr, val = data.train.to(device=device), data.val.to(device=device)
+    off, sc = off.to(device), sc.to(device)
+    return FitObjective((tr.x - off) / sc, tr.q, (val.x - off) / sc, val.q, eval_dtype=torch.float32)
+
+
+def aco_config(name: str, iterations: int = NC_MAX) -> CentersConfig:
+    """The `centers=aco` or `centers=aco_paper` selection with `iterations` (NC_max)."""
+    colony, rule = COLONIES[name]
+    c = CentersConfig(name=name, method="aco", width_rule=rule)
+    c.aco.colony, c.aco.objective, c.aco.iterations = colony, "fit", iterations
+    return c
+
+
+def time_aco(objective: FitObjective, name: str, m: int, iterations: int, device: str = "cpu") -> dict:
+    """One selection run; its wall seconds, set-up seconds and per-iteration seconds."""
+    stamps: list[float] = []
+
+    def on_state(_state: dict) -> None:
+        sync(device)
+        stamps.append(time.perf_counter())
+
+    sync(device)
+    t0 = time.perf_counter()
+    select(aco_config(name, iterations), objective, m, 0, 2.0, on_state=on_state)
+    sync(device)
+    total = time.perf_counter() - t0
+    iters = [b - a for a, b in zip(stamps, stamps[1:])]
+    per_iter = statistics.median(iters) if iters else (stamps[0] - t0 if stamps else total)
+    setup = (stamps[0] - t0 - per_iter) if stamps else total
+    return {"seconds": total, "setup_s": max(setup, 0.0), "per_iter_s": per_iter, "iterations": len(stamps)}
+
+
+def time_kmeans(objective: FitObjective, m: int, repeats: int) -> float:
+    """Median seconds of scikit-learn KMeans(m, n_init=10) on the training inputs."""
     from sklearn.cluster import KMeans
 
-    from rbfn.config import CentersConfig
-    from rbfn.data import input_scaling, make_dataset
-    from rbfn.objectives import FitObjective
-    from rbfn.robots import load_serial_chain, scara
-    from rbfn.select import select
-
-    chain = load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float64, a.device)
-    low = torch.tensor([0.0, 0.3, 0.5], dtype=torch.float64)
-    high = torch.tensor([2.0, 2.0, 1.5], dtype=torch.float64)
-    data = make_dataset(chain, low, high, (a.n, a.n // 2, 10), seed=0)
-    off, sc = input_scaling(data.train.x, "metres")
-    obj = FitObjective((data.train.x - off) / sc, data.train.q, (data.val.x - off) / sc, data.val.q,
-                       eval_dtype=torch.float32)
-
-    def cfg(colony: str, objective: str, rule: str) -> CentersConfig:
-        c = CentersConfig(method="aco", width_rule=rule)
-        c.aco.colony, c.aco.objective, c.aco.iterations = colony, objective, a.iterations
-        return c
-
-    cases = {
-        "aco (ACO_R, fit, centres + widths)": lambda: select(cfg("acor", "fit", "per_center"), obj, a.m, 0, 2.0),
-        "aco_paper (Ant System, fit, paper widths)": lambda: select(cfg("ant_system", "fit", "paper"), obj, a.m, 0, 2.0),
-        "Ant System, cluster objective": lambda: select(cfg("ant_system", "cluster", "paper"), obj, a.m, 0, 2.0),
-        "sklearn KMeans (k-means++, n_init=10)": lambda: KMeans(a.m, n_init=10, random_state=0).fit(
-            obj.z_train.cpu().numpy()),
-    }
-    print(f"# selection time, N = {a.n}, M = {a.m}, {a.iterations} iterations, 20 ants; torch "
-          f"{torch.__version__}, {a.threads} thread(s), device {a.device}, {platform.processor() or platform.machine()}, "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
-    print("| method | median s | runs |\n|---|---|---|")
-    for name, fn in cases.items():
-        ts = []
-        for _ in range(a.repeats):
-            t = time.perf_counter()
-            fn()
-            if a.device.startswith("cuda"):
-                torch.cuda.synchronize()
-            ts.append(time.perf_counter() - t)
-        print(f"| {name} | {statistics.median(ts):.3f} | {', '.join(f'{t:.3f}' for t in ts)} |")
-
-    from torch.profiler import ProfilerActivity, profile
-
-    acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if a.device.startswith("cuda") else [])
-    with profile(activities=acts) as prof:
-        cases["aco (ACO_R, fit, centres + widths)"]()
-    print("\n# where ACO_R's time goes (torch.profiler, self time)")
-    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=12))
+    z = objective.z_train.cpu().numpy()
+    return median_seconds(lambda: KMeans(m, n_init=10, random_state=0).fit(z), repeats, warmup=0)[0]
 
 
-if __name__ == "__main__":
-    main()
+def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_full_s: float = 20.0,
+                always_full=((10000, 40),), probe: int = 2, repeats: int = 3) -> list[dict]:
+    """Rows (N, M, method): seconds for NC_max = 100 (measured, or extrapolated from a `probe`-
+    iteration run when a full run is predicted above `max_full_s`, except (N, M) in
+    `always_full`), iterations run, and the ratio to KMeans on the same data."""
+    rows = []
+    for n in ns:
+        obj = selection_objective(n, device)
+        for m in ms:
+            km = time_kmeans(obj, m, repeats)
+            rows.append({"N": n, "M": m, "method": "sklearn KMeans (n_init = 10)", "device": "cpu",
+                         "seconds": km, "iterations": None, "how": f"median of {repeats}", "x_kmeans": 1.0})
+            for name in COLONIES:
+                p = time_aco(obj, name, m, probe, device)
+                predicted = p["setup_s"] + NC_MAX * p["per_iter_s"]
+                if predicted <= max_full_s or (n, m) in always_full:
+                    reps = repeats if predicted * repeats <= max_full_s else 1
+                    runs = [time_aco(obj, name, m, NC_MAX, device) for _ in range(reps)]
+                    secs = statistics.median(r["seconds"] for r in runs)
+                    its, how = runs[0]["iterations"], f"median of {reps}"
+                    per_iter = statistics.median(r["per_iter_s"] for r in runs)
+                else:
+                    secs, its, per_iter = predicted, NC_MAX, p["per_iter_s"]
+                    how = (f"extrapolated: set-up {p['setup_s']:.2f} s + 100 x {p['per_iter_s']:.3f} "
+                           "s/iteration")
+                rows.append({"N": n, "M": m, "method": f"{name} ({COLONIES[name][0]}, NC_max = 100)",
+                             "device": device, "seconds": secs, "iterations": its, "how": how,
+                             "per_iter_s": per_iter, "x_kmeans": secs / km})
+    return rows

@@ -33,3 +33,39 @@ def test_pt2_and_onnx_match_module(net, small_data, tmp_path, batch):
     y_onnx, in_onnx = sess.run(None, {"positions": x.numpy()})
     assert abs(y_onnx - y_ref.numpy()).max() < 1e-5
     assert (in_onnx == in_ref.numpy()).all()
+
+
+def _in_workspace_positions(n: int, seed: int = 5) -> torch.Tensor:
+    """FK images (n, 3) float32 of joints drawn in the trained branch (data's joint box)."""
+    from rbfn.robots import scara
+
+    g = torch.Generator().manual_seed(seed)
+    low = torch.tensor([0.0, 0.3, 0.5], dtype=torch.float64)
+    high = torch.tensor([2.0, 2.0, 1.5], dtype=torch.float64)
+    return scara.fk(low + torch.rand(n, 3, dtype=torch.float64, generator=g) * (high - low)).float()
+
+
+def test_round_trip_10k_positions_batches_1_7_10000(net, tmp_path):
+    """Issue 5's round trip: ONNX (onnxruntime) and .pt2 reproduce the float32 module to 1e-5 on
+    10k in-workspace positions, fed in batches of 1, 7 and 10000; prints the max differences."""
+    ort = pytest.importorskip("onnxruntime")
+    x = _in_workspace_positions(10_000)
+    with torch.no_grad():
+        y_ref, in_ref = net.float().solve(x)
+    net.double()
+    prog = torch.export.load(str(export_pt2(net, tmp_path / "ik.pt2"))).module()
+    sess = ort.InferenceSession(str(export_onnx(net, tmp_path / "ik.onnx")), providers=["CPUExecutionProvider"])
+    assert in_ref.float().mean() > 0.9                      # the positions are in the trained workspace
+    for batch in (1, 7, 10_000):
+        parts = x.split(batch)
+        with torch.no_grad():
+            pt2 = [prog(p) for p in parts]
+        onnx = [sess.run(None, {"positions": p.numpy()}) for p in parts]
+        y_pt2, in_pt2 = torch.cat([p[0] for p in pt2]), torch.cat([p[1] for p in pt2])
+        y_onnx = torch.cat([torch.from_numpy(o[0]) for o in onnx])
+        in_onnx = torch.cat([torch.from_numpy(o[1]) for o in onnx])
+        d_pt2, d_onnx = float((y_pt2 - y_ref).abs().max()), float((y_onnx - y_ref).abs().max())
+        print(f"batch {batch}: max |pt2 - module| = {d_pt2:.3g}, max |onnx - module| = {d_onnx:.3g}, "
+              f"workspace flags equal: {torch.equal(in_pt2, in_ref)} / {torch.equal(in_onnx, in_ref)}")
+        assert d_pt2 < 1e-5 and d_onnx < 1e-5
+        assert torch.equal(in_pt2, in_ref) and torch.equal(in_onnx, in_ref)

@@ -1,0 +1,192 @@
+"""Closed-loop simulator throughput: env-steps per second of `rbfn.control.simulate` (controller
+`smc_obs`, float32, RK4 at dt = 1 ms, 10 kg payload throughout), the wall time of one full
+10 s scenario at B = 1 (eager, and torch.compile'd in a capped child process), against scipy's
+solve_ivp for one environment and MuJoCo's rollout of the same arm where `mujoco` is installed.
+
+    python -m bench.simulator --compiled-scenario cpu   # the child process: prints one JSON line
+
+scipy integrates the same dynamics (sign friction, disturbance, payload window) with a PD law
+(Kp = K Lambda, Kd = K, the library's `pd` at the default gains) inside the right-hand side, by
+adaptive RK45. MuJoCo's rollout is open loop (its controls are computed beforehand: inverse
+dynamics along the reference minus the disturbance), so it does less work per step than the
+closed loop; friction is damping + frictionloss there.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+import torch
+
+from rbfn.control import Scenario, ScaraPlant, make_controller, paper_trajectory, simulate
+from rbfn.control.controllers import Gains
+from rbfn.robots import scara
+
+from .timing import median_seconds, timed
+
+__all__ = ["DT", "PAYLOAD", "closed_loop", "env_steps_rows", "scenario_seconds", "compiled_scenario",
+           "scipy_row", "mujoco_rows", "has_c_compiler"]
+
+DT, PAYLOAD = 1e-3, 10.0
+
+
+def closed_loop(b: int, duration: float, device: str = "cpu", compile: bool = False,
+                payload_window: tuple[float, float] | None = None):
+    """A no-argument function running B environments for `duration` s (final state only)."""
+    on, off = payload_window or (0.0, duration)
+    sc = Scenario(duration=duration, dt=DT, payload_on=on, payload_off=off, metrics_after=0.0)
+    ref = tuple(r.to(device) for r in paper_trajectory(sc.times(torch.float32, device)))
+    ctrl = make_controller("smc_obs", Gains(), DT)
+    q0, qd0 = ref[0][0].expand(b, 3).clone(), ref[1][0].expand(b, 3).clone()
+    payload = torch.full((b,), PAYLOAD, device=device)
+    plant = ScaraPlant()
+    return lambda: simulate(plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile)
+
+
+def env_steps_rows(steps_for: dict[int, int], device: str = "cpu", repeats: int = 3) -> list[dict]:
+    """Per B: seconds per closed-loop step and env-steps/s (median of `repeats` runs of n steps)."""
+    rows = []
+    for b, n in steps_for.items():
+        t, _ = median_seconds(closed_loop(b, n * DT, device), repeats, device)
+        rows.append({"B": b, "steps": n, "device": device, "seconds": t, "step_s": t / n,
+                     "env_steps_per_s": b * n / t})
+    return rows
+
+
+def _window(duration: float) -> tuple[float, float]:
+    """The paper's payload window, 1-4 s of 10 s, scaled to shorter runs."""
+    return 0.1 * duration, 0.4 * duration
+
+
+def scenario_seconds(device: str = "cpu", repeats: int = 3, duration: float = 10.0) -> float:
+    """Median wall seconds of one eager scenario (B = 1, payload 1-4 s of 10) after a short warm-up."""
+    closed_loop(1, 0.05, device)()
+    return median_seconds(closed_loop(1, duration, device, payload_window=_window(duration)), repeats,
+                          device, warmup=0)[0]
+
+
+def has_c_compiler() -> bool:
+    """torch.compile's CPU backend needs a C++ compiler."""
+    return any(shutil.which(c) for c in ("c++", "g++", "clang++"))
+
+
+def compiled_scenario(device: str, threads: int, cap_s: float, duration: float = 10.0) -> dict:
+    """The compiled scenario timed in a child process killed after `cap_s`: compile seconds
+    (first call minus a compiled run) and the median of two compiled runs, or why not."""
+    if device == "cpu" and not has_c_compiler():
+        return {"status": "no C++ compiler"}
+    cmd = [sys.executable, "-m", "bench.simulator", "--compiled-scenario", device,
+           "--threads", str(threads), "--duration", str(duration)]
+    t = time.perf_counter()
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=cap_s)
+    except subprocess.TimeoutExpired:
+        return {"status": f"not done within the {cap_s:.0f} s cap", "wall_s": time.perf_counter() - t}
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith("{")]
+    if out.returncode or not lines:
+        return {"status": f"failed (exit {out.returncode}): {out.stderr.strip()[-300:]}"}
+    return {"status": "ok", **json.loads(lines[-1])}
+
+
+def _compiled_child(device: str, threads: int, duration: float) -> None:
+    torch.set_num_threads(threads)
+    run = closed_loop(1, duration, device, compile=True, payload_window=_window(duration))
+    first = timed(run, device)
+    t, ts = median_seconds(run, 2, device, warmup=0)
+    print(json.dumps({"first_call_s": first, "seconds": t, "runs": ts, "compile_s": first - t}))
+
+
+def _pd_rhs(p: scara.ScaraParams, plant: ScaraPlant, gains: Gains, on: float, off: float):
+    """Right-hand side of the closed loop (state (6,): q, qd) in numpy, PD inside."""
+    kp, kd = gains.K * gains.Lambda, gains.K
+
+    def rhs(t: float, s: np.ndarray) -> np.ndarray:
+        q, qd = s[:3], s[3:]
+        st, ct = math.sin, math.cos
+        q_d = np.array([1 + 0.1 * (st(t) + st(2 * t)), 1 + 0.1 * (ct(2 * t) + ct(3 * t)),
+                        1 + 0.1 * (st(3 * t) + st(4 * t))])
+        v_d = np.array([0.1 * (ct(t) + 2 * ct(2 * t)), -0.1 * (2 * st(2 * t) + 3 * st(3 * t)),
+                        0.1 * (3 * ct(3 * t) + 4 * ct(4 * t))])
+        tau = kp * (q_d - q) + kd * (v_d - qd)
+        m3 = p.m3 + (PAYLOAD if on <= t < off else 0.0)
+        p1 = p.l1**2 * (p.m1 / 3 + p.m2 + m3) + p.l2**2 * (p.m2 / 3 + m3)
+        p2, p3 = p.l1 * p.l2 * (p.m2 / 2 + m3), p.l2**2 * (p.m2 / 3 + m3)
+        c2, h = math.cos(q[1]), p2 * math.sin(q[1])
+        r = (tau - plant.viscous * qd - plant.coulomb * np.sign(qd)
+             - plant.dist * math.sin(plant.dist_freq * t))
+        r[0] += h * (qd[1] * qd[0] + (qd[0] + qd[1]) * qd[1])
+        r[1] -= h * qd[0] * qd[0]
+        r[2] += m3 * p.g
+        m11, m12 = p1 + 2 * p2 * c2, p3 + p2 * c2
+        det = m11 * p3 - m12 * m12
+        qdd = np.array([(p3 * r[0] - m12 * r[1]) / det, (m11 * r[1] - m12 * r[0]) / det, r[2] / m3])
+        return np.concatenate([qd, qdd])
+
+    return rhs
+
+
+def scipy_row(duration: float = 10.0, repeats: int = 1) -> dict:
+    """One environment by scipy's solve_ivp (RK45, rtol 1e-6, atol 1e-8): wall seconds, RHS calls."""
+    from scipy.integrate import solve_ivp
+
+    plant = ScaraPlant()
+    rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
+    s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])   # the reference at t = 0
+    sol = {}
+
+    def run():
+        sol["r"] = solve_ivp(rhs, (0.0, duration), s0, method="RK45", rtol=1e-6, atol=1e-8)
+
+    t, _ = median_seconds(run, repeats, warmup=0)
+    return {"method": "scipy solve_ivp (RK45, PD in the RHS)", "B": 1, "duration": duration, "seconds": t,
+            "env_steps_per_s": duration / DT / t, "nfev": int(sol["r"].nfev), "ok": bool(sol["r"].success)}
+
+
+def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
+                integrator: str = "RK4") -> list[dict]:
+    """MuJoCo's rollout (dt = 1 ms, open loop) of B copies of the arm; [] if not installed."""
+    try:
+        import mujoco
+        from mujoco import rollout
+    except ImportError:
+        return []
+    from rbfn.robots.mjcf import scara_mjcf
+
+    model = mujoco.MjModel.from_xml_string(scara_mjcf(payload=PAYLOAD, dt=DT, integrator=integrator))
+    datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]
+    plant = ScaraPlant()
+    rows = []
+    for b, n in steps_for.items():
+        t_grid = torch.arange(n, dtype=torch.float64) * DT
+        q, qd, qdd = paper_trajectory(t_grid)
+        tau = (torch.einsum("bij,bj->bi", scara.mass_matrix(q, PAYLOAD), qdd)
+               + torch.einsum("bij,bj->bi", scara.coriolis(q, qd, PAYLOAD), qd) + scara.gravity(q, PAYLOAD)
+               + plant.friction_torque(qd) - plant.disturbance(t_grid)[:, None])
+        d = datas[0]
+        d.qpos[:], d.qvel[:] = q[0].numpy(), qd[0].numpy()
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state0 = np.empty(mujoco.mj_stateSize(model, spec))
+        mujoco.mj_getState(model, d, state0, spec)
+        init = np.tile(state0, (b, 1))
+        ctrl = np.ascontiguousarray(tau.numpy()[None])                       # (1, n, 3), tiled over B
+        out = np.empty((b, n, state0.shape[0]))
+        t, _ = median_seconds(lambda: rollout.rollout(model, datas if threads > 1 else d, init, ctrl,
+                                                      state=out), repeats)
+        rows.append({"B": b, "steps": n, "device": "cpu", "seconds": t, "env_steps_per_s": b * n / t,
+                     "mujoco": mujoco.__version__})
+    return rows
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description="child process of bench.simulator.compiled_scenario")
+    ap.add_argument("--compiled-scenario", required=True, metavar="DEVICE")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=10.0)
+    a = ap.parse_args()
+    _compiled_child(a.compiled_scenario, a.threads, a.duration)
