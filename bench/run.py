@@ -3,6 +3,7 @@ in one process, with how cost grows.
 
     python -m bench [--quick] [--device cpu|cuda] [--threads 1] [--out bench/results]
     python bench/run.py --checkpoint outputs/train/DATE/TIME/checkpoint.pt
+    python -m bench --merge a/benchmarks.json b/benchmarks.json --out DIR   # sections run apart
 
 Writes `benchmarks.md` (tables, issue 7's targets met or missed, torch.profiler tables of the
 slow paths of missed targets), `benchmarks.json` (every number, and the machine: platform, CPU
@@ -29,7 +30,7 @@ import torch
 from bench import ik_throughput, scaling, select_time, simulator
 from bench.timing import machine_info, profile_table
 
-__all__ = ["SIZES", "run_suite", "targets", "to_markdown", "main"]
+__all__ = ["SIZES", "run_suite", "targets", "to_markdown", "merge", "main"]
 
 # Problem sizes: `full` is issue 7's grid; `quick` proves every path in about a minute.
 SIZES = {
@@ -281,6 +282,19 @@ def to_markdown(res: dict, command: str) -> str:
     return "\n".join(parts)
 
 
+def merge(results: list[dict]) -> dict:
+    """One report from runs of separate sections (e.g. run side by side on separate pinned cores):
+    sections and profiles of all, the first run's machine, targets recomputed."""
+    res = {"machine": results[0]["machine"], "sections": {}, "profiles": {}, "seconds": {},
+           "command": " ; ".join(r.get("command", "?") for r in results)}
+    for r in results:
+        res["sections"].update(r["sections"])
+        res["profiles"].update(r.get("profiles", {}))
+        res["seconds"].update(r.get("seconds", {}))
+    res["targets"] = targets(res)
+    return res
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="small sizes: every path in about a minute")
@@ -290,7 +304,15 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--checkpoint", type=Path, default=None, help="IK network to measure (default: train one)")
     p.add_argument("--sections", default="ik,select,sim,scaling", help="comma-separated subset")
     p.add_argument("--no-profile", action="store_true", help="skip the profiles of missed targets")
+    p.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
+                   help="run nothing: merge these benchmarks.json files into one report in --out")
     a = p.parse_args(argv)
+    a.out.mkdir(parents=True, exist_ok=True)
+    if a.merge:
+        res = merge([json.loads(f.read_text()) for f in a.merge])
+        (a.out / "benchmarks.json").write_text(json.dumps(res, indent=1, default=str))
+        (a.out / "benchmarks.md").write_text(to_markdown(res, res["command"]))
+        return res
     if a.device.startswith("cuda") and not torch.cuda.is_available():
         p.error("--device cuda: no CUDA device is available")
     if a.threads < 1:
@@ -298,7 +320,6 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(a.threads)
     from threadpoolctl import threadpool_limits
 
-    a.out.mkdir(parents=True, exist_ok=True)
     command = "python -m bench " + " ".join(argv if argv is not None else sys.argv[1:])
     with threadpool_limits(a.threads):
         res = run_suite(SIZES["quick" if a.quick else "full"], a.device, a.threads, a.out, a.checkpoint,
