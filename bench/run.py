@@ -19,6 +19,7 @@ import copy
 import json
 import sys
 import time
+import traceback
 from pathlib import Path
 
 if __package__ in (None, ""):                       # `python bench/run.py`: import as a package
@@ -63,55 +64,73 @@ def run_suite(sizes: dict, device: str = "cpu", threads: int = 1, out: Path | No
               checkpoint: Path | None = None, sections=("ik", "select", "sim", "scaling"),
               profile: bool = True) -> dict:
     """Run the sections with `sizes` (a SIZES entry); returns every number. With `out`, the JSON
-    is rewritten after each section, so a run cut short keeps what it measured."""
-    res = {"machine": machine_info(device, threads), "sizes": sizes, "sections": {}, "seconds": {}}
-    net = None
+    is rewritten as results come in, so a run cut short keeps what it measured (a section still
+    running sits under "partial"); a section that fails is reported under "errors" and the
+    others still run."""
+    res = {"machine": machine_info(device, threads), "sizes": sizes, "sections": {}, "partial": {},
+           "errors": {}, "seconds": {}}
+    state = {}
 
-    def done(name: str, t0: float) -> None:
-        res["seconds"][name] = time.perf_counter() - t0
+    def save() -> None:
         if out is not None:
             (out / "benchmarks.json").write_text(json.dumps(res, indent=1, default=str))
 
-    if "ik" in sections:
-        t0, s = time.perf_counter(), sizes["ik"]
-        net = ik_throughput.build_network(checkpoint, s["num_centers"], s["refine"], threads)
+    def partial(name: str, value) -> None:
+        res["partial"][name] = value
+        save()
+
+    def ik(s: dict):
+        state["net"] = ik_throughput.build_network(checkpoint, s["num_centers"], s["refine"], threads)
         compiled = s["compiled"] and (device != "cpu" or simulator.has_c_compiler())
-        res["sections"]["ik"] = ik_throughput.ik_rows(
-            net, s["batch"], device, s["repeats"], s["pk_batch"], s["pk_retries"], s["pk_repeats"], threads,
-            onnx=s.get("onnx", True), compiled=compiled)
-        done("ik", t0)
-    if "select" in sections:
-        t0, s = time.perf_counter(), sizes["select"]
-        res["sections"]["select"] = select_time.select_rows(s["ns"], s["ms"], device, s["max_full_s"],
-                                                            s["always_full"], s["probe"], s["repeats"])
-        done("select", t0)
-    if "sim" in sections:
-        t0, s = time.perf_counter(), sizes["sim"]
-        sim = {"steps": simulator.env_steps_rows(s["steps_for"], device, s["repeats"]),
-               "scenario_eager_s": simulator.scenario_seconds(device, s["scenario_repeats"], s["scenario_s"]),
-               "scenario_s": s["scenario_s"], "scipy": simulator.scipy_row(s["scipy_s"]),
-               "mujoco": {i: simulator.mujoco_rows(s["mujoco_steps_for"], threads, s["repeats"], i)
-                          for i in MUJOCO_INTEGRATORS}}
-        sim["scenario_compiled"] = (simulator.compiled_scenario(device, threads, s["compile_cap_s"],
-                                                                s["scenario_s"])
-                                    if s["compile_cap_s"] > 0 else {"status": "skipped (--quick)"})
-        res["sections"]["sim"] = sim
-        done("sim", t0)
-    if "scaling" in sections:
-        t0, s = time.perf_counter(), sizes["scaling"]
-        steps = res["sections"].get("sim", {}).get("steps") or simulator.env_steps_rows(
+        return ik_throughput.ik_rows(state["net"], s["batch"], device, s["repeats"], s["pk_batch"],
+                                     s["pk_retries"], s["pk_repeats"], threads, onnx=s.get("onnx", True),
+                                     compiled=compiled)
+
+    def select(s: dict):
+        return select_time.select_rows(s["ns"], s["ms"], device, s["max_full_s"], s["always_full"], s["probe"],
+                                       s["repeats"], on_row=lambda rows: partial("select", rows))
+
+    def sim(s: dict):
+        r = {"steps": simulator.env_steps_rows(s["steps_for"], device, s["repeats"]),
+             "scenario_s": s["scenario_s"]}
+        partial("sim", r)
+        r["scenario_eager_s"] = simulator.scenario_seconds(device, s["scenario_repeats"], s["scenario_s"])
+        r["scipy"] = simulator.scipy_row(s["scipy_s"])
+        r["mujoco"] = {i: simulator.mujoco_rows(s["mujoco_steps_for"], threads, s["repeats"], i)
+                       for i in MUJOCO_INTEGRATORS}
+        partial("sim", r)
+        cap = s["compile_cap_s"]
+        r["scenario_compiled"] = (simulator.compiled_scenario(device, threads, cap, s["scenario_s"]) if cap > 0
+                                  else {"status": "skipped (--quick)"})
+        return r
+
+    def scale(s: dict):
+        steps = (res["sections"].get("sim") or {}).get("steps") or simulator.env_steps_rows(
             sizes["sim"]["steps_for"], device, 1)
-        res["sections"]["scaling"] = scaling.scaling_curves(s["ns"], s["ms"], s["ks"], steps, device,
-                                                            repeats=s["repeats"])
+        curves = scaling.scaling_curves(s["ns"], s["ms"], s["ks"], steps, device, repeats=s["repeats"])
         if out is not None:
-            scaling.plot_curves(res["sections"]["scaling"], out / f"scaling_{device.split(':')[0]}.png",
+            scaling.plot_curves(curves, out / f"scaling_{device.split(':')[0]}.png",
                                 f"{res['machine']['cpu']}, {threads} thread(s), device {device}")
-        done("scaling", t0)
+        return curves
+
+    for name, fn in (("ik", ik), ("select", select), ("sim", sim), ("scaling", scale)):
+        if name not in sections:
+            continue
+        t0 = time.perf_counter()
+        try:
+            res["sections"][name] = fn(sizes[name])
+        except Exception:                         # report it, keep measuring the other sections
+            res["errors"][name] = traceback.format_exc()[-3000:]
+            print(res["errors"][name], file=sys.stderr)
+        res["partial"].pop(name, None)
+        res["seconds"][name] = time.perf_counter() - t0
+        save()
     res["targets"] = targets(res)
     if profile:
         t0 = time.perf_counter()
-        res["profiles"] = profiles(res, sizes, device, net)
-        done("profiles", t0)
+        res["profiles"] = profiles(res, sizes, device, state.get("net"))
+        res["seconds"]["profiles"] = time.perf_counter() - t0
+        save()
     return res
 
 
@@ -279,18 +298,19 @@ def to_markdown(res: dict, command: str) -> str:
         [[t["target"], t["measured"], t["goal"], verdict[t["met"]]] for t in res["targets"]]), ""]
     for name, table in res.get("profiles", {}).items():
         parts += [f"### Profile: {name}", "", "```", table.rstrip(), "```", ""]
+    for name, tb in res.get("errors", {}).items():
+        parts += [f"### Section {name} failed", "", "```", tb.rstrip(), "```", ""]
     return "\n".join(parts)
 
 
 def merge(results: list[dict]) -> dict:
     """One report from runs of separate sections (e.g. run side by side on separate pinned cores):
     sections and profiles of all, the first run's machine, targets recomputed."""
-    res = {"machine": results[0]["machine"], "sections": {}, "profiles": {}, "seconds": {},
+    res = {"machine": results[0]["machine"], "sections": {}, "profiles": {}, "errors": {}, "seconds": {},
            "command": " ; ".join(r.get("command", "?") for r in results)}
     for r in results:
-        res["sections"].update(r["sections"])
-        res["profiles"].update(r.get("profiles", {}))
-        res["seconds"].update(r.get("seconds", {}))
+        for key in ("sections", "profiles", "errors", "seconds"):
+            res[key].update(r.get(key, {}))
     res["targets"] = targets(res)
     return res
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 
 import torch
 
@@ -77,10 +78,12 @@ def time_kmeans(objective: FitObjective, m: int, repeats: int) -> float:
 
 
 def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_full_s: float = 20.0,
-                always_full=((10000, 40),), probe: int = 2, repeats: int = 3) -> list[dict]:
+                always_full=((10000, 40),), probe: int = 2, repeats: int = 3,
+                on_row: Callable[[list[dict]], None] | None = None) -> list[dict]:
     """Rows (N, M, method): seconds for NC_max = 100 (measured, or extrapolated from a `probe`-
     iteration run when a full run is predicted above `max_full_s`, except (N, M) in
-    `always_full`), iterations run, and the ratio to KMeans on the same data."""
+    `always_full`), iterations run, and the ratio to KMeans on the same data. `on_row(rows)`
+    sees the rows so far after each one."""
     rows = []
     for n in ns:
         obj = selection_objective(n, device)
@@ -103,5 +106,7 @@ def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_
                            "s/iteration")
                 rows.append({"N": n, "M": m, "method": f"{name} ({COLONIES[name][0]}, NC_max = 100)",
                              "device": device, "seconds": secs, "iterations": its, "how": how,
-                             "per_iter_s": per_iter, "x_kmeans": secs / km})
+                             "per_iter_s": per_iter, "predicted_s": predicted, "x_kmeans": secs / km})
+                if on_row is not None:
+                    on_row(rows)
     return rows
