@@ -101,7 +101,7 @@ def run_suite(sizes: dict, device: str = "cpu", threads: int = 1, out: Path | No
         partial("sim", r)
         cap = s["compile_cap_s"]
         r["scenario_compiled"] = (simulator.compiled_scenario(device, threads, cap, s["scenario_s"]) if cap > 0
-                                  else {"status": "skipped (--quick)"})
+                                  else {"status": "skipped"})
         return r
 
     def scale(s: dict):
@@ -323,6 +323,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--out", type=Path, default=Path("bench/results"))
     p.add_argument("--checkpoint", type=Path, default=None, help="IK network to measure (default: train one)")
     p.add_argument("--sections", default="ik,select,sim,scaling", help="comma-separated subset")
+    p.add_argument("--compile-cap", type=float, default=None, metavar="SECONDS",
+                   help="cap on the torch.compile'd scenario's child process (0 skips it; default 300)")
     p.add_argument("--no-profile", action="store_true", help="skip the profiles of missed targets")
     p.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
                    help="run nothing: merge these benchmarks.json files into one report in --out")
@@ -341,8 +343,11 @@ def main(argv: list[str] | None = None) -> dict:
     from threadpoolctl import threadpool_limits
 
     command = "python -m bench " + " ".join(argv if argv is not None else sys.argv[1:])
+    sizes = copy.deepcopy(SIZES["quick" if a.quick else "full"])
+    if a.compile_cap is not None:
+        sizes["sim"]["compile_cap_s"] = a.compile_cap
     with threadpool_limits(a.threads):
-        res = run_suite(SIZES["quick" if a.quick else "full"], a.device, a.threads, a.out, a.checkpoint,
+        res = run_suite(sizes, a.device, a.threads, a.out, a.checkpoint,
                         tuple(a.sections.split(",")), not a.no_profile)
     res["command"] = command
     (a.out / "benchmarks.json").write_text(json.dumps(res, indent=1, default=str))
