@@ -31,7 +31,7 @@ import torch
 from bench import ik_throughput, scaling, select_time, simulator
 from bench.timing import machine_info, profile_table
 
-__all__ = ["SIZES", "run_suite", "targets", "to_markdown", "merge", "main"]
+__all__ = ["SIZES", "run_suite", "targets", "to_markdown", "merge", "write_report", "main"]
 
 # Problem sizes: `full` is issue 7's grid; `quick` proves every path in about a minute.
 SIZES = {
@@ -107,11 +107,7 @@ def run_suite(sizes: dict, device: str = "cpu", threads: int = 1, out: Path | No
     def scale(s: dict):
         steps = (res["sections"].get("sim") or {}).get("steps") or simulator.env_steps_rows(
             sizes["sim"]["steps_for"], device, 1)
-        curves = scaling.scaling_curves(s["ns"], s["ms"], s["ks"], steps, device, repeats=s["repeats"])
-        if out is not None:
-            scaling.plot_curves(curves, out / f"scaling_{device.split(':')[0]}.png",
-                                f"{res['machine']['cpu']}, {threads} thread(s), device {device}")
-        return curves
+        return scaling.scaling_curves(s["ns"], s["ms"], s["ks"], steps, device, repeats=s["repeats"])
 
     for name, fn in (("ik", ik), ("select", select), ("sim", sim), ("scaling", scale)):
         if name not in sections:
@@ -147,6 +143,8 @@ def targets(res: dict) -> list[dict]:
                     "met": None if met is None else bool(met)})
 
     ik = sec.get("ik", [])
+    same = {r["device"] for r in ik if r["method"].startswith("closed")}
+    ik = [r for r in ik if r["device"] in same]          # ratios across devices are no target's
     for r in ik:
         if r["method"].startswith("RBF network") and r["queries_per_s"] and "flag" not in r["method"]:
             add("ik_closed", f"IK: {r['method']} vs closed form, batch {r['batch']}",
@@ -315,6 +313,16 @@ def merge(results: list[dict]) -> dict:
     return res
 
 
+def write_report(res: dict, out: Path) -> None:
+    """benchmarks.json, benchmarks.md and (with a scaling section) the scaling plot into `out`."""
+    (out / "benchmarks.json").write_text(json.dumps(res, indent=1, default=str))
+    (out / "benchmarks.md").write_text(to_markdown(res, res.get("command", "?")))
+    m = res["machine"]
+    if "scaling" in res["sections"]:
+        scaling.plot_curves(res["sections"]["scaling"], out / f"scaling_{m['device'].split(':')[0]}.png",
+                            f"{m['cpu']}, {m['threads']} thread(s), device {m['device']}")
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="small sizes: every path in about a minute")
@@ -332,8 +340,7 @@ def main(argv: list[str] | None = None) -> dict:
     a.out.mkdir(parents=True, exist_ok=True)
     if a.merge:
         res = merge([json.loads(f.read_text()) for f in a.merge])
-        (a.out / "benchmarks.json").write_text(json.dumps(res, indent=1, default=str))
-        (a.out / "benchmarks.md").write_text(to_markdown(res, res["command"]))
+        write_report(res, a.out)
         return res
     if a.device.startswith("cuda") and not torch.cuda.is_available():
         p.error("--device cuda: no CUDA device is available")
@@ -350,8 +357,7 @@ def main(argv: list[str] | None = None) -> dict:
         res = run_suite(sizes, a.device, a.threads, a.out, a.checkpoint,
                         tuple(a.sections.split(",")), not a.no_profile)
     res["command"] = command
-    (a.out / "benchmarks.json").write_text(json.dumps(res, indent=1, default=str))
-    (a.out / "benchmarks.md").write_text(to_markdown(res, command))
+    write_report(res, a.out)
     print(to_markdown(res, command))
     return res
 

@@ -55,6 +55,7 @@ def plot_curves(curves: dict, path: Path, title: str) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.ticker import NullFormatter
 
     labels = {"N": "training set size N", "M": "centres M", "K": "ants K", "B": "environments B"}
     what = {"N": "s per ACO iteration", "M": "s per ACO iteration", "K": "s per ACO iteration",
@@ -68,6 +69,8 @@ def plot_curves(curves: dict, path: Path, title: str) -> Path:
         ax.set_xlabel(labels[key])
         ax.set_ylabel(what[key])
         ax.set_title(c["fixed"], fontsize=9)
+        ax.set_xticks(x, [f"{v:g}" for v in x])          # the measured values, no minor labels
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.legend(fontsize=8)
         ax.grid(True, which="both", alpha=0.3)
     fig.suptitle(title, fontsize=10)

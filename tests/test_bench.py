@@ -4,7 +4,7 @@ import json
 import pytest
 import torch
 
-from bench.run import run_suite, targets, to_markdown
+from bench.run import merge, run_suite, targets, to_markdown, write_report
 from bench.timing import fit_exponent
 
 TINY = {
@@ -34,9 +34,11 @@ def test_suite_runs_at_tiny_sizes(tmp_path):
     sim = res["sections"]["sim"]
     assert [r["B"] for r in sim["steps"]] == [1, 8] and sim["scipy"]["ok"]
     assert set(res["sections"]["scaling"]) == {"N", "M", "K", "B"}
-    saved = json.loads((tmp_path / "benchmarks.json").read_text())
-    assert saved["machine"]["threads"] == torch.get_num_threads()
+    saved = json.loads((tmp_path / "benchmarks.json").read_text())       # written as results came in
+    assert saved["machine"]["threads"] == torch.get_num_threads() and not saved["errors"]
+    write_report(merge([saved]), tmp_path)                                 # what --merge writes
     assert (tmp_path / "scaling_cpu.png").stat().st_size > 0
+    assert (tmp_path / "benchmarks.md").read_text().count("## ") >= 5
     text = to_markdown(res, "python -m bench (tiny)")
     for heading in ("IK queries per second", "Centre selection time", "Closed-loop simulator", "Scaling",
                     "Targets"):
