@@ -123,13 +123,10 @@ class SlidingMode(Controller):
         tau = (m_times(c2, m.m_co, a_d + g.Lambda * de) + c_times(s2, m.c_co, qd, v_d + g.Lambda * e)
                + m.gravity(q) + g.K * s + g.epsilon * robust)
         d_hat, integral, p0 = state[:3]
+        tau_m = tau                       # what the nominal model sees: no network, no observer
         if h is not None:
             w = state[3]
-            f_net = torch.einsum("m,bmj->bj", h, w)
-            tau_m = tau
-            tau = tau + f_net
-        else:
-            tau_m = tau
+            tau = tau + torch.einsum("m,bmj->bj", h, w)
         if self.observer:
             # Generalized momentum of the nominal model p = M_hat qd. With tau_m the torque the
             # nominal model sees (the network's share removed) and beta = dM_hat/dt qd - C_hat qd

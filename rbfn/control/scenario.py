@@ -11,7 +11,8 @@ import torch
 from .controllers import Controller
 from .plant import INTEGRATORS, ScaraPlant
 
-__all__ = ["Scenario", "Rollout", "SimulationDiverged", "simulate", "control_metrics", "CHECK_EVERY"]
+__all__ = ["Scenario", "Rollout", "SimulationDiverged", "simulate", "control_metrics", "make_chunk",
+           "stage_disturbances", "CHECK_EVERY"]
 
 CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a GPU)
 
@@ -71,18 +72,27 @@ def _check(step: int, t: float, q, qd, tau) -> None:
                                  f"q = {q[b].tolist()}, qd = {qd[b].tolist()}, tau = {tau[b].tolist()}")
 
 
+def stage_disturbances(plant: ScaraPlant, n: int, dt: float, **kw) -> torch.Tensor:
+    """Disturbance torque at the start, middle and end of each of n periods (n, 3), for RK4."""
+    d = plant.disturbance(torch.arange(2 * n + 1, **kw) * (0.5 * dt))
+    return torch.stack([d[0:-1:2], d[1::2], d[2::2]], -1)
+
+
 def make_chunk(plant: ScaraPlant, controller: Controller, dt: float, integrator: str, n: int):
     """`n` closed-loop periods as one pure tensor function (what torch.compile fuses):
-    (q, qd, state, q_d, qd_d, qdd_d, h, alpha, dist, payload) -> (q, qd, state, qs, qds, taus),
-    the step inputs stacked over the n periods, the outputs' records (n, B, 3)."""
-    def run(q, qd, state, q_d, v_d, a_d, h, alpha, dist, payload):
+    (q, qd, state, q_d, qd_d, qdd_d, h, alpha, dist, co) -> (q, qd, state, qs, qds, taus),
+    the step inputs stacked over the n periods (co: the plant's inertia coefficients, each
+    (n, B)), the outputs' records (n, B, 3)."""
+    def run(q, qd, state, q_d, v_d, a_d, h, alpha, dist, co):
         qs, qds, taus = [], [], []
-        for i in range(n):
+        hs = h.unbind(0) if h is not None else (None,) * n
+        rows = zip(q_d.unbind(0), v_d.unbind(0), a_d.unbind(0), hs, alpha.unbind(0), dist.unbind(0),
+                   *(c.unbind(0) for c in co))
+        for q_di, v_di, a_di, h_i, alpha_i, dist_i, *co_i in rows:
             qs.append(q)
             qds.append(qd)
-            ref = (q_d[i], v_d[i], a_d[i], None if h is None else h[i], alpha[i])
-            tau, state = controller.torque(ref, q, qd, state)
-            q, qd = plant.step(q, qd, tau, dist[i], dt, plant.coefficients(payload[i]), integrator)
+            tau, state = controller.torque((q_di, v_di, a_di, h_i, alpha_i), q, qd, state)
+            q, qd = plant.step(q, qd, tau, dist_i, dt, co_i, integrator)
             taus.append(tau)
         return q, qd, state, torch.stack(qs), torch.stack(qds), torch.stack(taus)
     return run
@@ -94,9 +104,9 @@ def simulate(plant: ScaraPlant, controller: Controller, scenario: Scenario,
     """Run the closed loop from (q0, qd0) (B, 3) along ref = (q_d, qd_d, qdd_d), each (steps + 1, 3)
     on the scenario's time grid; payload (B,) kg applies inside the window.
 
-    Returns a Rollout, or with record=False only the final (q, qd). `compile` fuses `chunk`
-    periods (default 1 eager, 25 compiled) into one torch.compile'd call, which removes most of
-    the per-operation overhead at small B. Raises SimulationDiverged naming the first
+    Returns a Rollout, or with record=False only the final (q, qd). `chunk` periods run per call
+    (default 100 eager, 25 compiled); `compile` fuses them into one torch.compile'd call, which
+    removes most of the per-operation overhead at small B. Raises SimulationDiverged naming the first
     non-finite step (checked every CHECK_EVERY steps, rounded up to chunks, and at the end).
     """
     scenario.validate()
@@ -107,17 +117,15 @@ def simulate(plant: ScaraPlant, controller: Controller, scenario: Scenario,
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
-    chunk = chunk or (25 if compile else 1)
+    chunk = chunk or (25 if compile else 100)
     b, kw = q0.shape[0], {"dtype": q0.dtype, "device": q0.device}
-    times = torch.arange(2 * n + 1, **kw) * (0.5 * dt)                 # half-step grid for RK4
-    dist = plant.disturbance(times)
-    dist = torch.stack([dist[0:-1:2], dist[1::2], dist[2::2]], -1)   # (n, 3): start, middle, end
+    dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3)
     h = controller.features.to(**kw) if controller.features is not None else None
-    alpha = controller.alphas(times[0::2])
+    alpha = controller.alphas(torch.arange(n, **kw) * dt)
     q_d, v_d, a_d = (r.to(**kw) for r in ref)
     k = torch.arange(n, device=q0.device)
     inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(q0.dtype)
-    pay = inside[:, None] * payload.to(**kw)[None, :]                  # (n, B)
+    co = plant.coefficients(inside[:, None] * payload.to(**kw)[None, :])   # each (n, B)
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
@@ -132,7 +140,8 @@ def simulate(plant: ScaraPlant, controller: Controller, scenario: Scenario,
         fn = run if m == chunk else make_chunk(plant, controller, dt, scenario.integrator, m)
         sl = slice(k0, k0 + m)
         q, qd, state, rq, rqd, rtau = fn(q, qd, state, q_d[sl], v_d[sl], a_d[sl],
-                                         None if h is None else h[sl], alpha[sl], dist[sl], pay[sl])
+                                         None if h is None else h[sl], alpha[sl], dist[sl],
+                                         tuple(c[sl] for c in co))
         if record:
             qs[sl], qds[sl], taus[sl] = rq, rqd, rtau
         k0 += m
@@ -152,14 +161,12 @@ def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> l
     err = (q_des[:, None, :] - roll.q).abs()                      # (T, B, 3)
     after = roll.t > scenario.metrics_after
     window = (roll.t >= scenario.payload_on) & (roll.t <= scenario.payload_off)
-    out = []
-    dtau = roll.tau[1:-1] - roll.tau[:-2]
-    for i in range(roll.q.shape[1]):
-        out.append({
-            "rms_err": err[after, i].square().mean(0).sqrt().tolist(),
-            "max_err": err[after, i].amax(0).tolist(),
-            "max_err_payload": err[window, i].amax(0).tolist(),
-            "peak_tau": roll.tau[:-1, i].abs().amax(0).tolist(),
-            "chattering": (dtau[:, i].abs().mean(0) / scenario.dt).tolist(),
-        })
-    return out
+    per_key = {                                                   # each (B, 3)
+        "rms_err": err[after].square().mean(0).sqrt(),
+        "max_err": err[after].amax(0),
+        "max_err_payload": err[window].amax(0),
+        "peak_tau": roll.tau[:-1].abs().amax(0),
+        "chattering": (roll.tau[1:-1] - roll.tau[:-2]).abs().mean(0) / scenario.dt,
+    }
+    lists = {k: v.tolist() for k, v in per_key.items()}
+    return [{k: v[i] for k, v in lists.items()} for i in range(roll.q.shape[1])]

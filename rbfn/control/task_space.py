@@ -22,7 +22,7 @@ from ..online import make_learner
 from ..robots.scara import ScaraParams, fk, ik
 from .controllers import make_controller
 from .plant import ScaraPlant
-from .scenario import Scenario, make_chunk
+from .scenario import Scenario, make_chunk, stage_disturbances
 from .trajectory import paper_trajectory
 
 __all__ = ["RealRobot", "desired_path", "design_rows", "output_weights", "with_weights", "run_online", "PATHS"]
@@ -128,10 +128,10 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
     q = torch.einsum("p,bpj->bj", a_path[0], learner.w)
     qd = torch.einsum("p,bpj->bj", da[0], learner.w)
     state = ctrl.init_state(q, qd)
-    dist = plant.disturbance(torch.arange(2 * n + 1, **kw) * (0.5 * cfg.dt))
-    dist = torch.stack([dist[0:-1:2], dist[1::2], dist[2::2]], -1)
-    zero_pay = torch.zeros(cfg.update_every, b, **kw)
+    dist = stage_disturbances(plant, n, cfg.dt, **kw)
+    co = plant.coefficients(torch.zeros(cfg.update_every, b, **kw))     # no payload
     alpha = torch.zeros(cfg.update_every, **kw)
+    run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
     qs = torch.empty(n + 1, b, 3, **kw)
     dw = []
     k = 0
@@ -139,8 +139,8 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
         m = min(cfg.update_every, n - k)
         sl = slice(k, k + m)
         refs = [torch.einsum("np,bpj->nbj", r[sl], learner.w) for r in (a_path, da, dda)]
-        run = make_chunk(plant, ctrl, cfg.dt, "rk4", m)
-        q, qd, state, rq, _, _ = run(q, qd, state, *refs, None, alpha[:m], dist[sl], zero_pay[:m])
+        fn = run if m == cfg.update_every else make_chunk(plant, ctrl, cfg.dt, "rk4", m)
+        q, qd, state, rq, _, _ = fn(q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
         qs[sl] = rq
         k += m
         if not bool(torch.isfinite(q).all()):
