@@ -3,13 +3,18 @@
 Keys: format_version, kind, package_version, model_args, state_dict, robot (URDF text, end
 link, joint names and sampled range), config (plain data), metrics. The zip archive's comment
 holds the SHA-256 of the archive, so any changed byte is caught before unpickling; the file is
-still a plain torch.save archive that `torch.load(path, weights_only=True)` reads.
+still a plain torch.save archive that `torch.load(path, weights_only=True)` reads. Reading
+checks everything evaluation relies on (robot entry, shapes, finite weights) up front, so a bad
+file fails with a message naming it instead of deep inside evaluation.
 """
 from __future__ import annotations
 
 import hashlib
 import io
+import math
 import os
+import pickle
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -22,7 +27,14 @@ __all__ = ["FORMAT_VERSION", "KIND", "save_checkpoint", "save_sealed", "load_sea
 
 FORMAT_VERSION = 1
 KIND = "rbfn-ik"
-_REQUIRED = ("format_version", "kind", "model_args", "state_dict")
+TRAIN_STATE_KIND = "rbfn-train-state"     # rbfn.resume's last.pt, sealed the same way
+_REQUIRED = ("format_version", "kind", "model_args", "state_dict", "robot")
+_ROBOT_KEYS = ("urdf", "end_link", "joint_low", "joint_high")
+_MODEL_ARGS = ("num_centers", "in_features", "out_features", "tail")
+# Trained-region buffers of RBFNetwork: this infinity means "unbounded" (no set_domain yet).
+_UNBOUNDED = {"in_low": -math.inf, "out_low": -math.inf, "in_high": math.inf, "out_high": math.inf,
+              "cover_radius": math.inf}
+_ADVICE = "Re-run training or restore the file from a copy."
 
 
 def atomic_write_bytes(path: Path, write) -> None:
@@ -43,26 +55,47 @@ def atomic_write_bytes(path: Path, write) -> None:
 
 _SEAL = b"aco-rbfn-sha256:"
 _SEAL_LEN = len(_SEAL) + 64
+_EOCD = b"PK\x05\x06"                     # zip end-of-central-directory record: 22 bytes + comment
 
 
 def seal(data: bytes) -> bytes:
     """Put the SHA-256 of a zip archive `data` (no comment) into its end-of-directory comment."""
-    if len(data) < 22 or data[-22:-18] != b"PK\x05\x06" or data[-2:] != b"\x00\x00":
+    if len(data) < 22 or data[-22:-18] != _EOCD or data[-2:] != b"\x00\x00":
         raise ValueError("expected a zip archive without a comment")
     comment = _SEAL + hashlib.sha256(data).hexdigest().encode()
     return data[:-2] + len(comment).to_bytes(2, "little") + comment
 
 
-def unseal(data: bytes, path: Path) -> bytes:
-    """The archive as written before sealing; ValueError if any byte of `data` changed."""
-    tail = data[-_SEAL_LEN:]
-    if len(data) < 22 + _SEAL_LEN or not tail.startswith(_SEAL):
-        raise ValueError(f"{path} is not a readable checkpoint (truncated or corrupted?): its "
-                         "checksum seal is missing. Re-run training or restore the file from a copy.")
+def _zip_comment(data: bytes) -> bytes | None:
+    """The comment of zip archive `data`; None when no end record closes the data (truncated)."""
+    start = max(0, len(data) - 22 - 0xFFFF)
+    i = data.rfind(_EOCD, start)
+    while i >= 0:
+        if i + 22 <= len(data) and int.from_bytes(data[i + 20:i + 22], "little") == len(data) - i - 22:
+            return data[i + 22:]
+        i = data.rfind(_EOCD, start, i)
+    return None
+
+
+def unseal(data: bytes, path: Path, what: str = "checkpoint", advice: str = _ADVICE) -> bytes:
+    """The archive as written before sealing; ValueError if any byte of `data` changed.
+
+    Tells apart a damaged file (no zip end record, damaged seal, checksum mismatch) from a
+    valid zip archive that never had the seal (written by another program).
+    """
+    comment = _zip_comment(data)
+    if comment is None:
+        why = "it is empty" if not data else "it does not end with a zip archive's end record"
+        raise ValueError(f"{path} is not a readable {what} (truncated or corrupted?): {why}. {advice}")
+    if not comment.startswith(_SEAL) or len(comment) != _SEAL_LEN:
+        # One changed byte in the seal's prefix still leaves a comment of the seal's length.
+        if len(comment) == _SEAL_LEN and sum(a != b for a, b in zip(comment, _SEAL)) <= 2:
+            raise ValueError(f"{path} is corrupted: its checksum seal is damaged. {advice}")
+        raise ValueError(f"{path} is not an aco-rbfn {what}: it has no aco-rbfn seal (a zip archive "
+                         f"written by another program, or by torch.save directly). {advice}")
     original = data[:-_SEAL_LEN - 2] + b"\x00\x00"
-    if hashlib.sha256(original).hexdigest().encode() != tail[len(_SEAL):]:
-        raise ValueError(f"{path} is corrupted: its bytes do not match its SHA-256 checksum. "
-                         "Re-run training or restore the file from a copy.")
+    if hashlib.sha256(original).hexdigest().encode() != comment[len(_SEAL):]:
+        raise ValueError(f"{path} is corrupted: its bytes do not match its SHA-256 checksum. {advice}")
     return original
 
 
@@ -93,37 +126,117 @@ def save_sealed(path: str | Path, obj: Any) -> None:
     atomic_write_bytes(Path(path), lambda f: f.write(sealed))
 
 
-def load_sealed(path: str | Path) -> Any:
-    """What `save_sealed` wrote at `path` (weights-only unpickling); clear errors when damaged."""
+def _refused_global(message: str) -> str | None:
+    """The global that weights-only unpickling refused, from torch's message, if it names one."""
+    m = re.search(r"GLOBAL (\S+) (?:was not an allowed global|whose module)", message)
+    return m.group(1) if m else None
+
+
+def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVICE) -> Any:
+    """What `save_sealed` wrote at `path` (weights-only unpickling); clear errors when damaged.
+
+    `what` names the file's role and `advice` says what to do about a bad file, in messages;
+    callers set them because the remedy differs (retrain for a checkpoint, delete a state).
+    """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no checkpoint at {path}")
-    data = unseal(path.read_bytes(), path)
+        raise FileNotFoundError(f"no {what} at {path}")
+    data = unseal(path.read_bytes(), path, what, advice)
     try:
         return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as e:  # truncated or corrupted archives raise various errors
-        raise ValueError(f"{path} is not a readable checkpoint (truncated or corrupted?): {e}. "
-                         "Re-run training or restore the file from a copy.") from e
+        text = str(e)
+        if isinstance(e, pickle.UnpicklingError) and ("Weights only" in text or "WeightsUnpickler" in text):
+            name = _refused_global(text)
+            refused = f" (refused global: {name})" if name else ""
+            raise ValueError(f"{path} holds objects other than tensors and plain data{refused}, which "
+                             f"aco-rbfn refuses to unpickle for safety: unpickling them can run "
+                             f"arbitrary code. {advice}") from None
+        unsafe = "weights_only" in text      # torch's advice to load unsafely: never passed on
+        detail = "" if unsafe else f": {text.strip().rstrip('.')}"
+        raise ValueError(f"{path} is not a readable {what} (truncated or corrupted?){detail}. "
+                         f"{advice}") from (None if unsafe else e)
+
+
+def _model_problem(ckpt: dict[str, Any]) -> str | None:
+    """What keeps the checkpoint's model_args and state_dict from making a working RBFNetwork."""
+    a, sd = ckpt.get("model_args"), ckpt.get("state_dict")
+    if not isinstance(a, dict) or any(k not in a for k in _MODEL_ARGS):
+        missing = [k for k in _MODEL_ARGS if not isinstance(a, dict) or k not in a]
+        return f"model_args lacks {missing}; a checkpoint's model_args has {list(_MODEL_ARGS)}"
+    m, d, out, tail = (a[k] for k in _MODEL_ARGS)
+    for k in _MODEL_ARGS[:3]:
+        if isinstance(a[k], bool) or not isinstance(a[k], int) or a[k] < 1:
+            return f"model_args {k}={a[k]!r}; expected a positive integer"
+    if not isinstance(tail, bool):
+        return f"model_args tail={tail!r}; expected True or False"
+    if not isinstance(sd, dict):
+        return f"state_dict is a {type(sd).__name__}; expected a dict of tensors"
+    expected = {"offset": (d,), "scale": (d,), "centers": (m, d), "widths": (m,), "head.weight": (out, m),
+                "head.bias": (out,), "in_low": (d,), "in_high": (d,), "out_low": (out,), "out_high": (out,),
+                "cover_radius": ()}
+    if tail:
+        expected["tail.weight"] = (out, d)
+    missing, unexpected = sorted(set(expected) - set(sd)), sorted(set(sd) - set(expected))
+    if missing or unexpected:
+        return (f"state_dict does not match model_args {a}: missing keys {missing}, unexpected keys "
+                f"{unexpected}")
+    for k, shape in expected.items():
+        t = sd[k]
+        if not isinstance(t, torch.Tensor) or not t.is_floating_point():
+            kind = f"a {t.dtype} tensor" if isinstance(t, torch.Tensor) else f"a {type(t).__name__}"
+            return f"state_dict {k} is {kind}; expected a floating-point tensor"
+        if tuple(t.shape) != shape:
+            return f"state_dict {k} has shape {tuple(t.shape)}, but model_args {a} give {shape}"
+    for k, t in sd.items():
+        bad = torch.isnan(t) | (torch.isinf(t) & (t != _UNBOUNDED.get(k, math.nan)))
+        if bool(bad.any()):
+            allowed = f" (only {_UNBOUNDED[k]}, meaning unbounded, is allowed there)" if k in _UNBOUNDED else ""
+            return (f"non-finite weights in {k}: {int(torch.isnan(t).sum())} NaN and "
+                    f"{int(bad.sum()) - int(torch.isnan(t).sum())} inf of {t.numel()} values{allowed}; "
+                    "the fit diverged or the file was altered. Retrain")
+    if not bool((sd["widths"] > 0).all()):
+        return f"state_dict widths has minimum {sd['widths'].min().item():.3g}; widths must be positive"
+    return None
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The checkpoint dict at `path`, checked for format and kind; clear errors otherwise."""
+    """The checkpoint dict at `path`, checked for format, kind, robot entry, shapes and finite weights."""
     path = Path(path)
     ckpt = load_sealed(path)
-    if not isinstance(ckpt, dict) or any(k not in ckpt for k in _REQUIRED):
-        missing = [k for k in _REQUIRED if not isinstance(ckpt, dict) or k not in ckpt]
-        raise ValueError(f"{path} is missing checkpoint keys {missing}; it was not written by aco-rbfn")
-    if ckpt["kind"] != KIND:
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"{path} holds a {type(ckpt).__name__}, not a checkpoint dict; it was not written "
+                         "by aco-rbfn's save_checkpoint")
+    if ckpt.get("kind") == TRAIN_STATE_KIND:
+        raise ValueError(f"{path} is a training state (last.pt of an unfinished or finished run), not a "
+                         f"checkpoint; the trained network is in checkpoint.pt of the same run directory "
+                         f"({path.parent / 'checkpoint.pt'}), written when the run finishes")
+    if "kind" in ckpt and ckpt["kind"] != KIND:
         raise ValueError(f"{path} holds a {ckpt['kind']!r} model, not an IK network ({KIND!r})")
-    if ckpt["format_version"] != FORMAT_VERSION:
+    if "format_version" in ckpt and ckpt["format_version"] != FORMAT_VERSION:
         raise ValueError(f"{path} has checkpoint format {ckpt['format_version']}, this aco-rbfn reads "
                          f"format {FORMAT_VERSION}; use the aco-rbfn version "
                          f"{ckpt.get('package_version', '?')} that wrote it, or retrain")
+    missing = [k for k in _REQUIRED if k not in ckpt]
+    if missing:
+        raise ValueError(f"{path} is missing checkpoint keys {missing}; checkpoints written by train.py "
+                         f"have {list(_REQUIRED)}. Retrain to get a complete checkpoint")
+    robot = ckpt["robot"]
+    missing = [k for k in _ROBOT_KEYS if not isinstance(robot, dict) or k not in robot]
+    if missing:
+        raise ValueError(f"{path}: its robot entry is missing keys {missing}; evaluation needs "
+                         f"{list(_ROBOT_KEYS)} to rebuild the robot. Retrain to get a complete checkpoint")
+    problem = _model_problem(ckpt)
+    if problem:
+        raise ValueError(f"{path}: {problem}")
     return ckpt
 
 
 def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
-    """Rebuild the RBFNetwork of a checkpoint dict, in eval mode."""
+    """Rebuild the RBFNetwork of a checkpoint dict, in eval mode; ValueError if its parts disagree."""
+    problem = _model_problem(ckpt)
+    if problem:
+        raise ValueError(f"cannot rebuild the network from this checkpoint: {problem}")
     sd, a = ckpt["state_dict"], ckpt["model_args"]
     model = RBFNetwork(sd["centers"], sd["widths"], a["out_features"], tail=a["tail"])
     model.load_state_dict(sd)

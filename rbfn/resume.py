@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .checkpoint import load_sealed, save_sealed
+from .checkpoint import TRAIN_STATE_KIND, load_sealed, save_sealed
 
 __all__ = ["TrainState", "StateFile"]
 
-KIND = "rbfn-train-state"
+KIND = TRAIN_STATE_KIND
 FORMAT_VERSION = 1
 # Keys that may differ between the interrupted run and its resumption.
 _FREE_KEYS = ("progress", "num_threads", "device")
@@ -31,6 +31,7 @@ class TrainState:
     gen_after: Any = None                               # generator state after the last completed step
     current: dict | None = None                         # {"num_centers", "gen_start", "colony"}
     finished: dict | None = None                        # final metrics
+    elapsed: float = 0.0                                # s spent training, over every process so far
 
 
 def _comparable(cfg: dict) -> dict:
@@ -49,11 +50,15 @@ class StateFile:
         """The saved state if there is one for this config, else a fresh state."""
         if not self.path.exists():
             return TrainState(config=config)
-        raw = load_sealed(self.path)
-        if raw.get("kind") != KIND or raw.get("format_version") != FORMAT_VERSION:
+        # Re-running training reads the same file again, so the remedy for a bad one is deleting it.
+        restart = f"Delete {self.path} to start the run over (its completed steps are lost)."
+        raw = load_sealed(self.path, what="training state", advice=restart)
+        if not isinstance(raw, dict) or raw.get("kind") != KIND or raw.get("format_version") != FORMAT_VERSION:
+            kind, version = (raw.get("kind"), raw.get("format_version")) if isinstance(raw, dict) else (None, None)
             raise ValueError(f"{self.path} is not a training state this aco-rbfn can resume "
-                             f"(kind {raw.get('kind')!r}, format {raw.get('format_version')}); "
-                             "delete it to start over")
+                             f"(kind {kind!r}, format {version}). {restart}")
+        if not isinstance(raw.get("state"), dict) or not isinstance(raw["state"].get("config"), dict):
+            raise ValueError(f"{self.path} holds no training state with a config. {restart}")
         if _comparable(raw["state"]["config"]) != _comparable(config):
             raise ValueError(f"{self.path} belongs to a run with a different configuration; resume it "
                              "with the same overrides, use another hydra.run.dir, or delete last.pt")

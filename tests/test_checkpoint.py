@@ -8,8 +8,13 @@ import time
 import pytest
 import torch
 
-from rbfn.checkpoint import FORMAT_VERSION, load_model, read_checkpoint, save_checkpoint, seal
+from rbfn.checkpoint import (FORMAT_VERSION, load_model, load_sealed, model_from_checkpoint,
+                             read_checkpoint, save_checkpoint, save_sealed, seal)
 from rbfn.layer import RBFNetwork
+from rbfn.resume import StateFile, TrainState
+
+ROBOT = {"urdf": "<robot/>", "end_link": "tip", "joint_names": ["j1", "j2", "j3"],
+         "joint_low": [-1.0, -1.0, 0.0], "joint_high": [1.0, 1.0, 0.5]}
 
 
 def _resave(raw, path):
@@ -25,7 +30,7 @@ def _resave(raw, path):
 def ckpt(tmp_path):
     net = RBFNetwork(torch.randn(5, 3, dtype=torch.float64), torch.ones(5, dtype=torch.float64), 3)
     path = tmp_path / "checkpoint.pt"
-    save_checkpoint(path, net, {"urdf": "<robot/>", "end_link": "tip"}, {"seed": 0}, {"x": 1.0})
+    save_checkpoint(path, net, ROBOT, {"seed": 0}, {"x": 1.0})
     return path, net
 
 
@@ -109,7 +114,7 @@ from rbfn.layer import RBFNetwork
 net = RBFNetwork(torch.randn(20000, 3, dtype=torch.float64), torch.ones(20000, dtype=torch.float64), 3)
 print("ready", flush=True)
 while True:
-    save_checkpoint({str(tmp_path / 'checkpoint.pt')!r}, net, {{}}, {{}}, {{}})
+    save_checkpoint({str(tmp_path / 'checkpoint.pt')!r}, net, {ROBOT!r}, {{}}, {{}})
 """
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "ready"
@@ -122,3 +127,115 @@ while True:
     leftovers = [p for p in os.listdir(tmp_path) if p != "checkpoint.pt"]
     # SIGKILL gives no chance to clean up: a temp file may remain, but never under the real name.
     assert all(p.endswith(".tmp") for p in leftovers)
+
+
+def test_flipped_byte_in_the_seal_region_is_damage_not_a_foreign_file(ckpt):
+    # Every byte of the zip end record and the seal: a changed one reads as damage, never as
+    # "not an aco-rbfn checkpoint".
+    path, _ = ckpt
+    good = path.read_bytes()
+    for back in range(1, 22 + 80 + 1):
+        data = bytearray(good)
+        data[-back] ^= 0x01
+        path.write_bytes(bytes(data))
+        with pytest.raises(ValueError, match="not a readable checkpoint .truncated or corrupted|is corrupted"):
+            read_checkpoint(path)
+
+
+def test_plain_torch_save_is_not_an_aco_rbfn_checkpoint(ckpt):
+    path, _ = ckpt
+    torch.save(torch.load(path, weights_only=True), path)   # valid zip archive, no seal
+    with pytest.raises(ValueError, match="is not an aco-rbfn checkpoint: it has no aco-rbfn seal") as e:
+        read_checkpoint(path)
+    assert str(path) in str(e.value) and "torch.save" in str(e.value) and "truncated" not in str(e.value)
+
+
+class _Opaque:
+    """A class weights-only unpickling refuses."""
+
+
+def test_sealed_file_with_objects_is_refused_without_suggesting_unsafe_load(tmp_path):
+    path = tmp_path / "checkpoint.pt"
+    save_sealed(path, {"kind": "rbfn-ik", "blob": _Opaque()})
+    with pytest.raises(ValueError, match="holds objects other than tensors and plain data") as e:
+        read_checkpoint(path)
+    msg = str(e.value)
+    assert str(path) in msg and "for safety" in msg and "_Opaque" in msg
+    assert "weights_only" not in msg
+    assert e.value.__cause__ is None and e.value.__suppress_context__   # torch's advice not chained either
+
+
+def test_training_state_is_not_a_checkpoint(tmp_path):
+    StateFile(tmp_path).save(TrainState(config={"seed": 0}))
+    for read in (read_checkpoint, load_model):
+        with pytest.raises(ValueError, match="last.pt is a training state .*not a checkpoint.*checkpoint.pt"):
+            read(tmp_path / "last.pt")
+
+
+@pytest.mark.parametrize("key,value", [("head.weight", float("nan")), ("centers", float("inf")),
+                                       ("in_low", float("inf")), ("cover_radius", float("nan"))])
+def test_non_finite_weights_are_refused(ckpt, key, value):
+    path, _ = ckpt
+    raw = torch.load(path, weights_only=True)
+    raw["state_dict"][key].view(-1)[0] = value
+    _resave(raw, path)
+    with pytest.raises(ValueError, match=f"{path.name}: non-finite weights in {key}"):
+        load_model(path)
+
+
+def test_unbounded_domain_loads(ckpt):
+    # An RBFNetwork without set_domain has infinite bounds meaning "unbounded": still loadable.
+    path, _ = ckpt
+    assert torch.isinf(torch.load(path, weights_only=True)["state_dict"]["in_low"]).all()
+    assert torch.isinf(load_model(path).in_low).all()
+
+
+def test_missing_robot(ckpt):
+    path, _ = ckpt
+    raw = torch.load(path, weights_only=True)
+    del raw["robot"]
+    _resave(raw, path)
+    with pytest.raises(ValueError, match=r"missing checkpoint keys \['robot'\]"):
+        read_checkpoint(path)
+
+
+def test_incomplete_robot(ckpt):
+    path, _ = ckpt
+    raw = torch.load(path, weights_only=True)
+    del raw["robot"]["joint_low"], raw["robot"]["urdf"]
+    _resave(raw, path)
+    with pytest.raises(ValueError, match=r"robot entry is missing keys \['urdf', 'joint_low'\]"):
+        read_checkpoint(path)
+
+
+def test_corrupted_training_state_says_delete_it(tmp_path):
+    states = StateFile(tmp_path)
+    states.save(TrainState(config={"seed": 0}))
+    data = states.path.read_bytes()
+    states.path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="not a readable training state .truncated or corrupted") as e:
+        StateFile(tmp_path).load({"seed": 0})
+    assert f"Delete {states.path}" in str(e.value) and "Re-run training" not in str(e.value)
+
+
+def test_load_sealed_advice(tmp_path):
+    path = tmp_path / "x.pt"
+    path.write_bytes(b"")
+    with pytest.raises(ValueError, match="x.pt is not a readable thing .*: it is empty. Do this.$"):
+        load_sealed(path, what="thing", advice="Do this.")
+
+
+@pytest.mark.parametrize("args,match", [
+    ({"num_centers": 6}, r"centers has shape \(5, 3\), but model_args .* give \(6, 3\)"),
+    ({"tail": False}, r"unexpected keys \['tail.weight'\]"),
+    ({"out_features": "3"}, r"out_features='3'; expected a positive integer"),
+])
+def test_model_args_disagree_with_state_dict(ckpt, args, match):
+    path, _ = ckpt
+    raw = torch.load(path, weights_only=True)
+    raw["model_args"].update(args)
+    with pytest.raises(ValueError, match=match):
+        model_from_checkpoint(raw)
+    _resave(raw, path)
+    with pytest.raises(ValueError, match=f"{path.name}: .*" + match):
+        read_checkpoint(path)
