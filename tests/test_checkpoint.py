@@ -8,7 +8,7 @@ import time
 import pytest
 import torch
 
-from rbfn.checkpoint import (FORMAT_VERSION, load_model, load_sealed, model_from_checkpoint,
+from rbfn.checkpoint import (FORMAT_VERSION, atomic_write_bytes, load_model, load_sealed, model_from_checkpoint,
                              read_checkpoint, save_checkpoint, save_sealed, seal)
 from rbfn.layer import RBFNetwork
 from rbfn.resume import StateFile, TrainState
@@ -223,6 +223,24 @@ def test_load_sealed_advice(tmp_path):
     path.write_bytes(b"")
     with pytest.raises(ValueError, match="x.pt is not a readable thing .*: it is empty. Do this.$"):
         load_sealed(path, what="thing", advice="Do this.")
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o077])
+def test_written_files_get_the_umask_mode(tmp_path, umask):
+    old = os.umask(umask)
+    try:
+        atomic_write_bytes(tmp_path / "a.bin", lambda f: f.write(b"x"))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.bin").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_rewritten_file_keeps_its_mode(tmp_path):
+    path = tmp_path / "a.bin"
+    path.write_bytes(b"x")
+    path.chmod(0o640)
+    atomic_write_bytes(path, lambda f: f.write(b"y"))
+    assert path.stat().st_mode & 0o777 == 0o640 and path.read_bytes() == b"y"
 
 
 @pytest.mark.parametrize("args,match", [
