@@ -1,29 +1,70 @@
-"""Configuration schemas (plain dataclasses) and their validation, done once at the edge.
+"""Every configuration schema and every allowed name, in one place; validation done once at the edge.
 
-train.py and evaluate.py register these with Hydra's ConfigStore (`register_configs`), so a
-mistyped value fails when the config is composed; `validate_train` then checks ranges and names
-and raises ValueError naming the bad value and what is allowed.
+This module is the bottom layer of the package: it imports nothing from `rbfn`. train.py and
+evaluate.py register the schemas with Hydra's ConfigStore (`register_configs`), so a mistyped
+value or an unknown choice (an Enum field) fails when the config is composed, naming the options;
+`validate_train` / `validate_evaluate` then check ranges and combinations and raise ValueError
+naming the full key, the bad value and what is allowed, before any work starts.
 """
 from __future__ import annotations
 
+import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from enum import Enum
 from typing import Any, Optional
 
-__all__ = ["RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
-           "RBFNConfig", "TrainConfig", "validate_train", "register_configs",
-           "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig", "validate_control", "validate_online", "SELECTORS", "COLONIES", "OBJECTIVES", "SOLVERS", "INPUT_SCALINGS"]
+__all__ = [
+    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "Solver", "InputScaling",
+    "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner",
+    "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED",
+    "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
+    "RBFNConfig", "TrainConfig", "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig",
+    "EvalConfig", "validate_train", "validate_evaluate", "validate_control", "validate_online",
+    "validate_device", "plain", "register_configs",
+]
 
+
+class Choice(str, Enum):
+    """A named option: compares, hashes, prints and serialises as its plain string."""
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
+
+
+def _choice(name: str, values: tuple[str, ...]) -> type[Choice]:
+    # Member names equal their values, so Hydra overrides use the plain words ("global" too).
+    return Choice(name, [(v, v) for v in values])  # type: ignore[return-value]
+
+
+Method = _choice("Method", ("aco", "kmeans", "random", "ols"))
+Colony = _choice("Colony", ("acor", "ant_system"))
+Objective = _choice("Objective", ("fit", "cluster"))
+WidthRule = _choice("WidthRule", ("paper", "global", "per_center"))
+WidthSearch = _choice("WidthSearch", ("per_center", "scale", "none"))
+Solver = _choice("Solver", ("lstsq", "lms"))
+InputScaling = _choice("InputScaling", ("metres", "standard"))
+Integrator = _choice("Integrator", ("rk4", "euler"))           # euler: semi-implicit
+Friction = _choice("Friction", ("sign", "smooth"))             # smooth: tanh(qd / 0.01)
+Dtype = _choice("Dtype", ("float64", "float32"))
+Robust = _choice("Robust", ("sign", "sat"))
+PathName = _choice("PathName", ("paper", "circle", "figure8"))
+Learner = _choice("Learner", ("nlms", "rls"))
+
+# Presets of the `centers` group (conf/centers/NAME.yaml); a label, recorded with every run.
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
-METHODS = ("aco", "kmeans", "random", "ols")
-COLONIES = ("acor", "ant_system")
-OBJECTIVES = ("fit", "cluster")
-SOLVERS = ("lstsq", "lms")
-INPUT_SCALINGS = ("metres", "standard")
-WIDTH_RULES = ("paper", "global", "per_center")
-WIDTH_SEARCH = ("per_center", "scale", "none")
+# Controllers by name; the adaptive RBFN is arbfn_<one of CONTROL_CENTER_METHODS>.
+BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs")
+CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
+# Seeds feed scikit-learn's random_state (< 2**32) and derive data streams seed * 1000 + k.
+MAX_SEED = 2**32 - 1
+PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10 control periods
 
 
+# ----------------------------------------------------------------------------------------- train
 @dataclass
 class RobotConfig:
     urdf: str = ""                     # empty: the packaged SCARA URDF
@@ -41,20 +82,20 @@ class DataConfig:
 
 @dataclass
 class ACOConfig:
-    colony: str = "acor"               # acor | ant_system
-    objective: str = "fit"             # fit | cluster
+    colony: Colony = Colony.acor               # type: ignore[valid-type]
+    objective: Objective = Objective.fit       # type: ignore[valid-type]
     iterations: int = 100              # NC_max
     ants: int = 20                     # ants per iteration
     archive_size: int = 20             # ACO_R archive k
     q: float = 0.2                     # ACO_R rank locality
     xi: float = 0.85                   # ACO_R spread
     init_spread: float = 0.3           # ACO_R seed perturbation, in nearest-centre distances
-    search_widths: str = "per_center"  # ACO_R also searches: per_center log widths | scale (one global) | none
+    search_widths: WidthSearch = WidthSearch.per_center  # type: ignore[valid-type]  # ACO_R also searches widths
     rho: float = 0.9                   # Ant System evaporation
     Q: float = 100.0                   # Ant System deposit
     alpha: float = 1.0                 # Ant System pheromone exponent
-    beta: float = 0.0                  # Ant System heuristic exponent
-    candidates: int = 500              # Ant System / OLS candidate pool (k-means pre-clustered)
+    beta: float = 0.0                  # Ant System heuristic exponent (visibility: local data density)
+    candidates: int = 500              # Ant System / OLS candidate pool
 
 
 @dataclass
@@ -68,9 +109,9 @@ class RefineConfig:
 
 @dataclass
 class CentersConfig:
-    name: str = "aco"
-    method: str = "aco"                # aco | kmeans | random | ols
-    width_rule: str = "per_center"     # paper | global | per_center
+    name: str = "aco"                  # the preset's label, one of SELECTORS
+    method: Method = Method.aco                # type: ignore[valid-type]
+    width_rule: WidthRule = WidthRule.per_center  # type: ignore[valid-type]
     width_scale: Optional[float] = None  # fixed scale of the rule's width; null: chosen on validation
     kmeans_restarts: int = 10
     aco: ACOConfig = field(default_factory=ACOConfig)
@@ -87,9 +128,9 @@ class GrowthConfig:
 @dataclass
 class RBFNConfig:
     num_centers: int = 40
-    input_scaling: str = "metres"      # metres (centred) | standard
+    input_scaling: InputScaling = InputScaling.metres  # type: ignore[valid-type]
     tail: bool = True                  # linear tail A z + b beside the Gaussians
-    solver: str = "lstsq"              # lstsq (ridge on validation) | lms
+    solver: Solver = Solver.lstsq              # type: ignore[valid-type]
     lms_alpha0: float = 0.5
     lms_epochs: int = 50
     max_width: float = 2.0             # cap on widths, scaled units (float32 conditioning)
@@ -109,6 +150,7 @@ class TrainConfig:
     export: bool = True                # write ik.onnx and ik.pt2 next to checkpoint.pt
 
 
+# -------------------------------------------------------------------------------------- evaluate
 @dataclass
 class GainsConfig:
     """Feedback and adaptation gains shared by every controller of a comparison (group `gains`)."""
@@ -116,9 +158,9 @@ class GainsConfig:
     K: float = 50.0                # N m s / rad (N s / m): s feedback
     Lambda: float = 20.0           # 1/s: sliding-surface slope
     epsilon: float = 0.05          # N m (N): robust term amplitude
-    robust: str = "sat"            # sign | sat
+    robust: Robust = Robust.sat    # type: ignore[valid-type]  # sign | sat
     boundary: float = 0.01         # rad/s (m/s): saturation boundary layer width of sat(s / boundary)
-    observer_gain: float = 1000.0   # 1/s: momentum-observer bandwidth
+    observer_gain: float = 1000.0  # 1/s: momentum-observer bandwidth
     gamma: float = 500.0           # adaptation rate Gamma of dW/dt = Gamma h s^T (alpha = gamma dt)
     gamma_decay: float = 1e9       # s: Gamma(t) = gamma / (1 + t / gamma_decay)
     leakage: float = 0.0           # 1/s: sigma-modification
@@ -134,7 +176,7 @@ class NetworkConfig:
     observer: bool = True              # combine the network with the momentum observer
     warm_start: bool = False           # start W at the ridge fit of the pilot run's residual torque
     seed: int = 0
-    aco: ACOConfig = field(default_factory=lambda: ACOConfig(iterations=100, ants=20))
+    aco: ACOConfig = field(default_factory=ACOConfig)
 
 
 @dataclass
@@ -147,11 +189,11 @@ class ControlConfig:
     payloads: list[float] = field(default_factory=lambda: [0.0, 10.0, 20.0])
     duration: float = 10.0
     dt: float = 1e-3
-    integrator: str = "rk4"            # rk4 | euler (semi-implicit)
+    integrator: Integrator = Integrator.rk4    # type: ignore[valid-type]
     payload_on: float = 1.0
     payload_off: float = 4.0
-    friction: str = "sign"             # sign | smooth (tanh(qd / 0.01))
-    dtype: str = "float64"             # float64 | float32
+    friction: Friction = Friction.sign         # type: ignore[valid-type]
+    dtype: Dtype = Dtype.float64               # type: ignore[valid-type]
     compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
     figure_payload: float = 10.0       # the payload case drawn in the 3x3 figures
     network: NetworkConfig = field(default_factory=NetworkConfig)
@@ -159,124 +201,203 @@ class ControlConfig:
 
 @dataclass
 class OnlineConfig:
-    """Online IK adaptation in the closed loop (evaluate.py's `online` part; needs a checkpoint)."""
+    """Online IK adaptation in the closed loop (evaluate.py's `online` part; needs a checkpoint).
+
+    The "real" robot differs from the model by `link_error` (relative, l1 and l2) and
+    `offset_error` (joint offsets). `sizes` are link-1 errors to sweep: each row scales the whole
+    configured perturbation so that its link-1 error equals the size; the configured perturbation
+    itself (size = link_error[0]) is the one the headline metrics report.
+    """
 
     enabled: bool = True
     duration: float = 20.0             # s
     dt: float = 1e-3                   # s
-    path: str = "paper"                # paper (FK of the paper's joint trajectory) | circle | figure8
+    path: PathName = PathName.paper            # type: ignore[valid-type]
     link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])    # relative, l1 and l2
     offset_error: list[float] = field(default_factory=lambda: [0.02, 0.0, 0.0])  # rad, rad, m
-    sizes: list[float] = field(default_factory=lambda: [0.0, 0.01, 0.03, 0.05])  # sweep: link-1 error
-    learner: str = "nlms"              # nlms | rls
+    sizes: list[float] = field(default_factory=lambda: [0.0, 0.01, 0.03, 0.05])  # link-1 errors
+    learner: Learner = Learner.nlms            # type: ignore[valid-type]
     alpha0: float = 0.5                # NLMS step alpha(0)
     decay: float = 0.0                 # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
     forgetting: float = 0.9995         # RLS forgetting factor
     update_every: int = 10             # control periods per update (the pairs of one mini-batch)
-    save_checkpoint: bool = True       # write checkpoint_online.pt (the default perturbation's network)
+    save_checkpoint: bool = True       # write checkpoint_online.pt (the configured perturbation's network)
 
 
-def _allowed(name: str, value: Any, allowed: tuple) -> None:
-    if value not in allowed:
-        raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
+@dataclass
+class EvalConfig:
+    checkpoint: Optional[str] = None   # null: the newest checkpoint.pt under outputs_dir
+    outputs_dir: str = "outputs"
+    ik: bool = True                    # the IK accuracy part (needs a checkpoint)
+    n_test: int = 10000
+    seed: Optional[int] = None         # null: the checkpoint's training seed; the test stream is derived
+    device: str = "cpu"
+    num_threads: int = 0
+    gains: GainsConfig = field(default_factory=GainsConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    online: OnlineConfig = field(default_factory=OnlineConfig)
+
+
+# ------------------------------------------------------------------------------------ validation
+def _need(ok: bool, key: str, value: Any, allowed: str) -> None:
+    if not ok:
+        raise ValueError(f"{key}={value!r} is not allowed: {allowed}")
+
+
+def _finite(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def validate_device(device: str, num_threads: int, prefix: str = "") -> None:
+    """`device` is cpu or an available cuda[:N]; `num_threads` >= 0."""
+    _need(isinstance(num_threads, int) and num_threads >= 0, f"{prefix}num_threads", num_threads,
+          "use 0 (torch's default) or a positive number of threads")
+    d = str(device)
+    ok = d == "cpu" or d == "cuda" or (d.startswith("cuda:") and d[5:].isdigit())
+    _need(ok, f"{prefix}device", device, "use 'cpu', 'cuda' or 'cuda:N'")
+    if d != "cpu":
+        import torch  # a runtime fact, not a schema one
+
+        if not torch.cuda.is_available():
+            raise ValueError(f"{prefix}device={device!r}: no CUDA device is available to this torch "
+                             f"(torch {torch.__version__}, built for CUDA {torch.version.cuda}); use device=cpu")
+        n = torch.cuda.device_count()
+        if d.startswith("cuda:") and int(d[5:]) >= n:
+            raise ValueError(f"{prefix}device={device!r}: only {n} CUDA device(s) (cuda:0..cuda:{n - 1})")
+
+
+def _seed(key: str, seed: Any) -> None:
+    _need(isinstance(seed, int) and 0 <= seed <= MAX_SEED, key, seed, f"use an integer in [0, {MAX_SEED}]")
 
 
 def validate_train(cfg: TrainConfig) -> None:
-    """Raise ValueError naming the first bad value in a training config."""
+    """Raise ValueError naming the first bad value of a training config."""
     c, r, d, a = cfg.centers, cfg.rbfn, cfg.data, cfg.centers.aco
-    _allowed("centers.name", c.name, SELECTORS)
-    _allowed("centers.method", c.method, METHODS)
-    _allowed("centers.width_rule", c.width_rule, WIDTH_RULES)
-    _allowed("centers.aco.colony", a.colony, COLONIES)
-    _allowed("centers.aco.objective", a.objective, OBJECTIVES)
-    _allowed("centers.aco.search_widths", a.search_widths, WIDTH_SEARCH)
-    _allowed("rbfn.solver", r.solver, SOLVERS)
-    _allowed("rbfn.input_scaling", r.input_scaling, INPUT_SCALINGS)
+    _need(c.name in SELECTORS, "centers.name", c.name, f"choose one of {list(SELECTORS)}")
     for name in ("n_train", "n_val", "n_test"):
-        if getattr(d, name) <= 0:
-            raise ValueError(f"data.{name}={getattr(d, name)} must be > 0")
-    if r.num_centers <= 0:
-        raise ValueError(f"rbfn.num_centers={r.num_centers} must be > 0")
-    if r.num_centers > d.n_train:
-        raise ValueError(f"rbfn.num_centers={r.num_centers} exceeds the training set size "
-                         f"data.n_train={d.n_train}; use at most {d.n_train} centres")
-    if c.width_scale is not None and not (math.isfinite(c.width_scale) and c.width_scale > 0):
-        raise ValueError(f"centers.width_scale={c.width_scale} must be a positive finite number or null")
-    if not r.max_width > 0:
-        raise ValueError(f"rbfn.max_width={r.max_width} must be > 0")
-    if c.method == "ols" and a.candidates < r.num_centers:
-        raise ValueError(f"centers.aco.candidates={a.candidates} must be >= rbfn.num_centers={r.num_centers}")
-    if a.iterations < 0 or a.ants < 1 or a.archive_size < 2:
-        raise ValueError(f"centers.aco needs iterations >= 0, ants >= 1, archive_size >= 2; got "
-                         f"{a.iterations}, {a.ants}, {a.archive_size}")
-    if not 0 < a.rho < 1:
-        raise ValueError(f"centers.aco.rho={a.rho} must be in (0, 1)")
-    if not 0 < r.lms_alpha0 < 2:
-        raise ValueError(f"rbfn.lms_alpha0={r.lms_alpha0} must be in (0, 2)")
+        _need(getattr(d, name) > 0, f"data.{name}", getattr(d, name), "must be > 0")
+    _need(r.num_centers > 0, "rbfn.num_centers", r.num_centers, "must be > 0")
+    _need(r.num_centers <= d.n_train, "rbfn.num_centers", r.num_centers,
+          f"exceeds the training set size data.n_train={d.n_train}; use at most {d.n_train} centres")
+    _need(c.width_scale is None or (_finite(c.width_scale) and c.width_scale > 0), "centers.width_scale",
+          c.width_scale, "must be a positive finite number or null")
+    _need(c.kmeans_restarts >= 1, "centers.kmeans_restarts", c.kmeans_restarts, "must be >= 1")
+    _need(_finite(r.max_width) and r.max_width > 0, "rbfn.max_width", r.max_width, "must be > 0")
+    if c.method == Method.ols or (c.method == Method.aco and a.colony == Colony.ant_system):
+        _need(a.candidates >= r.num_centers, "centers.aco.candidates", a.candidates,
+              f"must be >= rbfn.num_centers={r.num_centers}")
+    _validate_aco(a, "centers.aco")
+    rf = c.refine
+    _need(rf.steps >= 0, "centers.refine.steps", rf.steps, "must be >= 0")
+    _need(_finite(rf.lr) and rf.lr > 0, "centers.refine.lr", rf.lr, "must be > 0")
+    _need(_finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
+    _need(0 < r.lms_alpha0 < 2, "rbfn.lms_alpha0", r.lms_alpha0, "must be in (0, 2)")
+    _need(r.lms_epochs >= 1, "rbfn.lms_epochs", r.lms_epochs, "must be >= 1")
     lo, hi = cfg.robot.joint_low, cfg.robot.joint_high
-    if len(lo) != len(hi):
-        raise ValueError(f"robot.joint_low {list(lo)} and robot.joint_high {list(hi)} differ in length")
+    _need(len(lo) == len(hi) and len(lo) > 0, "robot.joint_low", list(lo),
+          f"robot.joint_low and robot.joint_high ({list(hi)}) need one value per joint each")
     for i, (l, h) in enumerate(zip(lo, hi)):
-        if not (math.isfinite(l) and math.isfinite(h) and l < h):
-            raise ValueError(f"empty or invalid joint range for joint {i + 1}: "
+        if not (_finite(l) and _finite(h) and l < h):
+            raise ValueError(f"robot.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
                              f"[{l}, {h}] (robot.joint_low < robot.joint_high required)")
     g = r.growth
-    if g.start < 0 or g.factor <= 1.0 or g.goal < 0:
-        raise ValueError(f"rbfn.growth needs start >= 0, factor > 1, goal >= 0; "
-                         f"got start={g.start}, factor={g.factor}, goal={g.goal}")
-    if cfg.num_threads < 0:
-        raise ValueError(f"num_threads={cfg.num_threads} must be >= 0")
-    if not (cfg.device == "cpu" or cfg.device.startswith("cuda")):
-        raise ValueError(f"device={cfg.device!r} is not allowed; use 'cpu' or 'cuda[:N]'")
+    _need(g.start >= 0, "rbfn.growth.start", g.start, "must be >= 0 (0: no growth)")
+    _need(_finite(g.factor) and g.factor > 1.0, "rbfn.growth.factor", g.factor, "must be > 1")
+    _need(_finite(g.goal) and g.goal >= 0, "rbfn.growth.goal", g.goal, "must be >= 0")
+    _seed("seed", cfg.seed)
+    validate_device(cfg.device, cfg.num_threads)
+
+
+def _validate_aco(a: ACOConfig, key: str) -> None:
+    _need(a.iterations >= 0, f"{key}.iterations", a.iterations, "must be >= 0")
+    _need(a.ants >= 1, f"{key}.ants", a.ants, "must be >= 1")
+    _need(a.archive_size >= 2, f"{key}.archive_size", a.archive_size, "must be >= 2")
+    _need(_finite(a.q) and a.q > 0, f"{key}.q", a.q, "must be > 0")
+    _need(_finite(a.xi) and a.xi > 0, f"{key}.xi", a.xi, "must be > 0")
+    _need(_finite(a.init_spread) and a.init_spread >= 0, f"{key}.init_spread", a.init_spread, "must be >= 0")
+    _need(_finite(a.rho) and 0 < a.rho < 1, f"{key}.rho", a.rho, "must be in (0, 1)")
+    _need(_finite(a.Q) and a.Q > 0, f"{key}.Q", a.Q, "must be > 0")
+    _need(_finite(a.alpha) and a.alpha >= 0, f"{key}.alpha", a.alpha, "must be >= 0")
+    _need(_finite(a.beta) and a.beta >= 0, f"{key}.beta", a.beta, "must be >= 0")
+    _need(a.candidates >= 1, f"{key}.candidates", a.candidates, "must be >= 1")
 
 
 def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
-    """Raise ValueError naming the first bad value in the control part of evaluate's config."""
-    from .control.controllers import CONTROLLERS, ROBUST_TERMS
-    from .control.network import CENTER_METHODS
-
+    """Raise ValueError naming the first bad value of the control part (`control.*`, `gains.*`)."""
+    arbfn = [f"arbfn_{m}" for m in CONTROL_CENTER_METHODS]
     for name in c.controllers:
-        if name in CONTROLLERS[:-1]:
-            continue
-        if not (name.startswith("arbfn_") and name[6:] in CENTER_METHODS):
-            raise ValueError(f"control.controllers: unknown controller {name!r}; choose from "
-                             f"{list(CONTROLLERS[:-1])} or arbfn_<{'|'.join(CENTER_METHODS)}>")
+        _need(name in BASE_CONTROLLERS or name in arbfn, "control.controllers", name,
+              f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}")
+    _need(len(set(c.controllers)) == len(c.controllers), "control.controllers", list(c.controllers),
+          "each controller may appear once")
     for k, v in vars(gains).items():
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ValueError(f"gains.{k}={v} must be finite")
+        if isinstance(v, float):
+            _need(math.isfinite(v), f"gains.{k}", v, "must be finite")
     for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay"):
-        if not getattr(gains, k) > 0:
-            raise ValueError(f"gains.{k}={getattr(gains, k)} must be > 0")
+        _need(getattr(gains, k) > 0, f"gains.{k}", getattr(gains, k), "must be > 0")
     for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd"):
-        if getattr(gains, k) < 0:
-            raise ValueError(f"gains.{k}={getattr(gains, k)} must be >= 0")
-    _allowed("gains.robust", gains.robust, ROBUST_TERMS)
-    _allowed("control.dtype", c.dtype, ("float64", "float32"))
-    _allowed("control.friction", c.friction, ("sign", "smooth"))
-    if any(not (math.isfinite(p) and p >= 0) for p in c.payloads) or not c.payloads:
-        raise ValueError(f"control.payloads={list(c.payloads)} must be a non-empty list of masses >= 0 kg")
-    if c.network.num_centers < 1:
-        raise ValueError(f"control.network.num_centers={c.network.num_centers} must be >= 1")
+        _need(getattr(gains, k) >= 0, f"gains.{k}", getattr(gains, k), "must be >= 0")
+    _need(_finite(c.dt) and c.dt > 0, "control.dt", c.dt, "must be a positive number of seconds")
+    _need(_finite(c.duration) and c.duration >= c.dt, "control.duration", c.duration,
+          f"must be finite and >= control.dt={c.dt}")
+    _need(_finite(c.payload_on) and _finite(c.payload_off) and 0 <= c.payload_on < c.payload_off <= c.duration,
+          "control.payload_on/payload_off", [c.payload_on, c.payload_off],
+          f"need 0 <= payload_on < payload_off <= control.duration={c.duration}")
+    _need(0.5 < c.duration, "control.duration", c.duration, "must exceed 0.5 s (errors are measured after 0.5 s)")
+    _need(len(c.payloads) > 0 and all(_finite(p) and p >= 0 for p in c.payloads), "control.payloads",
+          list(c.payloads), "a non-empty list of masses >= 0 kg")
+    _need(len(set(c.payloads)) == len(c.payloads), "control.payloads", list(c.payloads),
+          "each payload case may appear once (cases are keyed by mass)")
+    _need(_finite(c.figure_payload), "control.figure_payload", c.figure_payload, "must be a finite mass in kg")
+    n = c.network
+    _need(n.num_centers >= 1, "control.network.num_centers", n.num_centers, "must be >= 1")
+    if any(name.startswith("arbfn_") for name in c.controllers):
+        steps = int(round(c.duration / c.dt))
+        n_train = (steps // PILOT_STRIDE + 1) // 2      # even pilot samples train the network
+        _need(n.num_centers <= n_train, "control.network.num_centers", n.num_centers,
+              f"exceeds the pilot run's {n_train} training samples (control.duration={c.duration} s, "
+              f"one sample per {PILOT_STRIDE} periods, half of them for training)")
+        _seed("control.network.seed", n.seed)
+        _validate_aco(n.aco, "control.network.aco")
 
 
 def validate_online(c: OnlineConfig) -> None:
-    """Raise ValueError naming the first bad value in the `online` part of evaluate's config."""
-    from .control.task_space import PATHS
-    from .online import LEARNERS
+    """Raise ValueError naming the first bad value of the online part (`online.*`)."""
+    _need(_finite(c.dt) and c.dt > 0, "online.dt", c.dt, "must be a positive number of seconds")
+    _need(_finite(c.duration) and c.duration >= 4.0, "online.duration", c.duration,
+          "must be >= 4 s (the metrics use the first and last 2 s)")
+    _need(len(c.link_error) == 2 and all(_finite(v) and v > -1 for v in c.link_error), "online.link_error",
+          list(c.link_error), "two relative errors > -1 (links 1 and 2)")
+    _need(len(c.offset_error) == 3 and all(_finite(v) for v in c.offset_error), "online.offset_error",
+          list(c.offset_error), "three finite joint offsets (rad, rad, m)")
+    _need(len(c.sizes) > 0 and all(_finite(s) for s in c.sizes), "online.sizes", list(c.sizes),
+          "a non-empty list of link-1 errors")
+    ref = c.link_error[0]
+    _need(ref != 0 or all(s == 0 for s in c.sizes), "online.sizes", list(c.sizes),
+          "sizes scale the configured perturbation by its link-1 error, and online.link_error[0] is 0")
+    _need(any(math.isclose(s, ref, rel_tol=1e-9, abs_tol=1e-12) for s in c.sizes), "online.sizes",
+          list(c.sizes), f"must include online.link_error[0]={ref}, the configured perturbation")
+    _need(0 <= c.alpha0 < 2, "online.alpha0", c.alpha0, "must be in [0, 2)")
+    _need(_finite(c.decay) and c.decay >= 0, "online.decay", c.decay, "must be >= 0")
+    _need(0 < c.forgetting <= 1, "online.forgetting", c.forgetting, "must be in (0, 1]")
+    _need(c.update_every >= 1, "online.update_every", c.update_every, "must be >= 1")
 
-    _allowed("online.path", c.path, PATHS)
-    _allowed("online.learner", c.learner, LEARNERS)
-    if not (math.isfinite(c.dt) and c.dt > 0) or not (math.isfinite(c.duration) and c.duration >= 4.0):
-        raise ValueError(f"online.dt={c.dt} must be > 0 and online.duration={c.duration} >= 4 s "
-                         "(the metrics use the first and last 2 s)")
-    if len(c.link_error) != 2 or len(c.offset_error) != 3:
-        raise ValueError(f"online.link_error needs 2 values (l1, l2) and online.offset_error 3 "
-                         f"(joints 1-3); got {list(c.link_error)} and {list(c.offset_error)}")
-    if 0.03 not in c.sizes:
-        raise ValueError(f"online.sizes={list(c.sizes)} must include 0.03, the default perturbation")
-    if not 0 <= c.alpha0 < 2 or c.decay < 0 or not 0 < c.forgetting <= 1 or c.update_every < 1:
-        raise ValueError(f"online needs 0 <= alpha0 < 2, decay >= 0, 0 < forgetting <= 1, "
-                         f"update_every >= 1; got {c.alpha0}, {c.decay}, {c.forgetting}, {c.update_every}")
+
+def validate_evaluate(cfg: EvalConfig) -> None:
+    """Raise ValueError naming the first bad value of an evaluation config (every part)."""
+    _need(cfg.n_test > 0, "n_test", cfg.n_test, "must be > 0")
+    if cfg.seed is not None:
+        _seed("seed", cfg.seed)
+    validate_device(cfg.device, cfg.num_threads)
+    if cfg.control.enabled:
+        validate_control(cfg.control, cfg.gains)
+    if cfg.online.enabled:
+        validate_online(cfg.online)
+
+
+def plain(cfg: Any) -> dict:
+    """A config dataclass as plain JSON data (choices as strings), for checkpoints and logs."""
+    return json.loads(json.dumps(asdict(cfg)))
 
 
 def register_configs() -> None:
@@ -286,3 +407,5 @@ def register_configs() -> None:
     cs = ConfigStore.instance()
     cs.store(name="train_schema", node=TrainConfig)
     cs.store(group="centers", name="centers_schema", node=CentersConfig)
+    cs.store(name="evaluate_schema", node=EvalConfig)
+    cs.store(group="gains", name="gains_schema", node=GainsConfig)

@@ -8,7 +8,20 @@ import torch
 
 from .robots.kinematics import forward_kinematics
 
-__all__ = ["Split", "Dataset", "sample_joints", "make_dataset"]
+__all__ = ["Split", "Dataset", "sample_joints", "make_split", "make_dataset", "evaluation_split", "stream",
+           "input_scaling", "check_finite"]
+
+# Random streams: a seed s draws training, validation and test sets from streams s * 1000 + 0, 1, 2
+# and evaluation sets from s * 1000 + 777. Two streams of any seeds coincide only if they have the
+# same offset, so an evaluation set never repeats a training, validation or test set.
+STREAMS_PER_SEED = 1000
+TRAIN_VAL_TEST = (0, 1, 2)
+EVALUATION = 777
+
+
+def stream(seed: int, offset: int) -> int:
+    """The generator seed of stream `offset` (< 1000) of `seed`."""
+    return seed * STREAMS_PER_SEED + offset
 
 
 @dataclass
@@ -45,8 +58,12 @@ def make_split(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, n: 
 def make_dataset(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor,
                  sizes: tuple[int, int, int], seed: int) -> Dataset:
     """Train/val/test splits of (position, joints) pairs, each from its own seeded stream."""
-    # Distinct, seed-derived streams per split; evaluate.py uses a stream training never uses.
-    return Dataset(*(make_split(chain, low, high, n, seed * 1000 + k) for k, n in enumerate(sizes)))
+    return Dataset(*(make_split(chain, low, high, n, stream(seed, k)) for k, n in zip(TRAIN_VAL_TEST, sizes)))
+
+
+def evaluation_split(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, n: int, seed: int) -> Split:
+    """A fresh evaluation set for `seed`, from a stream no training run of any seed draws."""
+    return make_split(chain, low, high, n, stream(seed, EVALUATION))
 
 
 def input_scaling(x: torch.Tensor, mode: str) -> tuple[torch.Tensor, torch.Tensor]:

@@ -1,23 +1,101 @@
-"""Least mean squares: the paper's iterative weight rule w <- w + alpha e a, alpha decaying.
+"""Least mean squares and recursive least squares for a network's output weights.
 
-Normalised LMS over mini-batches: w <- w + alpha(t) * mean_b(a_b e_b^T / (||a_b||^2 + eps)),
-alpha(t) = alpha0 / (1 + t / decay) (t counts updates). Converges on well-conditioned bases; on
-the ill-conditioned ones that accurate wide-width fits produce, least squares is the solver.
+The learners adapt weights W (B, P, out), batched over environments B, from design rows
+a (B, n, P) and targets y (B, n, out), n recent pairs per update:
+- `NLMS`, the paper's LMS rule normalised: W <- W + alpha(t) mean_i a_i e_i^T / (|a_i|^2 + eps),
+  alpha(t) = alpha0 / (1 + t / decay) (the paper: alpha(0) = 0.5, decaying);
+- `RLS`, recursive least squares with forgetting factor lambda, which converges in a few passes
+  where LMS crawls on the ill-conditioned bases of accurate wide-width fits.
+A pair with a non-finite row or target is skipped (its environment's weights are left as they
+were) and counted in `rejected`. `lms_fit` is the offline solver: shuffled mini-batch passes of
+NLMS over a training set. LMS converges on well-conditioned bases; on the ill-conditioned ones
+that accurate wide-width fits produce, ridge least squares (rbfn.fit) is the solver.
 """
 from __future__ import annotations
 
 import torch
 
-from .online import NLMS
+from .config import Learner
 
-__all__ = ["lms_fit"]
+__all__ = ["NLMS", "RLS", "make_learner", "lms_fit"]
+
+
+class NLMS:
+    """Normalised least mean squares; weights (B, P, out)."""
+
+    def __init__(self, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0, eps: float = 1e-6) -> None:
+        if not 0.0 <= alpha0 < 2.0:
+            raise ValueError(f"alpha0={alpha0} must be in [0, 2) for normalised LMS to be stable")
+        if decay < 0:
+            raise ValueError(f"decay={decay} must be >= 0 (0: no decay)")
+        self.w, self.alpha0, self.decay, self.eps = weights.clone(), alpha0, decay, eps
+        self.rejected = 0
+
+    def alpha(self, t: float) -> float:
+        return self.alpha0 / (1.0 + t / self.decay) if self.decay else self.alpha0
+
+    def update(self, a: torch.Tensor, y: torch.Tensor, t: float = 0.0) -> torch.Tensor:
+        """One step on pairs a (B, n, P), y (B, n, out); returns the prior errors (B, n, out)."""
+        ok = _finite(a, y)
+        a, y = torch.where(ok[..., None], a, 0.0), torch.where(ok[..., None], y, 0.0)
+        e = (y - a @ self.w) * ok[..., None]
+        norm = a.square().sum(-1, keepdim=True) + self.eps
+        n = ok.sum(-1).clamp_min(1)[:, None, None]
+        self.w = self.w + self.alpha(t) * (a / norm).transpose(1, 2) @ e / n
+        self.rejected += int((~ok).sum())
+        return e
+
+
+class RLS:
+    """Recursive least squares with exponential forgetting; weights (B, P, out), P (B, P, P)."""
+
+    def __init__(self, weights: torch.Tensor, forgetting: float = 0.999, delta: float = 1e2) -> None:
+        if not 0.0 < forgetting <= 1.0:
+            raise ValueError(f"forgetting={forgetting} must be in (0, 1]")
+        if not delta > 0:
+            raise ValueError(f"delta={delta} must be > 0 (initial inverse-covariance scale)")
+        b, p, _ = weights.shape
+        self.w, self.lam = weights.clone(), forgetting
+        self.p = delta * torch.eye(p, dtype=weights.dtype, device=weights.device).expand(b, p, p).clone()
+        self.rejected = 0
+
+    def update(self, a: torch.Tensor, y: torch.Tensor, t: float = 0.0) -> torch.Tensor:
+        ok = _finite(a, y)
+        errs = []
+        for i in range(a.shape[1]):                      # rank-one updates, pair by pair
+            ai, yi, oki = a[:, i], y[:, i], ok[:, i]
+            ai, yi = torch.where(oki[:, None], ai, 0.0), torch.where(oki[:, None], yi, 0.0)
+            e = yi - (ai[:, None, :] @ self.w)[:, 0]
+            pa = (self.p @ ai[..., None])[..., 0]                              # (B, P)
+            k = pa / (self.lam + (ai * pa).sum(-1, keepdim=True))
+            k = k * oki[:, None]
+            self.w = self.w + k[..., None] * e[:, None, :]
+            lam = torch.where(oki, self.lam, 1.0)[:, None, None]
+            self.p = (self.p - k[..., None] * pa[:, None, :]) / lam
+            errs.append(e * oki[:, None])
+        self.rejected += int((~ok).sum())
+        return torch.stack(errs, 1)
+
+
+def _finite(a: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    return torch.isfinite(a).all(-1) & torch.isfinite(y).all(-1)
+
+
+def make_learner(name: str, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0,
+                 forgetting: float = 0.999) -> "NLMS | RLS":
+    """The online learner `name` (nlms | rls) starting from weights (B, P, out)."""
+    if name == "nlms":
+        return NLMS(weights, alpha0, decay)
+    if name == "rls":
+        return RLS(weights, forgetting)
+    raise ValueError(f"unknown learner {name!r}; choose one of {[str(v) for v in Learner]}")
 
 
 def lms_fit(a: torch.Tensor, y: torch.Tensor, weights: torch.Tensor | None = None, alpha0: float = 0.5,
             decay: float = 1000.0, epochs: int = 50, batch_size: int = 32,
             generator: torch.Generator | None = None) -> torch.Tensor:
     """Weights (P, out) by normalised mini-batch LMS on design a (N, P) and targets y (N, out):
-    `epochs` shuffled passes of rbfn.online.NLMS, its step decaying with the update count."""
+    `epochs` shuffled passes of NLMS, its step decaying with the update count."""
     if not 0.0 < alpha0 < 2.0:
         raise ValueError(f"alpha0 must be in (0, 2) for normalised LMS to be stable, got {alpha0}")
     w = torch.zeros(a.shape[1], y.shape[1], dtype=a.dtype, device=a.device) if weights is None else weights

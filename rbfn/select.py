@@ -21,7 +21,7 @@ from .config import CentersConfig
 from .objectives import FitObjective, cluster_objective
 from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
 
-__all__ = ["Selection", "select", "choose_widths"]
+__all__ = ["Selection", "select", "choose_widths", "visibility"]
 
 
 @dataclass
@@ -91,6 +91,14 @@ def _candidate_pool(z: torch.Tensor, n: int, g: torch.Generator) -> torch.Tensor
     return z[torch.randperm(z.shape[0], generator=g)[:n].to(z.device)]
 
 
+def visibility(z: torch.Tensor, pool: torch.Tensor, k: int = 10) -> torch.Tensor:
+    """The Ant System's heuristic eta (C,) of candidates pool (C, d): the local density of the
+    training inputs z (N, d), 1 / mean distance to the candidate's k nearest inputs. With
+    p_j ~ tau_j^alpha eta_j^beta, beta > 0 favours centres where the data are dense."""
+    d = torch.cdist(pool, z).topk(min(k, z.shape[0]), dim=-1, largest=False).values.mean(-1)
+    return 1.0 / d.clamp_min(1e-12)
+
+
 def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
     """The paper's colony: ants choose M of the candidate points; widths by the rule."""
     pool = _candidate_pool(objective.z_train, cfg.aco.candidates, g)
@@ -115,7 +123,8 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
     a = cfg.aco
     colony = AntSystem(ants=a.ants, iterations=a.iterations, rho=a.rho, Q=a.Q, alpha=a.alpha,
                        beta=a.beta, progress=progress)
-    res = colony.minimize(obj, pool.shape[0], m, generator=g, state=resume, on_state=on_state)
+    eta = visibility(objective.z_train, pool) if a.beta else None
+    res = colony.minimize(obj, pool.shape[0], m, eta=eta, generator=g, state=resume, on_state=on_state)
     centers = pool[res.best.to(pool.device)]
     return centers, widths_of(centers[None])[0], res
 

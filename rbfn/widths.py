@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["paper_widths", "nearest_widths", "base_widths", "SCALE_GRID", "WIDTH_RULES"]
+from .config import WidthRule
 
-WIDTH_RULES = ("paper", "global", "per_center")
+__all__ = ["paper_widths", "nearest_widths", "base_widths", "SCALE_GRID"]
+
 # Scales tried on validation (log-spaced, 0.25x to 64x the base width).
 SCALE_GRID = tuple(2.0 ** (e / 2) for e in range(-4, 13))
 
@@ -33,9 +34,9 @@ def nearest_widths(centers: torch.Tensor, k: int = 2) -> torch.Tensor:
 
 
 def base_widths(centers: torch.Tensor, rule: str) -> torch.Tensor:
-    """Base widths (..., M) for `rule` in WIDTH_RULES ("paper" and "global" share the paper's base)."""
+    """Base widths (..., M) for `rule` (a WidthRule) ("paper" and "global" share the paper's base)."""
     if rule in ("paper", "global"):
         return paper_widths(centers)
     if rule == "per_center":
         return nearest_widths(centers)
-    raise ValueError(f"unknown width rule {rule!r}; allowed: {WIDTH_RULES}")
+    raise ValueError(f"unknown width rule {rule!r}; allowed: {[str(r) for r in WidthRule]}")

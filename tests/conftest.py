@@ -1,9 +1,27 @@
+"""Shared fixtures: the SCARA chain, a small data set, and Hydra composition of the two entry points."""
+from pathlib import Path
+
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
+from rbfn.config import RobotConfig, register_configs
 from rbfn.robots import load_serial_chain, scara
 
 torch.set_num_threads(1)
+register_configs()
+
+CONF = str(Path(__file__).resolve().parents[1] / "conf")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def compose_config(name: str, *overrides: str, hydra: bool = False):
+    """The composed `name` config ("train" or "evaluate") as its dataclass (or, with `hydra`, the
+    DictConfig including the hydra node)."""
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        cfg = compose(name, overrides=list(overrides), return_hydra_config=hydra)
+    return cfg if hydra else OmegaConf.to_object(cfg)
 
 
 @pytest.fixture(scope="session")
@@ -15,6 +33,7 @@ def chain():
 def small_data(chain):
     from rbfn.data import make_dataset
 
-    low = torch.tensor([0.0, 0.3, 0.5], dtype=torch.float64)
-    high = torch.tensor([2.0, 2.0, 1.5], dtype=torch.float64)
+    box = RobotConfig()
+    low = torch.tensor(box.joint_low, dtype=torch.float64)
+    high = torch.tensor(box.joint_high, dtype=torch.float64)
     return make_dataset(chain, low, high, (600, 300, 300), seed=3)

@@ -1,8 +1,7 @@
-"""Closed-loop control of the SCARA: batched simulator, controllers, the adaptive RBFN, scenarios."""
-from .controllers import CONTROLLERS, Gains, make_controller
-from .plant import ScaraPlant
-from .scenario import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
+"""Closed-loop control of the SCARA: batched simulator, controllers, the adaptive RBFN, online IK."""
+from .controllers import Gains, make_controller
+from .simulator import Rollout, ScaraPlant, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import paper_trajectory
 
-__all__ = ["CONTROLLERS", "Gains", "make_controller", "ScaraPlant", "Rollout", "Scenario",
-           "SimulationDiverged", "control_metrics", "simulate", "paper_trajectory"]
+__all__ = ["Gains", "make_controller", "ScaraPlant", "Rollout", "Scenario", "SimulationDiverged",
+           "control_metrics", "simulate", "paper_trajectory"]

@@ -25,15 +25,10 @@ from __future__ import annotations
 
 import torch
 
-from ..config import GainsConfig as Gains
-from ..robots.scara import ScaraParams, inertia_params
-from .plant import c_times, m_times, mdot_times
+from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
+from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mdot_times
 
-__all__ = ["Gains", "NominalModel", "Controller", "PD", "ComputedTorque", "SlidingMode", "CONTROLLERS",
-           "make_controller", "ROBUST_TERMS"]
-
-CONTROLLERS = ("pd", "ctc", "smc", "smc_obs", "arbfn")   # arbfn_<selector>: the adaptive RBFN
-ROBUST_TERMS = ("sign", "sat")
+__all__ = ["Gains", "NominalModel", "Controller", "PD", "ComputedTorque", "SlidingMode", "make_controller"]
 
 
 class NominalModel:
@@ -119,7 +114,7 @@ class SlidingMode(Controller):
         e, de = q_d - q, v_d - qd
         s = de + g.Lambda * e
         s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
-        robust = torch.sign(s) if g.robust == "sign" else (s / g.boundary).clamp(-1.0, 1.0)
+        robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
         tau = (m_times(c2, m.m_co, a_d + g.Lambda * de) + c_times(s2, m.c_co, qd, v_d + g.Lambda * e)
                + m.gravity(q) + g.K * s + g.epsilon * robust)
         d_hat, integral, p0 = state[:3]
@@ -160,4 +155,5 @@ def make_controller(name: str, gains: Gains, dt: float, model: NominalModel | No
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
         return SlidingMode(gains, dt, model, observer=observer, features=features, w0=w0)
-    raise ValueError(f"unknown controller {name!r}; choose one of {list(CONTROLLERS[:-1])} or arbfn_<centers>")
+    raise ValueError(f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
+                     f"arbfn_<{'|'.join(CONTROL_CENTER_METHODS)}>")

@@ -11,22 +11,20 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
-from ..config import ACOConfig, CentersConfig
+from ..config import CONTROL_CENTER_METHODS, ACOConfig, CentersConfig, Method, Objective, WidthRule
 from ..fit import design_matrix, ridge_fit
 from ..layer import gaussian_features
 from ..objectives import FitObjective
+from ..robots.scara import c_times, m_times
 from ..select import choose_widths, select
 from .controllers import Gains, NominalModel, make_controller
-from .plant import ScaraPlant, c_times, m_times
-from .scenario import Scenario, simulate
+from .simulator import ScaraPlant, Scenario, simulate
 
-__all__ = ["ControlNet", "desired_states", "pilot_residuals", "control_network", "CENTER_METHODS"]
-
-CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
+__all__ = ["ControlNet", "desired_states", "pilot_residuals", "control_network"]
 PERIOD = 2 * math.pi          # s: every desired joint repeats with this period
 
 
@@ -69,11 +67,11 @@ def pilot_residuals(plant: ScaraPlant, scenario: Scenario, ref, gains: Gains, mo
 
 def control_network(method: str, x: torch.Tensor, y: torch.Tensor, m: int, seed: int, sample_dt: float,
                     aco: ACOConfig | None = None, warm_start: bool = False) -> ControlNet:
-    """Centres and widths for the controller's network by `method` (CENTER_METHODS) from pilot
+    """Centres and widths for the controller's network by `method` (CONTROL_CENTER_METHODS) from pilot
     data x (N, 6), y (N, 3) sampled every `sample_dt` s; even samples train, odd ones validate
     (widths, ridge, ACO's fit objective). `warm_start` starts the weights at the ridge fit of y."""
-    if method not in CENTER_METHODS:
-        raise ValueError(f"unknown centre method {method!r}; choose one of {list(CENTER_METHODS)}")
+    if method not in CONTROL_CENTER_METHODS:
+        raise ValueError(f"unknown centre method {method!r}; choose one of {list(CONTROL_CENTER_METHODS)}")
     offset, scale = x.mean(0), x.std(0).clamp_min(1e-9)
     z = (x - offset) / scale
     objective = FitObjective(z[0::2], y[0::2], z[1::2], y[1::2], tail=False)
@@ -85,10 +83,11 @@ def control_network(method: str, x: torch.Tensor, y: torch.Tensor, m: int, seed:
         widths = choose_widths(objective, centers, "per_center", None, max_width=4.0)
         seconds = time.perf_counter() - t0
     else:
-        cfg = CentersConfig(name=method, method="aco" if method.startswith("aco") else method,
-                            width_rule="per_center", aco=aco or ACOConfig())
-        if method == "aco_cluster":
-            cfg.aco.objective = "cluster"
+        aco = aco or ACOConfig()
+        if method == "aco_cluster":        # a new value: the caller's config is never mutated
+            aco = replace(aco, objective=Objective.cluster)
+        cfg = CentersConfig(name=method, method=Method.aco if method.startswith("aco") else Method(method),
+                            width_rule=WidthRule.per_center, aco=aco)
         sel = select(cfg, objective, m, seed, max_width=4.0, generator=g)
         centers, widths, seconds = sel.centers, sel.widths, sel.seconds
     w0 = torch.zeros(m, 3, dtype=x.dtype)

@@ -12,22 +12,20 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
-from ..config import GainsConfig, OnlineConfig
+from ..config import GainsConfig, OnlineConfig, PathName
 from ..layer import RBFNetwork
-from ..online import make_learner
+from ..lms import make_learner
 from ..robots.scara import ScaraParams, fk, ik
 from .controllers import make_controller
-from .plant import ScaraPlant
-from .scenario import Scenario, make_chunk, stage_disturbances
+from .simulator import ScaraPlant, Scenario, make_chunk, stage_disturbances
 from .trajectory import paper_trajectory
 
-__all__ = ["RealRobot", "desired_path", "design_rows", "output_weights", "with_weights", "run_online", "PATHS"]
-
-PATHS = ("paper", "circle", "figure8")
+__all__ = ["RealRobot", "desired_path", "design_rows", "output_weights", "with_weights", "run_online",
+           "perturbation_sizes"]
 
 
 @dataclass
@@ -41,26 +39,34 @@ class RealRobot:
 
     def fk(self, q: torch.Tensor) -> torch.Tensor:
         """Measured positions (..., B, 3) of joints q (..., B, 3)."""
-        qq = q + self.offset
-        l1 = self.params.l1 * (1 + self.link_error[:, 0])
-        l2 = self.params.l2 * (1 + self.link_error[:, 1])
-        q1, q2, q3 = qq.unbind(-1)
-        return torch.stack([l1 * torch.cos(q1) + l2 * torch.cos(q1 + q2),
-                            l1 * torch.sin(q1) + l2 * torch.sin(q1 + q2), -q3], -1)
+        p = replace(self.params, l1=self.params.l1 * (1 + self.link_error[:, 0]),
+                    l2=self.params.l2 * (1 + self.link_error[:, 1]))
+        return fk(q + self.offset, p)
+
+
+def perturbation_sizes(cfg: OnlineConfig, sizes: list[float], **kw) -> tuple[torch.Tensor, torch.Tensor]:
+    """Link errors (S, 2) and joint offsets (S, 3) of each sweep row: the configured perturbation
+    scaled so that its link-1 error equals the row's size (a link-1 error)."""
+    s = torch.tensor(sizes, **kw)
+    ref = cfg.link_error[0]
+    scale = s / ref if ref else torch.zeros_like(s)
+    link = torch.tensor(cfg.link_error, **kw)[None] * scale[:, None]
+    offset = torch.tensor(cfg.offset_error, **kw)[None] * scale[:, None]
+    return link, offset
 
 
 def desired_path(name: str, t: torch.Tensor, params: ScaraParams = ScaraParams()) -> torch.Tensor:
     """Desired end-effector positions (T, 3) in m at times t (T,) s."""
-    if name == "paper":
+    if name == PathName.paper:
         return fk(paper_trajectory(t)[0], params)
     centre = fk(torch.tensor([[1.0, 1.15, 1.0]], dtype=t.dtype), params)[0]
     w = 2 * math.pi / 5.0                                                  # one loop per 5 s
-    if name == "circle":
+    if name == PathName.circle:
         off = torch.stack([0.15 * torch.cos(w * t), 0.15 * torch.sin(w * t), 0.1 * torch.sin(w * t)], -1)
-    elif name == "figure8":
+    elif name == PathName.figure8:
         off = torch.stack([0.2 * torch.sin(w * t), 0.1 * torch.sin(2 * w * t), 0.1 * torch.cos(w * t)], -1)
     else:
-        raise ValueError(f"unknown path {name!r}; choose one of {list(PATHS)}")
+        raise ValueError(f"unknown path {name!r}; choose one of {[str(p) for p in PathName]}")
     return centre + off
 
 
@@ -94,13 +100,13 @@ def with_weights(net: RBFNetwork, w: torch.Tensor) -> RBFNetwork:
 
 def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float],
                device: str = "cpu") -> dict:
-    """Run adapted and frozen networks for every perturbation size s in `sizes` (the configured
-    perturbation scaled by s / 0.03: the default one has a 3 % link-1 error) and the nominal
-    analytic IK.
+    """Run adapted and frozen networks for every perturbation size in `sizes` (link-1 errors; see
+    `perturbation_sizes`) and the nominal analytic IK.
 
     Returns, on the control grid: t (T,), err_adapt / err_frozen / err_analytic (T, S) task-space
     errors in mm, q_adapt (T, S, 3), dw (U, S) weight-change norms at the update times t_update
-    (U,), final weights (S, P, 3) and the number of rejected (non-finite) pairs.
+    (U,), final weights (S, P, 3), the rows' link errors (S, 2) and offsets (S, 3), and the number
+    of rejected (non-finite) pairs.
     """
     kw = {"dtype": torch.float64, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, "rk4", 0.0, cfg.duration, 0.0)
@@ -109,10 +115,7 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
     t = sc.times(**kw)
     x_d = desired_path(cfg.path, t).to(**kw)
     net = net.to(**kw)
-    s = torch.tensor(sizes, **kw)
-    scale = s / 0.03
-    link = torch.stack([torch.tensor(cfg.link_error, **kw)[0] * scale, torch.tensor(cfg.link_error, **kw)[1] * scale], -1)
-    offset = torch.tensor(cfg.offset_error, **kw)[None] * scale[:, None]
+    link, offset = perturbation_sizes(cfg, sizes, **kw)
     n_s = len(sizes)
     # Environments: [adapted (S), frozen (S)].
     real = RealRobot(torch.cat([link, link]), torch.cat([offset, offset]))
@@ -161,4 +164,5 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
     err_an = (real_s.fk(q_an[:, None, :].expand(-1, n_s, 3)) - x_d[:, None, :]).norm(dim=-1) * 1000.0
     return {"t": t, "err_adapt": err[:, :n_s], "err_frozen": err[:, n_s:], "err_analytic": err_an,
             "q_adapt": qs[:, :n_s], "dw": torch.stack(dw), "t_update": torch.arange(1, len(dw) + 1, **kw)
-            * cfg.update_every * cfg.dt, "weights": learner.w[:n_s], "rejected": learner.rejected}
+            * cfg.update_every * cfg.dt, "weights": learner.w[:n_s], "link_error": link, "offset_error": offset,
+            "rejected": learner.rejected}

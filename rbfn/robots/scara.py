@@ -21,7 +21,8 @@ from pathlib import Path
 import torch
 
 __all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
-           "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy"]
+           "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
+           "m_times", "c_times", "mdot_times", "m_solve"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -122,3 +123,37 @@ def kinetic_energy(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Ten
                    p: ScaraParams = ScaraParams()) -> torch.Tensor:
     """Kinetic energy 1/2 qd^T M qd (B,) in J."""
     return 0.5 * torch.einsum("bi,bij,bj->b", qd, mass_matrix(q, payload, p), qd)
+
+
+# Elementwise products for the simulator's hot path: co = (p1, p2, p3, m3) from inertia_params,
+# c2 = cos q2, s2 = sin q2 (B,); no (B, 3, 3) matrix is formed.
+def m_times(c2, co, v: torch.Tensor) -> torch.Tensor:
+    """M(q) v (B, 3) from c2 = cos q2 (B,), co = (p1, p2, p3, m3) and v (B, 3)."""
+    p1, p2, p3, m3 = co
+    m12 = p3 + p2 * c2
+    v1, v2, v3 = v.unbind(-1)
+    return torch.stack([(p1 + 2 * p2 * c2) * v1 + m12 * v2, m12 * v1 + p3 * v2, m3 * v3], -1)
+
+
+def c_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """C(q, qd) v (B, 3) from s2 = sin q2 (B,)."""
+    h = co[1] * s2
+    qd1, qd2, _ = qd.unbind(-1)
+    v1, v2, v3 = v.unbind(-1)
+    return torch.stack([-h * (qd2 * v1 + (qd1 + qd2) * v2), h * qd1 * v1, torch.zeros_like(v3)], -1)
+
+
+def mdot_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """dM/dt v (B, 3) along the motion."""
+    d = -co[1] * s2 * qd[..., 1]
+    v1, v2, v3 = v.unbind(-1)
+    return torch.stack([d * (2 * v1 + v2), d * v1, torch.zeros_like(v3)], -1)
+
+
+def m_solve(c2, co, r: torch.Tensor) -> torch.Tensor:
+    """M(q)^-1 r (B, 3): the 2x2 block in closed form, the prismatic joint by division."""
+    p1, p2, p3, m3 = co
+    m11, m12 = p1 + 2 * p2 * c2, p3 + p2 * c2
+    r1, r2, r3 = r.unbind(-1)
+    det = m11 * p3 - m12 * m12
+    return torch.stack([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3], -1)

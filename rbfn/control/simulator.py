@@ -1,20 +1,93 @@
-"""The closed-loop scenario: a controller drives the simulated SCARA along the desired trajectory
-while the payload switches on and off; B environments (payload cases, seeds) at once.
+"""The closed-loop simulator: the "real" SCARA (rigid-body dynamics, friction, disturbance,
+payload) driven by a controller along a desired trajectory, B environments at once.
+
+M(q) qdd + C(q, qd) qd + G(q) + F(qd) + tau_d(t) = tau, with F = viscous qd + coulomb sign(qd)
+(or tanh(qd / smooth_velocity)) and tau_d = amplitude sin(frequency t) on every joint. The
+payload (kg, per environment) adds to m3 and is held constant within a step; the torque is held
+too (zero-order hold). The matrices are written out elementwise (M is block diagonal, so its
+inverse is a 2x2 one and a scalar): one step is a few dozen fused tensor operations. A scenario
+is a time grid, an integrator (RK4, or semi-implicit Euler) and a payload window; `simulate`
+runs it and stops with the step, time, environment and state where a run diverges.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
-from .controllers import Controller
-from .plant import INTEGRATORS, ScaraPlant
+from ..config import Friction, Integrator
+from ..robots.scara import ScaraParams, c_times, inertia_params, m_solve, m_times
 
-__all__ = ["Scenario", "Rollout", "SimulationDiverged", "simulate", "control_metrics", "make_chunk",
-           "stage_disturbances", "CHECK_EVERY"]
+if TYPE_CHECKING:
+    from .controllers import Controller
+
+__all__ = ["ScaraPlant", "Scenario", "Rollout", "SimulationDiverged", "simulate", "control_metrics",
+           "make_chunk", "stage_disturbances", "CHECK_EVERY"]
 
 CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a GPU)
+
+
+class ScaraPlant:
+    """The "real" robot of the closed-loop scenario; parameters in SI units."""
+
+    def __init__(self, params: ScaraParams = ScaraParams(), viscous: float = 12.0, coulomb: float = 0.2,
+                 friction: str = "sign", smooth_velocity: float = 0.01, disturbance: float = 5.0,
+                 disturbance_freq: float = 2.0, gravity: bool = True) -> None:
+        if friction not in tuple(Friction):
+            raise ValueError(f"friction={friction!r} is not allowed; choose one of {[str(f) for f in Friction]}")
+        if not smooth_velocity > 0:
+            raise ValueError(f"smooth_velocity={smooth_velocity} must be > 0 (m/s or rad/s)")
+        self.params, self.viscous, self.coulomb, self.friction = params, viscous, coulomb, friction
+        self.smooth_velocity, self.dist, self.dist_freq, self.gravity = (smooth_velocity, disturbance,
+                                                                          disturbance_freq, gravity)
+
+    def coefficients(self, payload: torch.Tensor):
+        """(p1, p2, p3, m3), each (B,), for payloads (B,) kg."""
+        return inertia_params(payload, self.params)
+
+    def friction_torque(self, qd: torch.Tensor) -> torch.Tensor:
+        sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
+        return self.viscous * qd + self.coulomb * sgn
+
+    def disturbance(self, t: torch.Tensor) -> torch.Tensor:
+        """Disturbance torque tau_d(t) (same shape as t), N m (N), applied to every joint."""
+        return self.dist * torch.sin(self.dist_freq * t)
+
+    def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
+        """Joint accelerations (B, 3) under torques tau (B, 3) and disturbance torque `dist`."""
+        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+        r = tau - c_times(s2, co, qd, qd) - self.friction_torque(qd) - dist
+        if self.gravity:
+            r = r + torch.stack([torch.zeros_like(co[3]), torch.zeros_like(co[3]), co[3] * self.params.g], -1)
+        return m_solve(c2, co, r)
+
+    def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist: torch.Tensor, dt: float, co,
+             method: str = "rk4") -> tuple[torch.Tensor, torch.Tensor]:
+        """State (q, qd) after dt seconds, torque and payload held; dist (2,): the disturbance
+        torque at the step's start and middle, tau_d(t) and tau_d(t + dt/2) (RK4's end stage
+        uses the next step's start value, passed as dist[2] when given)."""
+        if method == "euler":
+            qd = qd + dt * self.accel(q, qd, tau, dist[0], co)
+            return q + dt * qd, qd
+        a1 = self.accel(q, qd, tau, dist[0], co)
+        v2 = qd + 0.5 * dt * a1
+        a2 = self.accel(q + 0.5 * dt * qd, v2, tau, dist[1], co)
+        v3 = qd + 0.5 * dt * a2
+        a3 = self.accel(q + 0.5 * dt * v2, v3, tau, dist[1], co)
+        v4 = qd + dt * a3
+        a4 = self.accel(q + dt * v3, v4, tau, dist[2], co)
+        q_next = q + dt / 6 * (qd + 2 * v2 + 2 * v3 + v4)
+        qd_next = qd + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+        return q_next, qd_next
+
+    def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
+        """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at q3 = 0."""
+        co = self.coefficients(payload)
+        e = 0.5 * (qd * m_times(torch.cos(q[..., 1]), co, qd)).sum(-1)
+        return e - co[3] * self.params.g * q[..., 2] if self.gravity else e
+   # steps between finiteness checks (each check synchronises a GPU)
 
 
 class SimulationDiverged(RuntimeError):
@@ -37,8 +110,8 @@ class Scenario:
             raise ValueError(f"dt={self.dt} must be a positive finite number of seconds")
         if not (math.isfinite(self.duration) and self.duration >= self.dt):
             raise ValueError(f"duration={self.duration} must be finite and >= dt={self.dt}")
-        if self.integrator not in INTEGRATORS:
-            raise ValueError(f"integrator={self.integrator!r} is not allowed; choose one of {list(INTEGRATORS)}")
+        if self.integrator not in tuple(Integrator):
+            raise ValueError(f"integrator={self.integrator!r} is not allowed; choose one of {[str(i) for i in Integrator]}")
         if not 0 <= self.payload_on < self.payload_off <= self.duration:
             raise ValueError(f"payload window [{self.payload_on}, {self.payload_off}] s must satisfy "
                              f"0 <= payload_on < payload_off <= duration={self.duration}")
@@ -78,7 +151,7 @@ def stage_disturbances(plant: ScaraPlant, n: int, dt: float, **kw) -> torch.Tens
     return torch.stack([d[0:-1:2], d[1::2], d[2::2]], -1)
 
 
-def make_chunk(plant: ScaraPlant, controller: Controller, dt: float, integrator: str, n: int):
+def make_chunk(plant: ScaraPlant, controller: "Controller", dt: float, integrator: str, n: int):
     """`n` closed-loop periods as one pure tensor function (what torch.compile fuses):
     (q, qd, state, q_d, qd_d, qdd_d, h, alpha, dist, co) -> (q, qd, state, qs, qds, taus),
     the step inputs stacked over the n periods (co: the plant's inertia coefficients, each
@@ -98,7 +171,7 @@ def make_chunk(plant: ScaraPlant, controller: Controller, dt: float, integrator:
     return run
 
 
-def simulate(plant: ScaraPlant, controller: Controller, scenario: Scenario,
+def simulate(plant: ScaraPlant, controller: "Controller", scenario: Scenario,
              ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0) -> Rollout | tuple:
     """Run the closed loop from (q0, qd0) (B, 3) along ref = (q_d, qd_d, qdd_d), each (steps + 1, 3)

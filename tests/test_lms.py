@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from rbfn.online import NLMS, RLS, make_learner
+from rbfn.lms import NLMS, RLS, make_learner
 
 
 def _stream(n, p=6, out=2, seed=0):
@@ -55,5 +55,5 @@ def test_bad_settings():
         NLMS(w, alpha0=2.5)
     with pytest.raises(ValueError, match="forgetting=1.5"):
         RLS(w, forgetting=1.5)
-    with pytest.raises(ValueError, match="unknown online learner 'adam'"):
+    with pytest.raises(ValueError, match="unknown learner 'adam'"):
         make_learner("adam", w)

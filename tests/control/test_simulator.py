@@ -3,7 +3,7 @@ import torch
 
 from rbfn.control import Scenario, ScaraPlant, SimulationDiverged, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Gains, NominalModel
-from rbfn.control.plant import m_solve, m_times
+from rbfn.robots.scara import m_solve, m_times
 from rbfn.robots.scara import mass_matrix
 
 

@@ -1,12 +1,13 @@
-"""Figures (matplotlib, Agg backend): the IK workspace error map, the closed loop's 3x3 figure."""
+"""Figures: the IK workspace error map, the closed loop's 3x3 figure, the online error curve.
+
+Built on matplotlib's object-oriented API (`matplotlib.figure.Figure`), not pyplot, so importing
+this module never changes the process's backend and figures need no closing.
+"""
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.colors import LogNorm  # noqa: E402
+import numpy as np
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
 
 __all__ = ["workspace_error_map", "tracking_figure", "online_figure"]
 
@@ -16,7 +17,8 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
 
     Points the network flags as outside its trained workspace are drawn as grey crosses.
     """
-    fig, ax = plt.subplots(figsize=(6.4, 5.6), constrained_layout=True)
+    fig = Figure(figsize=(6.4, 5.6), layout="constrained")
+    ax = fig.subplots()
     e = np.clip(err_mm, 1e-4, None)
     sc = ax.scatter(x[inside, 0], x[inside, 1], c=e[inside], s=6, cmap="viridis",
                     norm=LogNorm(vmin=max(e[inside].min(), 1e-3) if inside.any() else 1e-3,
@@ -33,14 +35,18 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
 
 
 def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.ndarray, title: str,
-                    window: tuple[float, float] | None = None):
-    """The paper's 3x3 figure: per joint (rows), position vs desired, error, control input.
+                    window: tuple[float, float] | None = None,
+                    units: list[tuple[str, str]] | None = None) -> Figure:
+    """The paper's n x 3 figure: per joint (rows), position vs desired, error, control input.
 
-    t (T,) s; q, q_des (T, 3) rad, rad, m; tau (T, 3) N m, N m, N; `window` shades the payload.
+    t (T,) s; q, q_des (T, n); tau (T, n); `units` per joint (position, torque), default the
+    SCARA's (rad, N m), (rad, N m), (m, N); `window` shades the payload interval.
     """
-    units = (("rad", "N m"), ("rad", "N m"), ("m", "N"))
-    fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
-    for j in range(3):
+    n = q.shape[1]
+    units = units or [("rad", "N m"), ("rad", "N m"), ("m", "N")]
+    fig = Figure(figsize=(13, 2.7 * n))
+    axes = fig.subplots(n, 3, sharex=True, squeeze=False)
+    for j in range(n):
         panels = ((q[:, j], f"q{j + 1} [{units[j][0]}]"), (q_des[:, j] - q[:, j], f"e{j + 1} [{units[j][0]}]"),
                   (tau[:, j], f"tau{j + 1} [{units[j][1]}]"))
         for c, (y, label) in enumerate(panels):
@@ -64,7 +70,8 @@ def online_figure(t: np.ndarray, adapted: np.ndarray, frozen: np.ndarray, analyt
                   t_update: np.ndarray, dw: np.ndarray, title: str):
     """Task-space error (mm) over time for the adapted and frozen networks and the nominal
     analytic IK, and the norm of the weight change."""
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    fig = Figure(figsize=(9, 6))
+    a1, a2 = fig.subplots(2, 1, sharex=True)
     for y, label in ((adapted, "adapted network"), (frozen, "network, no adaptation"),
                      (analytic, "nominal analytic IK")):
         a1.semilogy(t, np.maximum(y, 1e-6), lw=0.8, label=label)

@@ -1,0 +1,81 @@
+"""The closed-loop comparison: every controller on every payload case, at equal gains.
+
+Payload cases run as one batch per controller (B = number of cases). The adaptive RBFN's centres
+come from a pilot run of `smc_obs` without payload (see rbfn.control.network). Pure: tensors and
+metrics out, nothing printed or written.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig
+from ..robots.scara import ScaraParams
+from .controllers import NominalModel, make_controller
+from .network import control_network, desired_states, pilot_residuals
+from .simulator import Rollout, ScaraPlant, Scenario, control_metrics, simulate
+from .trajectory import paper_trajectory
+
+__all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name"]
+
+
+def case_name(payload: float) -> str:
+    """Payload case key: 10.0 -> "10kg"."""
+    return f"{payload:g}kg"
+
+
+@dataclass
+class ControlRun:
+    """One controller's batch: metrics per case, its rollout, and the time spent."""
+
+    metrics: dict[str, dict[str, list[float]]]   # case -> rms_err, max_err, ... (lists of 3)
+    rollout: Rollout
+    sim_seconds: float
+    select_seconds: float | None = None            # the network's centre selection (arbfn_*)
+
+
+@dataclass
+class ControlComparison:
+    """Every controller's run, the desired joints (T, 3) and the scenario."""
+
+    runs: dict[str, ControlRun]
+    q_des: torch.Tensor
+    scenario: Scenario
+    payloads: list[float] = field(default_factory=list)
+
+
+def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "cpu",
+                        params: ScaraParams = ScaraParams()) -> ControlComparison:
+    """Run `cfg.controllers` on the payload cases `cfg.payloads` (kg) along the paper's trajectory."""
+    dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
+    kw = {"dtype": dtype, "device": device}
+    sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
+    sc.validate()
+    ref = tuple(r.to(**kw) for r in paper_trajectory(sc.times(torch.float64)))
+    plant = ScaraPlant(params, friction=cfg.friction)
+    model = NominalModel(params)
+    payload = torch.tensor(cfg.payloads, **kw)
+    b = payload.shape[0]
+    q0, qd0 = ref[0][:1].expand(b, 3).clone(), ref[1][:1].expand(b, 3).clone()
+    pilot = None
+    runs: dict[str, ControlRun] = {}
+    for name in cfg.controllers:
+        features = w0 = None
+        select_seconds = None
+        if name.startswith("arbfn_"):
+            if pilot is None:
+                pilot = pilot_residuals(plant, sc, ref, gains, model, PILOT_STRIDE)
+            net = control_network(name[len("arbfn_"):], pilot[0].double().cpu(), pilot[1].double().cpu(),
+                                  cfg.network.num_centers, cfg.network.seed, sc.dt * PILOT_STRIDE,
+                                  cfg.network.aco, cfg.network.warm_start)
+            features, w0, select_seconds = net.features(desired_states(ref)), net.w0, net.seconds
+        ctrl = make_controller(name, gains, sc.dt, model, features, w0, cfg.network.observer)
+        t0 = time.perf_counter()
+        roll = simulate(plant, ctrl, sc, ref, q0, qd0, payload, compile=cfg.compile)
+        seconds = time.perf_counter() - t0
+        per_case = control_metrics(roll, ref[0], sc)
+        runs[name] = ControlRun({case_name(p): m for p, m in zip(cfg.payloads, per_case)}, roll, seconds,
+                                select_seconds)
+    return ControlComparison(runs, ref[0], sc, list(cfg.payloads))

@@ -1,0 +1,87 @@
+"""The IK network's outputs: training's checkpoint, exports, metrics.json and TensorBoard curves,
+and evaluate.py's accuracy on a fresh test set with its workspace error map."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+
+from ..checkpoint import model_from_checkpoint, save_checkpoint
+from ..config import SELECTORS, EvalConfig, TrainConfig, plain
+from ..data import Dataset, evaluation_split
+from ..export import export_all
+from ..metrics import ik_metrics_both
+from ..pipeline import TrainResult
+from ..robots.robot import Robot, robot_from_record
+from .plots import workspace_error_map
+from .rundir import write_json
+
+__all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table"]
+
+log = logging.getLogger(__name__)
+
+
+def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: Dataset) -> dict:
+    """metrics.json of a training run: test accuracy in float64 and float32, E against M, times."""
+    acc, _, _ = ik_metrics_both(result.model, robot.chain, data.test.x, data.test.q)
+    return {"num_centers": result.model.num_centers, "selector": cfg.centers.name, **acc,
+            "val_E": 0.5 * float(result.fit.val_mse), "ridge": float(result.fit.ridge),
+            "growth": [{"num_centers": m, "val_E": e} for m, e in result.curve],
+            "select_seconds": result.select_seconds, "train_seconds": result.train_seconds}
+
+
+def write_training(out_dir: Path, cfg: TrainConfig, robot: Robot, result: TrainResult, metrics: dict,
+                   writer) -> None:
+    """checkpoint.pt, ik.onnx / ik.pt2 (unless `export=false`), metrics.json and TensorBoard events."""
+    save_checkpoint(out_dir / "checkpoint.pt", result.model, robot.record(), plain(cfg), metrics)
+    if cfg.export:
+        export_all(result.model, out_dir)                 # deploy without this package
+    write_json(out_dir / "metrics.json", metrics)
+    for m, (best, mean) in result.colonies.items():
+        for it, (b, a) in enumerate(zip(best, mean)):
+            writer.add_scalar(f"aco/M{m}/best_objective", b, it)
+            writer.add_scalar(f"aco/M{m}/mean_objective", a, it)
+    for m, e in result.curve:
+        writer.add_scalar("growth/val_E", e, m)
+    for i, e in enumerate(result.refine_history):
+        writer.add_scalar("refine/val_mse", e, i)
+    scalars = {k: v for k, v in metrics.items() if isinstance(v, (int, float)) and k != "num_centers"}
+    # One HParams session per job, in the job's own run (run_name="."). Every job writes the same
+    # experiment summary (same hparams, metrics and selector domain), so whichever one TensorBoard
+    # reads describes the whole sweep.
+    writer.add_hparams({"centers": cfg.centers.name, "num_centers": result.model.num_centers, "seed": cfg.seed},
+                       {f"hparam/{k}": v for k, v in scalars.items()},
+                       hparam_domain_discrete={"centers": list(SELECTORS)}, run_name=".")
+
+
+def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) -> dict:
+    """Accuracy of checkpoint dict `ckpt` (read from `path`) on a fresh evaluation set, float64
+    and float32; writes workspace_error_map.png and TensorBoard scalars."""
+    model = model_from_checkpoint(ckpt).to(cfg.device)
+    robot = robot_from_record(ckpt["robot"], cfg.device)
+    seed = int(ckpt["config"]["seed"]) if cfg.seed is None else cfg.seed
+    test = evaluation_split(robot.chain, robot.low, robot.high, cfg.n_test, seed)
+    acc, err_mm, inside = ik_metrics_both(model, robot.chain, test.x, test.q)
+    out: dict = {"checkpoint": str(path), "num_centers": model.num_centers, "test_seed": seed, **acc}
+    fig = workspace_error_map(test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(),
+                              f"IK position error, M = {model.num_centers}")
+    fig.savefig(out_dir / "workspace_error_map.png", dpi=120)
+    writer.add_figure("ik/workspace_error_map", fig, close=False)
+    for k, v in out.items():
+        if isinstance(v, float):
+            writer.add_scalar(f"ik/{k}", v)
+    log.info("%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of "
+                            f"seed {seed})", out))
+    return out
+
+
+def ik_table(title: str, m: dict) -> str:
+    rows = [("joint RMSE", "test_joint_rmse", 1.0, ""), ("position error median", "test_pos_err_mm_median", 1, "mm"),
+            ("position error p95", "test_pos_err_mm_p95", 1, "mm"),
+            ("position error max", "test_pos_err_mm_max", 1, "mm"),
+            ("flagged in workspace", "test_in_workspace", 100, "%")]
+    lines = [f"\n{title}", f"{'':24s} {'float64':>12s} {'float32':>12s}"]
+    for name, key, mul, unit in rows:
+        lines.append(f"{name:24s} {m[key] * mul:12.4g} {m[key + '_float32'] * mul:12.4g} {unit}")
+    return "\n".join(lines)

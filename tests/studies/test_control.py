@@ -1,0 +1,101 @@
+"""The closed-loop comparison and its outputs; bad control settings stop before any work."""
+import json
+from dataclasses import replace
+
+import pytest
+import torch
+from torch.utils.tensorboard import SummaryWriter
+
+from rbfn.config import ACOConfig, ControlConfig, GainsConfig, NetworkConfig, Objective, validate_control
+from rbfn.control.comparison import compare_controllers
+from rbfn.studies.control import evaluate_control
+
+from ..conftest import compose_config
+
+KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
+
+
+def _short(**kw):
+    net = NetworkConfig(num_centers=8, aco=ACOConfig(iterations=5, ants=6, archive_size=6))
+    base = dict(duration=1.2, payload_on=0.3, payload_off=0.9, payloads=[0.0, 10.0], network=net,
+                controllers=["pd", "ctc", "smc", "smc_obs", "arbfn_aco", "arbfn_kmeans"])
+    base.update(kw)
+    return ControlConfig(**base)
+
+
+def test_evaluate_control_writes_the_nested_metrics_and_figures(tmp_path):
+    cfg = _short()
+    with SummaryWriter(str(tmp_path)) as writer:
+        out = evaluate_control(cfg, GainsConfig(), "cpu", writer, tmp_path)
+    metrics, info = out["control"], out["control_info"]
+    assert list(metrics) == cfg.controllers
+    for name, cases in metrics.items():
+        assert set(cases) == {"0kg", "10kg"}
+        for m in cases.values():
+            assert set(m) == KEYS and all(len(v) == 3 for v in m.values())
+            assert all(torch.isfinite(torch.tensor(v)).all() for v in m.values())
+        assert (tmp_path / f"control_{name}.png").stat().st_size > 10_000
+    assert set(info["select_seconds"]) == {"arbfn_aco", "arbfn_kmeans"}
+    json.dumps(out)
+    # The unknown payload hurts the controller without an observer far more than with one.
+    assert metrics["smc"]["10kg"]["rms_err"][2] > 10 * metrics["smc_obs"]["10kg"]["rms_err"][2]
+
+
+def test_adaptive_network_learns_and_beats_smc_at_equal_gains():
+    cfg = _short(controllers=["smc", "arbfn_kmeans"], network=NetworkConfig(num_centers=8))
+    res = compare_controllers(cfg, GainsConfig())
+    for case in ("0kg", "10kg"):
+        smc, net = res.runs["smc"].metrics[case]["rms_err"], res.runs["arbfn_kmeans"].metrics[case]["rms_err"]
+        assert all(n <= 0.25 * s for n, s in zip(net, smc)), (case, net, smc)
+
+
+def test_cluster_controller_does_not_change_the_shared_aco_config():
+    aco = ACOConfig(iterations=3, ants=4, archive_size=4)
+    cfg = _short(controllers=["arbfn_aco_cluster", "arbfn_aco"], payloads=[0.0],
+                 network=NetworkConfig(num_centers=6, aco=aco))
+    compare_controllers(cfg, GainsConfig())
+    assert cfg.network.aco.objective == Objective.fit and aco.objective == Objective.fit
+
+
+@pytest.mark.parametrize("change,match", [
+    ({"controllers": ["pd", "lqr"]}, "control.controllers='lqr'"),
+    ({"controllers": ["arbfn_magic"]}, "control.controllers='arbfn_magic'"),
+    ({"controllers": ["pd", "pd"]}, "each controller may appear once"),
+    ({"payloads": [-1.0]}, "control.payloads"),
+    ({"payloads": [10.0, 10.0]}, "each payload case may appear once"),
+    ({"dt": 0.0}, "control.dt=0.0"),
+    ({"payload_off": 5.0}, r"control.payload_on/payload_off=\[0.3, 5.0\]"),
+    ({"network": NetworkConfig(num_centers=500)}, "control.network.num_centers=500 .*exceeds the pilot run"),
+])
+def test_bad_control_config(change, match):
+    with pytest.raises(ValueError, match=match):
+        validate_control(_short(**change), GainsConfig())
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("K", float("nan"), "gains.K=nan.*must be finite"),
+    ("Lambda", 0.0, "gains.Lambda=0.0.*must be > 0"),
+    ("gamma", -1.0, "gains.gamma=-1.0.*must be >= 0"),
+])
+def test_bad_gains(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        validate_control(_short(), replace(GainsConfig(), **{field: value}))
+
+
+def test_bad_choice_fails_at_composition_naming_the_options():
+    with pytest.raises(Exception) as e:
+        compose_config("evaluate", "gains.robust=tanh")
+    message = f"{e.value} {e.value.__cause__}"       # Hydra shows both on the command line
+    assert "gains.robust=tanh" in message and "expected one of [sign, sat]" in message
+
+
+@pytest.mark.parametrize("gains,k", [("paper", 15.0), ("tuned", 50.0)])
+def test_gains_group_composes(gains, k):
+    cfg = compose_config("evaluate", f"gains={gains}")
+    assert cfg.gains.K == k and cfg.gains.Lambda <= 20 and cfg.control.controllers[-2:] == ["arbfn_aco", "arbfn_kmeans"]
+    validate_control(cfg.control, cfg.gains)
+
+
+def test_control_gains_preset_composes():
+    cfg = compose_config("evaluate", "experiment=control_gains", hydra=True)
+    assert cfg.hydra.sweeper.params["gains.K"] == "15,30,50" and cfg.ik is False
