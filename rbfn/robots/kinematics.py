@@ -64,7 +64,7 @@ def _parse(urdf: str | Path) -> tuple[URDF, str]:
     try:
         robot = URDF.from_xml_string(text)
     except Exception as e:  # lxml's XMLSyntaxError, the parser's ParseError, AssertionError
-        msg = str(e).strip() or type(e).__name__
+        msg = " ".join(str(e).split()) or type(e).__name__
         raise ValueError(f"{source}: malformed URDF: {msg}") from e
     if robot is None or not robot.links:
         raise ValueError(f"{source}: malformed URDF: no <robot> with <link> elements")
