@@ -1,22 +1,19 @@
-"""Every config option composes; bad values fail early with a message naming the value."""
-from pathlib import Path
+"""Every config option composes; bad values fail early with a message naming the full key and value."""
+import re
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.errors import MissingConfigException
-from omegaconf import OmegaConf
 
-import train  # noqa: F401  (registers the schemas)
-from rbfn.config import SELECTORS, TrainConfig, validate_train
+import train
+from rbfn.config import SELECTORS, EvalConfig, validate_evaluate, validate_train
 from rbfn.data import check_finite
 
-CONF = str(Path(__file__).resolve().parents[1] / "conf")
+from .conftest import compose_config
 
 
-def _cfg(*overrides: str) -> TrainConfig:
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return OmegaConf.to_object(compose("train", overrides=list(overrides)))
+def _cfg(*overrides: str):
+    return compose_config("train", *overrides)
 
 
 @pytest.mark.parametrize("name", SELECTORS)
@@ -27,11 +24,9 @@ def test_every_centers_option_composes_and_validates(name):
 
 
 def test_evaluate_config_composes():
-    import evaluate  # noqa: F401
-
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose("evaluate", overrides=["checkpoint=x.pt"])
+    cfg = compose_config("evaluate", "checkpoint=x.pt")
     assert cfg.checkpoint == "x.pt"
+    validate_evaluate(cfg)
 
 
 def test_unknown_selector_names_it():
@@ -39,24 +34,55 @@ def test_unknown_selector_names_it():
         _cfg("centers=foo")
 
 
-def test_mistyped_value_fails_at_composition():
-    with pytest.raises(Exception, match="num_centers"):
-        _cfg("rbfn.num_centers=many")
+@pytest.mark.parametrize("override,options", [
+    ("rbfn.num_centers=many", "num_centers"),
+    ("centers.aco.colony=magic", "expected one of [acor, ant_system]"),
+    ("centers.width_rule=wide", "expected one of [paper, global, per_center]"),
+    ("rbfn.solver=adam", "expected one of [lstsq, lms]"),
+])
+def test_mistyped_value_fails_at_composition(override, options):
+    with pytest.raises(Exception) as e:
+        _cfg(override)
+    assert options in f"{e.value} {e.value.__cause__}"
 
 
 @pytest.mark.parametrize("override,match", [
     ("rbfn.num_centers=0", "rbfn.num_centers=0"),
     ("rbfn.num_centers=-3", "rbfn.num_centers=-3"),
-    ("rbfn.num_centers=5000", "rbfn.num_centers=5000 exceeds"),
+    ("rbfn.num_centers=5000", "rbfn.num_centers=5000 is not allowed: exceeds"),
     ("centers.width_scale=-1.0", "centers.width_scale=-1.0"),
     ("centers.name=bogus", "centers.name='bogus'"),
     ("robot.joint_high=[2.0,0.3,1.5]", "joint 2"),
-    ("centers.aco.rho=1.5", "rho=1.5"),
+    ("robot.joint_high=[2.0,2.0]", "robot.joint_low"),
+    ("centers.aco.rho=1.5", "centers.aco.rho=1.5"),
+    ("centers.aco.q=0", "centers.aco.q=0"),
+    ("centers.aco.beta=-1", "centers.aco.beta=-1"),
+    ("centers.refine.lr=0", "centers.refine.lr=0"),
+    ("rbfn.growth.factor=1.0", "rbfn.growth.factor=1.0"),
     ("device=tpu", "device='tpu'"),
+    ("seed=-1", "seed=-1 is not allowed: use an integer in [0, 4294967295]"),
+    ("seed=5000000000", "seed=5000000000"),
+    ("num_threads=-2", "num_threads=-2"),
 ])
 def test_bad_values_fail_with_message(override, match):
-    with pytest.raises(ValueError, match=match.replace("[", r"\[").replace(".", r"\.")):
+    with pytest.raises(ValueError, match=re.escape(match)):
         validate_train(_cfg(override))
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without a GPU")
+def test_cuda_without_a_gpu_is_named():
+    with pytest.raises(ValueError, match="device='cuda': no CUDA device is available"):
+        validate_train(_cfg("device=cuda"))
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("n_test", 0, "n_test=0"), ("seed", -4, "seed=-4"), ("device", "gpu", "device='gpu'"),
+    ("num_threads", -1, "num_threads=-1"),
+])
+def test_bad_evaluate_values(field, value, match):
+    cfg = EvalConfig(**{field: value})
+    with pytest.raises(ValueError, match=match):
+        validate_evaluate(cfg)
 
 
 def test_nan_in_data_is_named():
@@ -66,7 +92,7 @@ def test_nan_in_data_is_named():
         check_finite("train positions", x)
 
 
-def test_nan_in_training_data_stops_run(tmp_path, monkeypatch):
+def test_nan_in_training_data_stops_run_before_any_write(tmp_path, monkeypatch):
     real = train.make_dataset
 
     def poisoned(*a, **k):
@@ -77,21 +103,21 @@ def test_nan_in_training_data_stops_run(tmp_path, monkeypatch):
     monkeypatch.setattr(train, "make_dataset", poisoned)
     cfg = _cfg("data.n_train=50", "data.n_val=20", "data.n_test=20", "rbfn.num_centers=5", "progress=false")
     with pytest.raises(ValueError, match="train positions contains non-finite values .first at row 7"):
-        train.run(cfg, tmp_path)
-    assert not (tmp_path / "checkpoint.pt").exists()
+        train.run(cfg, tmp_path / "run")
+    assert list((tmp_path / "run").iterdir()) == []
 
 
 def test_joint_range_outside_urdf_limits():
-    cfg = _cfg("robot.joint_high=[2.0,3.0,1.5]", "progress=false")
+    from rbfn.robots.robot import load_robot
+
     with pytest.raises(ValueError, match="joint2 .* leaves the URDF limits"):
-        train.load_robot(cfg, "cpu")
+        load_robot(_cfg("robot.joint_high=[2.0,3.0,1.5]").robot)
 
 
 @pytest.mark.parametrize("experiment", ["paper", "aco_vs_kmeans"])
 def test_experiment_presets_compose(experiment):
     validate_train(_cfg(f"experiment={experiment}"))
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose("train", overrides=[f"experiment={experiment}"], return_hydra_config=True)
+    cfg = compose_config("train", f"experiment={experiment}", hydra=True)
     if experiment == "paper":
         assert cfg.centers.aco.colony == "ant_system" and cfg.centers.width_rule == "paper"
         assert (cfg.centers.aco.rho, cfg.centers.aco.Q, cfg.centers.aco.iterations) == (0.9, 100.0, 100)
@@ -103,6 +129,5 @@ def test_experiment_presets_compose(experiment):
 def test_launchers_compose(launcher, target):
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher" if launcher == "joblib"
                         else "hydra_plugins.hydra_submitit_launcher")
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose("train", overrides=[f"hydra/launcher={launcher}"], return_hydra_config=True)
+    cfg = compose_config("train", f"hydra/launcher={launcher}", hydra=True)
     assert cfg.hydra.launcher._target_.endswith(target)
