@@ -1,0 +1,506 @@
+"""Batched rigid-body dynamics of any serial chain read from a URDF: M(q), C(q, qd), G(q) in torch.
+
+    M(q) qdd + C(q, qd) qd + G(q) = tau
+
+The chain runs from the URDF's root link to `end_link`; its revolute, continuous and prismatic
+joints are the n degrees of freedom, in order from the root. Every other link is lumped, as a
+rigid load, into the moving body it hangs from: links joined by fixed joints, and subtrees behind
+joints that are not on the chain (fingers, ...), which are held at zero. Links rigidly fixed to
+the root carry no dynamics. A payload is a point mass (kg) at the origin of `end_link` (or of
+another link, `payload_link`).
+
+Algorithms, all in the root frame with spatial vectors (angular; linear) referred to its origin,
+so that the inertias of bodies add without transforms and every recursion of the composite rigid
+body algorithm (CRBA) and of recursive Newton-Euler (RNEA) becomes a cumulative sum over the
+chain (vectorised over the batch; the only Python loop is the n-step forward kinematics):
+
+* S_i (6,): joint i's motion axis; v_i = sum_{k<=i} S_k qd_k; dS_i/dt = v_i x S_i.
+* I_i: body i's spatial inertia, kept as (mass m, first moment h = m c (3,), rotational inertia
+  J about the origin (3, 3)); I^c_i = sum_{k>=i} I_k, the composite inertia.
+* CRBA: M_ij = S_i . I^c_max(i,j) S_j.
+* RNEA: a_i = a_g + sum_{k<=i} (dS_k/dt qd_k + S_k qdd_k), a_g = -gravity;
+  f_i = I_i a_i + v_i x* I_i v_i; tau_i = S_i . sum_{k>=i} f_k.
+* C: the Christoffel-symbol matrix C_ij = sum_k Gamma_ijk qd_k,
+  Gamma_ijk = (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) / 2, in the closed form
+  C = sum_k J_k^T (I_k dJ_k/dt + B_k J_k), B_k = (v_k x* I_k - I_k v_k x + (I_k v_k) xbar*) / 2
+  (Echeandia and Wensing, "Numerical methods to compute the Coriolis matrix and Christoffel
+  symbols for rigid-body systems", 2021), where J_k is body k's Jacobian and f xbar* v = v x* f.
+  Summed over bodies this needs only composites of I, dI/dt and I v, so C costs O(n^2) after the
+  kinematics instead of the O(n^3) (B, n, n, n) tensor dM/dq_k: for i <= j
+  C_ij = S_i . (I^c_j dS_j/dt + dI^c_j/dt S_j / 2 + S_j x* (I v)^c_j / 2), and for i > j
+  C_ij = S_j . (dI^c_i/dt S_i / 2 - S_i x* (I v)^c_i / 2) + dS_j/dt . I^c_i S_i.
+  It satisfies C qd = RNEA bias, dM/dt = C + C^T and Gamma_ijk = Gamma_ikj, which single out the
+  Christoffel matrix (checked against autograd Christoffel symbols in the tests).
+
+URDF origins and inertials are parsed from the XML's floats in float64, lumped once at load and
+cached per dtype and device; every method follows the dtype and device of its inputs.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib.resources import files
+from pathlib import Path
+
+import torch
+from pytorch_kinematics.urdf_parser_py.urdf import URDF
+
+__all__ = ["Arm", "PRESETS", "load_arm"]
+
+# preset name -> (URDF file in rbfn/robots, end links in order of preference, gravity m/s^2)
+PRESETS: dict[str, tuple[str, tuple[str, ...], float]] = {
+    "scara": ("scara.urdf", ("quill",), 9.8),
+    "ur5": ("ur5.urdf", ("ee_link", "tool0"), 9.81),
+    "panda": ("panda.urdf", ("panda_hand", "panda_link8"), 9.81),
+}
+_MOVING = ("revolute", "continuous", "prismatic")
+
+Payload = float | torch.Tensor
+
+
+# ----------------------------------------------------------------------------- URDF parsing
+def _rpy(rpy) -> torch.Tensor:
+    """Rotation (3, 3) float64 of URDF roll-pitch-yaw (rad): Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = (float(v) for v in rpy)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return torch.tensor([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                         [-sp, cp * sr, cp * cr]], dtype=torch.float64)
+
+
+def _pose(origin) -> torch.Tensor:
+    """Homogeneous transform (4, 4) float64 of a URDF <origin> (None is the identity)."""
+    t = torch.eye(4, dtype=torch.float64)
+    if origin is not None:
+        if origin.rpy is not None:
+            t[:3, :3] = _rpy(origin.rpy)
+        if origin.xyz is not None:
+            t[:3, 3] = torch.tensor([float(v) for v in origin.xyz], dtype=torch.float64)
+    return t
+
+
+def _link_inertia(link, to_body: torch.Tensor) -> tuple[float, torch.Tensor, torch.Tensor]:
+    """(mass kg, first moment (3,) kg m, inertia (3, 3) kg m^2 about the body origin) of a link
+    whose frame is `to_body` (4, 4) in the body frame."""
+    zero = (0.0, torch.zeros(3, dtype=torch.float64), torch.zeros(3, 3, dtype=torch.float64))
+    inertial = link.inertial
+    if inertial is None or not inertial.mass:
+        return zero
+    m = float(inertial.mass)
+    i = inertial.inertia
+    ic = torch.zeros(3, 3, dtype=torch.float64) if i is None else torch.tensor(
+        [[i.ixx, i.ixy, i.ixz], [i.ixy, i.iyy, i.iyz], [i.ixz, i.iyz, i.izz]], dtype=torch.float64)
+    com = to_body @ _pose(inertial.origin)             # COM frame in the body frame
+    rot, c = com[:3, :3], com[:3, 3]
+    j = rot @ ic @ rot.T + m * (c.dot(c) * torch.eye(3, dtype=torch.float64) - torch.outer(c, c))
+    return m, m * c, j
+
+
+def _read_urdf(source: str | Path) -> URDF:
+    text = str(source)
+    if not text.lstrip().startswith("<"):
+        path = Path(source)
+        if not path.is_file():
+            raise ValueError(f"no URDF file at {str(path)!r}")
+        return URDF.from_xml_string(path.read_bytes())
+    return URDF.from_xml_string(text.encode())
+
+
+@dataclass(frozen=True)
+class _Model:
+    """Constants of the lumped chain in float64 (n moving joints, bodies 0..n-1)."""
+
+    joint_names: list[str]
+    prismatic: torch.Tensor      # (n,) bool
+    placement: torch.Tensor      # (n, 4, 4): joint i's frame at q_i = 0 in body i-1's frame
+    axis: torch.Tensor           # (n, 3) unit joint axes in the joint frames
+    mass: torch.Tensor           # (n,) kg
+    first_moment: torch.Tensor   # (n, 3) kg m, about body i's origin, body axes
+    inertia: torch.Tensor        # (n, 3, 3) kg m^2, about body i's origin, body axes
+    payload_body: int            # body carrying the payload (-1: fixed to the root)
+    payload_pos: torch.Tensor    # (3,) m, payload point in that body's frame
+    lower: torch.Tensor          # (n,) joint limits, rad or m (+-inf where unlimited)
+    upper: torch.Tensor
+
+
+def _build(robot: URDF, end_link: str, payload_link: str | None) -> _Model:
+    links = sorted(robot.link_map)
+    if end_link not in robot.link_map:
+        raise ValueError(f"end link {end_link!r} is not a link of the URDF; links: {links}")
+    payload_link = end_link if payload_link is None else payload_link
+    if payload_link not in robot.link_map:
+        raise ValueError(f"payload link {payload_link!r} is not a link of the URDF; links: {links}")
+    root = robot.get_root()
+    path = [end_link]                                    # links, end -> root
+    while path[-1] != root:
+        path.append(robot.parent_map[path[-1]][1])
+    path.reverse()
+
+    # Walk the chain: body index and pose in its body frame of every chain link.
+    eye = torch.eye(4, dtype=torch.float64)
+    where = {root: (-1, eye)}                            # link -> (body, pose in body frame)
+    names, prismatic, placement, axis, lower, upper = [], [], [], [], [], []
+    for parent, child in zip(path, path[1:]):
+        jname = robot.parent_map[child][0]
+        joint = robot.joint_map[jname]
+        body, pose = where[parent]
+        if joint.type == "fixed":
+            where[child] = (body, pose @ _pose(joint.origin))
+            continue
+        if joint.type not in _MOVING:
+            raise ValueError(f"joint {jname!r} on the chain to {end_link!r} is {joint.type!r}; "
+                             f"supported: fixed, {', '.join(_MOVING)}")
+        if joint.mimic is not None:
+            raise ValueError(f"joint {jname!r} on the chain mimics {joint.mimic.joint!r}; "
+                             "mimic joints are not supported on the chain")
+        a = torch.tensor([float(v) for v in (joint.axis or (1.0, 0.0, 0.0))], dtype=torch.float64)
+        if a.norm() == 0:
+            raise ValueError(f"joint {jname!r} has a zero axis")
+        names.append(jname)
+        prismatic.append(joint.type == "prismatic")
+        placement.append(pose @ _pose(joint.origin))
+        axis.append(a / a.norm())
+        limited = joint.type != "continuous" and joint.limit is not None
+        lower.append(float(joint.limit.lower) if limited and joint.limit.lower is not None else -math.inf)
+        upper.append(float(joint.limit.upper) if limited and joint.limit.upper is not None else math.inf)
+        where[child] = (len(names) - 1, eye)
+
+    # Every other link hangs, through joints held at zero, from its nearest chain ancestor.
+    def locate(link: str):
+        if link not in where:
+            jname, parent = robot.parent_map[link]
+            body, pose = locate(parent)
+            where[link] = (body, pose @ _pose(robot.joint_map[jname].origin))
+        return where[link]
+
+    n = len(names)
+    if n == 0:
+        raise ValueError(f"the chain from {root!r} to {end_link!r} has no moving joint")
+    mass = torch.zeros(n, dtype=torch.float64)
+    first = torch.zeros(n, 3, dtype=torch.float64)
+    inertia = torch.zeros(n, 3, 3, dtype=torch.float64)
+    for name, link in robot.link_map.items():
+        body, pose = locate(name)
+        if body < 0:
+            continue
+        m, h, j = _link_inertia(link, pose)
+        mass[body] += m
+        first[body] += h
+        inertia[body] += j
+    pbody, ppose = locate(payload_link)
+    return _Model(names, torch.tensor(prismatic), torch.stack(placement), torch.stack(axis),
+                  mass, first, inertia, pbody, ppose[:3, 3].clone(),
+                  torch.tensor(lower, dtype=torch.float64), torch.tensor(upper, dtype=torch.float64))
+
+
+# ----------------------------------------------------------------------------- spatial algebra
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return torch.linalg.cross(a, b)
+
+
+def _cross_motion(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """v x m for spatial motion vectors (..., 6) (angular; linear)."""
+    w, v0, mw, mv = v[..., :3], v[..., 3:], m[..., :3], m[..., 3:]
+    return torch.cat([_cross(w, mw), _cross(w, mv) + _cross(v0, mw)], -1)
+
+
+def _cross_force(v: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """v x* f for a spatial motion vector v and a force vector f (..., 6) (moment; force)."""
+    w, v0, n, f0 = v[..., :3], v[..., 3:], f[..., :3], f[..., 3:]
+    return torch.cat([_cross(w, n) + _cross(v0, f0), _cross(w, f0)], -1)
+
+
+def _matvec(a: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    return (a @ x.unsqueeze(-1)).squeeze(-1)
+
+
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return (a * b).sum(-1, keepdim=True)
+
+
+def _outer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return a.unsqueeze(-1) * b.unsqueeze(-2)
+
+
+def _apply(m, h, j, v: torch.Tensor) -> torch.Tensor:
+    """Spatial inertia (mass m (...), first moment h (..., 3), inertia J (..., 3, 3), all about
+    the origin) times a motion vector v (..., 6): (J w + h x v0; m v0 - h x w)."""
+    w, v0 = v[..., :3], v[..., 3:]
+    return torch.cat([_matvec(j, w) + _cross(h, v0), m.unsqueeze(-1) * v0 - _cross(h, w)], -1)
+
+
+def _rev_cumsum(x: torch.Tensor) -> torch.Tensor:
+    """sum_{k >= i} x_k along the body dimension 1."""
+    return x.flip(1).cumsum(1).flip(1)
+
+
+class _Bodies:
+    """World-frame spatial inertias of the n bodies of a batch, about the reference point.
+
+    Kept as mass m (B, n), first moment h (B, n, 3) and the pieces of J = R Ibar R^T
+    + (p.(h + h'))1 - p h^T - h' p^T (p body origin, h' = R (first moment about p)), so that
+    applying an inertia to a vector needs no (B, n, 3, 3) matrix; `j()` forms J when needed.
+    """
+
+    def __init__(self, rot, pos, mass, first, inertia, eye):
+        self.rot, self.pos, self.ibar, self.eye = rot, pos, inertia, eye
+        self.hb = _matvec(rot, first)                       # h' (B, n, 3)
+        self.m = mass.expand(rot.shape[:2])
+        self.h = self.m.unsqueeze(-1) * pos + self.hb
+        self._j = None
+
+    def apply(self, v: torch.Tensor) -> torch.Tensor:
+        """I_k v_k (B, n, 6) for v (B, n, 6)."""
+        w, v0 = v[..., :3], v[..., 3:]
+        p, h, hb, rot = self.pos, self.h, self.hb, self.rot
+        jw = (_matvec(rot, _matvec(self.ibar, _matvec(rot.transpose(-1, -2), w)))
+              + _dot(p, h + hb) * w - p * _dot(h, w) - hb * _dot(p, w))
+        return torch.cat([jw + _cross(h, v0), self.m.unsqueeze(-1) * v0 - _cross(h, w)], -1)
+
+    def j(self) -> torch.Tensor:
+        """J (B, n, 3, 3) kg m^2 about the reference point."""
+        if self._j is None:
+            p, h, hb, rot = self.pos, self.h, self.hb, self.rot
+            self._j = (rot @ self.ibar @ rot.transpose(-1, -2) + _dot(p, h + hb).unsqueeze(-1) * self.eye
+                       - _outer(p, h) - _outer(hb, p))
+        return self._j
+
+
+# ----------------------------------------------------------------------------- the arm
+class Arm:
+    """Rigid-body dynamics of a serial chain; build it with `load_arm`.
+
+    Joint values q (B, n) are rad (revolute) or m (prismatic), qd in rad/s or m/s; M in kg m^2
+    (kg on prismatic rows and columns), C qd, G and tau in N m or N. `payload` is kg, a float or
+    (B,). Any leading batch shape works; outputs keep the dtype and device of q.
+    """
+
+    def __init__(self, model: _Model, gravity: float | tuple[float, float, float],
+                 end_link: str, dtype: torch.dtype, device: str | torch.device):
+        self._model = model
+        self.end_link = end_link
+        self.joint_names = list(model.joint_names)
+        self.n = len(self.joint_names)
+        g = ([0.0, 0.0, -float(gravity)] if isinstance(gravity, (int, float))
+             else [float(v) for v in gravity])
+        self.gravity_vector = torch.tensor(g, dtype=torch.float64)  # (3,) m/s^2, root frame
+        self._cache: dict = {}
+        self.dtype, self.device = dtype, torch.device(device)
+        self._consts(dtype, self.device)
+
+    def __repr__(self) -> str:
+        return f"Arm(n={self.n}, joints={self.joint_names}, end_link={self.end_link!r})"
+
+    def joint_limits(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(lower, upper) (n,) float64 in rad or m; -inf, inf for continuous joints."""
+        return self._model.lower.clone(), self._model.upper.clone()
+
+    def _consts(self, dtype: torch.dtype, device: torch.device) -> dict:
+        """Per-joint and per-body constants in `dtype` on `device`, computed once."""
+        key = (dtype, device)
+        if key not in self._cache:
+            md = self._model
+            a = md.axis
+            skew = torch.zeros(self.n, 3, 3, dtype=torch.float64)
+            skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+            skew = skew - skew.transpose(1, 2)
+            rot0, p0 = md.placement[:, :3, :3], md.placement[:, :3, 3]
+            axis0 = _matvec(rot0, a)
+            pp = md.payload_pos
+            c = {"rot0": rot0, "p0": p0, "axis0": axis0, "rot0_skew": rot0 @ skew,
+                 "rot0_aa": _outer(axis0, a), "mass": md.mass, "first": md.first_moment,
+                 "inertia": md.inertia, "payload_pos": pp,
+                 "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - _outer(pp, pp),
+                 "eye": torch.eye(3, dtype=torch.float64),
+                 "revolute": (~md.prismatic).to(torch.float64).unsqueeze(-1),
+                 "a_g": torch.cat([torch.zeros(3, dtype=torch.float64), -self.gravity_vector])}
+            c = {k: v.to(dtype=dtype, device=device) for k, v in c.items()}
+            c["prismatic"] = md.prismatic.tolist()
+            c["upper"] = torch.ones(self.n, self.n, dtype=torch.bool, device=device).triu()
+            onehot = torch.zeros(self.n, dtype=dtype, device=device)
+            if md.payload_body >= 0:
+                onehot[md.payload_body] = 1.0
+            c["onehot"] = onehot
+            self._cache[key] = c
+        return self._cache[key]
+
+    # ------------------------------------------------------------------ building blocks
+    def _flat(self, *xs: torch.Tensor) -> tuple[torch.Size, list[torch.Tensor]]:
+        if xs[0].shape[-1] != self.n:
+            raise ValueError(f"expected joint values (..., {self.n}), got {tuple(xs[0].shape)}")
+        return xs[0].shape[:-1], [x.reshape(-1, self.n) for x in xs]
+
+    def _kinematics(self, q: torch.Tensor, c: dict, centred: bool = True):
+        """Body rotations (B, n, 3, 3), origins (B, n, 3) and joint motion axes S (B, n, 6).
+
+        Root axes; with `centred` positions are relative to the last body's origin (a point
+        fixed in space at this instant), which keeps float32 free of the cancellation that
+        inertias about a distant point suffer.
+        """
+        batch = q.shape[0]
+        rots, pos, axes = [], [], []
+        rot_prev = pos_prev = None
+        for i, prismatic in enumerate(c["prismatic"]):
+            if rot_prev is None:
+                rot_j, p_j = c["rot0"][i].expand(batch, 3, 3), c["p0"][i].expand(batch, 3)
+                z = c["axis0"][i].expand(batch, 3)
+            else:
+                rot_j = rot_prev @ c["rot0"][i]
+                p_j, z = pos_prev + _matvec(rot_prev, c["p0"][i]), _matvec(rot_prev, c["axis0"][i])
+            qi = q[:, i, None]
+            if prismatic:
+                rot, p = rot_j, p_j + z * qi
+            else:
+                cq, sq = torch.cos(qi).unsqueeze(-1), torch.sin(qi).unsqueeze(-1)
+                local = cq * c["rot0"][i] + sq * c["rot0_skew"][i] + (1 - cq) * c["rot0_aa"][i]
+                rot, p = (local if rot_prev is None else rot_prev @ local), p_j
+            rots.append(rot), pos.append(p), axes.append(z)
+            rot_prev, pos_prev = rot, p
+        rot, pos, z = torch.stack(rots, 1), torch.stack(pos, 1), torch.stack(axes, 1)
+        if centred:
+            pos = pos - pos[:, -1:]
+        rev = c["revolute"]                                    # (n, 1): 1 revolute, 0 prismatic
+        s = torch.cat([z * rev, torch.where(rev > 0, _cross(pos, z), z)], -1)
+        return rot, pos, s
+
+    def _bodies(self, q: torch.Tensor, payload: Payload, centred: bool = True):
+        """(constants, S (B, n, 6), bodies) for q (B, n), payload in kg (float or (B,))."""
+        c = self._consts(q.dtype, q.device)
+        rot, pos, s = self._kinematics(q, c, centred)
+        mass, first, inertia = c["mass"], c["first"], c["inertia"]
+        if self._model.payload_body >= 0 and not (isinstance(payload, (int, float)) and payload == 0):
+            # The payload changes the carrying body's constants: m, m c_b and Ibar about its origin.
+            mp = torch.as_tensor(payload, dtype=q.dtype, device=q.device).reshape(-1, 1) * c["onehot"]
+            mass = mass + mp
+            first = first + mp.unsqueeze(-1) * c["payload_pos"]
+            inertia = inertia + mp[..., None, None] * c["payload_inertia"]
+        return c, s, _Bodies(rot, pos, mass, first, inertia, c["eye"])
+
+    def _mass_matrix(self, c: dict, s: torch.Tensor, b: _Bodies) -> torch.Tensor:
+        f = _apply(_rev_cumsum(b.m), _rev_cumsum(b.h), _rev_cumsum(b.j()), s)    # I^c_j S_j
+        up = s @ f.transpose(1, 2)                                               # S_i . F_j
+        return torch.where(c["upper"], up, up.transpose(1, 2))
+
+    def _rnea(self, c: dict, s: torch.Tensor, b: _Bodies, qd: torch.Tensor,
+              qdd: torch.Tensor | None) -> torch.Tensor:
+        v = (s * qd.unsqueeze(-1)).cumsum(1)
+        acc = _cross_motion(v, s) * qd.unsqueeze(-1)
+        if qdd is not None:
+            acc = acc + s * qdd.unsqueeze(-1)
+        f = b.apply(c["a_g"] + acc.cumsum(1)) + _cross_force(v, b.apply(v))
+        return (s * _rev_cumsum(f)).sum(-1)
+
+    # ------------------------------------------------------------------ public quantities
+    def mass_matrix(self, q: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
+        """Inertia matrix M(q) (B, n, n) for q (B, n), by CRBA."""
+        shape, (q,) = self._flat(q)
+        return self._mass_matrix(*self._bodies(q, payload)).reshape(*shape, self.n, self.n)
+
+    def inverse_dynamics(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor | None = None,
+                         payload: Payload = 0.0) -> torch.Tensor:
+        """Joint torques tau = M qdd + C qd + G (B, n) by RNEA for q, qd, qdd (B, n)."""
+        shape, xs = self._flat(q, qd) if qdd is None else self._flat(q, qd, qdd)
+        c, s, b = self._bodies(xs[0], payload)
+        return self._rnea(c, s, b, xs[1], xs[2] if qdd is not None else None).reshape(*shape, self.n)
+
+    def bias(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
+        """C(q, qd) qd + G(q) (B, n) by RNEA for q, qd (B, n)."""
+        return self.inverse_dynamics(q, qd, None, payload)
+
+    def dynamics(self, q: torch.Tensor, qd: torch.Tensor,
+                 payload: Payload = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M (B, n, n), C qd + G (B, n)) sharing one kinematics pass; for q, qd (B, n)."""
+        shape, (q, qd) = self._flat(q, qd)
+        c, s, b = self._bodies(q, payload)
+        return (self._mass_matrix(c, s, b).reshape(*shape, self.n, self.n),
+                self._rnea(c, s, b, qd, None).reshape(*shape, self.n))
+
+    def gravity(self, q: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
+        """Gravity torques G(q) (B, n) for q (B, n)."""
+        shape, (q,) = self._flat(q)
+        c, s, b = self._bodies(q, payload)
+        a = c["a_g"][3:].expand_as(b.h)
+        f = torch.cat([_cross(_rev_cumsum(b.h), a), _rev_cumsum(b.m).unsqueeze(-1) * a], -1)
+        return (s * f).sum(-1).reshape(*shape, self.n)
+
+    def _velocity_terms(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload):
+        """Pieces of C and dM/dt, each (B, n, 6): S, dS/dt, F = I^c S, E = I^c dS/dt,
+        D = (dI^c/dt) S / 2, X = S x* (I v)^c."""
+        c, s, b = self._bodies(q, payload)
+        v = (s * qd.unsqueeze(-1)).cumsum(1)
+        sd = _cross_motion(v, s)
+        w, v0 = v[..., :3], v[..., 3:]
+        j, h = b.j(), b.h
+        # d/dt of (h, J) of each body moving with spatial velocity v (m is constant):
+        # dh/dt = w x h + m v0, dJ/dt = [w] J - J [w] + 2 (h.v0) 1 - v0 h^T - h v0^T.
+        wj = torch.linalg.cross(w.unsqueeze(-1).expand_as(j), j, dim=-2)    # [w] J
+        jd = (wj + wj.transpose(-1, -2) + 2 * _dot(h, v0).unsqueeze(-1) * c["eye"]
+              - _outer(v0, h) - _outer(h, v0))
+        hd = _cross(w, h) + b.m.unsqueeze(-1) * v0
+        mc, hc, jc = _rev_cumsum(b.m), _rev_cumsum(h), _rev_cumsum(j)
+        f, e = _apply(mc, hc, jc, s), _apply(mc, hc, jc, sd)
+        d = 0.5 * _apply(torch.zeros_like(mc), _rev_cumsum(hd), _rev_cumsum(jd), s)
+        x = _cross_force(s, _rev_cumsum(b.apply(v)))
+        return c, s, sd, f, e, d, x
+
+    def coriolis(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
+        """Coriolis and centrifugal matrix C(q, qd) (B, n, n) of the Christoffel symbols of M,
+        for q, qd (B, n): dM/dt - 2C is skew-symmetric and C qd = bias - G."""
+        shape, (q, qd) = self._flat(q, qd)
+        c, s, sd, f, e, d, x = self._velocity_terms(q, qd, payload)
+        up = s @ (d + e + 0.5 * x).transpose(1, 2)                             # i <= j
+        lo = (d - 0.5 * x) @ s.transpose(1, 2) + f @ sd.transpose(1, 2)        # i > j
+        return torch.where(c["upper"], up, lo).reshape(*shape, self.n, self.n)
+
+    def mass_matrix_dot(self, q: torch.Tensor, qd: torch.Tensor,
+                        payload: Payload = 0.0) -> torch.Tensor:
+        """Time derivative of M along the motion, dM/dt (B, n, n), for q, qd (B, n)."""
+        shape, (q, qd) = self._flat(q, qd)
+        c, s, sd, f, e, d, _ = self._velocity_terms(q, qd, payload)
+        up = sd @ f.transpose(1, 2) + s @ (2 * d + e).transpose(1, 2)
+        return torch.where(c["upper"], up, up.transpose(1, 2)).reshape(*shape, self.n, self.n)
+
+    def kinetic_energy(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
+        """Kinetic energy 1/2 qd^T M qd (B,) in J, summed over the bodies."""
+        shape, (q, qd) = self._flat(q, qd)
+        _, s, b = self._bodies(q, payload)
+        v = (s * qd.unsqueeze(-1)).cumsum(1)
+        return 0.5 * (v * b.apply(v)).sum((-1, -2)).reshape(shape)
+
+    def potential_energy(self, q: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
+        """Gravitational potential energy (B,) in J, zero at the root origin: -sum_k m_k g . c_k."""
+        shape, (q,) = self._flat(q)
+        c, _, b = self._bodies(q, payload, centred=False)
+        return (b.h.sum(1) * c["a_g"][3:]).sum(-1).reshape(shape)
+
+
+# ----------------------------------------------------------------------------- loading
+def load_arm(name_or_urdf: str | Path, end_link: str | None = None, gravity: float | None = None,
+             dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu",
+             payload_link: str | None = None) -> Arm:
+    """Dynamics of a preset ("scara", "ur5", "panda") or of a URDF (file path or XML text).
+
+    end_link: the chain's last link (required for a URDF; a preset picks its own).
+    gravity: m/s^2 along -z of the root frame (or a (3,) vector); None is the preset's
+    (9.8 for the SCARA) or 9.81. payload_link: where the payload sits, default end_link.
+    dtype, device: where the constants are first cached (inputs of any other are served too).
+    """
+    key = str(name_or_urdf)
+    if key in PRESETS:
+        fname, ends, g = PRESETS[key]
+        path = Path(str(files("rbfn.robots") / fname))
+        if not path.is_file():
+            raise ValueError(f"preset {key!r} needs {fname} in rbfn/robots, which is missing")
+        robot = _read_urdf(path)
+        if end_link is None:
+            end_link = next((e for e in ends if e in robot.link_map), ends[0])
+        gravity = g if gravity is None else gravity
+    else:
+        looks_like_file = not key.lstrip().startswith("<")
+        if looks_like_file and not Path(key).is_file():
+            raise ValueError(f"{key!r} is neither a preset ({', '.join(PRESETS)}) nor a URDF file")
+        if end_link is None:
+            raise ValueError("end_link is required for a URDF")
+        robot = _read_urdf(name_or_urdf)
+        gravity = 9.81 if gravity is None else gravity
+    return Arm(_build(robot, end_link, payload_link), gravity, end_link, dtype, device)
