@@ -1,0 +1,81 @@
+"""evaluate.py end to end: its metrics.json layout, every setting checked before any work, the
+parts independent of each other, and the online sweep labelled by its real perturbation."""
+import json
+
+import pytest
+
+import evaluate
+import train
+from rbfn.config import OnlineConfig, GainsConfig
+from rbfn.checkpoint import read_checkpoint
+from rbfn.studies.online import evaluate_online
+
+from .conftest import compose_config
+
+TRAIN = ["data.n_train=400", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=12", "rbfn.growth.start=0",
+         "centers=kmeans", "progress=false", "export=false"]
+SHORT = ["n_test=300", "control.duration=1.2", "control.payload_on=0.3", "control.payload_off=0.9",
+         "control.payloads=[0.0,10.0]", "control.controllers=[smc,smc_obs,arbfn_kmeans]",
+         "control.network.num_centers=8", "online.duration=4", "online.sizes=[0.0,0.03]"]
+CONTROL_KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train")
+    train.run(compose_config("train", *TRAIN), out)
+    return out / "checkpoint.pt"
+
+
+def test_every_part_end_to_end(ckpt, tmp_path):
+    m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", *SHORT), tmp_path)
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(on_disk) >= {"ik", "online", "control", "control_info", "test_pos_err_mm_median"}
+    assert on_disk["ik"]["test_pos_err_mm_median"] == m["test_pos_err_mm_median"] > 0
+    assert on_disk["ik"]["test_seed"] == 0
+    assert set(on_disk["control"]) == {"smc", "smc_obs", "arbfn_kmeans"}
+    for cases in on_disk["control"].values():
+        assert set(cases) == {"0kg", "10kg"}
+        assert all(set(c) == CONTROL_KEYS and all(len(v) == 3 for v in c.values()) for c in cases.values())
+    assert set(on_disk["control_info"]) == {"gains", "select_seconds", "sim_seconds"}
+    assert on_disk["online"]["task_err_mm_rms_last_2s"] < on_disk["online"]["task_err_mm_rms_no_adapt"]
+    for name in ("workspace_error_map.png", "online_task_error.png", "control_smc.png", "checkpoint_online.pt",
+                 "metrics.json"):
+        assert (tmp_path / name).is_file(), name
+    assert list(tmp_path.glob("events.out.tfevents.*"))
+
+
+def test_explicit_seed_is_a_seed_not_a_stream(ckpt, tmp_path):
+    m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "seed=0", "n_test=300", "online.enabled=false",
+                                    "control.enabled=false"), tmp_path)
+    trained = read_checkpoint(ckpt)["metrics"]
+    # Seed 0 is the training seed: a fresh set, not the training set (where the error is lower).
+    assert m["test_seed"] == 0 and m["test_pos_err_mm_median"] != trained["test_pos_err_mm_median"]
+
+
+@pytest.mark.parametrize("override,match", [
+    ("control.dt=-1", "control.dt=-1"), ("online.path=spiral", "spiral"), ("online.update_every=0", "online.update_every=0"),
+    ("control.integrator=rk2", "rk2"), ("control.controllers=[smc,lqr]", "control.controllers='lqr'"),
+    ("online.sizes=[0.0,0.02]", "online.sizes"), ("device=gpu", "device='gpu'"), ("num_threads=-1", "num_threads=-1"),
+])
+def test_bad_settings_stop_before_any_work(ckpt, tmp_path, override, match):
+    with pytest.raises(Exception) as e:
+        evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", override), tmp_path)
+    assert match in f"{e.value} {e.value.__cause__}"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_online_runs_without_the_ik_part(ckpt, tmp_path):
+    m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "ik=false", "control.enabled=false",
+                                    "online.duration=4", "online.sizes=[0.03]"), tmp_path)
+    assert "online" in m and "ik" not in m
+
+
+def test_online_sweep_rows_carry_the_real_perturbation(ckpt):
+    cfg = OnlineConfig(duration=4.0, link_error=[0.02, -0.01], offset_error=[0.01, 0.0, 0.0], sizes=[0.0, 0.02, 0.04])
+    m = evaluate_online(read_checkpoint(ckpt), cfg, GainsConfig())
+    rows = {r["size"]: r for r in m["sweep"]}
+    assert rows[0.02]["link_error"] == pytest.approx([0.02, -0.01]) and rows[0.02]["offset_error"][0] == pytest.approx(0.01)
+    assert rows[0.04]["link_error"] == pytest.approx([0.04, -0.02])
+    assert rows[0.0]["link_error"] == [0.0, 0.0]
+    assert m["task_err_mm_rms_last_2s"] == rows[0.02]["task_err_mm_rms_last_2s"]
