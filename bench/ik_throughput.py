@@ -17,13 +17,15 @@ from pathlib import Path
 import torch
 
 from rbfn import RBFNetwork, load_model
+from rbfn.config import RobotConfig
 from rbfn.robots import joint_limits, load_serial_chain, scara
 
 from .timing import median_seconds, timed
 
 __all__ = ["BRANCH_LOW", "BRANCH_HIGH", "build_network", "workspace_positions", "ik_rows"]
 
-BRANCH_LOW, BRANCH_HIGH = (0.0, 0.3, 0.5), (2.0, 2.0, 1.5)   # the trained joint box: rad, rad, m
+# The trained joint box (rad, rad, m): the default robot config's, defined once there.
+BRANCH_LOW, BRANCH_HIGH = tuple(RobotConfig().joint_low), tuple(RobotConfig().joint_high)
 
 
 def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine: bool = True,
@@ -32,16 +34,19 @@ def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine:
     (k-means centres with gradient refinement, `num_centers` centres, default data)."""
     if checkpoint is not None:
         return load_model(checkpoint)
-    import train
-    from rbfn.config import CentersConfig, RefineConfig, TrainConfig
+    from rbfn.config import CentersConfig, Method, RefineConfig, TrainConfig
+    from rbfn.data import make_dataset
+    from rbfn.pipeline import train_ik
+    from rbfn.robots.robot import load_robot
 
-    cfg = TrainConfig(centers=CentersConfig(name="kmeans_refine", method="kmeans",
+    cfg = TrainConfig(centers=CentersConfig(name="kmeans_refine", method=Method.kmeans,
                                             refine=RefineConfig(enabled=refine)),
                       num_threads=threads, progress=False, export=False)
     cfg.rbfn.num_centers = num_centers
-    with tempfile.TemporaryDirectory() as d:
-        train.run(cfg, Path(d))
-        return load_model(Path(d) / "checkpoint.pt")
+    robot = load_robot(cfg.robot)
+    data = make_dataset(robot.chain, robot.low, robot.high, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test),
+                        cfg.seed)
+    return train_ik(cfg, data).model.eval()
 
 
 def workspace_positions(n: int, seed: int = 123) -> tuple[torch.Tensor, torch.Tensor]:
