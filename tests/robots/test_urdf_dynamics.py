@@ -1,0 +1,360 @@
+"""URDF dynamics (rbfn.robots.dynamics): the SCARA's closed forms, Pinocchio, and properties.
+
+Pinocchio (an independent C++ implementation) checks M, C qd, G, C and RNEA on
+example-robot-data's UR5 and Panda (fingers locked at zero), on the repository's UR5 and Panda
+presets when present, and on a test arm with everything the loader has to lump: fixed links
+along the chain, off-chain bodies, fixed bodies and a finger joint beyond the end link, rotated
+origins, unaligned and unnormalised axes, a prismatic and a continuous joint. The property tests
+need no Pinocchio: M symmetric positive definite, dM/dt - 2C skew, C the Christoffel matrix of M
+(by autograd), energy conserved with gravity off, G the gradient of the potential energy.
+"""
+from __future__ import annotations
+
+import importlib.metadata
+from pathlib import Path
+
+import pytest
+import torch
+
+from rbfn.robots import scara
+from rbfn.robots.dynamics import PRESETS, load_arm
+
+torch.set_num_threads(1)
+ROBOTS = Path(scara.__file__).parent
+
+# Off-diagonal inertias, rotated inertial frames, a fixed link mid-chain, an off-chain camera,
+# a prismatic and a continuous joint, unaligned axes, and beyond the end link (flange) a fixed
+# tool with a finger pair (one mimicking the other) that the loader holds at zero.
+TEST_URDF = """<?xml version="1.0" encoding="utf-8"?>
+<robot name="test_arm">
+  <link name="world"/>
+  <link name="base"><inertial><mass value="3.0"/>
+    <inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>
+  <joint name="mount" type="fixed"><parent link="world"/><child link="base"/>
+    <origin xyz="0.1 -0.2 0.05" rpy="0 0 0.4"/></joint>
+  <link name="l1"><inertial><origin xyz="0.02 0.01 0.15" rpy="0.3 -0.2 0.1"/><mass value="2.5"/>
+    <inertia ixx="0.04" ixy="0.002" ixz="-0.001" iyy="0.035" iyz="0.003" izz="0.02"/>
+  </inertial></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
+    <origin xyz="0 0 0.2" rpy="0.1 -0.05 0.3"/><axis xyz="0 0 1"/>
+    <limit lower="-2.9" upper="2.9" effort="100" velocity="2"/></joint>
+  <link name="camera"><inertial><origin xyz="0.01 0 0.02"/><mass value="0.4"/>
+    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.0015"/></inertial></link>
+  <joint name="camera_mount" type="fixed"><parent link="l1"/><child link="camera"/>
+    <origin xyz="0.05 0.08 0.1" rpy="0 0.5 0"/></joint>
+  <link name="l2"><inertial><origin xyz="0.2 0.0 0.01" rpy="0 0 0.2"/><mass value="1.8"/>
+    <inertia ixx="0.005" ixy="-0.001" ixz="0.0005" iyy="0.03" iyz="0" izz="0.03"/></inertial></link>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0 0.05 0.3" rpy="-1.5707963267948966 0 0"/><axis xyz="0.3 -0.5 0.8"/>
+    <limit lower="-2.0" upper="2.0" effort="100" velocity="2"/></joint>
+  <link name="l2_plate"><inertial><origin xyz="0.05 0 0"/><mass value="0.6"/>
+    <inertia ixx="0.002" ixy="0" ixz="0" iyy="0.003" iyz="0.0004" izz="0.002"/></inertial></link>
+  <joint name="plate" type="fixed"><parent link="l2"/><child link="l2_plate"/>
+    <origin xyz="0.4 0 0" rpy="0.2 0.1 -0.3"/></joint>
+  <link name="l3"><inertial><origin xyz="0 0 0.1"/><mass value="1.2"/>
+    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.002"/></inertial></link>
+  <joint name="slide" type="prismatic"><parent link="l2_plate"/><child link="l3"/>
+    <origin xyz="0.1 0 0" rpy="0 0.3 0"/><axis xyz="1 0 1"/>
+    <limit lower="-0.1" upper="0.25" effort="300" velocity="1"/></joint>
+  <link name="l4"><inertial><origin xyz="0 0.03 0.05" rpy="0.4 0 0"/><mass value="0.9"/>
+    <inertia ixx="0.003" ixy="0.0002" ixz="0" iyy="0.002" iyz="0" izz="0.0025"/></inertial></link>
+  <joint name="wrist" type="continuous"><parent link="l3"/><child link="l4"/>
+    <origin xyz="0 0 0.2" rpy="0 0 0"/><axis xyz="0 1 0"/></joint>
+  <link name="flange"><inertial><mass value="0.2"/>
+    <inertia ixx="0.0002" ixy="0" ixz="0" iyy="0.0002" iyz="0" izz="0.0003"/></inertial></link>
+  <joint name="flange_joint" type="fixed"><parent link="l4"/><child link="flange"/>
+    <origin xyz="0.02 0.1 0.06" rpy="0 0 0.7"/></joint>
+  <link name="tool"><inertial><origin xyz="0 0 0.04"/><mass value="0.7"/>
+    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.0012" iyz="0" izz="0.0008"/></inertial></link>
+  <joint name="tool_joint" type="fixed"><parent link="flange"/><child link="tool"/>
+    <origin xyz="0 0 0.03" rpy="0 0 -0.7"/></joint>
+  <link name="finger_a"><inertial><origin xyz="0 0.01 0.02"/><mass value="0.05"/>
+    <inertia ixx="1e-5" ixy="0" ixz="0" iyy="1e-5" iyz="0" izz="1e-5"/></inertial></link>
+  <joint name="finger_a_joint" type="prismatic"><parent link="tool"/><child link="finger_a"/>
+    <origin xyz="0 0 0.08"/><axis xyz="0 1 0"/>
+    <limit lower="0" upper="0.04" effort="10" velocity="0.1"/></joint>
+  <link name="finger_b"><inertial><origin xyz="0 -0.01 0.02"/><mass value="0.05"/>
+    <inertia ixx="1e-5" ixy="0" ixz="0" iyy="1e-5" iyz="0" izz="1e-5"/></inertial></link>
+  <joint name="finger_b_joint" type="prismatic"><parent link="tool"/><child link="finger_b"/>
+    <origin xyz="0 0 0.08"/><axis xyz="0 -1 0"/>
+    <limit lower="0" upper="0.04" effort="10" velocity="0.1"/>
+    <mimic joint="finger_a_joint"/></joint>
+</robot>
+"""
+TEST_END = "flange"
+
+
+def _erd_urdf(rel: str) -> Path:
+    """A URDF shipped by example-robot-data (the cmeel wheel keeps it under share/)."""
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    for base in ("cmeel.prefix/share/example-robot-data/robots", "share/example-robot-data/robots"):
+        path = Path(str(dist.locate_file(f"{base}/{rel}")))
+        if path.is_file():
+            return path
+    pytest.skip(f"example-robot-data has no {rel}")
+
+
+def _source(name: str) -> tuple[str, str]:
+    """(URDF text, end link) of a test robot name."""
+    if name == "test_arm":
+        return TEST_URDF, TEST_END
+    if name.startswith("erd_"):
+        rel, end = {"erd_ur5": ("ur_description/urdf/ur5_robot.urdf", "ee_link"),
+                    "erd_panda": ("panda_description/urdf/panda.urdf", "panda_hand")}[name]
+        return _erd_urdf(rel).read_text(), end
+    path = ROBOTS / PRESETS[name][0]
+    if not path.is_file():
+        pytest.skip(f"{path.name} is not in rbfn/robots yet")
+    arm = load_arm(name)
+    return path.read_text(), arm.end_link
+
+
+def _arm(name: str, **kw):
+    if name == "scara":
+        return load_arm("scara", **kw)
+    text, end = _source(name)
+    return load_arm(text, end, **kw)
+
+
+def _states(arm, count: int, seed: int, dtype=torch.float64):
+    """q uniform within the joint limits (continuous joints within +-pi), qd ~ N(0, 1)."""
+    g = torch.Generator().manual_seed(seed)
+    low, high = (x.clamp(-torch.pi, torch.pi) for x in arm.joint_limits())
+    q = low + (high - low) * torch.rand(count, arm.n, generator=g, dtype=torch.float64)
+    qd = torch.randn(count, arm.n, generator=g, dtype=torch.float64)
+    return q.to(dtype), qd.to(dtype)
+
+
+def _rel(x: torch.Tensor, ref: torch.Tensor) -> float:
+    """Largest per-state relative error ||x - ref|| / ||ref|| (Frobenius) over the batch."""
+    d = (x - ref).reshape(len(ref), -1).norm(dim=1)
+    return float((d / ref.reshape(len(ref), -1).norm(dim=1)).max())
+
+
+# ----------------------------------------------------------------------------- SCARA
+@pytest.mark.parametrize("payload", [0.0, 2.5, "batch"])
+def test_scara_matches_closed_form(payload):
+    arm = load_arm("scara")
+    assert arm.joint_names == ["joint1", "joint2", "joint3"] and arm.end_link == scara.END_LINK
+    assert arm.gravity_vector.tolist() == [0.0, 0.0, -9.8]
+    g = torch.Generator().manual_seed(0)
+    q = torch.rand(500, 3, generator=g, dtype=torch.float64) * torch.tensor([6.0, 5.0, 2.0]) \
+        - torch.tensor([3.0, 2.5, 0.0])
+    qd = torch.randn(500, 3, generator=g, dtype=torch.float64) * 2
+    if payload == "batch":
+        payload = torch.rand(500, generator=g, dtype=torch.float64) * 10
+    pairs = [(arm.mass_matrix(q, payload), scara.mass_matrix(q, payload)),
+             (arm.coriolis(q, qd, payload), scara.coriolis(q, qd, payload)),
+             (arm.gravity(q, payload), scara.gravity(q, payload)),
+             (arm.mass_matrix_dot(q, qd, payload), scara.mass_matrix_dot(q, qd, payload)),
+             (arm.bias(q, qd, payload), (scara.coriolis(q, qd, payload) @ qd.unsqueeze(-1))
+              .squeeze(-1) + scara.gravity(q, payload)),
+             (arm.kinetic_energy(q, qd, payload), scara.kinetic_energy(q, qd, payload))]
+    for ours, closed_form in pairs:
+        assert torch.allclose(ours, closed_form, atol=1e-10, rtol=0)
+
+
+# ----------------------------------------------------------------------------- Pinocchio
+def _pinocchio(name: str, arm, payload: float):
+    """Pinocchio model and data of the same URDF, off-chain joints locked at zero, the payload
+    added to the end link's joint body; and a gravity-free copy for C qd."""
+    pin = pytest.importorskip("pinocchio")
+    import numpy as np
+
+    text, end = _source(name)
+    model = pin.buildModelFromXML(text)
+    locked = [model.getJointId(n) for n in model.names[1:] if n not in arm.joint_names]
+    if locked:
+        model = pin.buildReducedModel(model, locked, pin.neutral(model))
+    assert list(model.names[1:]) == arm.joint_names
+    if payload:
+        frame = model.frames[model.getFrameId(end)]
+        model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + pin.Inertia(
+            payload, frame.placement.translation, np.zeros((3, 3)))
+    free = model.copy()
+    free.gravity.setZero()
+    return pin, model, free
+
+
+@pytest.mark.parametrize("payload", [0.0, 2.5])
+@pytest.mark.parametrize("name", ["erd_ur5", "erd_panda", "test_arm", "ur5", "panda"])
+def test_matches_pinocchio(name, payload):
+    pytest.importorskip("pinocchio")
+    import numpy as np
+
+    arm = _arm(name)
+    pin, model, free = _pinocchio(name, arm, payload)
+    data, free_data = model.createData(), free.createData()
+    q, qd = _states(arm, 1000, seed=7)
+    qdd = torch.randn(1000, arm.n, generator=torch.Generator().manual_seed(8), dtype=torch.float64)
+    ref = {k: [] for k in ("M", "Cqd", "G", "C", "tau")}
+    neutral = pin.neutral(model)
+    for qi, qdi, qddi in zip(q.numpy(), qd.numpy(), qdd.numpy()):
+        qp = pin.integrate(model, neutral, qi)        # continuous joints: (cos, sin)
+        m = pin.crba(model, data, qp)
+        ref["M"].append(np.triu(m) + np.triu(m, 1).T)
+        ref["G"].append(pin.computeGeneralizedGravity(model, data, qp).copy())
+        ref["Cqd"].append(pin.rnea(free, free_data, qp, qdi, np.zeros(arm.n)).copy())
+        ref["C"].append(pin.computeCoriolisMatrix(model, data, qp, qdi).copy())
+        ref["tau"].append(pin.rnea(model, data, qp, qdi, qddi).copy())
+    ref = {k: torch.from_numpy(np.stack(v)) for k, v in ref.items()}
+    bias = arm.bias(q, qd, payload)
+    g = arm.gravity(q, payload)
+    errors = {"M": _rel(arm.mass_matrix(q, payload), ref["M"]),
+              "Cqd": _rel(bias - g, ref["Cqd"]),
+              "G": _rel(g, ref["G"]),
+              "C": _rel(arm.coriolis(q, qd, payload), ref["C"]),
+              "Cqd from C": _rel((arm.coriolis(q, qd, payload) @ qd.unsqueeze(-1)).squeeze(-1),
+                                 ref["Cqd"]),
+              "tau": _rel(arm.inverse_dynamics(q, qd, qdd, payload), ref["tau"])}
+    assert max(errors.values()) <= 1e-9, errors
+
+
+# ----------------------------------------------------------------------------- properties
+PROPERTY_ARMS = ["scara", "test_arm", "ur5", "panda"]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("name", PROPERTY_ARMS)
+def test_mass_matrix_symmetric_positive_definite(name, dtype):
+    arm = _arm(name)
+    q, _ = _states(arm, 2000, seed=1, dtype=dtype)
+    payload = torch.rand(2000, generator=torch.Generator().manual_seed(2)).to(dtype) * 5
+    m = arm.mass_matrix(q, payload)
+    assert m.dtype == dtype and m.shape == (2000, arm.n, arm.n)
+    assert torch.equal(m, m.transpose(1, 2))
+    assert bool((torch.linalg.eigvalsh(m.double()) > 0).all())
+
+
+@pytest.mark.parametrize("name", PROPERTY_ARMS)
+def test_mdot_minus_2c_skew_and_c_is_christoffel(name):
+    arm = _arm(name)
+    q, qd = _states(arm, 200, seed=3)
+    # dM/dt by forward-mode autograd along qd, independent of mass_matrix_dot.
+    mdot = torch.func.jvp(lambda x: arm.mass_matrix(x, 1.5), (q,), (qd,))[1]
+    scale = mdot.abs().amax()
+    assert (arm.mass_matrix_dot(q, qd, 1.5) - mdot).abs().max() <= 1e-12 * scale
+    c = arm.coriolis(q, qd, 1.5)
+    n = mdot - 2 * c
+    assert (n + n.transpose(1, 2)).abs().max() <= 1e-12 * scale
+    # C is the Christoffel matrix: Gamma_ijk = (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) / 2.
+    for qi, qdi in zip(q[:4], qd[:4]):
+        dm = torch.func.jacfwd(lambda x: arm.mass_matrix(x[None], 1.5)[0])(qi)     # (n, n, n)
+        gamma = 0.5 * (dm + dm.transpose(1, 2) - dm.permute(2, 0, 1))
+        ref = gamma @ qdi
+        assert (arm.coriolis(qi[None], qdi[None], 1.5)[0] - ref).abs().max() <= 1e-12 * scale
+
+
+@pytest.mark.parametrize("name", PROPERTY_ARMS)
+def test_energy_conserved_without_gravity(name):
+    arm = _arm(name, gravity=0.0)
+    q, qd = _states(arm, 8, seed=4)
+    assert torch.equal(arm.gravity(q), torch.zeros_like(q))
+
+    def f(x):
+        p, v = x
+        m, b = arm.dynamics(p, v, 1.0)
+        return v, torch.linalg.solve(m, -b)
+
+    e0 = arm.kinetic_energy(q, qd, 1.0)
+    dt, x = 1e-3, (q, qd)
+    for _ in range(500):                               # 0.5 s of RK4
+        k1 = f(x)
+        k2 = f(tuple(a + 0.5 * dt * k for a, k in zip(x, k1)))
+        k3 = f(tuple(a + 0.5 * dt * k for a, k in zip(x, k2)))
+        k4 = f(tuple(a + dt * k for a, k in zip(x, k3)))
+        x = tuple(a + dt / 6 * (p1 + 2 * p2 + 2 * p3 + p4)
+                  for a, p1, p2, p3, p4 in zip(x, k1, k2, k3, k4))
+    drift = ((arm.kinetic_energy(*x, 1.0) - e0).abs() / e0).max()
+    assert drift < 1e-8, drift
+
+
+@pytest.mark.parametrize("name", PROPERTY_ARMS)
+def test_gravity_is_gradient_of_potential_energy(name):
+    arm = _arm(name)
+    q, _ = _states(arm, 100, seed=5)
+    payload = torch.linspace(0.0, 4.0, 100, dtype=torch.float64)
+    q.requires_grad_(True)
+    (grad,) = torch.autograd.grad(arm.potential_energy(q, payload).sum(), q)
+    g = arm.gravity(q.detach(), payload)
+    assert (g - grad).abs().max() <= 1e-12 * g.abs().max()
+
+
+def test_potential_energy_is_sum_of_m_g_z():
+    # The SCARA: links 1 and 2 move in the plane z = 0; m3 plus payload sits at z = -q3.
+    arm = load_arm("scara")
+    q = torch.tensor([[0.3, -1.0, 0.7]], dtype=torch.float64)
+    assert torch.allclose(arm.potential_energy(q, 2.0), torch.tensor([-(0.5 + 2.0) * 9.8 * 0.7],
+                                                                     dtype=torch.float64))
+
+
+def test_inverse_dynamics_payloads_shapes_and_dtypes():
+    text, end = _source("test_arm")
+    arm = load_arm(text, end)
+    q, qd = _states(arm, 6, seed=6)
+    qdd = torch.randn(6, arm.n, dtype=torch.float64)
+    m, b = arm.dynamics(q, qd, 2.0)
+    assert torch.allclose(m, arm.mass_matrix(q, 2.0), atol=0, rtol=0)
+    assert torch.allclose(b, arm.bias(q, qd, 2.0), atol=0, rtol=0)
+    tau = arm.inverse_dynamics(q, qd, qdd, 2.0)
+    assert torch.allclose(tau, (m @ qdd.unsqueeze(-1)).squeeze(-1) + b, atol=1e-12, rtol=1e-12)
+    # A (B,) payload is the per-state float payload.
+    payload = torch.tensor([0.0, 0.5, 1.0, 2.0, 3.0, 4.0], dtype=torch.float64)
+    rows = torch.cat([arm.bias(q[i:i + 1], qd[i:i + 1], float(p)) for i, p in enumerate(payload)])
+    assert torch.allclose(arm.bias(q, qd, payload), rows, atol=1e-12, rtol=0)
+    # Any leading batch shape; float32 inputs give float32 outputs close to float64.
+    c2 = arm.coriolis(q.reshape(2, 3, -1), qd.reshape(2, 3, -1))
+    assert c2.shape == (2, 3, arm.n, arm.n)
+    assert torch.allclose(c2.reshape(6, arm.n, arm.n), arm.coriolis(q, qd))
+    m32 = arm.mass_matrix(q.float(), 2.0)
+    assert m32.dtype == torch.float32 and torch.allclose(m32.double(), m, rtol=1e-5, atol=1e-6)
+
+
+def test_lumping_does_not_depend_on_the_end_link_past_the_last_joint():
+    text, _ = _source("test_arm")
+    q, qd = _states(load_arm(text, TEST_END), 5, seed=9)
+    flange, tool = load_arm(text, "flange"), load_arm(text, "tool")
+    assert flange.joint_names == tool.joint_names == ["j1", "j2", "slide", "wrist"]
+    assert torch.allclose(flange.mass_matrix(q), tool.mass_matrix(q), atol=1e-14, rtol=0)
+    assert torch.allclose(flange.bias(q, qd), tool.bias(q, qd), atol=1e-13, rtol=0)
+    # The payload at another link: a point mass at a finger's origin (held at zero).
+    finger = load_arm(text, TEST_END, payload_link="finger_a")
+    assert not torch.allclose(finger.gravity(q, 1.0), flange.gravity(q, 1.0))
+
+
+def test_loader_errors():
+    text, _ = _source("test_arm")
+    with pytest.raises(ValueError, match="end link 'nope' is not a link.*'flange'"):
+        load_arm(text, "nope")
+    with pytest.raises(ValueError, match="payload link 'ghost' is not a link"):
+        load_arm(text, TEST_END, payload_link="ghost")
+    for kind in ("floating", "planar"):
+        bad = text.replace('name="j2" type="revolute"', f'name="j2" type="{kind}"')
+        with pytest.raises(ValueError, match=f"joint 'j2' on the chain.*'{kind}'"):
+            load_arm(bad, TEST_END)
+    # An unsupported joint off the chain is held at zero like any other.
+    load_arm(text.replace('"finger_a_joint" type="prismatic"', '"finger_a_joint" type="floating"'),
+             TEST_END)
+    with pytest.raises(ValueError, match="end_link is required"):
+        load_arm(text)
+    with pytest.raises(ValueError, match="neither a preset"):
+        load_arm("no_such_robot")
+    for name, (fname, _, _) in PRESETS.items():
+        if not (ROBOTS / fname).is_file():
+            with pytest.raises(ValueError, match=f"preset '{name}' needs {fname}"):
+                load_arm(name)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_follows_inputs():
+    text, end = _source("test_arm")
+    arm = load_arm(text, end)
+    q, qd = _states(arm, 64, seed=10)
+    payload = torch.full((64,), 1.5, device="cuda", dtype=torch.float64)
+    m, b = arm.dynamics(q.cuda(), qd.cuda(), payload)
+    assert m.is_cuda and b.is_cuda
+    assert torch.allclose(m.cpu(), arm.mass_matrix(q, 1.5), atol=1e-12)
+    assert torch.allclose(b.cpu(), arm.bias(q, qd, 1.5), atol=1e-12)
