@@ -81,6 +81,7 @@ def test_a_run_directory_in_use_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_refused_rerun_on_the_command_line_leaves_the_directory_as_it_was(tmp_path):
     args = [sys.executable, "train.py", *SMALL, "rbfn.growth.start=0", "centers=kmeans", "export=false",
             f"hydra.run.dir={tmp_path}"]
@@ -100,3 +101,19 @@ def test_lms_solver_and_paper_preset_run(tmp_path, extra):
     cfg = compose_config("train", *SMALL, "export=false", "centers.aco.iterations=3", *extra)
     m = train.run(cfg, tmp_path)
     assert m["test_pos_err_mm_median"] > 0 and all(g["val_E"] > 0 for g in m["growth"])
+
+
+def test_export_command_writes_models_that_reproduce_the_checkpoint(trained, tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    out, _ = trained
+    r = subprocess.run([sys.executable, "-m", "rbfn.export", str(out / "checkpoint.pt"), "--out-dir", str(tmp_path)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    x = torch.tensor([[1.2, 0.8, -1.0], [0.5, 1.4, -0.7], [2.5, 0.0, -1.0]], dtype=torch.float32)
+    q, inside = load_model(out / "checkpoint.pt").float().solve(x)
+    sess = ort.InferenceSession(str(tmp_path / "ik.onnx"), providers=["CPUExecutionProvider"])
+    q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
+    assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-5)
+    assert inside_onnx.tolist() == inside.tolist()
+    prog = torch.export.load(str(tmp_path / "ik.pt2")).module()
+    assert torch.allclose(prog(x)[0], q, atol=1e-5)

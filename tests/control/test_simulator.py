@@ -118,3 +118,21 @@ def test_bad_inputs_fail_early():
         ScaraPlant(friction="coulomb")
     with pytest.raises(ValueError, match="unknown controller 'lqr'"):
         make_controller("lqr", Gains(), 1e-3)
+
+
+@pytest.mark.slow
+def test_compiled_step_equals_eager():
+    """control.compile=true (torch.compile of the fused chunk) gives the eager result."""
+    import shutil
+
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("torch.compile's CPU backend needs a C++ compiler")
+    sc = Scenario(duration=0.02, dt=1e-3, payload_on=0.005, payload_off=0.015, metrics_after=0.0)
+    ref = paper_trajectory(sc.times())
+    q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
+    payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt)
+    eager = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, chunk=5)
+    compiled = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, compile=True, chunk=5)
+    assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
+    assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-9)
