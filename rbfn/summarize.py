@@ -145,17 +145,15 @@ def plot_against_m(swept, rows, metric: str, path: Path) -> bool:
     """Error against M (log-log), one line per setting of the other swept keys."""
     if "rbfn.num_centers" not in swept:
         return False
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure       # object API: no pyplot, no backend switch
 
     i_m = swept.index("rbfn.num_centers")
     lines: dict[tuple, list] = defaultdict(list)
     for g, _, stats in rows:
         if metric in stats:
             lines[g[:i_m] + g[i_m + 1:]].append((float(g[i_m]), *stats[metric]))
-    fig, ax = plt.subplots(figsize=(6.4, 4.8), constrained_layout=True)
+    fig = Figure(figsize=(6.4, 4.8), layout="constrained")
+    ax = fig.subplots()
     for label, pts in sorted(lines.items()):
         pts.sort()
         ax.errorbar([p[0] for p in pts], [p[1] for p in pts], yerr=[p[2] for p in pts], marker="o",
@@ -167,7 +165,6 @@ def plot_against_m(swept, rows, metric: str, path: Path) -> bool:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return True
 
 
