@@ -8,7 +8,11 @@ m) and in_workspace (B,) bool. TorchScript is deprecated in current torch and is
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
+import io
+import logging
+import warnings
 from pathlib import Path
 
 import torch
@@ -38,28 +42,38 @@ def _example(net: RBFNetwork) -> torch.Tensor:
 def export_pt2(net: RBFNetwork, path: str | Path) -> Path:
     """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
     batch = torch.export.Dim("batch", min=1)
-    prog = torch.export.export(DeployedIK(net), (_example(net),), dynamic_shapes={"positions": {0: batch}})
-    atomic_write_bytes(Path(path), lambda f: torch.export.save(prog, f))
+    with _quiet_exporter():
+        prog = torch.export.export(DeployedIK(net).eval(), (_example(net),), dynamic_shapes={"positions": {0: batch}})
+        atomic_write_bytes(Path(path), lambda f: torch.export.save(prog, f))
     return Path(path)
+
+
+@contextlib.contextmanager
+def _quiet_exporter():
+    """Silence, narrowly and only while exporting, what torch's exporters say about themselves:
+    their per-pass INFO lines and the notice that torchvision's operators are not registered (this
+    model has none), and torch 2.13's FutureWarning from its own use of the deprecated LeafSpec."""
+    quiet = [logging.getLogger(n) for n in ("onnx_ir", "onnxscript", "torch.onnx",
+                                            "torch.onnx._internal.exporter._registration")]
+    levels = [lg.level for lg in quiet]
+    for lg in quiet:
+        lg.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning, message=r".*isinstance\(treespec, LeafSpec\)")
+            yield
+    finally:
+        for lg, level in zip(quiet, levels):
+            lg.setLevel(level)
 
 
 def export_onnx(net: RBFNetwork, path: str | Path) -> Path:
     """Write a single-file ONNX model (input "positions", outputs "joints", "in_workspace")."""
-    import io
-    import logging
-
     batch = torch.export.Dim("batch", min=1)
-    quiet = [logging.getLogger(n) for n in ("onnx_ir", "onnxscript", "torch.onnx")]
-    levels = [lg.level for lg in quiet]
-    for lg in quiet:  # the exporter's per-pass INFO lines would flood a Hydra run's log
-        lg.setLevel(logging.WARNING)
-    try:
-        prog = torch.onnx.export(DeployedIK(net), (_example(net),), dynamo=True, external_data=False,
+    with _quiet_exporter():
+        prog = torch.onnx.export(DeployedIK(net).eval(), (_example(net),), dynamo=True, external_data=False,
                                  input_names=["positions"], output_names=["joints", "in_workspace"],
                                  dynamic_shapes={"positions": {0: batch}}, verbose=False)
-    finally:
-        for lg, level in zip(quiet, levels):
-            lg.setLevel(level)
     buf = io.BytesIO()
     prog.save(buf)
     atomic_write_bytes(Path(path), lambda f: f.write(buf.getvalue()))
