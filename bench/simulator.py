@@ -114,9 +114,7 @@ def _pd_rhs(p: scara.ScaraParams, plant: ScaraPlant, gains: Gains, on: float, of
         v_d = np.array([0.1 * (ct(t) + 2 * ct(2 * t)), -0.1 * (2 * st(2 * t) + 3 * st(3 * t)),
                         0.1 * (3 * ct(3 * t) + 4 * ct(4 * t))])
         tau = kp * (q_d - q) + kd * (v_d - qd)
-        m3 = p.m3 + (PAYLOAD if on <= t < off else 0.0)
-        p1 = p.l1**2 * (p.m1 / 3 + p.m2 + m3) + p.l2**2 * (p.m2 / 3 + m3)
-        p2, p3 = p.l1 * p.l2 * (p.m2 / 2 + m3), p.l2**2 * (p.m2 / 3 + m3)
+        p1, p2, p3, m3 = scara.inertia_params(PAYLOAD if on <= t < off else 0.0, p)
         c2, h = math.cos(q[1]), p2 * math.sin(q[1])
         r = (tau - plant.viscous * qd - plant.coulomb * np.sign(qd)
              - plant.dist * math.sin(plant.dist_freq * t))
