@@ -53,8 +53,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
 
         # 1. Data: seeded joint samples in the branch's box, FK positions from the URDF.
         robot = load_robot(cfg.robot, cfg.device)
-        data = make_dataset(robot.chain, robot.low, robot.high, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test),
-                            cfg.seed)
+        data = make_dataset(robot, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test), cfg.seed)
         for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
             check_finite(f"{name} positions", split.x)
             check_finite(f"{name} joints", split.q)

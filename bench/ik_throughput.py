@@ -44,8 +44,7 @@ def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine:
                       num_threads=threads, progress=False, export=False)
     cfg.rbfn.num_centers = num_centers
     robot = load_robot(cfg.robot)
-    data = make_dataset(robot.chain, robot.low, robot.high, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test),
-                        cfg.seed)
+    data = make_dataset(robot, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test), cfg.seed)
     return train_ik(cfg, data).model.eval()
 
 

@@ -16,13 +16,12 @@ from collections.abc import Callable
 
 import torch
 
-from rbfn.config import CentersConfig
+from rbfn.config import CentersConfig, RobotConfig
 from rbfn.data import input_scaling, make_dataset
 from rbfn.objectives import FitObjective
-from rbfn.robots import load_serial_chain, scara
+from rbfn.robots.robot import load_robot
 from rbfn.select import select
 
-from .ik_throughput import BRANCH_HIGH, BRANCH_LOW
 from .timing import median_seconds, sync
 
 __all__ = ["COLONIES", "selection_objective", "aco_config", "time_aco", "time_kmeans", "select_rows"]
@@ -33,9 +32,7 @@ NC_MAX = 100
 
 def selection_objective(n: int, device: str = "cpu", seed: int = 0) -> FitObjective:
     """The fit objective on N training pairs (N / 2 validation pairs), inputs centred in metres."""
-    chain = load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float64)
-    low, high = torch.tensor(BRANCH_LOW, dtype=torch.float64), torch.tensor(BRANCH_HIGH, dtype=torch.float64)
-    data = make_dataset(chain, low, high, (n, n // 2, 10), seed=seed)
+    data = make_dataset(load_robot(RobotConfig()), (n, n // 2, 10), seed=seed)
     off, sc = input_scaling(data.train.x, "metres")
     tr, val = data.train.to(device=device), data.val.to(device=device)
     off, sc = off.to(device), sc.to(device)

@@ -16,8 +16,8 @@ from typing import Any, Optional
 
 __all__ = [
     "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "Solver", "InputScaling",
-    "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner",
-    "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED",
+    "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
+    "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS", "validate_robot",
     "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
     "RBFNConfig", "TrainConfig", "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig",
     "EvalConfig", "validate_train", "validate_evaluate", "validate_control", "validate_online",
@@ -53,12 +53,16 @@ Dtype = _choice("Dtype", ("float64", "float32"))
 Robust = _choice("Robust", ("sign", "sat"))
 PathName = _choice("PathName", ("paper", "circle", "figure8"))
 Learner = _choice("Learner", ("nlms", "rls"))
+Target = _choice("Target", ("position", "pose"))              # IK input: (B, 3) m or (B, 7) m + quaternion
+Trajectory = _choice("Trajectory", ("paper", "sinusoid"))     # the desired joint path of the closed loop
 
 # Presets of the `centers` group (conf/centers/NAME.yaml); a label, recorded with every run.
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
 # Controllers by name; the adaptive RBFN is arbfn_<one of CONTROL_CENTER_METHODS>.
 BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs")
 CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
+# Robots whose URDF ships with the package (conf/robot/NAME.yaml; rbfn/robots/NAME.urdf).
+ROBOT_PRESETS = ("scara", "ur5", "panda")
 # Seeds feed scikit-learn's random_state (< 2**32) and derive data streams seed * 1000 + k.
 MAX_SEED = 2**32 - 1
 PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10 control periods
@@ -67,10 +71,25 @@ PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10
 # ----------------------------------------------------------------------------------------- train
 @dataclass
 class RobotConfig:
-    urdf: str = ""                     # empty: the packaged SCARA URDF
+    """The robot (group `robot`: scara, ur5, panda; or any serial URDF with `urdf` and `end_link`).
+
+    Joint values are in the URDF's units (rad, or m for prismatic joints), in the URDF's joint
+    order along the chain root -> end link, `locked` joints excluded from the box and the IK output.
+    """
+
+    name: str = "scara"                # the preset's label; with `urdf` empty, its packaged URDF
+    urdf: str = ""                     # a URDF file; empty: the packaged URDF of `name`
     end_link: str = "quill"
-    joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])   # rad, rad, m
+    target: Target = Target.position           # type: ignore[valid-type]  # position (B, 3) | pose (B, 7)
+    joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])   # the IK branch's box
     joint_high: list[float] = field(default_factory=lambda: [2.0, 2.0, 1.5])
+    locked: dict[str, float] = field(default_factory=dict)   # joint name -> held value (redundant arms)
+    rotation_scale: float = 0.3        # m per unit of the rotation features (pose targets)
+    gravity: Optional[float] = None    # m/s^2 along -z of the root; null: 9.8 for the scara, else 9.81
+    trajectory: Trajectory = Trajectory.paper  # type: ignore[valid-type]  # closed loop's desired joints
+    home: list[float] = field(default_factory=list)   # sinusoid centre per joint; empty: the box centre
+    amplitude: float = 0.1             # sinusoid amplitude, a fraction of each joint's half range
+    rated_payload: float = 20.0        # kg: control payload cases default to 0, half and all of it
 
 
 @dataclass
@@ -233,6 +252,7 @@ class EvalConfig:
     seed: Optional[int] = None         # null: the checkpoint's training seed; the test stream is derived
     device: str = "cpu"
     num_threads: int = 0
+    robot: RobotConfig = field(default_factory=RobotConfig)   # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     online: OnlineConfig = field(default_factory=OnlineConfig)
@@ -293,19 +313,35 @@ def validate_train(cfg: TrainConfig) -> None:
     _need(_finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
     _need(0 < r.lms_alpha0 < 2, "rbfn.lms_alpha0", r.lms_alpha0, "must be in (0, 2)")
     _need(r.lms_epochs >= 1, "rbfn.lms_epochs", r.lms_epochs, "must be >= 1")
-    lo, hi = cfg.robot.joint_low, cfg.robot.joint_high
-    _need(len(lo) == len(hi) and len(lo) > 0, "robot.joint_low", list(lo),
-          f"robot.joint_low and robot.joint_high ({list(hi)}) need one value per joint each")
-    for i, (l, h) in enumerate(zip(lo, hi)):
-        if not (_finite(l) and _finite(h) and l < h):
-            raise ValueError(f"robot.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
-                             f"[{l}, {h}] (robot.joint_low < robot.joint_high required)")
+    validate_robot(cfg.robot)
     g = r.growth
     _need(g.start >= 0, "rbfn.growth.start", g.start, "must be >= 0 (0: no growth)")
     _need(_finite(g.factor) and g.factor > 1.0, "rbfn.growth.factor", g.factor, "must be > 1")
     _need(_finite(g.goal) and g.goal >= 0, "rbfn.growth.goal", g.goal, "must be >= 0")
     _seed("seed", cfg.seed)
     validate_device(cfg.device, cfg.num_threads)
+
+
+def validate_robot(r: RobotConfig) -> None:
+    """Raise ValueError naming the first bad value of `robot.*` (the URDF itself is checked on load)."""
+    lo, hi = r.joint_low, r.joint_high
+    _need(len(lo) == len(hi) and len(lo) > 0, "robot.joint_low", list(lo),
+          f"robot.joint_low and robot.joint_high ({list(hi)}) need one value per joint each")
+    for i, (l, h) in enumerate(zip(lo, hi)):
+        if not (_finite(l) and _finite(h) and l < h):
+            raise ValueError(f"robot.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
+                             f"[{l}, {h}] (robot.joint_low < robot.joint_high required)")
+    _need(r.urdf != "" or r.name in ROBOT_PRESETS, "robot.name", r.name,
+          f"with robot.urdf empty, choose a packaged robot: {list(ROBOT_PRESETS)} (or give robot.urdf=PATH)")
+    for j, v in r.locked.items():
+        _need(_finite(v), f"robot.locked.{j}", v, "must be a finite joint value")
+    _need(_finite(r.rotation_scale) and r.rotation_scale > 0, "robot.rotation_scale", r.rotation_scale, "must be > 0 m")
+    _need(r.gravity is None or (_finite(r.gravity) and r.gravity >= 0), "robot.gravity", r.gravity,
+          "must be >= 0 m/s^2 or null")
+    _need(len(r.home) in (0, len(lo)) and all(_finite(v) for v in r.home), "robot.home", list(r.home),
+          f"empty (the box centre) or one finite value per joint ({len(lo)})")
+    _need(_finite(r.amplitude) and 0 <= r.amplitude <= 1, "robot.amplitude", r.amplitude, "must be in [0, 1]")
+    _need(_finite(r.rated_payload) and r.rated_payload >= 0, "robot.rated_payload", r.rated_payload, "must be >= 0 kg")
 
 
 def _validate_aco(a: ACOConfig, key: str) -> None:
@@ -389,6 +425,7 @@ def validate_evaluate(cfg: EvalConfig) -> None:
     if cfg.seed is not None:
         _seed("seed", cfg.seed)
     validate_device(cfg.device, cfg.num_threads)
+    validate_robot(cfg.robot)
     if cfg.control.enabled:
         validate_control(cfg.control, cfg.gains)
     if cfg.online.enabled:
@@ -409,3 +446,4 @@ def register_configs() -> None:
     cs.store(group="centers", name="centers_schema", node=CentersConfig)
     cs.store(name="evaluate_schema", node=EvalConfig)
     cs.store(group="gains", name="gains_schema", node=GainsConfig)
+    cs.store(group="robot", name="robot_schema", node=RobotConfig)

@@ -1,12 +1,14 @@
-"""Training data: seeded joint samples within limits, FK positions, train/val/test splits."""
+"""Training data: seeded joint samples in the robot's box, FK targets, train/val/test splits."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import pytorch_kinematics as pk
+from typing import TYPE_CHECKING
+
 import torch
 
-from .robots.kinematics import forward_kinematics
+if TYPE_CHECKING:
+    from .robots.robot import Robot
 
 __all__ = ["Split", "Dataset", "sample_joints", "make_split", "make_dataset", "evaluation_split", "stream",
            "input_scaling", "check_finite"]
@@ -26,7 +28,7 @@ def stream(seed: int, offset: int) -> int:
 
 @dataclass
 class Split:
-    """Positions x (N, 3) in m and joints q (N, n_joints)."""
+    """Targets x (N, 3) in m, or (N, 7) m and unit quaternion, and free joints q (N, n)."""
 
     x: torch.Tensor
     q: torch.Tensor
@@ -48,22 +50,22 @@ def sample_joints(low: torch.Tensor, high: torch.Tensor, n: int, generator: torc
     return low + u * (high - low)
 
 
-def make_split(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, n: int, seed: int) -> Split:
-    """n FK pairs from joints sampled with `seed` (float64, on the chain's device)."""
+def make_split(robot: "Robot", n: int, seed: int) -> Split:
+    """n (target, joints) pairs from joints sampled in the robot's box with `seed` (float64, on the
+    chain's device)."""
     g = torch.Generator().manual_seed(seed)
-    q = sample_joints(low, high, n, g).to(chain.device)
-    return Split(forward_kinematics(chain, q).to(torch.float64), q)
+    q = sample_joints(robot.low, robot.high, n, g).to(robot.chain.device)
+    return Split(robot.targets(q).to(torch.float64), q)
 
 
-def make_dataset(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor,
-                 sizes: tuple[int, int, int], seed: int) -> Dataset:
-    """Train/val/test splits of (position, joints) pairs, each from its own seeded stream."""
-    return Dataset(*(make_split(chain, low, high, n, stream(seed, k)) for k, n in zip(TRAIN_VAL_TEST, sizes)))
+def make_dataset(robot: "Robot", sizes: tuple[int, int, int], seed: int) -> Dataset:
+    """Train/val/test splits of (target, joints) pairs, each from its own seeded stream."""
+    return Dataset(*(make_split(robot, n, stream(seed, k)) for k, n in zip(TRAIN_VAL_TEST, sizes)))
 
 
-def evaluation_split(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, n: int, seed: int) -> Split:
+def evaluation_split(robot: "Robot", n: int, seed: int) -> Split:
     """A fresh evaluation set for `seed`, from a stream no training run of any seed draws."""
-    return make_split(chain, low, high, n, stream(seed, EVALUATION))
+    return make_split(robot, n, stream(seed, EVALUATION))
 
 
 def input_scaling(x: torch.Tensor, mode: str) -> tuple[torch.Tensor, torch.Tensor]:

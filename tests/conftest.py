@@ -30,10 +30,14 @@ def chain():
 
 
 @pytest.fixture(scope="session")
-def small_data(chain):
+def scara_robot():
+    from rbfn.robots.robot import load_robot
+
+    return load_robot(RobotConfig())
+
+
+@pytest.fixture(scope="session")
+def small_data(scara_robot):
     from rbfn.data import make_dataset
 
-    box = RobotConfig()
-    low = torch.tensor(box.joint_low, dtype=torch.float64)
-    high = torch.tensor(box.joint_high, dtype=torch.float64)
-    return make_dataset(chain, low, high, (600, 300, 300), seed=3)
+    return make_dataset(scara_robot, (600, 300, 300), seed=3)

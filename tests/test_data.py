@@ -1,7 +1,6 @@
 """Data streams: an evaluation set never repeats a training, validation or test set."""
 import torch
 
-from rbfn.config import RobotConfig
 from rbfn.data import EVALUATION, TRAIN_VAL_TEST, evaluation_split, make_dataset, stream
 
 
@@ -11,10 +10,8 @@ def test_evaluation_streams_never_coincide_with_training_streams():
     assert not training & {stream(s, EVALUATION) for s in seeds}
 
 
-def test_evaluation_set_of_the_training_seed_shares_no_sample(chain):
-    box = RobotConfig()
-    low, high = torch.tensor(box.joint_low), torch.tensor(box.joint_high)
-    data = make_dataset(chain, low, high, (200, 100, 100), seed=0)
-    ev = evaluation_split(chain, low, high, 100, seed=0)
+def test_evaluation_set_of_the_training_seed_shares_no_sample(scara_robot):
+    data = make_dataset(scara_robot, (200, 100, 100), seed=0)
+    ev = evaluation_split(scara_robot, 100, seed=0)
     for split in (data.train, data.val, data.test):
         assert not torch.isclose(ev.q[:, None], split.q[None]).all(-1).any()

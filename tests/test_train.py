@@ -43,15 +43,13 @@ def test_outputs_written(trained):
     assert not list(out.glob("*.tmp"))
 
 
-def test_checkpoint_reloads_and_reproduces_metrics(trained, chain):
+def test_checkpoint_reloads_and_reproduces_metrics(trained, chain, scara_robot):
     out, metrics = trained
     model = load_model(out / "checkpoint.pt")
     assert not model.training
     from rbfn.data import make_dataset
-    from rbfn.config import RobotConfig
 
-    box = RobotConfig()
-    data = make_dataset(chain, torch.tensor(box.joint_low), torch.tensor(box.joint_high), (400, 200, 300), seed=0)
+    data = make_dataset(scara_robot, (400, 200, 300), seed=0)
     x = data.test.x                                   # the run's own test set: metrics must reproduce
     err = (forward_kinematics(chain, model.double()(x)) - x).norm(dim=-1) * 1000
     assert float(err.median()) == pytest.approx(metrics["test_pos_err_mm_median"], rel=1e-6)

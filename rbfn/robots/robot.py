@@ -1,45 +1,117 @@
-"""The robot a network is trained for: its URDF chain, end link and the sampled joint box."""
+"""The robot an IK network is trained for: its URDF chain, the joints held fixed, the sampled joint
+box and the kind of target (position, or position and orientation).
+
+Targets are positions (B, 3) in m, or poses (B, 7): position in m, then a unit quaternion
+(w, x, y, z) of the end link's orientation in the root frame, with w >= 0 (q and -q are the
+same rotation). Joint vectors given to and returned by the IK are the free joints (B, n) in the
+URDF's order along the chain; `locked` joints are held at their values.
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytorch_kinematics as pk
 import torch
+from pytorch_kinematics import transforms as tf
 
-from ..config import RobotConfig
-from . import scara
-from .kinematics import joint_limits, load_serial_chain
+from ..config import RobotConfig, Target
+from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, urdf_path
 
-__all__ = ["Robot", "load_robot", "robot_from_record"]
+__all__ = ["Robot", "load_robot", "robot_from_record", "pose_targets", "rotation_error_deg"]
+
+
+def pose_targets(pose: torch.Tensor) -> torch.Tensor:
+    """Targets (B, 7) = position (m) and unit quaternion (w, x, y, z), w >= 0, of poses (B, 4, 4)."""
+    quat = tf.matrix_to_quaternion(pose[..., :3, :3])
+    quat = torch.where(quat[..., :1] < 0, -quat, quat)
+    return torch.cat([pose[..., :3, 3], quat], -1)
+
+
+def rotation_error_deg(r_hat: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """Angle (B,) in degrees of the rotation between rotation matrices r_hat and r (B, 3, 3)."""
+    d = r_hat.transpose(-1, -2) @ r
+    cos = (d.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0
+    sin = torch.stack([d[..., 2, 1] - d[..., 1, 2], d[..., 0, 2] - d[..., 2, 0], d[..., 1, 0] - d[..., 0, 1]],
+                      -1).norm(dim=-1) / 2.0
+    return torch.rad2deg(torch.atan2(sin, cos))
 
 
 @dataclass
 class Robot:
-    """A serial chain (float64) root -> end link and the joint box (n,) sampled for training."""
+    """A serial chain (float64) root -> end link, the free joints' box (n,) sampled for training,
+    the held joints and the target kind."""
 
     chain: pk.SerialChain
     urdf_text: str
     end_link: str
     low: torch.Tensor
     high: torch.Tensor
+    target: str = "position"
+    locked: dict[str, float] = field(default_factory=dict)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        names = self.chain.get_joint_parameter_names()
+        unknown = [j for j in self.locked if j not in names]
+        if unknown:
+            raise ValueError(f"robot.locked names {unknown}, which are not joints of the chain to "
+                             f"{self.end_link!r}: {names}")
+        self.free = [i for i, j in enumerate(names) if j not in self.locked]
+        full = torch.zeros(len(names), dtype=torch.float64)
+        for j, v in self.locked.items():
+            full[names.index(j)] = v
+        self._full = full
 
     @property
     def joint_names(self) -> list[str]:
-        return self.chain.get_joint_parameter_names()
+        """The free joints (the IK's outputs), in chain order."""
+        names = self.chain.get_joint_parameter_names()
+        return [names[i] for i in self.free]
+
+    @property
+    def target_dim(self) -> int:
+        return 7 if self.target == Target.pose else 3
+
+    def full_joints(self, q: torch.Tensor) -> torch.Tensor:
+        """Every chain joint (B, n_chain) from the free joints q (B, n), locked ones filled in."""
+        out = self._full.to(dtype=q.dtype, device=q.device).expand(q.shape[0], -1).clone()
+        out[:, self.free] = q
+        return out
+
+    def pose(self, q: torch.Tensor) -> torch.Tensor:
+        """End-link poses (B, 4, 4) in m of the free joints q (B, n)."""
+        return forward_kinematics_pose(self.chain, self.full_joints(q))
+
+    def targets(self, q: torch.Tensor) -> torch.Tensor:
+        """IK targets (B, 3) or (B, 7) reached by the free joints q (B, n)."""
+        pose = self.pose(q)
+        return pose_targets(pose) if self.target == Target.pose else pose[:, :3, 3]
+
+    def errors(self, q_hat: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(position error (B,) in mm, rotation error (B,) in degrees or None for position targets)
+        of joints q_hat (B, n) against targets x."""
+        pose = self.pose(q_hat.to(torch.float64))
+        x = x.to(torch.float64)
+        pos = (pose[:, :3, 3] - x[:, :3]).norm(dim=-1) * 1000.0
+        if self.target != Target.pose:
+            return pos, None
+        return pos, rotation_error_deg(pose[:, :3, :3], tf.quaternion_to_matrix(x[:, 3:]))
 
     def record(self) -> dict:
-        """Plain data for a checkpoint's `robot` entry (URDF text, end link, names, box)."""
-        return {"urdf": self.urdf_text, "end_link": self.end_link, "joint_names": self.joint_names,
+        """Plain data for a checkpoint's `robot` entry."""
+        return {"name": self.name, "urdf": self.urdf_text, "end_link": self.end_link, "target": str(self.target),
+                "locked": dict(self.locked), "joint_names": self.joint_names,
                 "joint_low": self.low.tolist(), "joint_high": self.high.tolist()}
 
 
-def _check_box(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, where: str) -> None:
-    names = chain.get_joint_parameter_names()
+def _check_box(robot: Robot, where: str) -> None:
+    names = robot.joint_names
+    low, high = robot.low, robot.high
     if len(names) != low.shape[0]:
-        raise ValueError(f"{where}: robot.joint_low/joint_high give {low.shape[0]} joints, the URDF chain has "
-                         f"{len(names)}: {names}")
-    u_low, u_high = joint_limits(chain)
+        raise ValueError(f"{where}: robot.joint_low/joint_high give {low.shape[0]} joints, the chain to "
+                         f"{robot.end_link!r} has {len(names)} free joints: {names}")
+    u_low, u_high = (t[robot.free] for t in joint_limits(robot.chain))
     outside = (low < u_low - 1e-12) | (high > u_high + 1e-12)
     if bool(outside.any()):
         j = int(outside.nonzero()[0])
@@ -48,20 +120,21 @@ def _check_box(chain: pk.SerialChain, low: torch.Tensor, high: torch.Tensor, whe
 
 
 def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
-    """The robot of `cfg` (the packaged SCARA when `cfg.urdf` is empty), its box checked against
-    the URDF's joint limits."""
-    path = Path(cfg.urdf) if cfg.urdf else scara.URDF_PATH
+    """The robot of `cfg` (the packaged URDF of `cfg.name` when `cfg.urdf` is empty), its box
+    checked against the URDF's joint limits."""
+    path = Path(cfg.urdf) if cfg.urdf else urdf_path(cfg.name)
     if not path.is_file():
         raise FileNotFoundError(f"robot.urdf={cfg.urdf!r}: no such file ({path.resolve()})")
     chain = load_serial_chain(path, cfg.end_link, torch.float64, device)
-    low = torch.tensor(cfg.joint_low, dtype=torch.float64)
-    high = torch.tensor(cfg.joint_high, dtype=torch.float64)
-    _check_box(chain, low, high, str(path))
-    return Robot(chain, path.read_text(), cfg.end_link, low, high)
+    robot = Robot(chain, path.read_text(), cfg.end_link, torch.tensor(cfg.joint_low, dtype=torch.float64),
+                  torch.tensor(cfg.joint_high, dtype=torch.float64), str(cfg.target), dict(cfg.locked), cfg.name)
+    _check_box(robot, str(path))
+    return robot
 
 
 def robot_from_record(record: dict, device: str = "cpu") -> Robot:
     """The Robot of a checkpoint's `robot` entry."""
     chain = load_serial_chain(record["urdf"], record["end_link"], torch.float64, device)
     return Robot(chain, record["urdf"], record["end_link"], torch.tensor(record["joint_low"], dtype=torch.float64),
-                 torch.tensor(record["joint_high"], dtype=torch.float64))
+                 torch.tensor(record["joint_high"], dtype=torch.float64), record.get("target", "position"),
+                 dict(record.get("locked", {})), record.get("name", ""))

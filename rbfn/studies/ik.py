@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: Dataset) -> dict:
     """metrics.json of a training run: test accuracy in float64 and float32, E against M, times."""
-    acc, _, _ = ik_metrics_both(result.model, robot.chain, data.test.x, data.test.q)
+    acc, _, _ = ik_metrics_both(result.model, robot, data.test.x, data.test.q)
     return {"num_centers": result.model.num_centers, "selector": cfg.centers.name, **acc,
             "val_E": 0.5 * float(result.fit.val_mse), "ridge": float(result.fit.ridge),
             "growth": [{"num_centers": m, "val_E": e} for m, e in result.curve],
@@ -61,8 +61,8 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
     model = model_from_checkpoint(ckpt).to(cfg.device)
     robot = robot_from_record(ckpt["robot"], cfg.device)
     seed = int(ckpt["config"]["seed"]) if cfg.seed is None else cfg.seed
-    test = evaluation_split(robot.chain, robot.low, robot.high, cfg.n_test, seed)
-    acc, err_mm, inside = ik_metrics_both(model, robot.chain, test.x, test.q)
+    test = evaluation_split(robot, cfg.n_test, seed)
+    acc, err_mm, inside = ik_metrics_both(model, robot, test.x, test.q)
     out: dict = {"checkpoint": str(path), "num_centers": model.num_centers, "test_seed": seed, **acc}
     fig = workspace_error_map(test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(),
                               f"IK position error, M = {model.num_centers}")
