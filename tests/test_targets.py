@@ -30,7 +30,7 @@ def test_pose_features_scale_rotation_against_metres():
 
 @pytest.mark.parametrize("pose,x,err,match", [
     (True, torch.zeros(2, 3), ValueError, r"poses \(B, 7\).*got shape \(2, 3\).*position and quaternion"),
-    (True, torch.tensor([[0.0, 0, 0, 1.0, 0.1, 0, 0]]), ValueError, "unit length.*row 0 has norm 1.005"),
+    (True, torch.tensor([[0.0, 0, 0, 1.0, 0.1, 0, 0]]), ValueError, "unit length.*row 0 has norm 1.00499"),
     (False, torch.zeros(3), ValueError, r"positions \(B, 3\) in m; got shape \(3,\)"),
     (False, torch.zeros(4, 2), ValueError, r"got shape \(4, 2\)"),
     (False, [[1.0, 2.0, 3.0]], TypeError, "got list"),
