@@ -17,6 +17,7 @@ from pathlib import Path
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
@@ -26,7 +27,7 @@ from rbfn.pipeline import train_ik
 from rbfn.resume import StateFile
 from rbfn.robots.robot import load_robot
 from rbfn.studies.ik import training_metrics, write_training
-from rbfn.studies.rundir import RunDir, write_text
+from rbfn.studies.rundir import RunDir, RunDirInUse, write_json, write_text
 
 register_configs()
 log = logging.getLogger("train")
@@ -89,7 +90,18 @@ def hydra_run_files(dcfg: DictConfig) -> dict[str, str]:
 @hydra.main(version_base="1.3", config_path="conf", config_name="train")
 def main(dcfg: DictConfig) -> float:
     cfg: TrainConfig = OmegaConf.to_object(dcfg)
-    metrics = run(cfg, Path(HydraConfig.get().runtime.output_dir), hydra_run_files(dcfg))
+    hc = HydraConfig.get()
+    out_dir = Path(hc.runtime.output_dir)
+    try:
+        metrics = run(cfg, out_dir, hydra_run_files(dcfg))
+    except Exception as e:
+        # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json
+        # for `python -m rbfn.summarize` (never into a directory another process is using).
+        if hc.mode == RunMode.MULTIRUN and not isinstance(e, RunDirInUse):
+            log.error("job failed: %s: %s", type(e).__name__, e)
+            write_json(out_dir / "failed.json", {"error": type(e).__name__, "message": str(e),
+                                                 "overrides": list(hc.overrides.task)})
+        raise
     return metrics["val_E"]  # the validation objective, for sweepers
 
 

@@ -8,6 +8,10 @@ SWEEP_DIR/summary.md, summary.csv and, when `rbfn.num_centers` is swept, summary
 against M, one line per other setting). `--compare centers=aco,kmeans_refine` adds a paired
 table: for jobs that differ only in that key (same seed, so the same data), A - B per metric
 (mean +- std over the pairs), the mean ratio A / B and how many pairs A wins (lower is better).
+
+Jobs without a metrics.json are listed after the table with their error: "failed" when the job
+recorded one in failed.json (train.py does so in a multirun), "unfinished" otherwise (running,
+or killed or timed out; the last ERROR line of its log, if any, is shown).
 """
 from __future__ import annotations
 
@@ -16,32 +20,102 @@ import csv
 import io
 import json
 import math
+import re
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["load_jobs", "summarize", "compare", "main"]
+__all__ = ["Job", "find_jobs", "load_jobs", "summarize", "compare", "main"]
 
 DEFAULT_METRICS = ("test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max",
                    "test_pos_err_mm_median_float32", "select_seconds", "train_seconds")
 
 
-def _overrides(job: Path) -> dict[str, str]:
-    f = job / ".hydra" / "overrides.yaml"
+def _parse_overrides(lines) -> dict[str, str]:
     out = {}
-    if f.is_file():
-        for line in f.read_text().splitlines():
-            line = line.strip().removeprefix("- ").strip().strip("'\"")
-            if "=" in line:
-                k, v = line.split("=", 1)
-                out[k] = v
+    for line in lines:
+        line = str(line).strip().removeprefix("- ").strip().strip("'\"")
+        if "=" in line:
+            k, v = line.split("=", 1)
+            out[k] = v
     return out
 
 
+def _overrides(job: Path) -> dict[str, str]:
+    f = job / ".hydra" / "overrides.yaml"
+    return _parse_overrides(f.read_text().splitlines()) if f.is_file() else {}
+
+
+@dataclass
+class Job:
+    """One job directory of a sweep: its overrides, and its metrics or why it has none."""
+
+    path: Path
+    overrides: dict[str, str]
+    status: str                  # "completed", "failed" or "unfinished"
+    metrics: dict | None = None
+    error: str = ""
+
+
+# A job directory holds one of these (the log: Hydra opens RUN_DIR/<job name>.log at the start).
+_MARKERS = ("metrics.json", "failed.json", ".hydra/overrides.yaml", "last.pt", "*.log")
+_LOG_ERROR = re.compile(r"\]\[(?:ERROR|CRITICAL)\] - (.*)$")
+
+
+def _job_number(path: Path, root: Path) -> tuple:
+    return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in path.relative_to(root).parts)
+
+
+def _last_log_error(job: Path) -> str:
+    found = ""
+    for log in sorted(job.glob("*.log")):
+        for line in log.read_text(errors="replace").splitlines():
+            m = _LOG_ERROR.search(line)
+            if m:
+                found = m.group(1).strip()
+    return found
+
+
+def _load_job(d: Path) -> Job:
+    metrics, failed = d / "metrics.json", d / "failed.json"
+    # A rerun that completed after a recorded failure leaves a metrics.json newer than failed.json.
+    if metrics.is_file() and not (failed.is_file() and failed.stat().st_mtime_ns > metrics.stat().st_mtime_ns):
+        try:
+            return Job(d, _overrides(d), "completed", json.loads(metrics.read_text()))
+        except (OSError, ValueError) as e:
+            return Job(d, _overrides(d), "failed", error=f"unreadable metrics.json: {e}")
+    if failed.is_file():
+        try:
+            rec = json.loads(failed.read_text())
+            over = _parse_overrides(rec.get("overrides") or []) or _overrides(d)
+            return Job(d, over, "failed", error=f"{rec.get('error', 'error')}: {rec.get('message', '')}")
+        except (OSError, ValueError, AttributeError) as e:
+            return Job(d, _overrides(d), "failed", error=f"unreadable failed.json: {e}")
+    error = _last_log_error(d) or ("no metrics.json: still running, or stopped without an error (killed, "
+                                   "timed out)" + ("; a rerun resumes from its last.pt" if (d / "last.pt").is_file()
+                                                   else ""))
+    return Job(d, _overrides(d), "unfinished", error=error)
+
+
+def find_jobs(sweep_dir: Path) -> list[Job]:
+    """Every job directory under `sweep_dir` (itself included), in job-number order.
+
+    Hidden directories (.submitit, .hydra) are not jobs; a directory is a job when it holds a
+    metrics.json, failed.json, .hydra/overrides.yaml, last.pt or a log file.
+    """
+    sweep_dir = Path(sweep_dir)
+    dirs = set()
+    for pattern in _MARKERS:
+        for f in sweep_dir.glob(f"**/{pattern}"):
+            d = f.parents[pattern.count("/")]
+            if f.is_file() and not any(p.startswith(".") for p in d.relative_to(sweep_dir).parts):
+                dirs.add(d)
+    return [_load_job(d) for d in sorted(dirs, key=lambda d: _job_number(d, sweep_dir))]
+
+
 def load_jobs(sweep_dir: Path) -> list[tuple[dict[str, str], dict]]:
-    """(overrides, metrics) for every job directory under `sweep_dir` holding a metrics.json."""
-    jobs = []
-    for m in sorted(sweep_dir.glob("**/metrics.json")):
-        jobs.append((_overrides(m.parent), json.loads(m.read_text())))
+    """(overrides, metrics) for every completed job under `sweep_dir` (one holding a metrics.json)."""
+    jobs = [(j.overrides, j.metrics) for j in find_jobs(sweep_dir) if j.status == "completed"]
     if not jobs:
         raise FileNotFoundError(f"no metrics.json under {sweep_dir}")
     return jobs
@@ -132,6 +206,26 @@ def to_markdown(swept, rows, metrics) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _cell(text: str) -> str:
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def failures_to_markdown(jobs: list[Job], sweep_dir: Path) -> str:
+    """The jobs without metrics: job, status, the overrides that vary across the sweep, error."""
+    known = [j.overrides for j in jobs if j.overrides]       # a job killed at its start may have none
+    keys = sorted({k for o in known for k in o})
+    varying = [k for k in keys if len({o.get(k) for o in known}) > 1]
+    bad = [j for j in jobs if j.status != "completed"]
+    lines = [f"Jobs without metrics ({len(bad)} of {len(jobs)})", "", "| job | status | overrides | error |",
+             "|---|---|---|---|"]
+    for j in bad:
+        shown = [k for k in (varying or keys) if k in j.overrides]
+        over = " ".join(f"{k}={j.overrides[k]}" for k in shown)
+        name = j.path.relative_to(sweep_dir).as_posix()
+        lines.append(f"| {_cell(name)} | {j.status} | {_cell(over)} | {_cell(j.error)} |")
+    return "\n".join(lines) + "\n"
+
+
 def to_csv(swept, rows, metrics) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
@@ -176,20 +270,31 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--compare", action="append", default=[], metavar="KEY=A,B",
                    help="paired table of KEY=A against KEY=B (repeatable)")
     a = p.parse_args(argv)
-    jobs = load_jobs(a.sweep_dir)
-    swept, rows = summarize(jobs, a.metrics)
-    md = to_markdown(swept, rows, a.metrics)
+    found = find_jobs(a.sweep_dir)
+    if not found:
+        p.error(f"no job directories under {a.sweep_dir} (none holds a metrics.json, failed.json, "
+                ".hydra/overrides.yaml, last.pt or log file)")
+    jobs = [(j.overrides, j.metrics) for j in found if j.status == "completed"]
+    swept, rows = summarize(jobs, a.metrics) if jobs else ([], [])
+    md = to_markdown(swept, rows, a.metrics) if jobs else "No completed job.\n"
     for spec in a.compare:
         key, _, values = spec.partition("=")
         pair = values.split(",")
         if not key or len(pair) != 2:
             p.error(f"--compare {spec!r}: expected KEY=A,B")
-        md += "\n" + compare_to_markdown(key, *pair, *compare(jobs, key, *pair, a.metrics), a.metrics)
+        try:
+            md += "\n" + compare_to_markdown(key, *pair, *compare(jobs, key, *pair, a.metrics), a.metrics)
+        except ValueError as e:
+            p.error(f"--compare {spec}: {e}")
+    if len(jobs) < len(found):
+        md += "\n" + failures_to_markdown(found, a.sweep_dir)
     prefix = a.out or a.sweep_dir / "summary"
     Path(f"{prefix}.md").write_text(md)
     Path(f"{prefix}.csv").write_text(to_csv(swept, rows, a.metrics))
-    plotted = plot_against_m(swept, rows, a.metrics[0], Path(f"{prefix}.png"))
+    plotted = bool(jobs) and plot_against_m(swept, rows, a.metrics[0], Path(f"{prefix}.png"))
+    counts = {s: sum(j.status == s for j in found) for s in ("completed", "failed", "unfinished")}
     print(md)
+    print(f"{len(found)} jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items()))
     print(f"wrote {prefix}.md, {prefix}.csv" + (f", {prefix}.png" if plotted else ""))
 
 
