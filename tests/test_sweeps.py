@@ -1,4 +1,5 @@
-"""Hydra multiruns end to end: the joblib launcher, the summary table and TensorBoard's HParams view.
+"""Hydra multiruns end to end: the joblib launcher, a failed job among others, the summary table,
+the Optuna search preset and TensorBoard's HParams view.
 
 Each test runs `python train.py -m ...` as a user would, in a subprocess, with small data sets.
 """
@@ -49,10 +50,55 @@ def test_joblib_multirun_writes_every_job_and_summarizes(joblib_sweep):
     assert (joblib_sweep / "summary.md").is_file() and (joblib_sweep / "summary.png").is_file()
 
 
+def test_a_failed_job_does_not_stop_the_others_and_is_summarized(tmp_path):
+    """Job 1 fails validation; jobs 0 and 2 still complete, and the summary lists job 1's error."""
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    r = subprocess.run([sys.executable, "train.py", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+                        "centers=kmeans", "rbfn.num_centers=10,100000,20", *FAST, f"hydra.sweep.dir={tmp_path}"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    bad = "rbfn.num_centers=100000 is not allowed: exceeds the training set size data.n_train=300"
+    assert r.returncode != 0 and bad in r.stderr, r.stderr[-3000:]       # the multirun reports it
+    for job in ("0", "2"):
+        assert json.loads((tmp_path / job / "metrics.json").read_text())["test_pos_err_mm_median"] > 0
+    failed = json.loads((tmp_path / "1" / "failed.json").read_text())
+    assert failed["error"] == "ValueError" and bad in failed["message"]
+    assert "rbfn.num_centers=100000" in failed["overrides"]
+    assert f"job failed: ValueError: {bad}" in (tmp_path / "1" / "train.log").read_text()
+    out = _python("-m", "rbfn.summarize", str(tmp_path))
+    assert f"| 1 | failed | rbfn.num_centers=100000 | ValueError: {bad}" in out, out
+    assert "3 jobs: 2 completed, 1 failed, 0 unfinished" in out
+    assert [line.split("|")[1].strip() for line in out.splitlines() if line.startswith(("| 10 |", "| 20 |"))] \
+        == ["10", "20"]
+
+
 def test_slurm_launcher_composes_on_the_command_line():
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     out = _python("train.py", "--cfg", "job", "hydra/launcher=slurm", "experiment=aco_vs_kmeans")
     assert "num_threads: 1" in out and "name: aco" in out
+
+
+def test_hparams_search_preset_composes():
+    pytest.importorskip("hydra_plugins.hydra_optuna_sweeper")
+    from .conftest import compose_config
+
+    cfg = compose_config("train", "experiment=hparams_search", hydra=True)
+    sweeper = cfg.hydra.sweeper
+    assert sweeper._target_.endswith("OptunaSweeper") and sweeper.direction == "minimize"
+    assert sweeper.sampler._target_ == "optuna.samplers.TPESampler" and sweeper.sampler.seed == 0
+    assert set(sweeper.params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.q", "centers.aco.xi"}
+    assert cfg.rbfn.growth.start == 0 and cfg.num_threads == 1
+
+
+def test_hparams_search_runs_two_trials_and_reports_the_best(tmp_path):
+    pytest.importorskip("hydra_plugins.hydra_optuna_sweeper")
+    _python("train.py", "-m", "experiment=hparams_search", "hydra.sweeper.n_trials=2", "hydra.sweeper.n_jobs=1",
+            "centers.aco.iterations=3", "centers.refine.steps=5", *FAST, f"hydra.sweep.dir={tmp_path}")
+    from omegaconf import OmegaConf
+
+    best = OmegaConf.load(tmp_path / "optimization_results.yaml")
+    val_e = [json.loads((tmp_path / j / "metrics.json").read_text())["val_E"] for j in ("0", "1")]
+    assert best.best_value == min(val_e)
+    assert set(best.best_params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.q", "centers.aco.xi"}
 
 
 def _free_port() -> int:
