@@ -2,7 +2,10 @@
 
 Everything is batched over a leading "ant" dimension K, so a colony's candidate centre sets are
 fitted in one tensor computation. The design matrix is [phi(z), z, 1] (the linear tail and bias
-are optional columns).
+are optional columns), the column order of RBFNetwork.design.
+
+Fits meant for a lower deployment precision (float32) keep only ridges whose weights evaluate
+stably in it: see `ridge_fit` and `rounding_scale`.
 """
 from __future__ import annotations
 
@@ -12,15 +15,23 @@ import torch
 
 from .layer import gaussian_features
 
-__all__ = ["design_matrix", "RidgeFit", "ridge_fit", "ridge_solve", "deployed_design", "DEFAULT_RIDGES"]
+__all__ = ["design_matrix", "RidgeFit", "ridge_fit", "ridge_solve", "deployed_design", "rounding_scale",
+           "DEFAULT_RIDGES", "ROUND_TOL"]
 
 # Ridge values relative to the mean diagonal of the Gram matrix.
 DEFAULT_RIDGES = tuple(10.0**e for e in range(-13, -1))
+# Largest rounding scale (output units: rad, m) a fit for a deployment dtype may have on any
+# validation row. Measured float32 differences between op orders (ONNX runtime vs torch, matmul vs
+# broadcast distances, reversed summation) reached up to ~4.6 times this scale, so 2e-6 keeps them
+# below 1e-5.
+ROUND_TOL = 2e-6
 
 
 def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
                   tail: bool = True) -> torch.Tensor:
     """Design matrix (..., N, P) with P = M [+ d + 1]: features, then tail z and bias column.
+
+    Without the tail there is no bias column either (P = M); `assemble` then sets a zero bias.
 
     Squared distances use |z|^2 + |c|^2 - 2 z.c (one matmul), which is fast and exact enough in
     float64, the precision fitting runs in; the module evaluates by broadcasting instead.
@@ -49,48 +60,112 @@ def deployed_design(x: torch.Tensor, offset: torch.Tensor, scale: torch.Tensor, 
 
 @dataclass
 class RidgeFit:
-    """Weights (..., P, out), the chosen relative ridge (...,) and validation MSE (...,)."""
+    """Weights (..., P, out), the chosen relative ridge (...,), validation MSE (...,) and, when
+    fitted for a deployment dtype, the rounding scale of the chosen fit (...,): max over validation
+    rows and outputs of u * sum_i |a_i(x) w_ij| (output units; see `ridge_fit`)."""
 
     weights: torch.Tensor
     ridge: torch.Tensor
     val_mse: torch.Tensor
+    rounding: torch.Tensor | None = None
+
+
+def rounding_scale(a: torch.Tensor, weights: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """Rounding scale (..., N, out) of a @ weights evaluated in `dtype`: u * |a| @ |weights|.
+
+    a (..., N, P), weights (..., P, out); u is the unit roundoff of `dtype` (2**-24 for float32).
+    Each term a_i w_ij carries a relative rounding error of a few u (the feature, the product, the
+    sum), however the features and the sum are ordered, so the deployed output's error is a small
+    multiple of this scale. With large weights that cancel it is far above u * |a @ weights|.
+    """
+    return (a.abs() @ weights.abs()).mul_(torch.finfo(dtype).eps / 2)
 
 
 def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor, y_val: torch.Tensor,
               ridges: tuple[float, ...] = DEFAULT_RIDGES, eval_dtype: torch.dtype | None = None,
-              a_val_eval: torch.Tensor | None = None) -> RidgeFit:
+              a_val_eval: torch.Tensor | None = None, round_tol: float = ROUND_TOL) -> RidgeFit:
     """Ridge least squares for every ridge in `ridges`; keep the one with the lowest validation MSE.
 
     a_train (..., N, P), y_train (N, out), a_val (..., Nv, P), y_val (Nv, out). Solved through
-    the eigendecomposition of the Gram matrix, so all ridges cost one decomposition. With
-    `eval_dtype` (e.g. float32) the validation error is measured with weights and design rounded
-    to that dtype, so the chosen ridge is one whose fit survives deployment in that precision.
-    MSE is the mean over samples of the summed squared output error.
+    the eigendecomposition of the Gram matrix, so all ridges cost one decomposition. MSE is the
+    mean over samples of the summed squared output error.
+
+    With a deployment dtype (`eval_dtype`, or the dtype of `a_val_eval`, the validation design as
+    the deployed module computes it) the validation MSE is measured in that dtype and only stable
+    ridges compete: the fit's rounding scale (`rounding_scale`) must be <= `round_tol` (output
+    units) on every validation row and output. Small ridges give large weights that cancel, and
+    the deployed output then depends on the order of operations (ONNX runtime vs torch, distance
+    formula, summation order) by far more than the dtype's precision; choosing on the measured
+    error alone would reward the op order that happened to be measured. Where the constraint
+    binds, the ridge is refined between the grid's neighbours. If no ridge is stable, the most
+    stable one is kept.
     """
     gram = a_train.transpose(-1, -2) @ a_train
     rhs = a_train.transpose(-1, -2) @ y_train
     evals, evecs = torch.linalg.eigh(gram)
     proj = evecs.transpose(-1, -2) @ rhs                          # (..., P, out)
     scale = gram.diagonal(dim1=-2, dim2=-1).mean(-1, keepdim=True)  # (..., 1)
-    lam = torch.as_tensor(ridges, dtype=gram.dtype, device=gram.device) * scale  # (..., L)
-    coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)  # (...,L,P,out)
-    weights = evecs.unsqueeze(-3) @ coef                           # (..., L, P, out)
-    n_l, p, n_out = weights.shape[-3:]
-    w_flat = weights.movedim(-3, -2).reshape(*weights.shape[:-3], p, n_l * n_out)
-    if a_val_eval is not None:
-        pred = (a_val_eval @ w_flat.to(a_val_eval.dtype)).to(gram.dtype)
-    elif eval_dtype is None:
-        pred = a_val @ w_flat
-    else:
-        pred = (a_val.to(eval_dtype) @ w_flat.to(eval_dtype)).to(gram.dtype)
-    pred = pred.reshape(*pred.shape[:-1], n_l, n_out).movedim(-2, -3)   # (..., L, Nv, out)
-    mse = (pred - y_val).square().sum(-1).mean(-1)                 # (..., L)
-    mse = torch.nan_to_num(mse, nan=torch.inf)
-    best = mse.argmin(-1)
-    idx = best[..., None, None, None].expand(*best.shape, 1, *weights.shape[-2:])
-    return RidgeFit(weights=weights.gather(-3, idx).squeeze(-3),
-                    ridge=torch.as_tensor(ridges, dtype=gram.dtype, device=gram.device)[best],
-                    val_mse=mse.gather(-1, best.unsqueeze(-1)).squeeze(-1))
+    deploy = a_val_eval.dtype if a_val_eval is not None else eval_dtype
+
+    def candidates(rel: torch.Tensor):
+        """Weights (..., L, P, out), validation MSE (..., L) and rounding scale (..., L) or None."""
+        lam = rel * scale                                                       # (..., L)
+        coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)
+        weights = evecs.unsqueeze(-3) @ coef                                    # (..., L, P, out)
+        n_l, p, n_out = weights.shape[-3:]
+        w_flat = weights.movedim(-3, -2).reshape(*weights.shape[:-3], p, n_l * n_out)
+        if a_val_eval is not None:
+            pred = (a_val_eval @ w_flat.to(a_val_eval.dtype)).to(gram.dtype)
+        elif eval_dtype is None:
+            pred = a_val @ w_flat
+        else:
+            pred = (a_val.to(eval_dtype) @ w_flat.to(eval_dtype)).to(gram.dtype)
+        pred = pred.reshape(*pred.shape[:-1], n_l, n_out).movedim(-2, -3)   # (..., L, Nv, out)
+        mse = torch.nan_to_num((pred - y_val).square().sum(-1).mean(-1), nan=torch.inf)
+        del pred
+        if deploy is None:
+            return weights, mse, None
+        bound = rounding_scale(a_val, w_flat, deploy)                          # (..., Nv, L * out)
+        bound = bound.reshape(*bound.shape[:-1], n_l, n_out).amax((-3, -1))    # (..., L)
+        return weights, mse, torch.nan_to_num(bound, nan=torch.inf)
+
+    def choose(mse: torch.Tensor, bound: torch.Tensor | None) -> torch.Tensor:
+        """Index (...,) of the best candidate: lowest MSE among the stable ones, else most stable."""
+        if bound is None:
+            return mse.argmin(-1)
+        stable = bound <= round_tol
+        fallback = torch.where(bound == bound.amin(-1, keepdim=True), mse, torch.inf)
+        return torch.where(stable.any(-1, keepdim=True), torch.where(stable, mse, torch.inf), fallback).argmin(-1)
+
+    def take(t: torch.Tensor | None, i: torch.Tensor) -> torch.Tensor | None:
+        return None if t is None else t.gather(-1, i.unsqueeze(-1)).squeeze(-1)
+
+    grid = torch.as_tensor(ridges, dtype=gram.dtype, device=gram.device).expand(*scale.shape[:-1], -1)
+    weights, mse, bound = candidates(grid)
+    best = choose(mse, bound)
+    ridge, best_mse, best_bound = take(grid, best), take(mse, best), take(bound, best)
+    best_w = weights.gather(-3, best[..., None, None, None].expand(*best.shape, 1, *weights.shape[-2:]))
+    best_w = best_w.squeeze(-3)
+    del weights
+    if bound is not None and len(ridges) > 1:
+        # The constraint binds where the next smaller grid ridge fits better but is unstable:
+        # try ridges between the two (log-spaced) and keep the best stable one.
+        ordered = all(a < b for a, b in zip(ridges, ridges[1:]))
+        lower = take(grid, (best - 1).clamp(min=0))
+        binds = (best > 0) & (take(mse, (best - 1).clamp(min=0)) < best_mse) & (best_bound <= round_tol)
+        if ordered and bool(binds.any()):
+            steps = torch.arange(1, 4, dtype=gram.dtype, device=gram.device) / 4
+            fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)
+            fine = torch.cat([fine, ridge.unsqueeze(-1)], -1)                    # (..., 4)
+            w2, mse2, bound2 = candidates(fine)
+            b2 = choose(mse2, bound2)
+            use = binds & (bound2.gather(-1, b2.unsqueeze(-1)).squeeze(-1) <= round_tol)
+            ridge = torch.where(use, take(fine, b2), ridge)
+            best_mse = torch.where(use, take(mse2, b2), best_mse)
+            best_bound = torch.where(use, take(bound2, b2), best_bound)
+            w2 = w2.gather(-3, b2[..., None, None, None].expand(*b2.shape, 1, *w2.shape[-2:])).squeeze(-3)
+            best_w = torch.where(use[..., None, None], w2, best_w)
+    return RidgeFit(weights=best_w, ridge=ridge, val_mse=best_mse, rounding=best_bound)
 
 
 def ridge_solve(a: torch.Tensor, y: torch.Tensor, ridge: float | torch.Tensor) -> torch.Tensor:

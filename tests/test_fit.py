@@ -1,6 +1,6 @@
 import torch
 
-from rbfn.fit import design_matrix, ridge_fit, ridge_solve
+from rbfn.fit import DEFAULT_RIDGES, design_matrix, ridge_fit, ridge_solve
 from rbfn.lms import lms_fit
 
 
@@ -47,3 +47,90 @@ def test_lms_converges_to_least_squares_on_well_conditioned_basis():
     true = torch.randn(5, 2, generator=g, dtype=torch.float64)
     w = lms_fit(a, a @ true, alpha0=0.5, epochs=60, generator=g)
     assert torch.allclose(w, true, atol=1e-4)
+
+
+def _op_order_difference(net, x: torch.Tensor) -> float:
+    """Max |output| difference (in-workspace rows) between the float32 module and the same network
+    in float32 with |z|^2 + |c|^2 - 2 z.c distances and the head summed in reversed column order."""
+    n32 = net.float()
+    x = x.float()
+    with torch.no_grad():
+        y, inside = n32.solve(x)
+        z = n32.scaled(x)
+        d2 = (z.square().sum(-1, keepdim=True) + n32.centers.square().sum(-1) - 2 * z @ n32.centers.T).clamp_min(0)
+        a = torch.cat([torch.exp(-d2 / (2 * n32.widths.square())), z, torch.ones_like(z[:, :1])], 1)
+        y2 = a.flip(1) @ n32.output_weights().flip(0)
+    net.double()
+    assert inside.float().mean() > 0.9
+    return float((y2 - y)[inside].abs().max())
+
+
+def test_float32_fit_is_stable_under_any_op_order(small_data):
+    """Wide Gaussians fit best with large cancelling weights, whose float32 output depends on the
+    order of operations; the fit for a float32 deployment keeps that difference below 1e-5 rad."""
+    from rbfn.centers import kmeans_centers
+    from rbfn.data import input_scaling
+    from rbfn.fit import deployed_design
+    from rbfn.layer import assemble
+    from rbfn.robots import scara
+
+    tr, val = small_data.train, small_data.val
+    off, sc = input_scaling(tr.x, "metres")
+    c = kmeans_centers((tr.x - off) / sc, 30, seed=0, restarts=2)
+    w = torch.full((30,), 1.5, dtype=torch.float64)
+    a_tr, a_val = design_matrix((tr.x - off) / sc, c, w), design_matrix((val.x - off) / sc, c, w)
+    g = torch.Generator().manual_seed(11)
+    low = torch.tensor([0.0, 0.3, 0.5], dtype=torch.float64)
+    high = torch.tensor([2.0, 2.0, 1.5], dtype=torch.float64)
+    x = scara.fk(low + torch.rand(3000, 3, generator=g, dtype=torch.float64) * (high - low))
+
+    def network(fit):
+        net = assemble(c, w, fit.weights, off, sc, tail=True)
+        net.set_domain(tr.x, tr.q)
+        return net
+
+    # Chosen on float64 validation error alone: large weights, op order matters at 1e-4 rad.
+    loose = ridge_fit(a_tr, tr.q, a_val, val.q)
+    assert _op_order_difference(network(loose), x) > 1e-4
+    # Chosen for float32 (as training does): stable on validation rows, hence on fresh positions.
+    a_val32 = deployed_design(val.x, off, sc, c, w, True, torch.float32)
+    fit = ridge_fit(a_tr, tr.q, a_val, val.q, a_val_eval=a_val32)
+    assert _op_order_difference(network(fit), x) < 1e-5
+    from rbfn.fit import ROUND_TOL
+
+    assert loose.rounding is None and fit.rounding <= ROUND_TOL and fit.ridge > loose.ridge
+    assert torch.equal(ridge_fit(a_tr, tr.q, a_val, val.q, eval_dtype=torch.float32).ridge, fit.ridge)
+    # No smaller ridge would have been stable: the constraint costs no more accuracy than needed.
+    smaller = tuple(r for r in DEFAULT_RIDGES if r < float(fit.ridge))
+    assert ridge_fit(a_tr, tr.q, a_val, val.q, smaller, a_val_eval=a_val32).rounding > ROUND_TOL
+
+
+def test_rounding_constraint_batched_over_ants():
+    from rbfn.fit import rounding_scale
+
+    z, c, w, true = _problem(3, n=500, m=16)
+    cs = torch.stack([c, c * 0.9, c + 0.05])
+    ws = torch.stack([w * 2.5, w * 3.0, w])
+    y = torch.sin(3 * z)
+    tol = 1e-6
+    a_tr, a_val = design_matrix(z[:350], cs, ws), design_matrix(z[350:], cs, ws)
+    batch = ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=tol)
+    assert batch.weights.shape == (3, 16 + 3, 2) and batch.rounding.shape == (3,)
+    for k in range(3):
+        one = ridge_fit(a_tr[k], y[:350], a_val[k], y[350:], eval_dtype=torch.float32, round_tol=tol)
+        assert torch.isclose(batch.ridge[k], one.ridge, rtol=1e-12)
+        assert torch.allclose(batch.weights[k], one.weights, rtol=1e-8, atol=1e-10)
+        bound = rounding_scale(a_val[k], batch.weights[k], torch.float32).amax()
+        assert torch.isclose(bound, batch.rounding[k]) and bound <= tol
+        # Without the constraint the same ant would pick a smaller ridge with larger weights.
+        free = ridge_fit(a_tr[k], y[:350], a_val[k], y[350:])
+        assert free.ridge <= one.ridge and free.val_mse <= one.val_mse * (1 + 1e-12)
+
+
+def test_no_stable_ridge_keeps_the_most_stable():
+    z, c, w, true = _problem(4)
+    a = design_matrix(z, c, w * 3)
+    y = torch.sin(3 * z)
+    fit = ridge_fit(a[:300], y[:300], a[300:], y[300:], ridges=(1e-12, 1e-8, 1e-4), eval_dtype=torch.float32,
+                    round_tol=0.0)
+    assert float(fit.ridge) == 1e-4 and fit.rounding > 0
