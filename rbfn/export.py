@@ -25,14 +25,17 @@ __all__ = ["DeployedIK", "export_onnx", "export_pt2", "export_all", "main"]
 
 
 class DeployedIK(nn.Module):
-    """The IK network in float32 returning (joints (B, 3), in_workspace (B,))."""
+    """The IK network in float32: positions (B, 3) in m -> (joints (B, 3), in_workspace (B,)).
+
+    One graph for any B: the rows are not split into blocks as in the network's eager calls.
+    """
 
     def __init__(self, net: RBFNetwork) -> None:
         super().__init__()
         self.net = copy.deepcopy(net).float().eval().requires_grad_(False)
 
     def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.solve(positions)
+        return self.net._solve_rows(self.net._inputs(positions))
 
 
 def _example(net: RBFNetwork) -> torch.Tensor:

@@ -69,3 +69,18 @@ def test_round_trip_10k_positions_batches_1_7_10000(net, tmp_path):
               f"workspace flags equal: {torch.equal(in_pt2, in_ref)} / {torch.equal(in_onnx, in_ref)}")
         assert d_pt2 < 1e-5 and d_onnx < 1e-5
         assert torch.equal(in_pt2, in_ref) and torch.equal(in_onnx, in_ref)
+
+
+def test_export_is_one_graph_whatever_the_eager_block_size(net, small_data, tmp_path):
+    """The exported program does not split rows into blocks: one graph for any batch size."""
+    import copy
+
+    small = copy.deepcopy(net)
+    small.block_rows = 8
+    x = small_data.test.x[:50].float()
+    with torch.no_grad():
+        y_ref, in_ref = copy.deepcopy(small).float().solve(x)      # eager: 7 blocks
+    prog = torch.export.load(str(export_pt2(small, tmp_path / "ik.pt2")))
+    assert sum(n.target == torch.ops.aten.exp.default for n in prog.graph.nodes) == 1
+    y, inside = prog.module()(x)
+    assert torch.allclose(y, y_ref, atol=1e-6) and torch.equal(inside, in_ref)

@@ -61,3 +61,96 @@ def test_workspace_flag():
     net.set_domain(x, x[:, :1])
     y, mask = copy.deepcopy(net).float().solve(x.float())
     assert y.dtype == torch.float32 and mask.all()
+
+
+def _net(tail=True, m=6, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    c = torch.randn(m, 3, generator=g, dtype=torch.float64)
+    net = RBFNetwork(c, torch.rand(m, generator=g, dtype=torch.float64) + 0.5, 2,
+                     offset=torch.tensor([0.1, -0.2, 0.3]), scale=torch.tensor([1.5, 0.5, 2.0]), tail=tail)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.copy_(torch.randn(p.shape, generator=g, dtype=torch.float64))
+    return net
+
+
+def test_bad_inputs_name_the_shape_and_type():
+    import numpy as np
+    import pytest
+
+    net = _net()
+    with pytest.raises(ValueError, match=r"positions must be \(B, 3\).*got shape \(5, 2\)"):
+        net(torch.zeros(5, 2, dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"positions must be \(B, 3\) \(one input is \(1, 3\)\), got shape \(3,\)"):
+        net.solve(torch.zeros(3))
+    with pytest.raises(ValueError, match=r"got shape \(2, 4, 3\)"):
+        net.in_workspace(torch.zeros(2, 4, 3))
+    with pytest.raises(TypeError, match="torch.Tensor or numpy.ndarray.*got list"):
+        net([[0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match=r"outputs y must be \(4, 2\)"):
+        net.in_workspace(torch.zeros(4, 3), torch.zeros(4, 3))
+    x = np.random.default_rng(0).normal(size=(4, 3)).astype(np.float32)
+    y, inside = net.solve(x)
+    assert isinstance(y, torch.Tensor) and torch.equal(y, net(torch.from_numpy(x)))
+    assert torch.equal(inside, net.in_workspace(x))
+
+
+def test_rows_in_blocks_match_one_piece(monkeypatch):
+    import rbfn.layer as layer
+
+    net = _net()
+    x = torch.randn(50, 3, dtype=torch.float64) * 2
+    net.set_domain(x[:30], net(x[:30]).detach())
+    with torch.no_grad():
+        ref = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
+    calls = []
+    monkeypatch.setattr(layer, "_sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1))
+    net.block_rows = 16
+    with torch.no_grad():
+        out = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
+    assert torch.equal(out[0], ref[0]) and torch.equal(out[1][0], ref[1][0]) and torch.equal(out[1][1], ref[1][1])
+    assert torch.equal(out[2], ref[2]) and torch.equal(out[3], ref[3]) and torch.equal(out[4], ref[4])
+    assert max(calls) == 16 and not ref[2].all() and ref[2].any()
+    # solve takes the distances once per block, for the features and the workspace test alike.
+    calls.clear()
+    net.solve(x)
+    assert calls == [16, 16, 16, 2]
+
+
+def test_design_and_output_weights_reproduce_the_network():
+    import pytest
+
+    from rbfn.fit import design_matrix
+
+    x = torch.randn(9, 3, dtype=torch.float64)
+    for tail in (True, False):
+        net = _net(tail)
+        a, w = net.design(x), net.output_weights()
+        assert a.shape == (9, net.num_design) and w.shape == (net.num_design, 2)
+        assert net.num_design == 6 + (3 if tail else 0) + 1
+        assert torch.allclose(a @ w, net(x), atol=1e-12)
+        assert torch.allclose(a[:, :6], net.features(x)) and torch.equal(a[:, -1], torch.ones(9, dtype=torch.float64))
+        if tail:
+            assert torch.allclose(a, design_matrix(net.scaled(x), net.centers, net.widths), atol=1e-12)
+        # Leading batch dimensions (..., d) for the design rows.
+        assert torch.allclose(net.design(x.reshape(3, 3, 3)).reshape(9, -1), a)
+        other = copy.deepcopy(net)
+        other.set_output_weights(2 * w)
+        assert torch.allclose(other(x), 2 * net(x), atol=1e-12)
+        assert not w.requires_grad and torch.equal(net.output_weights(), w)
+        with pytest.raises(ValueError, match=rf"output weights must be \({net.num_design}, 2\)"):
+            other.set_output_weights(w[:-1])
+
+
+def test_assemble_without_tail_takes_design_matrix_weights():
+    from rbfn.fit import design_matrix
+
+    c, w = torch.randn(4, 3, dtype=torch.float64), torch.rand(4, dtype=torch.float64) + 0.5
+    off, sc = torch.randn(3, dtype=torch.float64), torch.rand(3, dtype=torch.float64) + 0.5
+    x = torch.randn(9, 3, dtype=torch.float64)
+    weights = torch.randn(4, 2, dtype=torch.float64)      # design_matrix(tail=False): no bias column
+    net = assemble(c, w, weights, off, sc, tail=False)
+    assert torch.allclose(net(x), design_matrix((x - off) / sc, c, w, tail=False) @ weights, atol=1e-12)
+    assert torch.equal(net.head.bias, torch.zeros(2, dtype=torch.float64))
+    with_bias = torch.cat([weights, torch.ones(1, 2, dtype=torch.float64)])
+    assert torch.allclose(assemble(c, w, with_bias, off, sc, tail=False)(x), net(x) + 1, atol=1e-12)
