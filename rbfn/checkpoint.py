@@ -22,6 +22,7 @@ from typing import Any
 import torch
 
 from .layer import RBFNetwork
+from .targets import TargetFeatures
 
 __all__ = ["FORMAT_VERSION", "KIND", "save_checkpoint", "save_sealed", "load_sealed", "read_checkpoint", "load_model", "model_from_checkpoint"]
 
@@ -132,6 +133,7 @@ def save_checkpoint(path: str | Path, model: RBFNetwork, robot: dict[str, Any], 
         "kind": KIND,
         "package_version": __version__,
         "model_args": {"num_centers": model.num_centers, "in_features": model.centers.shape[1],
+                       "target": model.target,
                        "out_features": model.head.out_features, "tail": model.tail is not None},
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "robot": robot,
@@ -200,6 +202,13 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
                 "cover_radius": ()}
     if tail:
         expected["tail.weight"] = (out, d)
+    pose = a.get("target", "position") == "pose"
+    if a.get("target", "position") not in ("position", "pose"):
+        return f"model_args target={a['target']!r}; expected 'position' or 'pose'"
+    if pose:
+        if d != 9:
+            return f"model_args in_features={d} with target='pose'; pose networks have 9 features"
+        expected["inputs.rotation_scale"] = ()
     missing, unexpected = sorted(set(expected) - set(sd)), sorted(set(sd) - set(expected))
     if missing or unexpected:
         return (f"state_dict does not match model_args {a}: missing keys {missing}, unexpected keys "
@@ -261,7 +270,8 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
     if problem:
         raise ValueError(f"cannot rebuild the network from this checkpoint: {problem}")
     sd, a = ckpt["state_dict"], ckpt["model_args"]
-    model = RBFNetwork(sd["centers"], sd["widths"], a["out_features"], tail=a["tail"])
+    inputs = TargetFeatures(pose=True, dtype=sd["centers"].dtype) if a.get("target") == "pose" else None
+    model = RBFNetwork(sd["centers"], sd["widths"], a["out_features"], tail=a["tail"], inputs=inputs)
     model.load_state_dict(sd)
     return model.eval().requires_grad_(False)
 

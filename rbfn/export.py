@@ -39,7 +39,11 @@ class DeployedIK(nn.Module):
 
 
 def _example(net: RBFNetwork) -> torch.Tensor:
-    return torch.zeros(4, net.centers.shape[1], dtype=torch.float32)
+    """Example inputs (4, 3) positions, or (4, 7) poses with the identity quaternion."""
+    x = torch.zeros(4, net.in_features, dtype=torch.float32)
+    if net.target == "pose":
+        x[:, 3] = 1.0
+    return x
 
 
 def export_pt2(net: RBFNetwork, path: str | Path) -> Path:

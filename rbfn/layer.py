@@ -18,6 +18,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from .targets import TargetFeatures
+
 __all__ = ["RBFNetwork", "gaussian_features", "assemble"]
 
 
@@ -51,8 +53,10 @@ class RBFNetwork(nn.Module):
 
     def __init__(self, centers: torch.Tensor, widths: torch.Tensor, out_features: int,
                  offset: torch.Tensor | None = None, scale: torch.Tensor | None = None,
-                 tail: bool = True) -> None:
+                 tail: bool = True, inputs: TargetFeatures | None = None) -> None:
         super().__init__()
+        # Public inputs -> features (d): pose targets (B, 7) become 9 features; None: inputs are features.
+        self.inputs = inputs
         m, d = centers.shape
         if widths.shape != (m,):
             raise ValueError(f"widths must have shape ({m},), got {tuple(widths.shape)}")
@@ -78,7 +82,13 @@ class RBFNetwork(nn.Module):
 
     @property
     def in_features(self) -> int:
-        return self.centers.shape[1]
+        """Width of the public input: 3 for positions, 7 for poses (else the feature width d)."""
+        return self.inputs.in_features if self.inputs is not None else self.centers.shape[1]
+
+    @property
+    def target(self) -> str:
+        """The IK target kind: "pose" or "position"."""
+        return "pose" if self.inputs is not None and self.inputs.pose else "position"
 
     @property
     def out_features(self) -> int:
@@ -87,7 +97,7 @@ class RBFNetwork(nn.Module):
     @property
     def num_design(self) -> int:
         """Columns P of `design`: M + d + 1 with the tail, M + 1 without."""
-        return self.num_centers + (self.in_features if self.tail is not None else 0) + 1
+        return self.num_centers + (self.centers.shape[1] if self.tail is not None else 0) + 1
 
     # ---------------------------------------------------------------------------------- inputs
     def _inputs(self, x, leading: bool = False) -> torch.Tensor:
@@ -104,7 +114,19 @@ class RBFNetwork(nn.Module):
             raise ValueError(f"{name} must be {want}{hint}, got shape {tuple(x.shape)}")
         if x.dtype == torch.bool or x.is_complex():
             raise TypeError(f"{name} must be real numbers, got dtype {x.dtype}")
+        tracing = torch.compiler.is_compiling() or torch.compiler.is_exporting()
+        if self.inputs is not None and self.inputs.pose and not leading and not tracing:
+            self.inputs.check(x)          # unit quaternions, finite values (data checks: eager only)
         return x
+
+    def check_inputs(self, x) -> torch.Tensor:
+        """`x` as a tensor (B, in_features), or a clear TypeError/ValueError naming what is wrong."""
+        return self._inputs(x)
+
+    def _feat(self, x: torch.Tensor) -> torch.Tensor:
+        """Features (..., d) of public inputs (..., in_features), in the module's dtype."""
+        x = x.to(self.centers.dtype)
+        return x if self.inputs is None else self.inputs(x)
 
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
         """fn applied to blocks of `block_rows` rows of xs and concatenated (one call when traced)."""
@@ -128,7 +150,7 @@ class RBFNetwork(nn.Module):
         return self._scaled(self._inputs(x, leading=True))
 
     def _scaled(self, x: torch.Tensor) -> torch.Tensor:
-        return (x.to(self.centers.dtype) - self.offset) / self.scale
+        return (self._feat(x) - self.offset) / self.scale
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """Gaussian activations (..., M) for inputs x (..., d)."""
@@ -161,7 +183,7 @@ class RBFNetwork(nn.Module):
         if not isinstance(w, torch.Tensor):
             raise TypeError(f"output weights must be a torch.Tensor ({p}, {out}), got {type(w).__name__}")
         if tuple(w.shape) != (p, out):
-            rows = f"{m} Gaussians + {self.in_features} tail + bias" if self.tail is not None else f"{m} Gaussians + bias"
+            rows = f"{m} Gaussians + {self.centers.shape[1]} tail + bias" if self.tail is not None else f"{m} Gaussians + bias"
             raise ValueError(f"output weights must be ({p}, {out}) (rows: {rows}), got shape {tuple(w.shape)}")
         self.head.weight.copy_(w[:m].T)
         if self.tail is not None:
@@ -213,7 +235,7 @@ class RBFNetwork(nn.Module):
 
     def _mask(self, x: torch.Tensor, d2: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         """In-workspace mask (B,) from inputs (B, d), squared distances (B, M), outputs (B, out)."""
-        xs = x.to(self.centers.dtype)
+        xs = self._feat(x)
         ok = ((xs >= self.in_low) & (xs <= self.in_high)).all(-1)
         ok &= d2.min(-1).values.sqrt() <= self.cover_radius
         return ok & ((y >= self.out_low) & (y <= self.out_high)).all(-1)
@@ -225,7 +247,7 @@ class RBFNetwork(nn.Module):
         The box and output range get `margin` of their span on each side; the cover radius is
         the largest distance from a training input to its nearest centre, times (1 + margin).
         """
-        x = x_train.to(self.centers.dtype)
+        x = self._feat(x_train)
         y = y_train.to(self.centers.dtype)
         span_x = x.amax(0) - x.amin(0)
         span_y = y.amax(0) - y.amin(0)
@@ -233,18 +255,19 @@ class RBFNetwork(nn.Module):
         self.in_high.copy_(x.amax(0) + margin * span_x)
         self.out_low.copy_(y.amin(0) - margin * span_y)
         self.out_high.copy_(y.amax(0) + margin * span_y)
-        z = self._scaled(x)
+        z = (x - self.offset) / self.scale
         d_min = torch.cdist(z, self.centers).min(-1).values
         self.cover_radius.copy_(d_min.max() * (1 + margin))
 
 
 def assemble(centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, offset: torch.Tensor,
-             scale: torch.Tensor, tail: bool) -> RBFNetwork:
+             scale: torch.Tensor, tail: bool, inputs: TargetFeatures | None = None) -> RBFNetwork:
     """An RBFNetwork from fitted parts; weights (P, out) ordered as `RBFNetwork.design`'s columns,
     which are rbfn.fit.design_matrix's. Without the tail, weights may also be (M, out) (design_matrix
     has no bias column then): the bias is zero."""
     m = centers.shape[0]
-    net = RBFNetwork(centers, widths, weights.shape[-1], offset=offset, scale=scale, tail=tail)
+    net = RBFNetwork(centers, widths, weights.shape[-1], offset=offset, scale=scale, tail=tail,
+                     inputs=None if inputs is None or not inputs.pose else inputs.to(centers.dtype))
     if not tail and weights.dim() == 2 and weights.shape[0] == m:
         weights = torch.cat([weights, weights.new_zeros(1, weights.shape[1])])
     net.set_output_weights(weights.to(net.centers.dtype))

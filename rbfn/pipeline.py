@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .config import Solver, TrainConfig
+from .config import Solver, Target, TrainConfig
 from .data import Dataset, input_scaling
 from .fit import RidgeFit, deployed_design, design_matrix, ridge_fit
 from .growth import grow, growth_schedule
@@ -23,6 +23,7 @@ from .objectives import FitObjective
 from .refine import refine
 from .resume import StateFile, TrainState
 from .select import select
+from .targets import TargetFeatures
 
 __all__ = ["TrainResult", "fit_weights", "train_ik"]
 
@@ -43,14 +44,15 @@ class TrainResult:
     train_seconds: float = 0.0
 
 
-def fit_weights(cfg: TrainConfig, data: Dataset, offset: torch.Tensor, scale: torch.Tensor,
-                centers: torch.Tensor, widths: torch.Tensor, gen: torch.Generator) -> RidgeFit:
-    """Output weights (P, 3) by ridge least squares (the ridge chosen on validation as the deployed
-    float32 module evaluates it) or, with `rbfn.solver=lms`, the paper's normalised LMS."""
+def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torch.Tensor], offset: torch.Tensor,
+                scale: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, gen: torch.Generator) -> RidgeFit:
+    """Output weights (P, n) by ridge least squares (the ridge chosen on validation as the deployed
+    float32 module evaluates it) or, with `rbfn.solver=lms`, the paper's normalised LMS. `feats`:
+    the training and validation inputs' features (N, d)."""
     q_tr, q_val = data.train.q, data.val.q
-    a_tr = design_matrix((data.train.x - offset) / scale, centers, widths, cfg.rbfn.tail)
-    a_val = design_matrix((data.val.x - offset) / scale, centers, widths, cfg.rbfn.tail)
-    a_val32 = deployed_design(data.val.x, offset, scale, centers, widths, cfg.rbfn.tail, torch.float32)
+    a_tr = design_matrix((feats[0] - offset) / scale, centers, widths, cfg.rbfn.tail)
+    a_val = design_matrix((feats[1] - offset) / scale, centers, widths, cfg.rbfn.tail)
+    a_val32 = deployed_design(feats[1], offset, scale, centers, widths, cfg.rbfn.tail, torch.float32)
     fit = ridge_fit(a_tr, q_tr, a_val, q_val, a_val_eval=a_val32)
     if cfg.rbfn.solver == Solver.lms:
         fit.weights = lms_fit(a_tr, q_tr, alpha0=cfg.rbfn.lms_alpha0, epochs=cfg.rbfn.lms_epochs, generator=gen)
@@ -76,8 +78,10 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
             state.elapsed = elapsed_before + time.perf_counter() - t_start
             states.save(state, force=force)
 
-    offset, scale = input_scaling(data.train.x, cfg.rbfn.input_scaling)
-    z_tr, z_val = (data.train.x - offset) / scale, (data.val.x - offset) / scale
+    features = TargetFeatures(cfg.robot.target == Target.pose, cfg.robot.rotation_scale, device=data.train.x.device)
+    feats = (features(data.train.x), features(data.val.x))
+    offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
+    z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
     objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32)
     gen = torch.Generator().manual_seed(cfg.seed)
     if state.gen_after is not None:
@@ -96,7 +100,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
             save(force=False)
 
         sel = select(cfg.centers, objective, m, cfg.seed, cfg.rbfn.max_width, cfg.progress, gen, resume, on_state)
-        fit = fit_weights(cfg, data, offset, scale, sel.centers, sel.widths, gen)
+        fit = fit_weights(cfg, data, feats, offset, scale, sel.centers, sel.widths, gen)
         err = 0.5 * float(fit.val_mse)
         state.done.append({"num_centers": m, "val_E": err, "select_seconds": sel.seconds,
                            "aco_best": list(sel.aco_best), "aco_mean": list(sel.aco_mean)})
@@ -128,8 +132,8 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
                      r.steps, r.lr, cfg.rbfn.tail, r.learn_input_scale, cfg.rbfn.max_width)
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history
-        fit = fit_weights(cfg, data, offset, scale, centers, widths, gen)
-    model = assemble(centers, widths, fit.weights, offset, scale, cfg.rbfn.tail)
+        fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen)
+    model = assemble(centers, widths, fit.weights, offset, scale, cfg.rbfn.tail, inputs=features)
     model.set_domain(data.train.x, data.train.q)
     return TrainResult(model, fit, curve,
                        colonies={d["num_centers"]: (d.get("aco_best", []), d.get("aco_mean", [])) for d in state.done},

@@ -34,7 +34,8 @@ class TargetFeatures(nn.Module):
                  device: str | torch.device = "cpu") -> None:
         super().__init__()
         self.pose = pose
-        self.register_buffer("rotation_scale", torch.tensor(float(rotation_scale), dtype=dtype, device=device))
+        if pose:      # position targets carry no state, so their networks' state_dicts stay as they were
+            self.register_buffer("rotation_scale", torch.tensor(float(rotation_scale), dtype=dtype, device=device))
 
     @property
     def in_features(self) -> int:
@@ -47,7 +48,7 @@ class TargetFeatures(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.pose:
             return x
-        return torch.cat([x[:, :3], quaternion_columns(x[:, 3:]) * self.rotation_scale], -1)
+        return torch.cat([x[..., :3], quaternion_columns(x[..., 3:]) * self.rotation_scale], -1)
 
     def check(self, x) -> torch.Tensor:
         """`x` as a tensor (B, in_features), or ValueError/TypeError saying what is wrong with it:

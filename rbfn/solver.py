@@ -1,0 +1,76 @@
+"""Learned IK, then exact: the network picks the branch and gets close, a few batched
+damped-least-squares (Levenberg-Marquardt) steps on the robot's own FK and Jacobian make it exact.
+
+    solver = rbfn.load_solver("outputs/train/.../checkpoint.pt")
+    q, converged = solver.solve(targets, iterations=3)   # targets (B, 3) m, or (B, 7) m + quaternion
+
+Each step solves (J J^T + lambda I) y = e, dq = J^T y for the task error e (position in m, and for
+pose targets the rotation error as an axis-angle vector in rad, root frame), and clamps the
+joints to the trained box, so the answer never leaves the branch the network was trained on.
+`converged` is True where the final error is within `tol_mm` and `tol_deg`. Runs where torch and
+the robot model are available; deployed exports hold the network alone.
+"""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import torch
+from pytorch_kinematics import transforms as tf
+
+from .checkpoint import model_from_checkpoint, read_checkpoint
+from .config import Target
+from .layer import RBFNetwork
+from .robots.robot import Robot, robot_from_record
+
+__all__ = ["IKSolver", "load_solver", "DEFAULT_ITERATIONS"]
+
+DEFAULT_ITERATIONS = 3
+
+
+class IKSolver:
+    """The IK network of a checkpoint plus damped-least-squares polish on the robot's kinematics."""
+
+    def __init__(self, model: RBFNetwork, robot: Robot, tol_mm: float = 0.1, tol_deg: float = 0.1,
+                 damping: float = 1e-8) -> None:
+        self.model, self.robot = model, robot
+        self.tol_mm, self.tol_deg, self.damping = tol_mm, tol_deg, damping
+        self.pose_target = robot.target == Target.pose
+
+    def _errors(self, q: torch.Tensor, x: torch.Tensor):
+        """Task error e (B, 3 or 6), Jacobian J (B, 3 or 6, n), position error (B,) m, rotation (B,) rad."""
+        jac, pose = self.robot.chain.jacobian(self.robot.full_joints(q), ret_eef_pose=True)
+        jac = jac[:, :, self.robot.free]
+        e_pos = x[:, :3] - pose[:, :3, 3]
+        if not self.pose_target:
+            return e_pos, jac[:, :3], e_pos.norm(dim=-1), None
+        r_err = tf.quaternion_to_matrix(x[:, 3:]) @ pose[:, :3, :3].transpose(-1, -2)
+        e_rot = tf.matrix_to_axis_angle(r_err)                     # (B, 3), world frame
+        return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
+
+    @torch.no_grad()
+    def solve(self, targets, iterations: int = DEFAULT_ITERATIONS) -> tuple[torch.Tensor, torch.Tensor]:
+        """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math)."""
+        if not (isinstance(iterations, int) and iterations >= 0):
+            raise ValueError(f"iterations={iterations!r} must be an integer >= 0")
+        dev = self.robot.chain.device
+        x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
+        low, high = self.robot.low.to(dev), self.robot.high.to(dev)
+        model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
+        q = model(x).clamp(low, high)
+        eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=dev)
+        for _ in range(iterations):
+            e, jac, _, _ = self._errors(q, x)
+            y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + self.damping * eye, e.unsqueeze(-1))
+            q = (q + (jac.transpose(-1, -2) @ y).squeeze(-1)).clamp(low, high)
+        _, _, pos, rot = self._errors(q, x)
+        ok = pos * 1000.0 <= self.tol_mm
+        if rot is not None:
+            ok &= torch.rad2deg(rot) <= self.tol_deg
+        return q, ok
+
+
+def load_solver(path: str | Path, device: str = "cpu", tol_mm: float = 0.1, tol_deg: float = 0.1) -> IKSolver:
+    """The IKSolver of the checkpoint at `path`: its network (float64) and its robot's kinematics."""
+    ckpt = read_checkpoint(path)
+    return IKSolver(model_from_checkpoint(ckpt).to(device), robot_from_record(ckpt["robot"], device), tol_mm, tol_deg)
