@@ -24,7 +24,7 @@ from torch.utils.tensorboard import SummaryWriter
 from rbfn.config import TrainConfig, plain, register_configs, validate_train
 from rbfn.data import check_finite, make_dataset
 from rbfn.pipeline import train_ik
-from rbfn.resume import StateFile
+from rbfn.resume import DifferentRun, StateFile
 from rbfn.robots.robot import load_robot
 from rbfn.studies.ik import training_metrics, write_training
 from rbfn.studies.rundir import RunDir, RunDirInUse, write_json, write_text
@@ -97,7 +97,8 @@ def main(dcfg: DictConfig) -> float:
     except Exception as e:
         # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json
         # for `python -m rbfn.summarize` (never into a directory another process is using).
-        if hc.mode == RunMode.MULTIRUN and not isinstance(e, RunDirInUse):
+        # A refused job (directory in use, or another config's run there) writes nothing.
+        if hc.mode == RunMode.MULTIRUN and not isinstance(e, (RunDirInUse, DifferentRun)):
             log.error("job failed: %s: %s", type(e).__name__, e)
             write_json(out_dir / "failed.json", {"error": type(e).__name__, "message": str(e),
                                                  "overrides": list(hc.overrides.task)})

@@ -15,7 +15,11 @@ from typing import Any
 
 from .checkpoint import TRAIN_STATE_KIND, load_sealed, save_sealed
 
-__all__ = ["TrainState", "StateFile"]
+__all__ = ["TrainState", "StateFile", "DifferentRun"]
+
+
+class DifferentRun(ValueError):
+    """The run directory holds another configuration's run (refused; the directory is left as it was)."""
 
 KIND = TRAIN_STATE_KIND
 FORMAT_VERSION = 1
@@ -60,7 +64,7 @@ class StateFile:
         if not isinstance(raw.get("state"), dict) or not isinstance(raw["state"].get("config"), dict):
             raise ValueError(f"{self.path} holds no training state with a config. {restart}")
         if _comparable(raw["state"]["config"]) != _comparable(config):
-            raise ValueError(f"{self.path} belongs to a run with a different configuration; resume it "
+            raise DifferentRun(f"{self.path} belongs to a run with a different configuration; resume it "
                              "with the same overrides, use another hydra.run.dir, or delete last.pt")
         return TrainState(**raw["state"])
 
