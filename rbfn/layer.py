@@ -103,7 +103,8 @@ class RBFNetwork(nn.Module):
     def _inputs(self, x, leading: bool = False) -> torch.Tensor:
         """x as a tensor (B, d), or with `leading` (..., d); else a clear error naming what came."""
         d = self.in_features
-        name = {3: "positions", 7: "targets"}.get(d, "inputs")
+        pose = self.target == "pose"
+        name = "poses" if pose else {3: "positions"}.get(d, "inputs")
         want = f"(..., {d})" if leading else f"(B, {d})"
         if isinstance(x, np.ndarray):
             x = torch.as_tensor(x, device=self.centers.device)
@@ -111,6 +112,8 @@ class RBFNetwork(nn.Module):
             raise TypeError(f"{name} must be a torch.Tensor or numpy.ndarray {want}, got {type(x).__name__}")
         if x.dim() < 1 or x.shape[-1] != d or (not leading and x.dim() != 2):
             hint = f" (one input is (1, {d}))" if x.dim() == 1 and x.shape[0] == d else ""
+            if pose:
+                hint += ": position in m, then a unit quaternion (w, x, y, z)"
             raise ValueError(f"{name} must be {want}{hint}, got shape {tuple(x.shape)}")
         if x.dtype == torch.bool or x.is_complex():
             raise TypeError(f"{name} must be real numbers, got dtype {x.dtype}")

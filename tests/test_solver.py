@@ -1,0 +1,76 @@
+"""Pose IK on the UR5 end to end at a small size: (B, 7) targets, q and -q alike, bad targets named,
+the polish converging from the network's answer without leaving the joint box, the export."""
+import pytest
+import torch
+
+import train
+from rbfn import load_model, load_solver
+
+from .conftest import compose_config
+
+SMALL = ["robot=ur5", "centers=kmeans", "rbfn.num_centers=150", "data.n_train=3000", "data.n_val=1000",
+         "data.n_test=500", "progress=false", "num_threads=1"]
+
+
+@pytest.fixture(scope="module")
+def ur5_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ur5")
+    return out, train.run(compose_config("train", *SMALL), out)
+
+
+def _targets(n=200, seed=5):
+    from rbfn.data import make_split
+    from rbfn.robots.robot import load_robot
+
+    robot = load_robot(compose_config("train", "robot=ur5").robot)
+    return make_split(robot, n, seed), robot
+
+
+def test_pose_metrics_are_reported(ur5_run):
+    _, m = ur5_run
+    for key in ("test_pos_err_mm_median", "test_rot_err_deg_median", "test_rot_err_deg_p95",
+                "test_polished_success_rate", "test_polished_pos_err_mm_median"):
+        assert m[key] >= 0, key
+    assert m["target"] == "pose" and m["test_polished_pos_err_mm_median"] < m["test_pos_err_mm_median"]
+
+
+def test_pose_network_takes_poses_and_ignores_the_quaternion_sign(ur5_run):
+    net = load_model(ur5_run[0] / "checkpoint.pt")
+    split, _ = _targets()
+    x = split.x
+    flipped = torch.cat([x[:, :3], -x[:, 3:]], -1)
+    q = net(x)
+    assert q.shape == (x.shape[0], 6)
+    assert torch.allclose(net(flipped), q, atol=1e-12)
+    with pytest.raises(ValueError, match=r"poses must be \(B, 7\): position in m, then a unit quaternion.*got shape \(200, 3\)"):
+        net(x[:, :3])
+    bad = x.clone()
+    bad[3, 3:] *= 1.5
+    with pytest.raises(ValueError, match="unit length.*row 3"):
+        net(bad)
+
+
+def test_polish_converges_and_stays_in_the_box(ur5_run):
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, robot = _targets()
+    raw_pos, _ = robot.errors(solver.model(split.x), split.x)
+    q, ok = solver.solve(split.x, iterations=8)
+    assert ((q >= robot.low) & (q <= robot.high)).all()
+    pos, rot = robot.errors(q, split.x)
+    assert float(ok.double().mean()) >= 0.95
+    assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
+    assert float(pos.median()) < 1e-3 * float(raw_pos.median())
+    with pytest.raises(ValueError, match="iterations=-1"):
+        solver.solve(split.x, iterations=-1)
+
+
+def test_pose_export_matches_the_module(ur5_run, tmp_path):
+    ort = pytest.importorskip("onnxruntime")
+    out, _ = ur5_run
+    split, _ = _targets(50)
+    x = split.x.float()
+    q, inside = load_model(out / "checkpoint.pt").float().solve(x)
+    sess = ort.InferenceSession(str(out / "ik.onnx"), providers=["CPUExecutionProvider"])
+    q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
+    assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-4)
+    assert inside_onnx.tolist() == inside.tolist()
