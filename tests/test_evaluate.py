@@ -79,3 +79,19 @@ def test_online_sweep_rows_carry_the_real_perturbation(ckpt):
     assert rows[0.04]["link_error"] == pytest.approx([0.04, -0.02])
     assert rows[0.0]["link_error"] == [0.0, 0.0]
     assert m["task_err_mm_rms_last_2s"] == rows[0.02]["task_err_mm_rms_last_2s"]
+
+
+@pytest.mark.slow
+def test_command_line_runs_the_control_part_alone(tmp_path):
+    import subprocess
+    import sys
+
+    from .conftest import ROOT
+
+    r = subprocess.run([sys.executable, "evaluate.py", "ik=false", "online.enabled=false", "control.duration=1.2",
+                        "control.payload_on=0.3", "control.payload_off=0.9", "control.controllers=[smc]",
+                        f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert list(m) == ["control", "control_info"] and list(m["control"]) == ["smc"]
+    assert "Closed loop" in (tmp_path / "evaluate.log").read_text()
