@@ -27,7 +27,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.checkpoint import read_checkpoint
 from rbfn.config import EvalConfig, register_configs, validate_evaluate
-from rbfn.studies.control import evaluate_control
+from rbfn.studies.control import check_control, evaluate_control
 from rbfn.studies.ik import evaluate_ik
 from rbfn.studies.online import evaluate_online
 from rbfn.studies.rundir import write_json
@@ -54,6 +54,8 @@ def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
 def run(cfg: EvalConfig, out_dir: Path) -> dict:
     """Evaluate every enabled part into `out_dir`; return metrics.json's content."""
     validate_evaluate(cfg)
+    if cfg.control.enabled:
+        check_control(cfg.control, cfg.robot)      # the robot's URDF, joints and payload link, before any work
     needs_ckpt = cfg.ik or cfg.online.enabled
     path = find_checkpoint(cfg) if needs_ckpt else None
     ckpt = read_checkpoint(path) if path is not None else None      # a bad file stops before any work
@@ -72,7 +74,7 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
         if cfg.online.enabled and ckpt is not None:
             metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
         if cfg.control.enabled:
-            metrics.update(evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir))
+            metrics.update(evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot))
     finally:
         writer.close()
     write_json(out_dir / "metrics.json", metrics)

@@ -172,7 +172,9 @@ class TrainConfig:
 # -------------------------------------------------------------------------------------- evaluate
 @dataclass
 class GainsConfig:
-    """Feedback and adaptation gains shared by every controller of a comparison (group `gains`)."""
+    """Feedback and adaptation gains shared by every controller of a comparison (group `gains`: the
+    robot's `paper` or `tuned` set, conf/gains/robot/<robot>_<set>.yaml). The torque gains K,
+    epsilon, pd_kp, pd_kd and gamma act on joint j times `control.joint_scale` s_j (1 on the SCARA)."""
 
     K: float = 50.0                # N m s / rad (N s / m): s feedback
     Lambda: float = 20.0           # 1/s: sliding-surface slope
@@ -200,21 +202,34 @@ class NetworkConfig:
 
 @dataclass
 class ControlConfig:
-    """The closed-loop scenario of evaluate.py (times in s, masses in kg)."""
+    """The closed-loop scenario of evaluate.py (times in s, masses in kg), for the robot `robot`.
+
+    Per joint j the plant feels friction viscous s_j qd + coulomb s_j sign(qd) and the disturbance
+    disturbance s_j sin(disturbance_freq t), and the torque gains (K, epsilon, pd_kp, pd_kd, gamma)
+    act as gain * s_j, where s = `joint_scale`: empty derives it, 1 on every joint of the SCARA (the
+    paper's numbers are its own) and the unloaded inertia diagonal M_jj(home) in kg m^2 (kg) of any
+    other arm, whose joints span orders of magnitude (UR5: 2.4 kg m^2 shoulder, 3.4e-4 wrist 3).
+    """
 
     enabled: bool = True
     controllers: list[str] = field(default_factory=lambda: ["pd", "ctc", "smc", "smc_obs", "arbfn_aco",
                                                             "arbfn_kmeans"])
-    payloads: list[float] = field(default_factory=lambda: [0.0, 10.0, 20.0])
+    payloads: list[float] = field(default_factory=list)   # kg; empty: 0, half and all of robot.rated_payload
+    payload_link: str = ""             # the link whose origin carries the payload; empty: robot.end_link
     duration: float = 10.0
     dt: float = 1e-3
     integrator: Integrator = Integrator.rk4    # type: ignore[valid-type]
     payload_on: float = 1.0
     payload_off: float = 4.0
     friction: Friction = Friction.sign         # type: ignore[valid-type]
+    viscous: float = 12.0              # N m s/rad (N s/m) per unit joint scale
+    coulomb: float = 0.2               # N m (N) per unit joint scale
+    disturbance: float = 5.0           # N m (N) per unit joint scale
+    disturbance_freq: float = 2.0      # rad/s
+    joint_scale: list[float] = field(default_factory=list)   # per joint; empty: derived (see above)
     dtype: Dtype = Dtype.float64               # type: ignore[valid-type]
     compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
-    figure_payload: float = 10.0       # the payload case drawn in the 3x3 figures
+    figure_payload: Optional[float] = None   # kg, the case drawn in the figures; null: half the rated payload
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
 
@@ -380,11 +395,16 @@ def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
           "control.payload_on/payload_off", [c.payload_on, c.payload_off],
           f"need 0 <= payload_on < payload_off <= control.duration={c.duration}")
     _need(0.5 < c.duration, "control.duration", c.duration, "must exceed 0.5 s (errors are measured after 0.5 s)")
-    _need(len(c.payloads) > 0 and all(_finite(p) and p >= 0 for p in c.payloads), "control.payloads",
-          list(c.payloads), "a non-empty list of masses >= 0 kg")
+    _need(all(_finite(p) and p >= 0 for p in c.payloads), "control.payloads",
+          list(c.payloads), "a list of masses >= 0 kg (empty: 0, half and all of robot.rated_payload)")
     _need(len(set(c.payloads)) == len(c.payloads), "control.payloads", list(c.payloads),
           "each payload case may appear once (cases are keyed by mass)")
-    _need(_finite(c.figure_payload), "control.figure_payload", c.figure_payload, "must be a finite mass in kg")
+    _need(c.figure_payload is None or _finite(c.figure_payload), "control.figure_payload", c.figure_payload,
+          "must be a finite mass in kg or null")
+    for k in ("viscous", "coulomb", "disturbance", "disturbance_freq"):
+        _need(_finite(getattr(c, k)) and getattr(c, k) >= 0, f"control.{k}", getattr(c, k), "must be finite and >= 0")
+    _need(all(_finite(v) and v > 0 for v in c.joint_scale), "control.joint_scale", list(c.joint_scale),
+          "positive finite factors, one per joint (empty: derived from the robot)")
     n = c.network
     _need(n.num_centers >= 1, "control.network.num_centers", n.num_centers, "must be >= 1")
     if any(name.startswith("arbfn_") for name in c.controllers):

@@ -1,7 +1,12 @@
-"""Closed-loop control of the SCARA: batched simulator, controllers, the adaptive RBFN, online IK."""
+"""Closed-loop control of any serial arm (the SCARA in closed form): batched simulator, controllers,
+the adaptive RBFN, online IK."""
 from .controllers import Gains, make_controller
-from .simulator import Rollout, ScaraPlant, Scenario, SimulationDiverged, control_metrics, simulate
-from .trajectory import paper_trajectory
+from .models import ArmModel, NominalModel
+from .plants import ArmPlant, ScaraPlant
+from .robot_setup import ControlRobot, control_robot
+from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
+from .trajectory import paper_trajectory, sinusoid_trajectory
 
-__all__ = ["Gains", "make_controller", "ScaraPlant", "Rollout", "Scenario", "SimulationDiverged",
-           "control_metrics", "simulate", "paper_trajectory"]
+__all__ = ["Gains", "make_controller", "NominalModel", "ArmModel", "ScaraPlant", "ArmPlant", "ControlRobot",
+           "control_robot", "Rollout", "Scenario", "SimulationDiverged", "control_metrics", "simulate",
+           "paper_trajectory", "sinusoid_trajectory"]

@@ -1,4 +1,4 @@
-"""The closed-loop comparison: every controller on every payload case, at equal gains.
+"""The closed-loop comparison: every controller on every payload case, at equal gains, for one robot.
 
 Payload cases run as one batch per controller (B = number of cases). The adaptive RBFN's centres
 come from a pilot run of `smc_obs` without payload (see rbfn.control.network). Pure: tensors and
@@ -11,18 +11,18 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig
+from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, RobotConfig
 from ..robots.scara import ScaraParams
-from .controllers import NominalModel, make_controller
+from .controllers import make_controller
 from .network import control_network, desired_states, pilot_residuals
-from .simulator import Rollout, ScaraPlant, Scenario, control_metrics, simulate
-from .trajectory import paper_trajectory
+from .robot_setup import ControlRobot, control_robot
+from .simulator import Rollout, Scenario, control_metrics, simulate
 
 __all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name"]
 
 
 def case_name(payload: float) -> str:
-    """Payload case key: 10.0 -> "10kg"."""
+    """Payload case key: 10.0 -> "10kg", 2.5 -> "2.5kg"."""
     return f"{payload:g}kg"
 
 
@@ -30,7 +30,7 @@ def case_name(payload: float) -> str:
 class ControlRun:
     """One controller's batch: metrics per case, its rollout, and the time spent."""
 
-    metrics: dict[str, dict[str, list[float]]]   # case -> rms_err, max_err, ... (lists of 3)
+    metrics: dict[str, dict[str, list[float]]]   # case -> rms_err, max_err, ... (lists of n)
     rollout: Rollout
     sim_seconds: float
     select_seconds: float | None = None            # the network's centre selection (arbfn_*)
@@ -38,27 +38,31 @@ class ControlRun:
 
 @dataclass
 class ControlComparison:
-    """Every controller's run, the desired joints (T, 3) and the scenario."""
+    """Every controller's run, the desired joints (T, n), the scenario and the robot."""
 
     runs: dict[str, ControlRun]
     q_des: torch.Tensor
     scenario: Scenario
     payloads: list[float] = field(default_factory=list)
+    robot: ControlRobot | None = None
 
 
 def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "cpu",
-                        params: ScaraParams = ScaraParams()) -> ControlComparison:
-    """Run `cfg.controllers` on the payload cases `cfg.payloads` (kg) along the paper's trajectory."""
+                        params: ScaraParams = ScaraParams(), robot: RobotConfig | None = None,
+                        setup: ControlRobot | None = None) -> ControlComparison:
+    """Run `cfg.controllers` on the payload cases (kg) along the robot's desired trajectory.
+
+    robot: the robot (default: the SCARA); setup: an already checked `control_robot(robot, cfg)`."""
+    setup = setup or control_robot(robot or RobotConfig(), cfg, params)
     dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
     kw = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
-    ref = tuple(r.to(**kw) for r in paper_trajectory(sc.times(torch.float64)))
-    plant = ScaraPlant(params, friction=cfg.friction)
-    model = NominalModel(params)
-    payload = torch.tensor(cfg.payloads, **kw)
-    b = payload.shape[0]
-    q0, qd0 = ref[0][:1].expand(b, 3).clone(), ref[1][:1].expand(b, 3).clone()
+    ref = tuple(r.to(**kw) for r in setup.trajectory(sc.times(torch.float64)))
+    plant, model, scale = setup.plant, setup.model, setup.joint_scale(**kw)
+    payload = torch.tensor(setup.payloads, **kw)
+    b, n = payload.shape[0], setup.n
+    q0, qd0 = ref[0][:1].expand(b, n).clone(), ref[1][:1].expand(b, n).clone()
     pilot = None
     runs: dict[str, ControlRun] = {}
     for name in cfg.controllers:
@@ -66,16 +70,16 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
         select_seconds = None
         if name.startswith("arbfn_"):
             if pilot is None:
-                pilot = pilot_residuals(plant, sc, ref, gains, model, PILOT_STRIDE)
+                pilot = pilot_residuals(plant, sc, ref, gains, model, PILOT_STRIDE, scale)
             net = control_network(name[len("arbfn_"):], pilot[0].double().cpu(), pilot[1].double().cpu(),
                                   cfg.network.num_centers, cfg.network.seed, sc.dt * PILOT_STRIDE,
                                   cfg.network.aco, cfg.network.warm_start)
             features, w0, select_seconds = net.features(desired_states(ref)), net.w0, net.seconds
-        ctrl = make_controller(name, gains, sc.dt, model, features, w0, cfg.network.observer)
+        ctrl = make_controller(name, gains, sc.dt, model, features, w0, cfg.network.observer, scale)
         t0 = time.perf_counter()
         roll = simulate(plant, ctrl, sc, ref, q0, qd0, payload, compile=cfg.compile)
         seconds = time.perf_counter() - t0
         per_case = control_metrics(roll, ref[0], sc)
-        runs[name] = ControlRun({case_name(p): m for p, m in zip(cfg.payloads, per_case)}, roll, seconds,
+        runs[name] = ControlRun({case_name(p): m for p, m in zip(setup.payloads, per_case)}, roll, seconds,
                                 select_seconds)
-    return ControlComparison(runs, ref[0], sc, list(cfg.payloads))
+    return ControlComparison(runs, ref[0], sc, list(setup.payloads), setup)

@@ -1,9 +1,10 @@
-"""Controllers for the SCARA: PD, computed torque, sliding mode (`smc`), `smc` with a momentum
+"""Controllers for n joints: PD, computed torque, sliding mode (`smc`), `smc` with a momentum
 observer (`smc_obs`), and the adaptive RBFN on top of either.
 
 All but PD use the controller's nominal model M_hat = 0.9 M, C_hat = 0.8 C, G_hat = 0.85 G of
-the unloaded robot (`NominalModel`). With e = q_d - q, s = de + Lambda e, the reference
-velocity qr' = qd_d + Lambda e and acceleration qr'' = qdd_d + Lambda de:
+the unloaded robot (`rbfn.control.models`: the SCARA's closed form or any URDF arm). With
+e = q_d - q, s = de + Lambda e, the reference velocity qr' = qd_d + Lambda e and acceleration
+qr'' = qdd_d + Lambda de:
 
     smc:     tau = M_hat qr'' + C_hat qr' + G_hat + K s + epsilon sgn(s)      (sgn or saturation)
     smc_obs: ... + d_hat, d_hat the generalized-momentum observer's estimate of what the nominal
@@ -18,44 +19,40 @@ A composite term (the observer's residual as a prediction error driving W) was t
 heavy unknown payload the residual grows with the applied torque itself (it holds
 (M - M_hat) qdd), so the network and the observer integrate together and diverged at 20 kg.
 
-Every controller is called once per control period with the step index and the state; its
-own state (observer, weights) is a tensor per environment.
+The torque gains K, epsilon, pd_kp, pd_kd and gamma act on joint j times `joint_scale[j]` (an
+(n,) tensor; None: 1 on every joint), so one set of gains serves joints whose inertias differ
+by orders of magnitude. Every controller is called once per control period with the step's
+reference and the state; its own state (observer, weights) is a tensor per environment.
 """
 from __future__ import annotations
 
 import torch
 
 from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
-from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mdot_times
+from .models import ArmModel, NominalModel
 
-__all__ = ["Gains", "NominalModel", "Controller", "PD", "ComputedTorque", "SlidingMode", "make_controller"]
+__all__ = ["Gains", "NominalModel", "ArmModel", "Controller", "PD", "ComputedTorque", "SlidingMode",
+           "make_controller"]
 
-
-class NominalModel:
-    """The controller's model: scaled M, C and G of the unloaded robot."""
-
-    def __init__(self, params: ScaraParams = ScaraParams(), m_scale: float = 0.9, c_scale: float = 0.8,
-                 g_scale: float = 0.85) -> None:
-        p1, p2, p3, m3 = inertia_params(0.0, params)
-        self.m_co = (m_scale * p1, m_scale * p2, m_scale * p3, m_scale * m3)
-        self.c_co = (0.0, c_scale * p2, 0.0, 0.0)
-        self.g3 = -g_scale * m3 * params.g
-
-    def gravity(self, q: torch.Tensor) -> torch.Tensor:
-        z = torch.zeros_like(q[..., 0])
-        return torch.stack([z, z, z + self.g3], -1)
+Model = NominalModel | ArmModel
 
 
 class Controller:
     """A pure function of tensors, so the whole closed-loop step can be compiled and batched:
-    `init_state(q0, qd0)` -> state tuple; `torque(ref, q, qd, state)` -> (tau (B, 3), state),
-    where ref = (q_d, qd_d, qdd_d (3,), h (M,) or None, alpha (0-dim): the adaptation step).
+    `init_state(q0, qd0)` -> state tuple; `torque(ref, q, qd, state)` -> (tau (B, n), state),
+    where ref = (q_d, qd_d, qdd_d (n,), h (M,) or None, alpha (0-dim): the adaptation step).
     """
 
     features: torch.Tensor | None = None
 
-    def __init__(self, gains: Gains, dt: float, model: NominalModel | None = None) -> None:
+    def __init__(self, gains: Gains, dt: float, model: Model | None = None,
+                 joint_scale: torch.Tensor | None = None) -> None:
         self.gains, self.dt, self.model = gains, dt, model or NominalModel()
+        self.scale = joint_scale
+
+    def _scaled(self, gain: float):
+        """A torque gain on every joint: gain, or gain * joint_scale (n,)."""
+        return gain if self.scale is None else gain * self.scale
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
         return ()
@@ -70,7 +67,7 @@ class PD(Controller):
 
     def torque(self, ref, q, qd, state):
         g = self.gains
-        kp, kd = (g.pd_kp or g.K * g.Lambda), (g.pd_kd or g.K)
+        kp, kd = self._scaled(g.pd_kp or g.K * g.Lambda), self._scaled(g.pd_kd or g.K)
         return kp * (ref[0] - q) + kd * (ref[1] - qd), state
 
 
@@ -78,45 +75,44 @@ class ComputedTorque(Controller):
     """tau = M_hat (qdd_d + 2 Lambda de + Lambda^2 e) + C_hat qd + G_hat: critically damped at Lambda."""
 
     def torque(self, ref, q, qd, state):
-        lam, m = self.gains.Lambda, self.model
+        lam, at = self.gains.Lambda, self.model.at(q, qd)
         e, de = ref[0] - q, ref[1] - qd
-        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
         v = ref[2] + 2 * lam * de + lam * lam * e
-        return m_times(c2, m.m_co, v) + c_times(s2, m.c_co, qd, qd) + m.gravity(q), state
+        return at.m_times(v) + at.c_times(qd) + at.gravity(), state
 
 
 class SlidingMode(Controller):
     """`smc`, with optional momentum observer and adaptive RBF network (see the module docstring).
 
     features: (T, M) Gaussian activations of the desired state at every step (precomputed, the
-    inputs being the desired trajectory); w0: (M, 3) initial weights (zeros: learn from scratch).
-    State: (d_hat, observer integral, p0, W (B, M, 3)).
+    inputs being the desired trajectory); w0: (M, n) initial weights (zeros: learn from scratch).
+    State: (d_hat, observer integral, p0, W (B, M, n)).
     """
 
-    def __init__(self, gains: Gains, dt: float, model: NominalModel | None = None,
+    def __init__(self, gains: Gains, dt: float, model: Model | None = None,
                  observer: bool = False, features: torch.Tensor | None = None,
-                 w0: torch.Tensor | None = None) -> None:
-        super().__init__(gains, dt, model)
+                 w0: torch.Tensor | None = None, joint_scale: torch.Tensor | None = None) -> None:
+        super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
         z = torch.zeros_like(q0)
-        p0 = m_times(torch.cos(q0[..., 1]), self.model.m_co, qd0)
+        p0 = self.model.at(q0, qd0).m_times(qd0)
         if self.features is None:
             return z, z.clone(), p0
-        m = self.features.shape[1]
-        w0 = z.new_zeros(m, 3) if self.w0 is None else self.w0.to(z)
-        return z, z.clone(), p0, w0.expand(q0.shape[0], m, 3).clone()
+        m, n = self.features.shape[1], q0.shape[1]
+        w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
+        return z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone()
 
     def torque(self, ref, q, qd, state):
-        g, m, dt = self.gains, self.model, self.dt
+        g, dt = self.gains, self.dt
         q_d, v_d, a_d, h, alpha = ref
         e, de = q_d - q, v_d - qd
         s = de + g.Lambda * e
-        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+        at = self.model.at(q, qd)
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
-        tau = (m_times(c2, m.m_co, a_d + g.Lambda * de) + c_times(s2, m.c_co, qd, v_d + g.Lambda * e)
-               + m.gravity(q) + g.K * s + g.epsilon * robust)
+        tau = (at.m_times(a_d + g.Lambda * de) + at.c_times(v_d + g.Lambda * e)
+               + at.gravity() + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust)
         d_hat, integral, p0 = state[:3]
         tau_m = tau                       # what the nominal model sees: no network, no observer
         if h is not None:
@@ -127,33 +123,34 @@ class SlidingMode(Controller):
             # nominal model sees (the network's share removed) and beta = dM_hat/dt qd - C_hat qd
             # - G_hat, d_hat = K_o (p0 + int (tau_m + beta - d_hat) dt - p) obeys
             # d(d_hat)/dt = K_o (miss - d_hat): it tracks what the model (nominal + network) misses.
-            d_hat = g.observer_gain * (integral + p0 - m_times(c2, m.m_co, qd))
+            d_hat = g.observer_gain * (integral + p0 - at.m_times(qd))
             tau = tau + d_hat
-            beta = mdot_times(s2, m.m_co, qd, qd) - c_times(s2, m.c_co, qd, qd) - m.gravity(q)
-            integral = integral + dt * (tau_m + beta)
+            integral = integral + dt * (tau_m + at.momentum_rate())
         if h is None:
             return tau, (d_hat, integral, p0)
-        w = w + h[None, :, None] * (alpha * s)[:, None, :]
+        step = alpha * s if self.scale is None else alpha * (self.scale * s)
+        w = w + h[None, :, None] * step[:, None, :]
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
         return tau, (d_hat, integral, p0, w)
 
 
-def make_controller(name: str, gains: Gains, dt: float, model: NominalModel | None = None,
+def make_controller(name: str, gains: Gains, dt: float, model: Model | None = None,
                     features: torch.Tensor | None = None, w0: torch.Tensor | None = None,
-                    observer: bool = True) -> Controller:
-    """Controller by name: pd, ctc, smc, smc_obs, or arbfn* (needs `features`)."""
+                    observer: bool = True, joint_scale: torch.Tensor | None = None) -> Controller:
+    """Controller by name: pd, ctc, smc, smc_obs, or arbfn* (needs `features`). `model`: the
+    nominal model (default: the SCARA's); `joint_scale` (n,): per-joint factor of the torque gains."""
     if name == "pd":
-        return PD(gains, dt, model)
+        return PD(gains, dt, model, joint_scale)
     if name == "ctc":
-        return ComputedTorque(gains, dt, model)
+        return ComputedTorque(gains, dt, model, joint_scale)
     if name == "smc":
-        return SlidingMode(gains, dt, model)
+        return SlidingMode(gains, dt, model, joint_scale=joint_scale)
     if name == "smc_obs":
-        return SlidingMode(gains, dt, model, observer=True)
+        return SlidingMode(gains, dt, model, observer=True, joint_scale=joint_scale)
     if name.startswith("arbfn"):
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
-        return SlidingMode(gains, dt, model, observer=observer, features=features, w0=w0)
+        return SlidingMode(gains, dt, model, observer=observer, features=features, w0=w0, joint_scale=joint_scale)
     raise ValueError(f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
                      f"arbfn_<{'|'.join(CONTROL_CENTER_METHODS)}>")

@@ -1,6 +1,6 @@
 """The adaptive controller's RBF network: inputs, a pilot run, and centres chosen by ACO.
 
-Inputs are the desired state x = (q_d, qd_d) (6,), standardised over the trajectory, so the
+Inputs are the desired state x = (q_d, qd_d) (2n,), standardised over the trajectory, so the
 features h(x_d(t)) are known in advance for every step. Centres and widths come from
 `rbfn.select` on data recorded in a pilot run of `smc_obs` on the unloaded robot: the residual
 torque the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat), against x. The `fit`
@@ -19,10 +19,9 @@ from ..config import CONTROL_CENTER_METHODS, ACOConfig, CentersConfig, Method, O
 from ..fit import design_matrix, ridge_fit
 from ..layer import gaussian_features
 from ..objectives import FitObjective
-from ..robots.scara import c_times, m_times
 from ..select import choose_widths, select
-from .controllers import Gains, NominalModel, make_controller
-from .simulator import ScaraPlant, Scenario, simulate
+from .controllers import Gains, Model, make_controller
+from .simulator import Plant, Scenario, simulate
 
 __all__ = ["ControlNet", "desired_states", "pilot_residuals", "control_network"]
 PERIOD = 2 * math.pi          # s: every desired joint repeats with this period
@@ -30,8 +29,8 @@ PERIOD = 2 * math.pi          # s: every desired joint repeats with this period
 
 @dataclass
 class ControlNet:
-    """Standardisation (6,), centres (M, 6) and widths (M,) in standardised units, initial weights
-    (M, 3) (zeros unless warm-started), and the selection time in s."""
+    """Standardisation (2n,), centres (M, 2n) and widths (M,) in standardised units, initial weights
+    (M, n) (zeros unless warm-started), and the selection time in s."""
 
     offset: torch.Tensor
     scale: torch.Tensor
@@ -41,26 +40,27 @@ class ControlNet:
     seconds: float
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
-        """Gaussian activations (T, M) of desired states x (T, 6)."""
+        """Gaussian activations (T, M) of desired states x (T, 2n)."""
         z = (x - self.offset.to(x)) / self.scale.to(x)
         return gaussian_features(z, self.centers.to(x), self.widths.to(x))
 
 
 def desired_states(ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
-    """Network inputs (T, 6): desired joints and velocities."""
+    """Network inputs (T, 2n): desired joints and velocities."""
     return torch.cat([ref[0], ref[1]], -1)
 
 
-def pilot_residuals(plant: ScaraPlant, scenario: Scenario, ref, gains: Gains, model: NominalModel,
-                    stride: int = 10) -> tuple[torch.Tensor, torch.Tensor]:
-    """(x (N, 6), residual torque (N, 3)) every `stride` steps of an `smc_obs` run without payload."""
+def pilot_residuals(plant: Plant, scenario: Scenario, ref, gains: Gains, model: Model,
+                    stride: int = 10, joint_scale: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(x (N, 2n), residual torque (N, n)) every `stride` steps of an `smc_obs` run without payload;
+    the residual is what the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat)."""
     q0, qd0 = ref[0][:1].clone(), ref[1][:1].clone()
-    roll = simulate(plant, make_controller("smc_obs", gains, scenario.dt, model), scenario, ref, q0, qd0,
-                    torch.zeros(1, dtype=q0.dtype))
+    ctrl = make_controller("smc_obs", gains, scenario.dt, model, joint_scale=joint_scale)
+    roll = simulate(plant, ctrl, scenario, ref, q0, qd0, torch.zeros(1, dtype=q0.dtype, device=q0.device))
     q, qd, tau = roll.q[:-1, 0], roll.qd[:-1, 0], roll.tau[:-1, 0]
     qdd = (roll.qd[1:, 0] - qd) / scenario.dt
-    s2, c2 = torch.sin(q[:, 1]), torch.cos(q[:, 1])
-    resid = tau - m_times(c2, model.m_co, qdd) - c_times(s2, model.c_co, qd, qd) - model.gravity(q)
+    at = model.at(q, qd)
+    resid = tau - at.m_times(qdd) - at.c_times(qd) - at.gravity()
     x = desired_states(ref)[: q.shape[0]]
     return x[::stride], resid[::stride]
 
@@ -68,7 +68,7 @@ def pilot_residuals(plant: ScaraPlant, scenario: Scenario, ref, gains: Gains, mo
 def control_network(method: str, x: torch.Tensor, y: torch.Tensor, m: int, seed: int, sample_dt: float,
                     aco: ACOConfig | None = None, warm_start: bool = False) -> ControlNet:
     """Centres and widths for the controller's network by `method` (CONTROL_CENTER_METHODS) from pilot
-    data x (N, 6), y (N, 3) sampled every `sample_dt` s; even samples train, odd ones validate
+    data x (N, 2n), y (N, n) sampled every `sample_dt` s; even samples train, odd ones validate
     (widths, ridge, ACO's fit objective). `warm_start` starts the weights at the ridge fit of y."""
     if method not in CONTROL_CENTER_METHODS:
         raise ValueError(f"unknown centre method {method!r}; choose one of {list(CONTROL_CENTER_METHODS)}")
@@ -90,7 +90,7 @@ def control_network(method: str, x: torch.Tensor, y: torch.Tensor, m: int, seed:
                             width_rule=WidthRule.per_center, aco=aco)
         sel = select(cfg, objective, m, seed, max_width=4.0, generator=g)
         centers, widths, seconds = sel.centers, sel.widths, sel.seconds
-    w0 = torch.zeros(m, 3, dtype=x.dtype)
+    w0 = torch.zeros(m, y.shape[1], dtype=x.dtype)
     if warm_start:
         a_tr = design_matrix(z[0::2], centers, widths, tail=False)
         a_val = design_matrix(z[1::2], centers, widths, tail=False)

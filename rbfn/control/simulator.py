@@ -1,13 +1,10 @@
-"""The closed-loop simulator: the "real" SCARA (rigid-body dynamics, friction, disturbance,
-payload) driven by a controller along a desired trajectory, B environments at once.
+"""The closed-loop simulator: a "real" robot (`rbfn.control.plants`: the SCARA in closed form or
+any URDF arm, with friction, disturbance and payload) driven by a controller along a desired
+trajectory, B environments at once, n joints.
 
-M(q) qdd + C(q, qd) qd + G(q) + F(qd) + tau_d(t) = tau, with F = viscous qd + coulomb sign(qd)
-(or tanh(qd / smooth_velocity)) and tau_d = amplitude sin(frequency t) on every joint. The
-payload (kg, per environment) adds to m3 and is held constant within a step; the torque is held
-too (zero-order hold). The matrices are written out elementwise (M is block diagonal, so its
-inverse is a 2x2 one and a scalar): one step is a few dozen fused tensor operations. A scenario
-is a time grid, an integrator (RK4, or semi-implicit Euler) and a payload window; `simulate`
-runs it and stops with the step, time, environment and state where a run diverges.
+A scenario is a time grid, an integrator (RK4, or semi-implicit Euler) and a payload window;
+`simulate` runs it in chunks of fused periods (optionally torch.compile'd) and stops with the
+step, time, environment and state where a run diverges; `control_metrics` scores a rollout.
 """
 from __future__ import annotations
 
@@ -17,77 +14,16 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from ..config import Friction, Integrator
-from ..robots.scara import ScaraParams, c_times, inertia_params, m_solve, m_times
+from ..config import Integrator
+from .plants import ArmPlant, Plant, ScaraPlant
 
 if TYPE_CHECKING:
     from .controllers import Controller
 
-__all__ = ["ScaraPlant", "Scenario", "Rollout", "SimulationDiverged", "simulate", "control_metrics",
-           "make_chunk", "stage_disturbances", "CHECK_EVERY"]
+__all__ = ["Plant", "ScaraPlant", "ArmPlant", "Scenario", "Rollout", "SimulationDiverged", "simulate",
+           "control_metrics", "make_chunk", "stage_disturbances", "CHECK_EVERY"]
 
 CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a GPU)
-
-
-class ScaraPlant:
-    """The "real" robot of the closed-loop scenario; parameters in SI units."""
-
-    def __init__(self, params: ScaraParams = ScaraParams(), viscous: float = 12.0, coulomb: float = 0.2,
-                 friction: str = "sign", smooth_velocity: float = 0.01, disturbance: float = 5.0,
-                 disturbance_freq: float = 2.0, gravity: bool = True) -> None:
-        if friction not in tuple(Friction):
-            raise ValueError(f"friction={friction!r} is not allowed; choose one of {[str(f) for f in Friction]}")
-        if not smooth_velocity > 0:
-            raise ValueError(f"smooth_velocity={smooth_velocity} must be > 0 (m/s or rad/s)")
-        self.params, self.viscous, self.coulomb, self.friction = params, viscous, coulomb, friction
-        self.smooth_velocity, self.dist, self.dist_freq, self.gravity = (smooth_velocity, disturbance,
-                                                                          disturbance_freq, gravity)
-
-    def coefficients(self, payload: torch.Tensor):
-        """(p1, p2, p3, m3), each (B,), for payloads (B,) kg."""
-        return inertia_params(payload, self.params)
-
-    def friction_torque(self, qd: torch.Tensor) -> torch.Tensor:
-        sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
-        return self.viscous * qd + self.coulomb * sgn
-
-    def disturbance(self, t: torch.Tensor) -> torch.Tensor:
-        """Disturbance torque tau_d(t) (same shape as t), N m (N), applied to every joint."""
-        return self.dist * torch.sin(self.dist_freq * t)
-
-    def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
-        """Joint accelerations (B, 3) under torques tau (B, 3) and disturbance torque `dist`."""
-        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
-        r = tau - c_times(s2, co, qd, qd) - self.friction_torque(qd) - dist
-        if self.gravity:
-            r = r + torch.stack([torch.zeros_like(co[3]), torch.zeros_like(co[3]), co[3] * self.params.g], -1)
-        return m_solve(c2, co, r)
-
-    def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist: torch.Tensor, dt: float, co,
-             method: str = "rk4") -> tuple[torch.Tensor, torch.Tensor]:
-        """State (q, qd) after dt seconds, torque and payload held; dist (2,): the disturbance
-        torque at the step's start and middle, tau_d(t) and tau_d(t + dt/2) (RK4's end stage
-        uses the next step's start value, passed as dist[2] when given)."""
-        if method == "euler":
-            qd = qd + dt * self.accel(q, qd, tau, dist[0], co)
-            return q + dt * qd, qd
-        a1 = self.accel(q, qd, tau, dist[0], co)
-        v2 = qd + 0.5 * dt * a1
-        a2 = self.accel(q + 0.5 * dt * qd, v2, tau, dist[1], co)
-        v3 = qd + 0.5 * dt * a2
-        a3 = self.accel(q + 0.5 * dt * v2, v3, tau, dist[1], co)
-        v4 = qd + dt * a3
-        a4 = self.accel(q + dt * v3, v4, tau, dist[2], co)
-        q_next = q + dt / 6 * (qd + 2 * v2 + 2 * v3 + v4)
-        qd_next = qd + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-        return q_next, qd_next
-
-    def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
-        """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at q3 = 0."""
-        co = self.coefficients(payload)
-        e = 0.5 * (qd * m_times(torch.cos(q[..., 1]), co, qd)).sum(-1)
-        return e - co[3] * self.params.g * q[..., 2] if self.gravity else e
-   # steps between finiteness checks (each check synchronises a GPU)
 
 
 class SimulationDiverged(RuntimeError):
@@ -129,7 +65,7 @@ class Scenario:
 
 @dataclass
 class Rollout:
-    """Recorded run: t (T,), q, qd, tau (T, B, 3) with T = steps + 1 (tau[-1] repeats tau[-2])."""
+    """Recorded run: t (T,), q, qd, tau (T, B, n) with T = steps + 1 (tau[-1] repeats tau[-2])."""
 
     t: torch.Tensor
     q: torch.Tensor
@@ -145,17 +81,18 @@ def _check(step: int, t: float, q, qd, tau) -> None:
                                  f"q = {q[b].tolist()}, qd = {qd[b].tolist()}, tau = {tau[b].tolist()}")
 
 
-def stage_disturbances(plant: ScaraPlant, n: int, dt: float, **kw) -> torch.Tensor:
-    """Disturbance torque at the start, middle and end of each of n periods (n, 3), for RK4."""
+def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
+    """Disturbance torque at the start, middle and end of each of n periods, for RK4: (n, 3), or
+    (n, 3, joints) when the amplitude differs per joint."""
     d = plant.disturbance(torch.arange(2 * n + 1, **kw) * (0.5 * dt))
-    return torch.stack([d[0:-1:2], d[1::2], d[2::2]], -1)
+    return torch.stack([d[0:-1:2], d[1::2], d[2::2]], 1)
 
 
-def make_chunk(plant: ScaraPlant, controller: "Controller", dt: float, integrator: str, n: int):
+def make_chunk(plant: Plant, controller: "Controller", dt: float, integrator: str, n: int):
     """`n` closed-loop periods as one pure tensor function (what torch.compile fuses):
     (q, qd, state, q_d, qd_d, qdd_d, h, alpha, dist, co) -> (q, qd, state, qs, qds, taus),
-    the step inputs stacked over the n periods (co: the plant's inertia coefficients, each
-    (n, B)), the outputs' records (n, B, 3)."""
+    the step inputs stacked over the n periods (co: the plant's payload coefficients, each
+    (n, B)), the outputs' records (n, B, joints)."""
     def run(q, qd, state, q_d, v_d, a_d, h, alpha, dist, co):
         qs, qds, taus = [], [], []
         hs = h.unbind(0) if h is not None else (None,) * n
@@ -171,10 +108,10 @@ def make_chunk(plant: ScaraPlant, controller: "Controller", dt: float, integrato
     return run
 
 
-def simulate(plant: ScaraPlant, controller: "Controller", scenario: Scenario,
+def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
              ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0) -> Rollout | tuple:
-    """Run the closed loop from (q0, qd0) (B, 3) along ref = (q_d, qd_d, qdd_d), each (steps + 1, 3)
+    """Run the closed loop from (q0, qd0) (B, n) along ref = (q_d, qd_d, qdd_d), each (steps + 1, n)
     on the scenario's time grid; payload (B,) kg applies inside the window.
 
     Returns a Rollout, or with record=False only the final (q, qd). `chunk` periods run per call
@@ -186,13 +123,16 @@ def simulate(plant: ScaraPlant, controller: "Controller", scenario: Scenario,
     n, dt = scenario.steps, scenario.dt
     if ref[0].shape[0] < n + 1:
         raise ValueError(f"the reference has {ref[0].shape[0]} samples; the scenario needs {n + 1}")
+    if q0.dim() != 2 or q0.shape[1] != plant.n or qd0.shape != q0.shape or ref[0].shape[-1] != plant.n:
+        raise ValueError(f"the plant has {plant.n} joints: q0, qd0 must be (B, {plant.n}) and the reference "
+                         f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref[0].shape)}")
     if not (torch.isfinite(q0).all() and torch.isfinite(qd0).all()):
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
     chunk = chunk or (25 if compile else 100)
     b, kw = q0.shape[0], {"dtype": q0.dtype, "device": q0.device}
-    dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3)
+    dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3) or (n, 3, joints)
     h = controller.features.to(**kw) if controller.features is not None else None
     alpha = controller.alphas(torch.arange(n, **kw) * dt)
     q_d, v_d, a_d = (r.to(**kw) for r in ref)
@@ -205,7 +145,7 @@ def simulate(plant: ScaraPlant, controller: "Controller", scenario: Scenario,
     q, qd = q0.clone(), qd0.clone()
     state = controller.init_state(q, qd)
     if record:
-        qs = torch.empty(n + 1, b, 3, **kw)
+        qs = torch.empty(n + 1, b, plant.n, **kw)
         qds, taus = torch.empty_like(qs), torch.empty_like(qs)
     k0, checked = 0, 0
     while k0 < n:
@@ -229,12 +169,12 @@ def simulate(plant: ScaraPlant, controller: "Controller", scenario: Scenario,
 
 def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> list[dict]:
     """Per environment: rms_err, max_err (t > metrics_after), max_err_payload (inside the payload
-    window), peak_tau (whole run) and chattering (mean |dtau/dt|), each a list of 3 (joints 1-3;
-    rad, rad, m / N m, N m, N / N m/s, N m/s, N/s)."""
-    err = (q_des[:, None, :] - roll.q).abs()                      # (T, B, 3)
+    window), peak_tau (whole run) and chattering (mean |dtau/dt|), each a list of n (per joint: rad
+    or m; N m or N; N m/s or N/s)."""
+    err = (q_des[:, None, :] - roll.q).abs()                      # (T, B, n)
     after = roll.t > scenario.metrics_after
     window = (roll.t >= scenario.payload_on) & (roll.t <= scenario.payload_off)
-    per_key = {                                                   # each (B, 3)
+    per_key = {                                                   # each (B, n)
         "rms_err": err[after].square().mean(0).sqrt(),
         "max_err": err[after].amax(0),
         "max_err_payload": err[window].amax(0),

@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["paper_trajectory"]
+__all__ = ["paper_trajectory", "sinusoid_trajectory", "FREQUENCY_PAIRS"]
+
+# The paper's frequency pairs (rad/s), joint j takes pair j mod 3: every joint repeats within 2 pi s.
+FREQUENCY_PAIRS = ((1.0, 2.0), (2.0, 3.0), (3.0, 4.0))
 
 
 def paper_trajectory(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -19,4 +22,19 @@ def paper_trajectory(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch
                       0.1 * (3 * c(3 * t) + 4 * c(4 * t))], -1)
     qdd = torch.stack([-0.1 * (s(t) + 4 * s(2 * t)), -0.1 * (4 * c(2 * t) + 9 * c(3 * t)),
                        -0.1 * (9 * s(3 * t) + 16 * s(4 * t))], -1)
+    return q, qd, qdd
+
+
+def sinusoid_trajectory(t: torch.Tensor, home: torch.Tensor, amplitude: torch.Tensor
+                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """q_d_j(t) = home_j + a_j (sin w1 t + sin w2 t) with (w1, w2) = FREQUENCY_PAIRS[j mod 3], and
+    its analytic velocity and acceleration, each (T, n), at times t (T,) s; home, amplitude (n,)
+    in rad or m (amplitude 0: the joint is held at home)."""
+    n = home.shape[0]
+    w = torch.tensor([FREQUENCY_PAIRS[j % 3] for j in range(n)], dtype=t.dtype, device=t.device)   # (n, 2)
+    wt = t[:, None, None] * w                                                     # (T, n, 2)
+    a = amplitude.to(t)
+    q = home.to(t) + a * torch.sin(wt).sum(-1)
+    qd = a * (w * torch.cos(wt)).sum(-1)
+    qdd = -a * (w * w * torch.sin(wt)).sum(-1)
     return q, qd, qdd

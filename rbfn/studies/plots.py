@@ -40,10 +40,11 @@ def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.nda
     """The paper's n x 3 figure: per joint (rows), position vs desired, error, control input.
 
     t (T,) s; q, q_des (T, n); tau (T, n); `units` per joint (position, torque), default the
-    SCARA's (rad, N m), (rad, N m), (m, N); `window` shades the payload interval.
+    SCARA's (rad, N m), (rad, N m), (m, N) for 3 joints, else (rad, N m) on every joint; `window`
+    shades the payload interval.
     """
     n = q.shape[1]
-    units = units or [("rad", "N m"), ("rad", "N m"), ("m", "N")]
+    units = units or ([("rad", "N m"), ("rad", "N m"), ("m", "N")] if n == 3 else [("rad", "N m")] * n)
     fig = Figure(figsize=(13, 2.7 * n))
     axes = fig.subplots(n, 3, sharex=True, squeeze=False)
     for j in range(n):

@@ -1,0 +1,97 @@
+"""The controllers' nominal model: M_hat = 0.9 M, C_hat = 0.8 C, G_hat = 0.85 G of the unloaded
+robot, evaluated at a state (q, qd) (B, n).
+
+`model.at(q, qd)` gives what a controller asks of its model at one control period:
+`m_times(v)` = M_hat(q) v, `c_times(y)` = C_hat(q, qd) y, `gravity()` = G_hat(q) and
+`momentum_rate()` = dM_hat/dt qd - C_hat qd - G_hat (the momentum observer's known part), each
+(B, n). `NominalModel` is the SCARA's closed form (elementwise, no matrices); `ArmModel` any URDF
+arm through `rbfn.robots.arm_terms` (C the Christoffel matrix, so dM/dt = C + C^T).
+"""
+from __future__ import annotations
+
+import torch
+
+from ..robots.arm_terms import ArmTerms
+from ..robots.dynamics import Arm
+from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mdot_times
+
+__all__ = ["NominalModel", "ArmModel"]
+
+
+class NominalModel:
+    """The SCARA's nominal model: scaled M, C and G of the unloaded robot, in closed form."""
+
+    def __init__(self, params: ScaraParams = ScaraParams(), m_scale: float = 0.9, c_scale: float = 0.8,
+                 g_scale: float = 0.85) -> None:
+        p1, p2, p3, m3 = inertia_params(0.0, params)
+        self.n = 3
+        self.m_co = (m_scale * p1, m_scale * p2, m_scale * p3, m_scale * m3)
+        self.c_co = (0.0, c_scale * p2, 0.0, 0.0)
+        self.g3 = -g_scale * m3 * params.g
+
+    def gravity(self, q: torch.Tensor) -> torch.Tensor:
+        z = torch.zeros_like(q[..., 0])
+        return torch.stack([z, z, z + self.g3], -1)
+
+    def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ScaraAt":
+        return _ScaraAt(self, q, qd)
+
+
+class _ScaraAt:
+    def __init__(self, model: NominalModel, q: torch.Tensor, qd: torch.Tensor) -> None:
+        self.model, self.q, self.qd = model, q, qd
+        self.s2, self.c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+
+    def m_times(self, v: torch.Tensor) -> torch.Tensor:
+        return m_times(self.c2, self.model.m_co, v)
+
+    def c_times(self, y: torch.Tensor) -> torch.Tensor:
+        return c_times(self.s2, self.model.c_co, self.qd, y)
+
+    def gravity(self) -> torch.Tensor:
+        return self.model.gravity(self.q)
+
+    def momentum_rate(self) -> torch.Tensor:
+        m = self.model
+        return mdot_times(self.s2, m.m_co, self.qd, self.qd) - c_times(self.s2, m.c_co, self.qd, self.qd) - self.gravity()
+
+
+class ArmModel:
+    """The nominal model of a URDF arm (`Arm`, or its `ArmTerms`), without payload."""
+
+    def __init__(self, arm: Arm | ArmTerms, m_scale: float = 0.9, c_scale: float = 0.8,
+                 g_scale: float = 0.85) -> None:
+        self.terms = arm if isinstance(arm, ArmTerms) else ArmTerms(arm)
+        self.n = self.terms.n
+        self.m_scale, self.c_scale, self.g_scale = m_scale, c_scale, g_scale
+
+    def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ArmAt":
+        return _ArmAt(self, q, qd)
+
+
+class _ArmAt:
+    def __init__(self, model: ArmModel, q: torch.Tensor, qd: torch.Tensor) -> None:
+        self.model, self.qd = model, qd
+        self.cfg = model.terms.at(q)
+        self._mo = None
+
+    def _motion(self):
+        if self._mo is None:
+            self._mo = self.cfg.motion(self.qd)
+        return self._mo
+
+    def m_times(self, v: torch.Tensor) -> torch.Tensor:
+        return self.model.m_scale * self.cfg.mass_times(v)
+
+    def c_times(self, y: torch.Tensor) -> torch.Tensor:
+        return self.model.c_scale * self.cfg.coriolis_times(self.qd, y, self._motion())
+
+    def gravity(self) -> torch.Tensor:
+        return self.model.g_scale * self.cfg.gravity()
+
+    def momentum_rate(self) -> torch.Tensor:
+        # dM/dt qd = C qd + C^T qd for the Christoffel C.
+        m, mo = self.model, self._motion()
+        cqd = self.cfg.coriolis_qd(self.qd, mo)
+        ctq = self.cfg.coriolis_transpose_qd(self.qd, mo)
+        return m.m_scale * (cqd + ctq) - m.c_scale * cqd - self.gravity()

@@ -1,0 +1,157 @@
+"""The "real" robots of the closed loop: rigid-body dynamics, friction, disturbance and payload,
+B environments at once, stepped by RK4 or semi-implicit Euler.
+
+M(q, m_p) qdd + C(q, qd, m_p) qd + G(q, m_p) + F(qd) + tau_d(t) = tau, with per joint j
+F_j = viscous_j qd_j + coulomb_j sign(qd_j) (or tanh(qd_j / smooth_velocity)) and
+tau_d,j = disturbance_j sin(frequency t); m_p the payload (kg, per environment), held within a
+step like the torque (zero-order hold).
+
+* `ScaraPlant`: the paper's SCARA in closed form (M block diagonal: its inverse a 2x2 one and a
+  scalar; a step is a few dozen fused tensor operations).
+* `ArmPlant`: any URDF chain (`rbfn.robots.dynamics.Arm`), M and C qd + G by
+  `rbfn.robots.arm_terms` (batch-last CRBA and RNEA), M qdd = r solved by a batched Cholesky
+  factorisation; the payload a point mass at the arm's payload link.
+
+Both give `coefficients(payload)` (what a step needs of the payload schedule, each (T, B)),
+`accel(q, qd, tau, dist, co)`, `step(...)` and `energy(q, qd, payload)`.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+
+from ..config import Friction
+from ..robots.arm_terms import ArmTerms
+from ..robots.dynamics import Arm
+from ..robots.scara import ScaraParams, c_times, inertia_params, m_solve, m_times
+
+__all__ = ["Plant", "ScaraPlant", "ArmPlant"]
+
+PerJoint = float | Sequence[float]
+
+
+class Plant:
+    """Friction, disturbance and the integrators; a subclass gives `n`, `coefficients` and `accel`.
+
+    viscous N m s/rad (N s/m), coulomb N m (N), disturbance N m (N): a float for every joint or one
+    value per joint; disturbance_freq rad/s; smooth_velocity rad/s (m/s) of the `smooth` friction.
+    """
+
+    n: int
+
+    def __init__(self, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
+                 smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
+                 gravity: bool = True) -> None:
+        if friction not in tuple(Friction):
+            raise ValueError(f"friction={friction!r} is not allowed; choose one of {[str(f) for f in Friction]}")
+        if not smooth_velocity > 0:
+            raise ValueError(f"smooth_velocity={smooth_velocity} must be > 0 (m/s or rad/s)")
+        for key, value in (("viscous", viscous), ("coulomb", coulomb), ("disturbance", disturbance)):
+            if not isinstance(value, (int, float)) and len(value) != self.n:
+                raise ValueError(f"{key}={list(value)} needs one value per joint ({self.n}) or a single number")
+        self.viscous, self.coulomb, self.friction = viscous, coulomb, friction
+        self.smooth_velocity, self.dist, self.dist_freq, self.gravity = (smooth_velocity, disturbance,
+                                                                          disturbance_freq, gravity)
+        self._joint_values: dict = {}
+
+    def _per_joint(self, value: PerJoint, like: torch.Tensor):
+        """A float as is, a per-joint list as an (n,) tensor in like's dtype and device."""
+        if isinstance(value, (int, float)):
+            return value
+        key = (id(value), like.dtype, like.device)
+        if key not in self._joint_values:
+            self._joint_values[key] = torch.tensor(list(value), dtype=like.dtype, device=like.device)
+        return self._joint_values[key]
+
+    def friction_torque(self, qd: torch.Tensor) -> torch.Tensor:
+        sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
+        return self._per_joint(self.viscous, qd) * qd + self._per_joint(self.coulomb, qd) * sgn
+
+    def disturbance(self, t: torch.Tensor) -> torch.Tensor:
+        """Disturbance torque tau_d(t): the shape of t for a single amplitude (every joint feels
+        it), else (..., n); N m (N)."""
+        s = torch.sin(self.dist_freq * t)
+        if isinstance(self.dist, (int, float)):
+            return self.dist * s
+        return self._per_joint(self.dist, t) * s.unsqueeze(-1)
+
+    def accel(self, q, qd, tau, dist, co) -> torch.Tensor:
+        raise NotImplementedError
+
+    def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist: torch.Tensor, dt: float, co,
+             method: str = "rk4") -> tuple[torch.Tensor, torch.Tensor]:
+        """State (q, qd) after dt seconds, torque and payload held; dist: the disturbance torque at
+        the step's start, middle and end, tau_d(t), tau_d(t + dt/2), tau_d(t + dt) (3,) or (3, n)."""
+        if method == "euler":
+            qd = qd + dt * self.accel(q, qd, tau, dist[0], co)
+            return q + dt * qd, qd
+        a1 = self.accel(q, qd, tau, dist[0], co)
+        v2 = qd + 0.5 * dt * a1
+        a2 = self.accel(q + 0.5 * dt * qd, v2, tau, dist[1], co)
+        v3 = qd + 0.5 * dt * a2
+        a3 = self.accel(q + 0.5 * dt * v2, v3, tau, dist[1], co)
+        v4 = qd + dt * a3
+        a4 = self.accel(q + dt * v3, v4, tau, dist[2], co)
+        q_next = q + dt / 6 * (qd + 2 * v2 + 2 * v3 + v4)
+        qd_next = qd + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+        return q_next, qd_next
+
+
+class ScaraPlant(Plant):
+    """The paper's SCARA (closed form); parameters in SI units."""
+
+    n = 3
+
+    def __init__(self, params: ScaraParams = ScaraParams(), viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2,
+                 friction: str = "sign", smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0,
+                 disturbance_freq: float = 2.0, gravity: bool = True) -> None:
+        super().__init__(viscous, coulomb, friction, smooth_velocity, disturbance, disturbance_freq, gravity)
+        self.params = params
+
+    def coefficients(self, payload: torch.Tensor):
+        """(p1, p2, p3, m3), each shaped like the payloads (kg)."""
+        return inertia_params(payload, self.params)
+
+    def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
+        """Joint accelerations (B, 3) under torques tau (B, 3) and disturbance torque `dist`."""
+        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+        r = tau - c_times(s2, co, qd, qd) - self.friction_torque(qd) - dist
+        if self.gravity:
+            r = r + torch.stack([torch.zeros_like(co[3]), torch.zeros_like(co[3]), co[3] * self.params.g], -1)
+        return m_solve(c2, co, r)
+
+    def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
+        """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at q3 = 0."""
+        co = self.coefficients(payload)
+        e = 0.5 * (qd * m_times(torch.cos(q[..., 1]), co, qd)).sum(-1)
+        return e - co[3] * self.params.g * q[..., 2] if self.gravity else e
+
+
+class ArmPlant(Plant):
+    """A URDF arm (`Arm`: its chain, inertials, gravity and payload link); see `Plant` for the rest."""
+
+    def __init__(self, arm: Arm, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
+                 smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
+                 gravity: bool = True) -> None:
+        self.arm, self.n = arm, arm.n
+        self.terms = ArmTerms(arm)
+        super().__init__(viscous, coulomb, friction, smooth_velocity, disturbance, disturbance_freq, gravity)
+
+    def coefficients(self, payload: torch.Tensor) -> tuple[torch.Tensor]:
+        """(payload,): the payload masses themselves (kg)."""
+        return (payload,)
+
+    def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
+        """Joint accelerations (B, n): M qdd = tau - C qd - G - F - tau_d, by Cholesky."""
+        cfg = self.terms.at(q, co[0])
+        r = tau - cfg.coriolis_qd(qd) - self.friction_torque(qd) - dist
+        if self.gravity:
+            r = r - cfg.gravity()
+        chol = torch.linalg.cholesky(cfg.mass_matrix())
+        return torch.cholesky_solve(r.unsqueeze(-1), chol).squeeze(-1)
+
+    def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
+        """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at the root."""
+        e = self.arm.kinetic_energy(q, qd, payload)
+        return e + self.arm.potential_energy(q, payload) if self.gravity else e

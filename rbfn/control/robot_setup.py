@@ -1,0 +1,145 @@
+"""What the closed loop needs of a robot: plant, nominal model, desired trajectory, joint scale,
+payload cases and units, from `RobotConfig` and `ControlConfig`; every robot-dependent setting is
+checked here, before any simulation, with errors naming the key.
+
+The SCARA (robot.name scara, no robot.urdf) keeps its closed form; any other robot is its URDF
+chain (`rbfn.robots.dynamics.load_arm`) root -> robot.end_link. Every joint of the chain is
+controlled: joints in robot.locked are held at their value (desired amplitude 0). The joint box
+(robot.joint_low/high) and robot.home list the free joints.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..config import ControlConfig, RobotConfig, Trajectory
+from ..robots.dynamics import load_arm
+from ..robots.scara import ScaraParams
+from .models import ArmModel, NominalModel
+from .plants import ArmPlant, Plant, ScaraPlant
+from .trajectory import paper_trajectory, sinusoid_trajectory
+
+__all__ = ["ControlRobot", "control_robot", "payload_cases"]
+
+
+@dataclass
+class ControlRobot:
+    """A robot ready for the closed loop; joints in chain order, n = len(joint_names)."""
+
+    name: str
+    joint_names: list[str]
+    prismatic: list[bool]
+    plant: Plant
+    model: NominalModel | ArmModel
+    scale: list[float] | None        # torque-gain and scenario factor per joint; None: 1 on every joint
+    trajectory_kind: str
+    home: list[float]                # per joint, rad or m (sinusoid)
+    amplitude: list[float]           # per joint, rad or m (sinusoid)
+    payloads: list[float]            # kg, the payload cases
+    figure_payload: float            # kg
+
+    @property
+    def n(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def units(self) -> list[tuple[str, str]]:
+        """(position, torque) unit per joint."""
+        return [("m", "N") if p else ("rad", "N m") for p in self.prismatic]
+
+    def joint_scale(self, **kw) -> torch.Tensor | None:
+        """The joint scale as an (n,) tensor (dtype, device from kw), None for ones."""
+        return None if self.scale is None else torch.tensor(self.scale, **kw)
+
+    def trajectory(self, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Desired joints, velocities and accelerations (T, n) at times t (T,) s."""
+        if self.trajectory_kind == Trajectory.paper:
+            return paper_trajectory(t)
+        return sinusoid_trajectory(t, torch.tensor(self.home, dtype=t.dtype), torch.tensor(self.amplitude, dtype=t.dtype))
+
+
+def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]:
+    """(payload cases, figure payload) in kg: control.payloads, else 0, rated/2 and rated (once
+    each); control.figure_payload, else rated/2."""
+    cases = list(cfg.payloads) or list(dict.fromkeys([0.0, rated / 2, float(rated)]))
+    return cases, (rated / 2 if cfg.figure_payload is None else cfg.figure_payload)
+
+
+def _arm_source(robot: RobotConfig) -> str:
+    return robot.urdf or robot.name
+
+
+def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = ScaraParams()) -> ControlRobot:
+    """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key)."""
+    payloads, figure_payload = payload_cases(cfg, robot.rated_payload)
+    if robot.name == "scara" and not robot.urdf:
+        n, names, prismatic, arm = 3, ["joint1", "joint2", "joint3"], [False, False, True], None
+    else:
+        arm = _load(robot, cfg)
+        n, names, prismatic = arm.n, arm.joint_names, arm._model.prismatic.tolist()
+    scale = _scale(cfg, robot, arm, n)
+    home, amplitude = _sinusoid(robot, names)
+    if robot.trajectory == Trajectory.paper and n != 3:
+        raise ValueError(f"robot.trajectory={str(robot.trajectory)!r} is the SCARA's 3-joint path; the chain to "
+                         f"{robot.end_link!r} has {n} joints: use robot.trajectory=sinusoid")
+    per = (lambda v: v) if scale is None else (lambda v: [v * s for s in scale])
+    kw = dict(viscous=per(cfg.viscous), coulomb=per(cfg.coulomb), friction=str(cfg.friction),
+              disturbance=per(cfg.disturbance), disturbance_freq=cfg.disturbance_freq)
+    if arm is None:
+        plant, model = ScaraPlant(params, **kw), NominalModel(params)
+    else:
+        plant = ArmPlant(arm, **kw)
+        model = ArmModel(plant.terms)
+    return ControlRobot(robot.name, names, prismatic, plant, model, scale, str(robot.trajectory), home, amplitude,
+                        payloads, figure_payload)
+
+
+def _load(robot: RobotConfig, cfg: ControlConfig):
+    source = _arm_source(robot)
+    try:
+        arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity)
+    except ValueError as e:
+        raise ValueError(f"robot.urdf={robot.urdf!r} (robot.name={robot.name!r}, robot.end_link="
+                         f"{robot.end_link!r}): {e}") from None
+    if cfg.payload_link:
+        try:
+            arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity, payload_link=cfg.payload_link)
+        except ValueError as e:
+            raise ValueError(f"control.payload_link={cfg.payload_link!r}: {e}") from None
+    unknown = [j for j in robot.locked if j not in arm.joint_names]
+    if unknown:
+        raise ValueError(f"robot.locked names {unknown}, which are not joints of the chain to "
+                         f"{robot.end_link!r}: {arm.joint_names}")
+    free = arm.n - len(robot.locked)
+    if len(robot.joint_low) != free:
+        raise ValueError(f"robot.joint_low/joint_high give {len(robot.joint_low)} joints; the chain to "
+                         f"{robot.end_link!r} has {free} free joints ({arm.n} in all, {len(robot.locked)} locked)")
+    return arm
+
+
+def _sinusoid(robot: RobotConfig, names: list[str]) -> tuple[list[float], list[float]]:
+    """Per chain joint: home (robot.home or the box centre; locked joints their value) and
+    amplitude robot.amplitude * half the box range (0 for locked joints)."""
+    free = [j for j in names if j not in robot.locked]
+    lo, hi = robot.joint_low, robot.joint_high
+    centre = list(robot.home) or [(a + b) / 2 for a, b in zip(lo, hi)]
+    half = {j: (b - a) / 2 for j, a, b in zip(free, lo, hi)}
+    by_name = dict(zip(free, centre))
+    home = [float(robot.locked[j]) if j in robot.locked else by_name[j] for j in names]
+    amplitude = [0.0 if j in robot.locked else robot.amplitude * half[j] for j in names]
+    return home, amplitude
+
+
+def _scale(cfg: ControlConfig, robot: RobotConfig, arm, n: int) -> list[float] | None:
+    """control.joint_scale, else None for the closed-form SCARA and M_jj(home) of an arm."""
+    if cfg.joint_scale:
+        if len(cfg.joint_scale) != n:
+            raise ValueError(f"control.joint_scale={list(cfg.joint_scale)} needs one factor per joint of "
+                             f"{robot.name!r} ({n})")
+        return [float(v) for v in cfg.joint_scale]
+    if arm is None:
+        return None
+    home, _ = _sinusoid(robot, arm.joint_names)
+    q = torch.tensor([home], dtype=torch.float64)
+    return arm.mass_matrix(q)[0].diagonal().tolist()
