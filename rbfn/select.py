@@ -129,6 +129,14 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
     return centers, widths_of(centers[None])[0], res
 
 
+# Above this many centre coordinates M * d the colony searches a few global width quantities
+# instead of every coordinate (see `_acor_reduced`); at or below it, everything (as the SCARA's).
+FULL_SEARCH_MAX = 2048
+# Floating-point operations the reduced colony may spend on its fit objective (about a minute
+# on one core at ~20 GFLOP/s in float64); it runs as many iterations as fit, at least one.
+REDUCED_FLOPS = 1.2e12
+
+
 def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
     """ACO_R over centre coordinates (bounded to the data's box) and widths (per-centre log
     widths, one log scale of the seed widths, or none: `cfg.aco.search_widths`).
@@ -142,6 +150,8 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     d = z.shape[1]
     c0 = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
+    if m * d > FULL_SEARCH_MAX and a.objective == "fit":
+        return _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume, on_state)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
     # Width coordinates: M log widths, one log scale of the seed widths, or none.
@@ -180,3 +190,39 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     c, w = unpack(res.best[None])
     return c[0], w[0].clamp(max=max_width), res
+
+
+def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, on_state=None):
+    """ACO_R over two global width quantities, the k-means centres c0 (M, d) held fixed.
+
+    x = (log scale s, exponent b): widths = e^s * w0_med * (w0 / w0_med)^(1 + b), w0 the seed's
+    validation-tuned per-centre widths (median w0_med), clamped to max_width; s in [log 1/4,
+    log 4], b in [-1, 1]. x = 0 is the seed itself, so the result is never worse than it on the
+    objective. At large M * d the full search (M * (d + 1) coordinates, one fit per ant costing
+    O(N P^2)) cannot move in the few ants it can afford; these two quantities (how wide, and how
+    much the width follows the local centre spacing) are what the seed's single grid scale leaves
+    open. The archive and ants shrink to 4 and the iterations to the budget `REDUCED_FLOPS`.
+    """
+    a = cfg.aco
+    z = objective.z_train
+    k = min(a.archive_size, 4)
+    ants = min(a.ants, 4)
+    evals = max(int(REDUCED_FLOPS / objective.cost(c0.shape[0])), k + ants)
+    iterations = max(1, min(a.iterations, (evals - k) // ants))
+    lower = torch.tensor([math.log(0.25), -1.0], dtype=z.dtype, device=z.device)
+    upper = -lower
+    w_med = w0.median()
+    rel = (w0 / w_med).log()
+
+    def widths_of(x: torch.Tensor) -> torch.Tensor:
+        return (w_med * (x[:, :1] + (1 + x[:, 1:]) * rel).exp()).clamp(max=max_width)   # (K, M)
+
+    def obj(x: torch.Tensor) -> torch.Tensor:
+        return objective(c0.expand(x.shape[0], *c0.shape), widths_of(x))
+
+    noise = torch.randn(k - 1, 2, dtype=z.dtype, generator=g).to(z.device)
+    init = torch.cat([torch.zeros(1, 2, dtype=z.dtype, device=z.device), 0.2 * noise])
+    colony = ACOR(archive_size=k, ants=ants, q=a.q, xi=a.xi, iterations=iterations,
+                  lower=lower, upper=upper, progress=progress)
+    res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
+    return c0, widths_of(res.best[None])[0], res

@@ -72,3 +72,18 @@ def test_ant_system_visibility_is_wired(objective):
         cfg.aco.colony, cfg.aco.iterations, cfg.aco.candidates, cfg.aco.beta = "ant_system", 3, 100, beta
         return select(cfg, objective, 8, seed=0, max_width=2.0).centers
     assert not torch.equal(run(0.0), run(4.0))
+
+
+def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch):
+    import rbfn.select as sel
+    monkeypatch.setattr(sel, "FULL_SEARCH_MAX", 0)      # the large-M search on a small problem
+    km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
+    cfg = CentersConfig(method="aco")
+    cfg.aco.iterations = 4
+    aco = select(cfg, objective, 10, seed=0, max_width=2.0)
+    assert torch.equal(aco.centers, km.centers)          # centres are the k-means seed's
+    assert 1 <= len(aco.aco_best) <= 4
+    e_km = objective(km.centers[None], km.widths[None]).item()
+    e_aco = objective(aco.centers[None], aco.widths[None]).item()
+    assert e_aco <= e_km * (1 + 1e-12)
+    assert (aco.widths > 0).all() and (aco.widths <= 2.0).all()
