@@ -23,3 +23,10 @@ def test_kmeans_and_random_shapes():
     assert kmeans_centers(z, 8, seed=0, restarts=2).shape == (8, 3)
     r = random_centers(z, 8, torch.Generator().manual_seed(0))
     assert r.shape == (8, 3) and len({tuple(v.tolist()) for v in r}) == 8
+
+
+def test_kmeans_restarts_capped_on_large_problems():
+    from rbfn.centers import kmeans_restarts
+    assert kmeans_restarts(2000, 80, 3, 10) == 10          # the SCARA's default: unchanged
+    assert kmeans_restarts(20000, 2000, 9, 10) == 1        # the UR5's
+    assert kmeans_restarts(20000, 200, 9, 10) == 5
