@@ -24,6 +24,12 @@ def compose_config(name: str, *overrides: str, hydra: bool = False):
     return cfg if hydra else OmegaConf.to_object(cfg)
 
 
+@pytest.fixture(autouse=True)
+def _seeded():
+    """Every test starts from the same global random state, whatever ran before it."""
+    torch.manual_seed(0)
+
+
 @pytest.fixture(scope="session")
 def chain():
     return load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float64)
