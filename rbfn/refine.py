@@ -5,6 +5,12 @@ solution for the current centres and widths (variable projection), so gradients 
 nonlinear parameters. Per-input scales (automatic relevance determination) let an input that
 does not matter for the targets be stretched out. The iterate with the lowest validation error
 is kept (early stopping).
+
+On large problems (N P^2 above `FULL_ROWS_MAX`, P the design's columns) each step draws two
+disjoint random row subsets of 2P rows: the weights are solved on one and the loss is measured
+on the other (a held-out loss, which an interpolating fit on the first would make meaningless);
+the steps are capped by a flop budget (`STEP_FLOPS`) and the validation check, whose weights come
+from the full training set's normal equations summed over row blocks, runs 3 times.
 """
 from __future__ import annotations
 
@@ -16,6 +22,11 @@ import torch
 from .fit import design_matrix, ridge_solve
 
 __all__ = ["Refined", "refine"]
+
+# Above this N * P^2 a step works on row subsets (see the module's docstring).
+FULL_ROWS_MAX = 2e9
+# Floating-point operations the subsampled steps may spend in all (about a minute on one core).
+STEP_FLOPS = 1.2e12
 
 
 @dataclass
@@ -41,13 +52,22 @@ def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_
     params = [c, log_w] + ([log_s] if learn_input_scale else [])
     opt = torch.optim.Adam(params, lr=lr)
     log_max = math.log(max_width)
+    n, p = z_train.shape[0], centers.shape[0] + (z_train.shape[1] + 1 if tail else 0)
+    sub = min(2 * p, n // 2) if n * p * p > FULL_ROWS_MAX else 0
+    g = torch.Generator().manual_seed(0)
+    if sub:
+        steps = min(steps, max(4, int(STEP_FLOPS / (6.0 * (sub * p * p + p**3)))))
+        eval_every = max(eval_every, -(-steps // 2))
 
     def val_error() -> float:
         with torch.no_grad():
             s = log_s.exp()
             w = log_w.clamp(max=log_max).exp()
-            weights = ridge_solve(design_matrix(z_train / s, c, w, tail), y_train, ridge)
-            pred = design_matrix(z_val / s, c, w, tail) @ weights
+            if sub:
+                weights = _blocked_solve(z_train / s, y_train, c, w, tail, ridge)
+            else:
+                weights = ridge_solve(design_matrix(z_train / s, c, w, tail), y_train, ridge)
+            pred = torch.cat([design_matrix(zb / s, c, w, tail) @ weights for zb in z_val.split(4096)])
             return float((pred - y_val).square().sum(-1).mean())
 
     best = (val_error(), c.detach().clone(), log_w.detach().clone(), log_s.detach().clone())
@@ -56,8 +76,15 @@ def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_
         opt.zero_grad()
         s = log_s.exp()
         w = log_w.clamp(max=log_max).exp()
-        a = design_matrix(z_train / s, c, w, tail)
-        loss = (a @ ridge_solve(a, y_train, ridge) - y_train).square().sum(-1).mean()
+        if sub:     # weights solved on one row subset, the loss measured on another
+            idx = torch.randperm(n, generator=g)[: 2 * sub].to(z_train.device)
+            a = design_matrix(z_train[idx[:sub]] / s, c, w, tail)
+            weights = ridge_solve(a, y_train[idx[:sub]], ridge)
+            a_loss = design_matrix(z_train[idx[sub:]] / s, c, w, tail)
+            loss = (a_loss @ weights - y_train[idx[sub:]]).square().sum(-1).mean()
+        else:
+            a = design_matrix(z_train / s, c, w, tail)
+            loss = (a @ ridge_solve(a, y_train, ridge) - y_train).square().sum(-1).mean()
         if not torch.isfinite(loss):
             break
         loss.backward()
@@ -70,3 +97,16 @@ def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_
     e, cb, lwb, lsb = best
     return Refined(centers=cb, widths=lwb.clamp(max=log_max).exp(), input_scale=lsb.exp(),
                    val_mse=e, history=history)
+
+
+def _blocked_solve(z: torch.Tensor, y: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
+                   tail: bool, ridge: float, block: int = 2048) -> torch.Tensor:
+    """`ridge_solve` weights (P, out) from normal equations summed over row blocks of z (N, d)."""
+    gram, rhs = 0.0, 0.0
+    for zb, yb in zip(z.split(block), y.split(block)):
+        a = design_matrix(zb, centers, widths, tail)
+        gram, rhs = a.T @ a + gram, a.T @ yb + rhs
+    scale = gram.diagonal().mean()
+    gram.diagonal().add_(ridge * scale)
+    return torch.linalg.solve(gram, rhs)
+
