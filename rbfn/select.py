@@ -37,11 +37,13 @@ class Selection:
 
 def choose_widths(objective: FitObjective, centers: torch.Tensor, rule: str,
                   scale: float | None, max_width: float) -> torch.Tensor:
-    """Widths (M,) = rule's base widths times `scale`, or the grid scale best on validation."""
+    """Widths (M,) = rule's base widths times `scale`, or the grid scale best on validation (every
+    other grid scale where M * d > FULL_SEARCH_MAX: each costs a full fit there)."""
     base = base_widths(centers, rule)
     if rule == "paper" or scale is not None:
         return (base * (1.0 if scale is None else scale)).clamp(max=max_width)
-    grid = torch.as_tensor(SCALE_GRID, dtype=base.dtype, device=base.device)
+    coarse = centers.shape[-2] * centers.shape[-1] > FULL_SEARCH_MAX    # every other scale (x2 apart)
+    grid = torch.as_tensor(SCALE_GRID[::2] if coarse else SCALE_GRID, dtype=base.dtype, device=base.device)
     cand = (grid[:, None] * base).clamp(max=max_width)                          # (S, M)
     err = objective(centers.expand(len(grid), *centers.shape), cand)
     return cand[int(err.argmin())]
@@ -134,7 +136,7 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
 FULL_SEARCH_MAX = 2048
 # Floating-point operations the reduced colony may spend on its fit objective (about a minute
 # on one core at ~20 GFLOP/s in float64); it runs as many iterations as fit, at least one.
-REDUCED_FLOPS = 1.2e12
+REDUCED_FLOPS = 1e12
 
 
 def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
@@ -196,17 +198,17 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
     """ACO_R over two global width quantities, the k-means centres c0 (M, d) held fixed.
 
     x = (log scale s, exponent b): widths = e^s * w0_med * (w0 / w0_med)^(1 + b), w0 the seed's
-    validation-tuned per-centre widths (median w0_med), clamped to max_width; s in [log 1/4,
-    log 4], b in [-1, 1]. x = 0 is the seed itself, so the result is never worse than it on the
+    validation-tuned per-centre widths (median w0_med; its scale from a grid 2x apart), clamped
+    to max_width; s in [log 1/4, log 4], b in [-1, 1]. x = 0 is the seed itself, so the result is never worse than it on the
     objective. At large M * d the full search (M * (d + 1) coordinates, one fit per ant costing
     O(N P^2)) cannot move in the few ants it can afford; these two quantities (how wide, and how
-    much the width follows the local centre spacing) are what the seed's single grid scale leaves
-    open. The archive and ants shrink to 4 and the iterations to the budget `REDUCED_FLOPS`.
+    much the width follows the local centre spacing) are what the seed's coarse grid scale leaves
+    open. The archive and ants shrink to 3 and the iterations to the budget `REDUCED_FLOPS`.
     """
     a = cfg.aco
     z = objective.z_train
-    k = min(a.archive_size, 4)
-    ants = min(a.ants, 4)
+    k = min(a.archive_size, 3)
+    ants = min(a.ants, 3)
     evals = max(int(REDUCED_FLOPS / objective.cost(c0.shape[0])), k + ants)
     iterations = max(1, min(a.iterations, (evals - k) // ants))
     lower = torch.tensor([math.log(0.25), -1.0], dtype=z.dtype, device=z.device)
