@@ -148,7 +148,9 @@ class ArmPlant(Plant):
         r = tau - cfg.coriolis_qd(qd) - self.friction_torque(qd) - dist
         if self.gravity:
             r = r - cfg.gravity()
-        chol = torch.linalg.cholesky(cfg.mass_matrix())
+        # cholesky_ex: a matrix that is not positive definite (never, for a physical arm) gives
+        # non-finite accelerations, which the simulator reports, without a per-call error check.
+        chol = torch.linalg.cholesky_ex(cfg.mass_matrix())[0]
         return torch.cholesky_solve(r.unsqueeze(-1), chol).squeeze(-1)
 
     def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:

@@ -28,8 +28,15 @@ __all__ = ["ArmTerms", "Config", "Motion"]
 Pair = tuple[torch.Tensor, torch.Tensor]
 
 
+# Below WIDE environments a tensor operation costs its dispatch, not its data: use the fewest
+# operations (one fused cross product, one cumsum); above it, the variants that stream best.
+WIDE = 512
+
+
 def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """a x b of 3-vectors stored along dim -2: (..., 3, B)."""
+    if a.shape[-1] < WIDE and b.shape[-1] < WIDE:
+        return torch.linalg.cross(a, b, dim=-2)
     a0, a1, a2 = a.unbind(-2)
     b0, b1, b2 = b.unbind(-2)
     return torch.stack([torch.addcmul(a1 * b2, a2, b1, value=-1), torch.addcmul(a2 * b0, a0, b2, value=-1),
@@ -62,6 +69,8 @@ def _rotate_const(rot: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 def _suffix_sum(x: torch.Tensor) -> torch.Tensor:
     """sum_{k >= i} x_k along the body dimension 0."""
+    if x.shape[-1] < WIDE:
+        return x.flip(0).cumsum(0).flip(0)
     out = x.clone()
     for i in range(x.shape[0] - 2, -1, -1):
         out[i] += out[i + 1]
@@ -70,6 +79,8 @@ def _suffix_sum(x: torch.Tensor) -> torch.Tensor:
 
 def _prefix_sum(x: torch.Tensor) -> torch.Tensor:
     """sum_{k <= i} x_k along the body dimension 0."""
+    if x.shape[-1] < WIDE:
+        return x.cumsum(0)
     out = x.clone()
     for i in range(1, x.shape[0]):
         out[i] += out[i - 1]
@@ -121,7 +132,11 @@ class ArmTerms:
             c["prismatic_mask"] = md.prismatic.to(device=device)[:, None, None]
             c["upper"] = torch.ones(n, n, dtype=torch.bool, device=device).triu().unsqueeze(-1)
             c["payload_body"] = pbody
-            c["eye_index"] = torch.arange(3, device=device)
+            onehot = torch.zeros(n, 1, dtype=dtype, device=device)
+            if pbody >= 0:
+                onehot[pbody] = 1.0
+            c["onehot"] = onehot
+            c["eye"] = torch.eye(3, dtype=dtype, device=device)[:, :, None]
             self._cache[key] = c
         return self._cache[key]
 
@@ -175,21 +190,17 @@ class Config:
         rir = _sandwich(rot, c["inertia"])                                # R Ibar R^T (n, 3, 3, B)
         if body >= 0 and not (isinstance(payload, (int, float)) and payload == 0):
             mp = torch.as_tensor(payload, dtype=q.dtype, device=q.device).reshape(-1)   # (1 or B,)
-            onehot = torch.zeros(n, 1, dtype=q.dtype, device=q.device)
-            onehot[body] = 1.0
-            mass = mass + onehot * mp                                     # (n, 1 or B)
+            mass = mass + c["onehot"] * mp                                # (n, 1 or B)
             r = _rotate_const(rot[body:body + 1], c["payload_pos"][None])[0]   # R pp (3, B)
             hb, rir = hb.clone(), rir.clone()
             hb[body] = torch.addcmul(hb[body], r, mp)
-            eye = torch.eye(3, dtype=q.dtype, device=q.device)[:, :, None]
-            rir[body] += mp * (eye * (r * r).sum(0) - r.unsqueeze(1) * r.unsqueeze(0))
+            rir[body] += mp * (c["eye"] * (r * r).sum(0) - r.unsqueeze(1) * r.unsqueeze(0))
         self.m = mass
         self.h = torch.addcmul(hb, mass.unsqueeze(1), pos)                # m p + R h_b (n, 3, B)
         j = torch.addcmul(rir, pos.unsqueeze(2), self.h.unsqueeze(1), value=-1)
         j = torch.addcmul(j, hb.unsqueeze(2), pos.unsqueeze(1), value=-1)
         pdot = (pos * (self.h + hb)).sum(1)                               # (n, B)
-        idx = c["eye_index"]
-        j[:, idx, idx] += pdot.unsqueeze(1)
+        j.diagonal(dim1=1, dim2=2).add_(pdot.unsqueeze(-1))
         self.j = j                                                        # (n, 3, 3, B)
         self._composite = self._m = None
 

@@ -1,17 +1,29 @@
-"""The paper's SCARA as a MuJoCo model (MJCF text), built from the same `ScaraParams`.
+"""The closed loop's robots as MuJoCo models: the paper's SCARA as MJCF text, and any URDF arm
+compiled by MuJoCo from the same URDF.
 
-Links 1 and 2 are uniform rods along their local x axis (mass at mid-length, m l^2 / 12 about
-the axes normal to the rod), m3 plus the payload a point mass on the quill, the prismatic joint
-positive downward (axis -z), so MuJoCo's M(q), C(q, qd) qd and G(q) are those of
-`rbfn.robots.scara`. Friction: viscous as joint damping, Coulomb as MuJoCo's `frictionloss`
-(a dry-friction constraint, not sign(qd) itself). Torques enter through three motors of gear 1.
-Needs no MuJoCo to build; `mujoco.MjModel.from_xml_string(scara_mjcf())` compiles it.
+SCARA (`scara_mjcf`, needs no MuJoCo to build): links 1 and 2 are uniform rods along their local
+x axis (mass at mid-length, m l^2 / 12 about the axes normal to the rod), m3 plus the payload a
+point mass on the quill, the prismatic joint positive downward (axis -z), so MuJoCo's M(q),
+C(q, qd) qd and G(q) are those of `rbfn.robots.scara`; `mujoco.MjModel.from_xml_string(scara_mjcf())`
+compiles it.
+
+URDF arms (`arm_model`, needs `mujoco`): MuJoCo reads the URDF itself, with visual geometry
+discarded and `fusestatic` off, so that bodies joined by fixed joints stay bodies (their inertia
+lumped exactly as `rbfn.robots.dynamics` lumps it, and the payload link still there to carry the
+payload as a point mass at its origin). The root link is welded to the world, as in
+`rbfn.robots.dynamics`; gravity along -z.
+
+Both: friction viscous as joint damping, Coulomb as MuJoCo's `frictionloss` (a dry-friction
+constraint, not sign(qd) itself); torques through one motor of gear 1 per joint.
 """
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Sequence
+
 from .scara import ScaraParams
 
-__all__ = ["scara_mjcf"]
+__all__ = ["scara_mjcf", "arm_model"]
 
 _EPS_INERTIA = 1e-9   # kg m^2: MuJoCo needs positive principal inertias; the model's are zero
 
@@ -50,3 +62,59 @@ def scara_mjcf(p: ScaraParams = ScaraParams(), payload: float = 0.0, viscous: fl
   </actuator>
 </mujoco>
 """
+
+
+def _urdf_text(urdf: str | Path) -> str:
+    """URDF text of a packaged robot's name ("ur5"), a file path, or the text itself."""
+    text = str(urdf)
+    if text.lstrip().startswith("<"):
+        return text
+    path = Path(text)
+    if not path.is_file():
+        path = Path(__file__).with_name(f"{text}.urdf")
+        if not path.is_file():
+            raise ValueError(f"{text!r} is neither a packaged robot nor a URDF file")
+    return path.read_text()
+
+
+def _per_joint(value: float | Sequence[float], n: int, key: str) -> list[float]:
+    values = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
+    if len(values) != n:
+        raise ValueError(f"{key}={list(value)} needs one value per joint ({n}) or a single number")
+    return values
+
+
+def arm_model(urdf: str | Path, payload: float = 0.0, payload_link: str | None = None,
+              viscous: float | Sequence[float] = 0.0, coulomb: float | Sequence[float] = 0.0,
+              dt: float = 1e-3, integrator: str = "RK4", gravity: float | None = None):
+    """`mujoco.MjModel` of a URDF arm (packaged name, path or text) with `payload` kg at the origin
+    of `payload_link` (a body of the URDF; None: no payload), per-joint viscous damping
+    (N m s/rad) and Coulomb friction loss (N m), a motor per joint, timestep dt s, `integrator`
+    (RK4, Euler, implicitfast, ...), gravity m/s^2 along -z (None: the model's 9.81)."""
+    import mujoco
+
+    text = _urdf_text(urdf)
+    head = text.find(">", text.find("<robot")) + 1
+    text = (text[:head] + '<mujoco><compiler discardvisual="true" fusestatic="false"/></mujoco>'
+            + text[head:])
+    spec = mujoco.MjSpec.from_string(text)
+    spec.option.timestep = dt
+    spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}")
+    if gravity is not None:
+        spec.option.gravity = [0.0, 0.0, -float(gravity)]
+    joints = [j for j in spec.joints if j.type in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+    for j, b, f in zip(joints, _per_joint(viscous, len(joints), "viscous"),
+                       _per_joint(coulomb, len(joints), "coulomb")):
+        j.damping = [b, 0.0, 0.0]
+        j.frictionloss = f
+        motor = spec.add_actuator()
+        motor.target, motor.trntype = j.name, mujoco.mjtTrn.mjTRN_JOINT
+    if payload_link is not None and payload:
+        body = spec.body(payload_link)
+        if body is None:
+            raise ValueError(f"payload link {payload_link!r} is not a body of the MuJoCo model")
+        point = body.add_body(name="payload", pos=[0.0, 0.0, 0.0])      # welded to the link: a point mass
+        point.mass, point.ipos, point.iquat = float(payload), [0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]
+        point.inertia = [0.0, 0.0, 0.0]
+        point.explicitinertial = True
+    return spec.compile()

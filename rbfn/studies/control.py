@@ -26,10 +26,9 @@ def evaluate_control(cfg: ControlConfig, gains: GainsConfig, device: str, writer
     setup = check_control(cfg, robot)
     res = compare_controllers(cfg, gains, device, setup=setup)
     metrics = {name: run.metrics for name, run in res.runs.items()}
-    info = {"robot": setup.name, "joints": setup.joint_names,
-            "joint_scale": setup.scale or [1.0] * setup.n,
-            "payloads": setup.payloads,
-            "gains": {k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()},
+    gain_record = {k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()}
+    gain_record["joint_scale"] = setup.scale or [1.0] * setup.n      # the torque gains' factor per joint
+    info = {"gains": gain_record,
             "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
             "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()}}
     for name, cases in metrics.items():

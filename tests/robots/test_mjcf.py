@@ -1,4 +1,4 @@
-"""The generated MJCF is the same arm: MuJoCo's M(q) and C(q, qd) qd + G(q) equal the closed forms."""
+"""MuJoCo models of the closed loop's robots are the same arms: M(q) and C(q, qd) qd + G(q) equal ours."""
 import pytest
 import torch
 
@@ -26,3 +26,29 @@ def test_mujoco_dynamics_match_closed_form(payload):
         assert np.allclose(m, scara.mass_matrix(q, payload)[0].numpy(), atol=1e-8)
         assert np.allclose(data.qfrc_bias, bias.numpy(), atol=1e-8)
         assert np.allclose(data.qfrc_passive, -12.0 * qd[0].numpy())   # viscous damping 12
+
+
+@pytest.mark.parametrize("payload", [0.0, 2.5])
+def test_mujoco_compiles_the_ur5_urdf_to_the_same_dynamics(payload):
+    """MuJoCo reads the UR5's URDF itself: its M(q) and bias forces qfrc_bias = C(q, qd) qd + G(q)
+    equal rbfn.robots.dynamics' at random states, with a payload at the end link's origin."""
+    from rbfn.robots.dynamics import load_arm
+    from rbfn.robots.mjcf import arm_model
+
+    arm = load_arm("ur5")
+    model = arm_model("ur5", payload=payload, payload_link=arm.end_link, viscous=2.0, coulomb=0.0)
+    data = mujoco.MjData(model)
+    assert model.nv == arm.n and model.nu == arm.n
+    assert [model.joint(i).name for i in range(model.njnt)] == arm.joint_names
+    g = torch.Generator().manual_seed(1)
+    q = (torch.rand(20, 6, dtype=torch.float64, generator=g) * 2 - 1) * torch.pi
+    qd = torch.randn(20, 6, dtype=torch.float64, generator=g)
+    m_ref, b_ref = arm.dynamics(q, qd, payload)
+    for i in range(20):
+        data.qpos[:], data.qvel[:] = q[i].numpy(), qd[i].numpy()
+        mujoco.mj_forward(model, data)
+        m = np.zeros((6, 6))
+        mujoco.mj_fullM(model, data, m)
+        assert np.allclose(m, m_ref[i].numpy(), rtol=1e-10, atol=1e-12)
+        assert np.allclose(data.qfrc_bias, b_ref[i].numpy(), rtol=1e-10, atol=1e-10)
+        assert np.allclose(data.qfrc_passive, -2.0 * qd[i].numpy())      # viscous damping 2

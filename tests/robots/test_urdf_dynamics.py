@@ -17,6 +17,7 @@ import pytest
 import torch
 
 from rbfn.robots import scara
+from rbfn.robots.arm_terms import ArmTerms
 from rbfn.robots.dynamics import PRESETS, load_arm
 
 torch.set_num_threads(1)
@@ -211,6 +212,41 @@ def test_matches_pinocchio(name, payload):
                                  ref["Cqd"]),
               "tau": _rel(arm.inverse_dynamics(q, qd, qdd, payload), ref["tau"])}
     assert max(errors.values()) <= 1e-9, errors
+
+
+# ----------------------------------------------------------------------------- batch-last terms
+@pytest.mark.parametrize("batch", [7, 600])         # the narrow and the wide code paths
+@pytest.mark.parametrize("name", ["scara", "test_arm", "ur5", "panda"])
+def test_batch_last_terms_match_the_arm(name, batch):
+    """rbfn.robots.arm_terms (the simulator's hot path) gives Arm's M, C qd + G, G, C y, C^T qd and
+    M y, with a payload per state."""
+    arm = _arm(name)
+    terms = ArmTerms(arm)
+    q, qd = _states(arm, batch, seed=11)
+    y = torch.randn(batch, arm.n, generator=torch.Generator().manual_seed(12), dtype=torch.float64)
+    for payload in (0.0, torch.rand(batch, generator=torch.Generator().manual_seed(13), dtype=torch.float64) * 4):
+        cfg = terms.at(q, payload)
+        mo = cfg.motion(qd)
+        m, c = arm.mass_matrix(q, payload), arm.coriolis(q, qd, payload)
+        got = {"M": cfg.mass_matrix(), "bias": cfg.bias(qd), "G": cfg.gravity(),
+               "C y": cfg.coriolis_times(qd, y, mo), "C^T qd": cfg.coriolis_transpose_qd(qd, mo),
+               "M y": cfg.mass_times(y), "C qd": cfg.coriolis_qd(qd, mo)}
+        ref = {"M": m, "bias": arm.bias(q, qd, payload), "G": arm.gravity(q, payload),
+               "C y": (c @ y.unsqueeze(-1)).squeeze(-1), "C^T qd": (c.transpose(1, 2) @ qd.unsqueeze(-1)).squeeze(-1),
+               "M y": (m @ y.unsqueeze(-1)).squeeze(-1), "C qd": (c @ qd.unsqueeze(-1)).squeeze(-1)}
+        errors = {k: _rel(got[k], ref[k]) for k in got}
+        assert max(errors.values()) <= 1e-9, errors
+
+
+def test_batch_last_terms_float32():
+    arm = _arm("panda")
+    q, qd = _states(arm, 64, seed=14)
+    cfg64, cfg32 = ArmTerms(arm).at(q, 2.0), ArmTerms(arm).at(q.float(), 2.0)
+    assert cfg32.mass_matrix().dtype == torch.float32
+    assert _rel(cfg32.mass_matrix().double(), cfg64.mass_matrix()) < 1e-5
+    assert _rel(cfg32.bias(qd.float()).double(), cfg64.bias(qd)) < 1e-5
+    with pytest.raises(ValueError, match=r"expected joint values \(B, 7\)"):
+        ArmTerms(arm).at(q[:, :3])
 
 
 # ----------------------------------------------------------------------------- properties

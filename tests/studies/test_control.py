@@ -120,3 +120,53 @@ def test_adaptive_law_moves_the_weights():
     *_, state, _, _, _ = run(q, qd, state, *ref, h, ctrl.alphas(t), stage_disturbances(plant, n, dt, dtype=torch.float64), co)
     w = state[3]
     assert w.shape == (1, 5, 3) and float(w.abs().max()) > 1e-3
+
+
+UR5_TINY = ["robot=ur5", "ik=false", "online.enabled=false", "control.duration=0.6", "control.dt=0.002",
+            "control.payload_on=0.1", "control.payload_off=0.4", "control.controllers=[smc,arbfn_kmeans]",
+            "control.network.num_centers=4"]
+
+
+def test_evaluate_ur5_end_to_end(tmp_path):
+    """python evaluate.py robot=ur5 (tiny settings): the UR5's tuned gains, payload cases 0, 2.5 and
+    5 kg, metrics as lists of 6 per joint, a 6 x 3 figure per controller, TensorBoard events."""
+    import evaluate
+
+    cfg = compose_config("evaluate", *UR5_TINY)
+    assert cfg.gains.K == compose_config("evaluate", "robot=ur5", "gains=tuned").gains.K
+    m = evaluate.run(cfg, tmp_path)
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert on_disk["control"] == m["control"] and set(on_disk["control"]) == {"smc", "arbfn_kmeans"}
+    for cases in on_disk["control"].values():
+        assert list(cases) == ["0kg", "2.5kg", "5kg"]
+        for c in cases.values():
+            assert set(c) == KEYS and all(len(v) == 6 for v in c.values())
+            assert all(torch.isfinite(torch.tensor(v)).all() for v in c.values())
+    assert len(on_disk["control_info"]["gains"]["joint_scale"]) == 6
+    for name in ("control_smc.png", "control_arbfn_kmeans.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+    assert list(tmp_path.glob("events.out.tfevents.*"))
+
+
+@pytest.mark.parametrize("override,match", [
+    ("gains.K=inf", "gains.K=inf is not allowed: must be finite"),
+    ("gains.observer_gain=nan", "gains.observer_gain=nan is not allowed: must be finite"),
+    ("control.payload_link=ghost", "control.payload_link='ghost': payload link 'ghost' is not a link"),
+    ("robot.end_link=nowhere", "robot.end_link='nowhere'.*end link 'nowhere' is not a link"),
+])
+def test_ur5_bad_settings_stop_before_any_work(tmp_path, override, match):
+    import evaluate
+
+    with pytest.raises(ValueError, match=match):
+        evaluate.run(compose_config("evaluate", *UR5_TINY, override), tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("robot", ["scara", "ur5", "panda"])
+@pytest.mark.parametrize("gains", ["paper", "tuned"])
+def test_each_robot_has_its_paper_and_tuned_gains(robot, gains):
+    cfg = compose_config("evaluate", f"robot={robot}", f"gains={gains}")
+    validate_control(cfg.control, cfg.gains)
+    paper = compose_config("evaluate", f"robot={robot}", "gains=paper").gains
+    assert paper.K == 15.0 and paper.Lambda == 10.0 and str(paper.robust) == "sign"
+    assert cfg.gains.Lambda <= 20
