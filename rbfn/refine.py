@@ -25,9 +25,9 @@ __all__ = ["Refined", "refine"]
 
 # Above this N * P^2 a step works on row subsets (see the module's docstring).
 FULL_ROWS_MAX = 2e9
-# Floating-point operations the subsampled steps may spend in all (about 1.5 minutes on one core;
-# 27 steps at the UR5's M = 2000, N = 20000, where 8 steps already lowered validation E by 44%).
-STEP_FLOPS = 4e12
+# Floating-point operations the subsampled steps may spend in all (about a minute on one core;
+# 13 steps at the UR5's M = 2000, N = 20000, where 8 steps already lowered validation E by 44%).
+STEP_FLOPS = 2e12
 
 
 @dataclass
