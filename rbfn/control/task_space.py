@@ -10,7 +10,6 @@ desired path, differentiated in time on the control grid, times the current weig
 """
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass, replace
 
@@ -24,7 +23,7 @@ from .controllers import make_controller
 from .simulator import ScaraPlant, Scenario, make_chunk, stage_disturbances
 from .trajectory import paper_trajectory
 
-__all__ = ["RealRobot", "desired_path", "design_rows", "output_weights", "with_weights", "run_online",
+__all__ = ["RealRobot", "desired_path", "run_online",
            "perturbation_sizes"]
 
 
@@ -70,34 +69,6 @@ def desired_path(name: str, t: torch.Tensor, params: ScaraParams = ScaraParams()
     return centre + off
 
 
-def design_rows(net: RBFNetwork, x: torch.Tensor) -> torch.Tensor:
-    """Rows a(x) (..., P) with net(x) = a(x) W: features, then [scaled x, 1] if the net has a tail."""
-    z = net.scaled(x)
-    phi = net.features(x)
-    one = torch.ones_like(z[..., :1])
-    return torch.cat([phi, z, one], -1) if net.tail is not None else torch.cat([phi, one], -1)
-
-
-def output_weights(net: RBFNetwork) -> torch.Tensor:
-    """W (P, out) ordered as design_rows' columns."""
-    parts = [net.head.weight.T]
-    if net.tail is not None:
-        parts.append(net.tail.weight.T)
-    return torch.cat(parts + [net.head.bias[None]], 0).detach().clone()
-
-
-def with_weights(net: RBFNetwork, w: torch.Tensor) -> RBFNetwork:
-    """A copy of `net` whose output weights are w (P, out)."""
-    out = copy.deepcopy(net)
-    m = net.num_centers
-    with torch.no_grad():
-        out.head.weight.copy_(w[:m].T)
-        if net.tail is not None:
-            out.tail.weight.copy_(w[m:-1].T)
-        out.head.bias.copy_(w[-1])
-    return out
-
-
 def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float],
                device: str = "cpu") -> dict:
     """Run adapted and frozen networks for every perturbation size in `sizes` (link-1 errors; see
@@ -120,10 +91,10 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
     # Environments: [adapted (S), frozen (S)].
     real = RealRobot(torch.cat([link, link]), torch.cat([offset, offset]))
     b = 2 * n_s
-    a_path = design_rows(net, x_d)                                          # (T, P)
+    a_path = net.design(x_d)                                          # (T, P)
     da = torch.gradient(a_path, spacing=cfg.dt, dim=0)[0]
     dda = torch.gradient(da, spacing=cfg.dt, dim=0)[0]
-    w0 = output_weights(net).to(**kw)
+    w0 = net.output_weights().to(**kw)
     learner = make_learner(cfg.learner, w0.expand(b, *w0.shape), cfg.alpha0, cfg.decay, cfg.forgetting)
     frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)])
     plant = ScaraPlant()
@@ -150,7 +121,7 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
             raise RuntimeError(f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s): q = {q.tolist()}")
         # Pairs (p, q) of this segment; the frozen environments learn nothing.
         p = real.fk(rq)                                                     # (m, B, 3)
-        a = design_rows(net, p).transpose(0, 1)                             # (B, m, P)
+        a = net.design(p).transpose(0, 1)                             # (B, m, P)
         y = rq.transpose(0, 1)
         keep = learner.w.clone()
         learner.update(a, y, k * cfg.dt)

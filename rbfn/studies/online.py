@@ -2,6 +2,7 @@
 TensorBoard curves and checkpoint_online.pt."""
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from pathlib import Path
@@ -10,7 +11,7 @@ import torch
 
 from ..checkpoint import model_from_checkpoint, save_sealed
 from ..config import GainsConfig, OnlineConfig
-from ..control.task_space import desired_path, run_online, with_weights
+from ..control.task_space import desired_path, run_online
 from ..robots.scara import ScaraParams, ik
 from .plots import online_figure
 
@@ -76,7 +77,8 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
         if writer is not None:
             writer.add_figure("online/task_error", fig, close=False)
         if cfg.save_checkpoint:
-            adapted = with_weights(net, r["weights"][i].to(net.centers.dtype))
+            adapted = copy.deepcopy(net)
+            adapted.set_output_weights(r["weights"][i].to(net.centers.dtype))
             new = dict(ckpt)
             new["state_dict"] = {k: v.cpu() for k, v in adapted.state_dict().items()}
             new["metrics"] = {**ckpt.get("metrics", {}), "online": {k: v for k, v in out.items() if k != "sweep"}}
