@@ -31,7 +31,6 @@ class FitObjective:
         self.z_train, self.y_train, self.z_val, self.y_val = z_train, y_train, z_val, y_val
         self.tail, self.ridges, self.eval_dtype, self.chunk = tail, ridges, eval_dtype, chunk
         self.memory, self.block = memory, block
-        self.evaluations = 0                           # ants evaluated so far (for budgets)
 
     def width(self, m: int) -> int:
         """Design-matrix columns P for M = m."""
@@ -45,7 +44,6 @@ class FitObjective:
 
     def __call__(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
         k, m = centers.shape[0], centers.shape[1]
-        self.evaluations += k
         n_rows = self.z_train.shape[0] + self.z_val.shape[0]
         item = self.z_train.element_size()
         if min(self.chunk, k) * n_rows * self.width(m) * item * 2 <= self.memory:
