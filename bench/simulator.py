@@ -10,6 +10,14 @@ scipy integrates the same dynamics (sign friction, disturbance, payload window) 
 adaptive RK45. MuJoCo's rollout is open loop (its controls are computed beforehand: inverse
 dynamics along the reference minus the disturbance), so it does less work per step than the
 closed loop; friction is damping + frictionloss there.
+
+URDF arms (`arm_rows`, `arm_mujoco_rows`; the UR5 by default): the same closed loop (`smc_obs`, the
+robot's derived joint scale and scenario, 2.5 kg at the end link throughout, float32) through
+`rbfn.control.ArmPlant` (Cholesky solve) at B environments, against MuJoCo's rollout of the same
+URDF (`rbfn.robots.mjcf.arm_model`, open loop: inverse dynamics along the reference plus the
+scenario's friction minus its disturbance), both on one thread:
+
+    python -m bench.simulator --arm ur5 --batches 1,1024,8192 --integrator rk4 --repeats 5
 """
 from __future__ import annotations
 
@@ -21,17 +29,21 @@ import subprocess
 import sys
 import time
 
+from pathlib import Path
+
 import numpy as np
 import torch
 
-from rbfn.control import Scenario, ScaraPlant, make_controller, paper_trajectory, simulate
+from rbfn.config import ControlConfig, RobotConfig
+from rbfn.control import Scenario, ScaraPlant, control_robot, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Gains
 from rbfn.robots import scara
 
 from .timing import median_seconds, timed
 
 __all__ = ["DT", "PAYLOAD", "closed_loop", "env_steps_rows", "scenario_seconds", "compiled_scenario",
-           "scipy_row", "mujoco_rows", "has_c_compiler"]
+           "scipy_row", "mujoco_rows", "has_c_compiler", "robot_config", "arm_closed_loop", "arm_rows",
+           "arm_mujoco_rows"]
 
 DT, PAYLOAD = 1e-3, 10.0
 
@@ -181,10 +193,123 @@ def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
     return rows
 
 
+# ----------------------------------------------------------------------------- URDF arms
+ARM_PAYLOAD = 2.5          # kg at the end link, the UR5's half rated payload
+
+
+def robot_config(name: str) -> RobotConfig:
+    """The packaged robot preset conf/robot/<name>.yaml as a RobotConfig (no Hydra needed)."""
+    from omegaconf import OmegaConf
+
+    path = Path(__file__).resolve().parents[1] / "conf" / "robot" / f"{name}.yaml"
+    raw = OmegaConf.load(path)
+    raw.pop("defaults", None)
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RobotConfig), raw))
+
+
+def arm_closed_loop(b: int, steps: int, robot: str = "ur5", integrator: str = "rk4", device: str = "cpu",
+                    dtype: torch.dtype = torch.float32, compile: bool = False):
+    """A no-argument function running B environments of the arm's closed loop (`smc_obs`) for
+    `steps` periods (final state only)."""
+    setup = control_robot(robot_config(robot), ControlConfig())
+    kw = {"dtype": dtype, "device": device}
+    sc = Scenario(duration=steps * DT, dt=DT, integrator=integrator, payload_on=0.0, payload_off=steps * DT,
+                  metrics_after=0.0)
+    ref = tuple(r.to(**kw) for r in setup.trajectory(sc.times()))
+    ctrl = make_controller("smc_obs", Gains(), DT, setup.model, joint_scale=setup.joint_scale(**kw))
+    q0, qd0 = ref[0][:1].expand(b, setup.n).clone(), ref[1][:1].expand(b, setup.n).clone()
+    payload = torch.full((b,), ARM_PAYLOAD, **kw)
+    return lambda: simulate(setup.plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile)
+
+
+def arm_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: str = "rk4", device: str = "cpu",
+             repeats: int = 5, compile: bool = False) -> list[dict]:
+    """Per B: env-steps/s of the arm's closed loop (median of `repeats` runs of n steps, each run
+    after a warm-up)."""
+    rows = []
+    for b, n in steps_for.items():
+        t, ts = median_seconds(arm_closed_loop(b, n, robot, integrator, device, compile=compile), repeats, device)
+        rows.append({"robot": robot, "integrator": integrator, "B": b, "steps": n, "device": device,
+                     "compiled": compile, "seconds": t, "step_ms": 1e3 * t / n, "env_steps_per_s": b * n / t,
+                     "runs_env_steps_per_s": [b * n / x for x in ts]})
+    return rows
+
+
+def arm_mujoco_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: str = "RK4", threads: int = 1,
+                    repeats: int = 5) -> list[dict]:
+    """MuJoCo's rollout (dt = 1 ms, open loop) of B copies of the same arm, [] without mujoco."""
+    try:
+        import mujoco
+        from mujoco import rollout
+    except ImportError:
+        return []
+    from rbfn.robots.mjcf import arm_model
+
+    cfg = robot_config(robot)
+    setup = control_robot(cfg, ControlConfig())
+    plant = setup.plant
+    model = arm_model(cfg.urdf or cfg.name, payload=ARM_PAYLOAD, payload_link=plant.arm.end_link,
+                      viscous=plant.viscous, coulomb=plant.coulomb, dt=DT, integrator=integrator, gravity=cfg.gravity)
+    datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]
+    rows = []
+    for b, n in steps_for.items():
+        t_grid = torch.arange(n, dtype=torch.float64) * DT
+        q, qd, qdd = setup.trajectory(t_grid)
+        tau = (plant.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd)
+               - plant.disturbance(t_grid))
+        d = datas[0]
+        d.qpos[:], d.qvel[:] = q[0].numpy(), qd[0].numpy()
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state0 = np.empty(mujoco.mj_stateSize(model, spec))
+        mujoco.mj_getState(model, d, state0, spec)
+        init = np.tile(state0, (b, 1))
+        ctrl = np.ascontiguousarray(tau.numpy()[None])                       # (1, n, joints), tiled over B
+        out = np.empty((b, n, state0.shape[0]))
+        t, ts = median_seconds(lambda: rollout.rollout(model, datas if threads > 1 else d, init, ctrl,
+                                                       state=out), repeats)
+        rows.append({"robot": robot, "integrator": integrator, "B": b, "steps": n, "device": "cpu", "seconds": t,
+                     "env_steps_per_s": b * n / t, "runs_env_steps_per_s": [b * n / x for x in ts],
+                     "mujoco": mujoco.__version__})
+    return rows
+
+
+def _arm_main(a) -> None:
+    torch.set_num_threads(a.threads)
+    batches = [int(x) for x in a.batches.split(",")]
+    steps_for = {b: max(5, min(1000, a.env_steps // b)) for b in batches}
+    ours = arm_rows(steps_for, a.arm, a.integrator, a.device, a.repeats, a.compile)
+    theirs = arm_mujoco_rows(steps_for, a.arm, {"rk4": "RK4", "euler": "Euler"}[a.integrator], a.threads, a.repeats)
+    mj = {r["B"]: r for r in theirs}
+    print(f"{a.arm} closed loop (smc_obs, {a.integrator}, float32, {a.threads} thread(s), {a.device}"
+          f"{', compiled' if a.compile else ''}): env-steps/s, median of {a.repeats}")
+    print(f"{'B':>6s} {'steps':>6s} {'ours':>12s} {'MuJoCo':>12s} {'ratio':>7s}")
+    for r in ours:
+        m = mj.get(r["B"])
+        mr = f"{m['env_steps_per_s']:12.0f} {r['env_steps_per_s'] / m['env_steps_per_s']:7.2f}" if m else f"{'-':>12s} {'-':>7s}"
+        print(f"{r['B']:6d} {r['steps']:6d} {r['env_steps_per_s']:12.0f} {mr}")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"ours": ours, "mujoco": theirs}, indent=1))
+
+
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description="child process of bench.simulator.compiled_scenario")
-    ap.add_argument("--compiled-scenario", required=True, metavar="DEVICE")
+    ap = argparse.ArgumentParser(description="closed-loop simulator benchmarks (the suite runs them through "
+                                             "python -m bench; this entry point: URDF arms, and the compiled "
+                                             "scenario's child process)")
+    ap.add_argument("--compiled-scenario", metavar="DEVICE", help="child process of compiled_scenario")
+    ap.add_argument("--arm", metavar="ROBOT", help="a URDF arm's closed loop against MuJoCo (ur5, panda, scara)")
+    ap.add_argument("--batches", default="1,1024,8192", help="comma-separated B")
+    ap.add_argument("--env-steps", type=int, default=80_000, help="about B x steps per timed run")
+    ap.add_argument("--integrator", default="rk4", choices=["rk4", "euler"])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--compile", action="store_true", help="torch.compile the step (minutes to compile)")
+    ap.add_argument("--device", default="cpu")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--json", help="also write the rows to this file")
     a = ap.parse_args()
-    _compiled_child(a.compiled_scenario, a.threads, a.duration)
+    if a.arm:
+        _arm_main(a)
+    elif a.compiled_scenario:
+        _compiled_child(a.compiled_scenario, a.threads, a.duration)
+    else:
+        ap.error("give --arm ROBOT or --compiled-scenario DEVICE")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import torch
 
+from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
 from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mdot_times
@@ -64,6 +65,11 @@ class ArmModel:
         self.terms = arm if isinstance(arm, ArmTerms) else ArmTerms(arm)
         self.n = self.terms.n
         self.m_scale, self.c_scale, self.g_scale = m_scale, c_scale, g_scale
+        self.scalar_terms = ArmScalarTerms(self.terms)   # built eagerly: tracing stays on tensors of B
+
+    def dynamics_terms(self) -> ArmTerms | ArmScalarTerms:
+        """The batch-last terms eagerly; their scalar form while torch.compile traces (it fuses)."""
+        return self.scalar_terms if torch.compiler.is_compiling() else self.terms
 
     def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ArmAt":
         return _ArmAt(self, q, qd)
@@ -72,7 +78,7 @@ class ArmModel:
 class _ArmAt:
     def __init__(self, model: ArmModel, q: torch.Tensor, qd: torch.Tensor) -> None:
         self.model, self.qd = model, qd
-        self.cfg = model.terms.at(q)
+        self.cfg = model.dynamics_terms().at(q)
         self._mo = None
 
     def _motion(self):

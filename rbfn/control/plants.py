@@ -9,8 +9,9 @@ step like the torque (zero-order hold).
 * `ScaraPlant`: the paper's SCARA in closed form (M block diagonal: its inverse a 2x2 one and a
   scalar; a step is a few dozen fused tensor operations).
 * `ArmPlant`: any URDF chain (`rbfn.robots.dynamics.Arm`), M and C qd + G by
-  `rbfn.robots.arm_terms` (batch-last CRBA and RNEA), M qdd = r solved by a batched Cholesky
-  factorisation; the payload a point mass at the arm's payload link.
+  `rbfn.robots.arm_terms` (batch-last CRBA and RNEA; `arm_scalar`, the same in scalar form, while
+  torch.compile traces), M qdd = r solved by a batched Cholesky factorisation; the payload a
+  point mass at the arm's payload link.
 
 Both give `coefficients(payload)` (what a step needs of the payload schedule, each (T, B)),
 `accel(q, qd, tau, dist, co)`, `step(...)` and `energy(q, qd, payload)`.
@@ -22,6 +23,7 @@ from typing import Sequence
 import torch
 
 from ..config import Friction
+from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
 from ..robots.scara import ScaraParams, c_times, inertia_params, m_solve, m_times
@@ -39,6 +41,7 @@ class Plant:
     """
 
     n: int
+    compile_chunk = 25          # control periods per torch.compile'd call (simulate(compile=True))
 
     def __init__(self, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
                  smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
@@ -131,12 +134,19 @@ class ScaraPlant(Plant):
 class ArmPlant(Plant):
     """A URDF arm (`Arm`: its chain, inertials, gravity and payload link); see `Plant` for the rest."""
 
+    compile_chunk = 1           # one step is already thousands of fused scalar operations
+
     def __init__(self, arm: Arm, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
                  smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
                  gravity: bool = True) -> None:
         self.arm, self.n = arm, arm.n
         self.terms = ArmTerms(arm)
+        self.scalar_terms = ArmScalarTerms(self.terms)   # built eagerly: tracing stays on tensors of B
         super().__init__(viscous, coulomb, friction, smooth_velocity, disturbance, disturbance_freq, gravity)
+
+    def dynamics_terms(self) -> ArmTerms | ArmScalarTerms:
+        """The batch-last terms eagerly; their scalar form while torch.compile traces (it fuses)."""
+        return self.scalar_terms if torch.compiler.is_compiling() else self.terms
 
     def coefficients(self, payload: torch.Tensor) -> tuple[torch.Tensor]:
         """(payload,): the payload masses themselves (kg)."""
@@ -144,7 +154,7 @@ class ArmPlant(Plant):
 
     def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
         """Joint accelerations (B, n): M qdd = tau - C qd - G - F - tau_d, by Cholesky."""
-        cfg = self.terms.at(q, co[0])
+        cfg = self.dynamics_terms().at(q, co[0])
         r = tau - cfg.coriolis_qd(qd) - self.friction_torque(qd) - dist
         if self.gravity:
             r = r - cfg.gravity()

@@ -115,8 +115,10 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
     on the scenario's time grid; payload (B,) kg applies inside the window.
 
     Returns a Rollout, or with record=False only the final (q, qd). `chunk` periods run per call
-    (default 100 eager, 25 compiled); `compile` fuses them into one torch.compile'd call, which
-    removes most of the per-operation overhead at small B. Raises SimulationDiverged naming the first
+    (default 100 eager; compiled, the plant's `compile_chunk`: 25 for the SCARA, 1 for a URDF arm,
+    whose step alone is a large graph); `compile` fuses them into one torch.compile'd call, which
+    removes most of the per-operation overhead at small B and, for a URDF arm, streams its
+    dynamics through registers instead of memory (compiling takes minutes). Raises SimulationDiverged naming the first
     non-finite step (checked every CHECK_EVERY steps, rounded up to chunks, and at the end).
     """
     scenario.validate()
@@ -130,7 +132,7 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
-    chunk = chunk or (25 if compile else 100)
+    chunk = chunk or (plant.compile_chunk if compile else 100)
     b, kw = q0.shape[0], {"dtype": q0.dtype, "device": q0.device}
     dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3) or (n, 3, joints)
     h = controller.features.to(**kw) if controller.features is not None else None
@@ -143,6 +145,10 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
     if compile:
         run = torch.compile(run, dynamic=False)
     q, qd = q0.clone(), qd0.clone()
+    if compile:
+        # Environments last in memory ((B, n) views of (n, B) storage): elementwise results keep
+        # that layout, so the compiled loops read and write contiguous rows and vectorise.
+        q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
     state = controller.init_state(q, qd)
     if record:
         qs = torch.empty(n + 1, b, plant.n, **kw)

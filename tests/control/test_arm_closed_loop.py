@@ -184,3 +184,24 @@ def test_per_joint_friction_and_disturbance():
     assert d.shape == (1, 6) and torch.allclose(d[0], torch.tensor([0, 1.0, 0, 0, 0, 2.0], dtype=torch.float64))
     with pytest.raises(ValueError, match=r"viscous=\[1.0, 2.0\] needs one value per joint \(6\)"):
         ArmPlant(load_arm("ur5"), viscous=[1.0, 2.0])
+
+
+@pytest.mark.slow
+def test_ur5_compiled_step_equals_eager():
+    """simulate(compile=True) traces the scalar form of the dynamics (rbfn.robots.arm_scalar) and
+    keeps the environments last in memory; it gives the eager batch-last result (minutes to compile)."""
+    import shutil
+
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("torch.compile's CPU backend needs a C++ compiler")
+    setup = _ur5()
+    sc = Scenario(duration=0.01, payload_on=0.002, payload_off=0.008, integrator="euler", metrics_after=0.0)
+    ref = setup.trajectory(sc.times())
+    scale = setup.joint_scale(dtype=torch.float64)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, setup.model, joint_scale=scale)
+    pay = torch.tensor([0.0, 2.5], dtype=torch.float64)
+    q0, qd0 = ref[0][:1].expand(2, 6).clone(), ref[1][:1].expand(2, 6).clone()
+    eager = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay)
+    compiled = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, compile=True)
+    assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
+    assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-8)
