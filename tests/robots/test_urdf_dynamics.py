@@ -6,7 +6,8 @@ presets when present, and on a test arm with everything the loader has to lump: 
 along the chain, off-chain bodies, fixed bodies and a finger joint beyond the end link, rotated
 origins, unaligned and unnormalised axes, a prismatic and a continuous joint. The property tests
 need no Pinocchio: M symmetric positive definite, dM/dt - 2C skew, C the Christoffel matrix of M
-(by autograd), energy conserved with gravity off, G the gradient of the potential energy.
+(by autograd), energy conserved with gravity off, G the gradient of the potential energy. The
+simulator's forms of the same terms (batch-last `arm_terms`, scalar `arm_scalar`) match `Arm`.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import pytest
 import torch
 
 from rbfn.robots import scara
+from rbfn.robots.arm_scalar import ArmScalarTerms
 from rbfn.robots.arm_terms import ArmTerms
 from rbfn.robots.dynamics import PRESETS, load_arm
 
@@ -236,6 +238,23 @@ def test_batch_last_terms_match_the_arm(name, batch):
                "M y": (m @ y.unsqueeze(-1)).squeeze(-1), "C qd": (c @ qd.unsqueeze(-1)).squeeze(-1)}
         errors = {k: _rel(got[k], ref[k]) for k in got}
         assert max(errors.values()) <= 1e-9, errors
+
+
+@pytest.mark.parametrize("name", ["scara", "test_arm", "ur5", "panda"])
+def test_scalar_terms_match_the_batch_last_terms(name):
+    """rbfn.robots.arm_scalar (what torch.compile traces) equals rbfn.robots.arm_terms."""
+    arm = _arm(name)
+    terms, scalar = ArmTerms(arm), ArmScalarTerms(arm)
+    q, qd = _states(arm, 5, seed=15)
+    y = torch.randn(5, arm.n, generator=torch.Generator().manual_seed(16), dtype=torch.float64)
+    for payload in (0.0, 1.5, torch.tensor([0.0, 1.0, 2.0, 3.0, 4.0], dtype=torch.float64)):
+        a, b = terms.at(q, payload), scalar.at(q, payload)
+        pairs = {"M": (a.mass_matrix(), b.mass_matrix()), "bias": (a.bias(qd), b.bias(qd)),
+                 "G": (a.gravity(), b.gravity()), "C y": (a.coriolis_times(qd, y), b.coriolis_times(qd, y)),
+                 "C^T qd": (a.coriolis_transpose_qd(qd), b.coriolis_transpose_qd(qd)),
+                 "M y": (a.mass_times(y), b.mass_times(y))}
+        errors = {k: float((x - r).abs().max()) for k, (x, r) in pairs.items()}
+        assert max(errors.values()) < 1e-11, errors
 
 
 def test_batch_last_terms_float32():
