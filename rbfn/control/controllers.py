@@ -32,7 +32,7 @@ from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Ga
 from .models import ArmModel, NominalModel
 
 __all__ = ["Gains", "NominalModel", "ArmModel", "Controller", "PD", "ComputedTorque", "SlidingMode",
-           "make_controller"]
+           "Stacked", "make_controller"]
 
 Model = NominalModel | ArmModel
 
@@ -133,6 +133,41 @@ class SlidingMode(Controller):
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
         return tau, (d_hat, integral, p0, w)
+
+
+class Stacked(Controller):
+    """Several controllers as one batch, so that one simulation runs them all: controller i drives
+    the i-th block of `sizes[i]` environments. Its features are theirs side by side (T, sum M_i),
+    its adaptation steps theirs as columns (T, K), its state the tuple of their states."""
+
+    def __init__(self, controllers: list[Controller], sizes: list[int]) -> None:
+        if len(controllers) != len(sizes) or not controllers:
+            raise ValueError(f"need one batch size per controller, got {len(sizes)} for {len(controllers)}")
+        self.parts, self.sizes = list(controllers), list(sizes)
+        feats = [c.features for c in self.parts if c.features is not None]
+        self.features = torch.cat(feats, -1) if feats else None
+        self.columns: list[slice | None] = []
+        start = 0
+        for c in self.parts:
+            m = 0 if c.features is None else c.features.shape[-1]
+            self.columns.append(slice(start, start + m) if m else None)
+            start += m
+
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
+        return tuple(c.init_state(q, qd) for c, q, qd in zip(self.parts, q0.split(self.sizes), qd0.split(self.sizes)))
+
+    def alphas(self, t: torch.Tensor) -> torch.Tensor:
+        return torch.stack([c.alphas(t) for c in self.parts], -1)
+
+    def torque(self, ref, q, qd, state):
+        q_d, v_d, a_d, h, alpha = ref
+        taus, states = [], []
+        for i, (c, qi, qdi) in enumerate(zip(self.parts, q.split(self.sizes), qd.split(self.sizes))):
+            cols = self.columns[i]
+            tau, st = c.torque((q_d, v_d, a_d, None if cols is None else h[cols], alpha[i]), qi, qdi, state[i])
+            taus.append(tau)
+            states.append(st)
+        return torch.cat(taus), tuple(states)
 
 
 def make_controller(name: str, gains: Gains, dt: float, model: Model | None = None,

@@ -27,7 +27,12 @@ CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a
 
 
 class SimulationDiverged(RuntimeError):
-    """A state or torque became non-finite; the message names the step, time and state."""
+    """A state or torque became non-finite; the message names the step, time and state, and
+    `environment` is the index of the first environment that diverged."""
+
+    def __init__(self, message: str, environment: int = 0) -> None:
+        super().__init__(message)
+        self.environment = environment
 
 
 @dataclass
@@ -78,7 +83,7 @@ def _check(step: int, t: float, q, qd, tau) -> None:
     if bool(bad.any()):
         b = int(bad.nonzero()[0, 0])
         raise SimulationDiverged(f"simulation diverged by step {step} (t = {t:.4f} s) in environment {b}: "
-                                 f"q = {q[b].tolist()}, qd = {qd[b].tolist()}, tau = {tau[b].tolist()}")
+                                 f"q = {q[b].tolist()}, qd = {qd[b].tolist()}, tau = {tau[b].tolist()}", b)
 
 
 def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from rbfn.control import Scenario, ScaraPlant, SimulationDiverged, make_controller, paper_trajectory, simulate
-from rbfn.control.controllers import Gains, NominalModel
+from rbfn.control.controllers import Gains, NominalModel, Stacked
 from rbfn.robots.scara import m_solve, m_times
 from rbfn.robots.scara import mass_matrix
 
@@ -84,6 +84,25 @@ def test_batched_run_matches_single_runs(integrator):
     k_on = round(0.1 / sc.dt)
     assert torch.equal(batch.q[: k_on + 1, 0], batch.q[: k_on + 1, 2])
     assert not torch.equal(batch.q[k_on + 5, 0], batch.q[k_on + 5, 2])
+
+
+def test_stacked_controllers_equal_their_separate_runs():
+    """One batch of several controllers (one with adaptive features) gives each controller's own run."""
+    sc = Scenario(duration=0.2, payload_on=0.05, payload_off=0.15, metrics_after=0.0)
+    ref = paper_trajectory(sc.times())
+    plant = ScaraPlant()
+    pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
+    q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
+    feats = torch.rand(sc.steps + 1, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    parts = [make_controller("pd", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt, features=feats),
+             make_controller("smc_obs", Gains(), sc.dt)]
+    both = simulate(plant, Stacked(parts, [2, 2, 2]), sc, ref, q0.repeat(3, 1), qd0.repeat(3, 1), pay.repeat(3))
+    for i, ctrl in enumerate(parts):
+        one = simulate(plant, ctrl, sc, ref, q0, qd0, pay)
+        assert torch.allclose(both.q[:, 2 * i:2 * i + 2], one.q, rtol=0, atol=1e-12)
+        assert torch.allclose(both.tau[:, 2 * i:2 * i + 2], one.tau, rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="one batch size per controller"):
+        Stacked(parts, [2, 2])
 
 
 def test_divergence_stops_with_step_and_state():

@@ -7,6 +7,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.config import ACOConfig, ControlConfig, GainsConfig, NetworkConfig, Objective, validate_control
+from rbfn.control import SimulationDiverged
 from rbfn.control.comparison import compare_controllers
 from rbfn.studies.control import evaluate_control
 
@@ -47,6 +48,14 @@ def test_adaptive_network_learns_and_beats_smc_at_equal_gains():
     for case in ("0kg", "10kg"):
         smc, net = res.runs["smc"].metrics[case]["rms_err"], res.runs["arbfn_kmeans"].metrics[case]["rms_err"]
         assert all(n <= 0.25 * s for n, s in zip(net, smc)), (case, net, smc)
+
+
+def test_a_diverging_controller_is_named_with_its_case():
+    """All controllers share one batch; the one that diverges is named, with its payload case."""
+    cfg = _short(controllers=["smc", "pd"], dt=0.005, duration=1.0, payload_on=0.5, payload_off=0.8,
+                 integrator="euler")
+    with pytest.raises(SimulationDiverged, match=r"controller pd, payload 0kg: simulation diverged by step"):
+        compare_controllers(cfg, GainsConfig(pd_kp=1e6, pd_kd=1e5))
 
 
 def test_cluster_controller_does_not_change_the_shared_aco_config():
