@@ -135,6 +135,10 @@ class ArmPlant(Plant):
     """A URDF arm (`Arm`: its chain, inertials, gravity and payload link); see `Plant` for the rest."""
 
     compile_chunk = 1           # one step is already thousands of fused scalar operations
+    # While torch.compile traces: solve M qdd = r by the Cholesky factorisation written out in
+    # scalars (`rbfn.robots.arm_scalar.ScalarConfig.solve`), fused with the step, rather than torch.linalg's batched
+    # LAPACK calls, which run apart and cost as much as the whole fused step (False: keep them).
+    fused_solve = True
 
     def __init__(self, arm: Arm, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
                  smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
@@ -158,6 +162,8 @@ class ArmPlant(Plant):
         r = tau - cfg.coriolis_qd(qd) - self.friction_torque(qd) - dist
         if self.gravity:
             r = r - cfg.gravity()
+        if self.fused_solve and torch.compiler.is_compiling():
+            return cfg.solve(r)
         # cholesky_ex: a matrix that is not positive definite (never, for a physical arm) gives
         # non-finite accelerations, which the simulator reports, without a per-call error check.
         chol = torch.linalg.cholesky_ex(cfg.mass_matrix())[0]

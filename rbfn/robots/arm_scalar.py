@@ -271,6 +271,27 @@ class ScalarConfig:
     def gravity(self) -> torch.Tensor:
         return self._stack(self._gravity())
 
+    def solve(self, r: torch.Tensor) -> torch.Tensor:
+        """M(q)^-1 r (B, n) for r (B, n): the Cholesky factorisation M = L L^T and two triangular
+        solves, written out in scalars so that they fuse with the rest of the step."""
+        m, n = self._mass(), self.n
+        low = [[None] * n for _ in range(n)]
+        inv = [None] * n                                                # 1 / L_jj
+        for j in range(n):
+            d = _sub(m[j][j], _sum(*(_mul(low[j][k], low[j][k]) for k in range(j))))
+            inv[j] = torch.rsqrt(d) if isinstance(d, torch.Tensor) else d ** -0.5
+            low[j][j] = _mul(d, inv[j])                                 # sqrt(d)
+            for i in range(j + 1, n):
+                low[i][j] = _mul(_sub(m[i][j], _sum(*(_mul(low[i][k], low[j][k]) for k in range(j)))), inv[j])
+        rs = r.T.contiguous().unbind(0)
+        y = [None] * n
+        for i in range(n):
+            y[i] = _mul(_sub(rs[i], _sum(*(_mul(low[i][k], y[k]) for k in range(i)))), inv[i])
+        x = [None] * n
+        for i in range(n - 1, -1, -1):
+            x[i] = _mul(_sub(y[i], _sum(*(_mul(low[k][i], x[k]) for k in range(i + 1, n)))), inv[i])
+        return self._stack(x)
+
     def coriolis_qd(self, qd: torch.Tensor, mo: "ScalarMotion | None" = None) -> torch.Tensor:
         return self._stack(self._coriolis_qd(mo or self.motion(qd)))
 
