@@ -26,7 +26,7 @@ from ..config import Friction
 from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
-from ..robots.scara import ScaraParams, c_times, inertia_params, m_solve, m_times
+from ..robots.scara import ScaraParams, inertia_params, m_solve_parts, m_times
 
 __all__ = ["Plant", "ScaraPlant", "ArmPlant"]
 
@@ -117,12 +117,17 @@ class ScaraPlant(Plant):
         return inertia_params(payload, self.params)
 
     def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
-        """Joint accelerations (B, 3) under torques tau (B, 3) and disturbance torque `dist`."""
-        s2, c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
-        r = tau - c_times(s2, co, qd, qd) - self.friction_torque(qd) - dist
+        """Joint accelerations (B, 3) under torques tau (B, 3) and disturbance torque `dist`,
+        component by component (the fewest tensor operations: a step is overhead-bound at small B)."""
+        q2 = q[..., 1]
+        qd1, qd2, _ = qd.unbind(-1)
+        h = co[1] * torch.sin(q2)
+        r1, r2, r3 = (tau - self.friction_torque(qd) - dist).unbind(-1)
+        r1 = r1 + h * qd2 * (2 * qd1 + qd2)          # minus C qd, C qd = h (-qd2 (2 qd1 + qd2), qd1^2, 0)
+        r2 = r2 - h * qd1 * qd1
         if self.gravity:
-            r = r + torch.stack([torch.zeros_like(co[3]), torch.zeros_like(co[3]), co[3] * self.params.g], -1)
-        return m_solve(c2, co, r)
+            r3 = r3 + co[3] * self.params.g          # the prismatic joint carries m3 g
+        return m_solve_parts(torch.cos(q2), co, r1, r2, r3)
 
     def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
         """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at q3 = 0."""

@@ -22,7 +22,7 @@ import torch
 
 __all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
            "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "m_times", "c_times", "mdot_times", "m_solve"]
+           "m_times", "c_times", "mdot_times", "m_solve", "m_solve_parts"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -152,8 +152,13 @@ def mdot_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 def m_solve(c2, co, r: torch.Tensor) -> torch.Tensor:
     """M(q)^-1 r (B, 3): the 2x2 block in closed form, the prismatic joint by division."""
+    return m_solve_parts(c2, co, *r.unbind(-1))
+
+
+def m_solve_parts(c2, co, r1: torch.Tensor, r2: torch.Tensor, r3: torch.Tensor) -> torch.Tensor:
+    """M(q)^-1 r (B, 3) from the components of r, each (B,)."""
     p1, p2, p3, m3 = co
-    m11, m12 = p1 + 2 * p2 * c2, p3 + p2 * c2
-    r1, r2, r3 = r.unbind(-1)
+    pc = p2 * c2
+    m11, m12 = p1 + (pc + pc), p3 + pc
     det = m11 * p3 - m12 * m12
     return torch.stack([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3], -1)
