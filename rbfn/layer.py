@@ -2,9 +2,17 @@
 
 y(x) = W phi(z) + A z + b, z = (x - offset) / scale, phi_i(z) = exp(-||z - mu_i||^2 / (2 sigma_i^2)).
 Scaling, centres and widths are buffers (chosen, not trained); the head is an nn.Linear and the
-optional linear tail A z an nn.Linear without bias. Distances are taken by broadcasting, so the
-module exports with a dynamic batch dimension and stays accurate in float32. Eager calls process
-rows in blocks of `block_rows`, so memory stays bounded for any batch size.
+optional linear tail A z an nn.Linear without bias.
+
+Predictions (`forward`, `solve`, `in_workspace`: the IK path, and the exported graph's) take all
+Gaussian exponents in one matrix product: with u = z - (the centres' centroid),
+-||z - mu_i||^2 / (2 sigma_i^2) = [u, 1, |u|^2] @ K_i, K from the centres and widths
+(`_expansion`). About the centroid u and the centres stay O(1), so the expansion's cancellation
+costs float32 little: on the trained SCARA network (M = 80, 1e5 workspace positions) the joints
+differ from float64 by at most 9e-6 (rad, m), against 3e-6 by broadcasting, and the median FK
+error is unchanged (0.856 mm). `features` and `design` (fitting, float64) keep the broadcast
+distances. Eager calls process rows in blocks of about `block_elements` exponents, which stay in
+cache; traced and exported graphs are one piece with a dynamic batch dimension.
 
 The output weights as one matrix: net(x) = net.design(x) @ net.output_weights(), the design
 columns being the M Gaussians, then z (d) and a ones column with the tail, or a ones column
@@ -12,7 +20,9 @@ without it (the order of rbfn.fit.design_matrix).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -37,6 +47,41 @@ def _gaussians(d2: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
     return torch.exp(-d2 / (2.0 * widths.unsqueeze(-2).square()))
 
 
+def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """Rows (B,) of x (B, k) with low <= x <= high (k,) throughout: the gaps [x - low, high - x] by
+    one matrix product, all >= 0 (fl(x - low) >= 0 exactly when x >= low; NaN fails). One product
+    instead of broadcast comparisons, which ONNX Runtime runs ~10x slower on (B, 3)."""
+    eye = torch.eye(x.shape[-1], dtype=x.dtype, device=x.device)
+    return torch.addmm(torch.cat([-low, high]), x, torch.cat([eye, -eye], 1)).amin(-1) >= 0
+
+
+class _Expansion(NamedTuple):
+    """Gaussian exponents of features x (B, d) as matrix products, in base 2 (eager) or e (traced):
+    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |u|^2] @ weight."""
+
+    centroid: torch.Tensor     # (d,) the centres' mean, the origin of u
+    in_weight: torch.Tensor    # (d, d + 1): [diag(1 / scale), 0]
+    in_bias: torch.Tensor      # (d + 1,): [-offset / scale - centroid, 1]
+    weight: torch.Tensor       # (d + 2, M): rows mu_i' / sigma_i^2, -|mu_i'|^2 / (2 sigma_i^2) and -1 / (2 sigma_i^2),
+                               # times log_base(e), mu_i' = mu_i - centroid
+    to_sq_dist: torch.Tensor   # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base))
+    gaussians: Callable[[torch.Tensor], torch.Tensor]   # exponents -> activations (eager: in place)
+
+
+def _expand(centers: torch.Tensor, widths: torch.Tensor, offset: torch.Tensor, scale: torch.Tensor,
+            base2: bool) -> _Expansion:
+    """The exponents' matrix form for centres (M, d), widths (M,) and the input scaling (d,)."""
+    centroid = centers.mean(0)
+    mu = centers - centroid
+    log_e = math.log2(math.e) if base2 else 1.0
+    inv = log_e / widths.square()                                    # log_base(e) / sigma^2
+    weight = torch.stack([*(mu.T * inv), -0.5 * mu.square().sum(-1) * inv, -0.5 * inv])
+    in_weight = torch.cat([torch.diag(1.0 / scale), torch.zeros_like(scale)[:, None]], 1)
+    in_bias = torch.cat([-offset / scale - centroid, torch.ones_like(scale[:1])])
+    return _Expansion(centroid, in_weight, in_bias, weight, -2.0 / log_e * widths.square(),
+                      torch.Tensor.exp2_ if base2 else torch.exp)
+
+
 class RBFNetwork(nn.Module):
     """Gaussian RBF network mapping inputs (B, d) to outputs (B, out); for IK, positions (B, 3) in m
     to joints (B, 3) (rad, rad, m).
@@ -49,7 +94,10 @@ class RBFNetwork(nn.Module):
     input was (`cover_radius`, scaled units), or whose prediction leaves the output range.
     """
 
-    block_rows: int = 16384   # rows per block in eager calls (bounds the (rows, M, d) distances)
+    # Rows per block in eager calls; None: about `block_elements` (rows, M) exponents a block
+    # (2 MB in float32: fastest measured at M = 80 and M = 2000, twice as fast as 16384 rows at M = 2000).
+    block_rows: int | None = None
+    block_elements: int = 1 << 19
 
     def __init__(self, centers: torch.Tensor, widths: torch.Tensor, out_features: int,
                  offset: torch.Tensor | None = None, scale: torch.Tensor | None = None,
@@ -75,6 +123,7 @@ class RBFNetwork(nn.Module):
         self.register_buffer("out_low", torch.full((out_features,), -torch.inf, **kw))
         self.register_buffer("out_high", torch.full((out_features,), torch.inf, **kw))
         self.register_buffer("cover_radius", torch.tensor(torch.inf, **kw))
+        self._expansion_cache: tuple | None = None     # see `_expansion`
 
     @property
     def num_centers(self) -> int:
@@ -134,9 +183,10 @@ class RBFNetwork(nn.Module):
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
         """fn applied to blocks of `block_rows` rows of xs and concatenated (one call when traced)."""
         n = xs[0].shape[0]
-        if torch.compiler.is_compiling() or n <= self.block_rows:
+        rows = self.block_rows or max(1, self.block_elements // self.num_centers)
+        if torch.compiler.is_compiling() or n <= rows:
             return fn(*xs)
-        outs = [fn(*parts) for parts in zip(*(t.split(self.block_rows) for t in xs))]
+        outs = [fn(*parts) for parts in zip(*(t.split(rows) for t in xs))]
         if isinstance(outs[0], tuple):
             return tuple(torch.cat(o) for o in zip(*outs))
         return torch.cat(outs)
@@ -194,18 +244,48 @@ class RBFNetwork(nn.Module):
         self.head.bias.copy_(w[-1])
 
     # ------------------------------------------------------------------------------ prediction
+    def _expansion(self) -> _Expansion:
+        """The exponents' matrix form for the centres, widths and input scaling as they are now.
+
+        Eager calls take base 2 (torch's exp2 is ~2.7x faster than exp on CPU) and reuse it while
+        the buffers stay the same tensors, unmodified (identity, version counter and storage
+        checked). Traced graphs compute it in the graph in base e: ONNX has Exp, not Exp2.
+        """
+        bufs = (self.centers, self.widths, self.offset, self.scale)
+        if torch.compiler.is_compiling() or torch.compiler.is_exporting():
+            return _expand(*bufs, base2=False)
+        if any(t.is_inference() or t.requires_grad for t in bufs):
+            return _expand(*bufs, base2=True)      # no version counter, or a graph to keep
+        key = [(t._version, t.data_ptr()) for t in bufs]
+        hit = self._expansion_cache
+        if hit is None or any(a is not b for a, b in zip(hit[0], bufs)) or hit[1] != key:
+            hit = self._expansion_cache = (bufs, key, _expand(*bufs, base2=True))
+        return hit[2]
+
+    def _exponents(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
+        """[u, 1] (B, d + 1) and the Gaussian exponents (B, M), -||z - mu_i||^2 / (2 sigma_i^2) in
+        the expansion's base, for inputs x (B, d); and the expansion."""
+        e = self._expansion()
+        v = torch.addmm(e.in_bias, self._feat(x), e.in_weight)
+        u = v[:, :-1]
+        return v, torch.cat([v, u.square().sum(-1, keepdim=True)], -1) @ e.weight, e
+
+    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion) -> torch.Tensor:
+        """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M)."""
+        if self.tail is None:
+            return self.head(phi)
+        a = self.tail.weight                                   # A z = A u + A centroid
+        linear = torch.cat([a.T, (a @ e.centroid + self.head.bias).unsqueeze(0)])
+        return torch.addmm(v @ linear, phi, self.head.weight.T)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Outputs (B, out) for inputs x (B, d) (e.g. joints for positions in m)."""
         return self._blocks(self._forward_rows, self._inputs(x))
 
     def _forward_rows(self, x: torch.Tensor) -> torch.Tensor:
         """`forward` on rows (B, d) in one piece (no blocks, no checks): the exported graph's path."""
-        z = self._scaled(x)
-        return self._head(z, _gaussians(_sq_distances(z, self.centers), self.widths))
-
-    def _head(self, z: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
-        y = self.head(phi)
-        return y if self.tail is None else y + self.tail(z)
+        v, a, e = self._exponents(x)
+        return self._head(v, e.gaussians(a), e)
 
     def in_workspace(self, x: torch.Tensor, y: torch.Tensor | None = None) -> torch.Tensor:
         """Boolean mask (B,): True where input x (B, d) lies in the region the network was trained
@@ -221,7 +301,8 @@ class RBFNetwork(nn.Module):
                              f"{x.shape[0]} inputs, got {got}")
 
         def rows(xb: torch.Tensor, yb: torch.Tensor) -> torch.Tensor:
-            return self._mask(xb, _sq_distances(self._scaled(xb), self.centers), yb)
+            _, a, e = self._exponents(xb)
+            return self._mask(xb, self._nearest_sq(a, e), yb)
         return self._blocks(rows, x, y)
 
     def solve(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -229,19 +310,24 @@ class RBFNetwork(nn.Module):
         return self._blocks(self._solve_rows, self._inputs(x))
 
     def _solve_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """`solve` on rows (B, d) in one piece, distances computed once for the features and the
-        mask (no blocks, no checks): the exported graph's path."""
-        z = self._scaled(x)
-        d2 = _sq_distances(z, self.centers)
-        y = self._head(z, _gaussians(d2, self.widths))
-        return y, self._mask(x, d2, y)
+        """`solve` on rows (B, d) in one piece, the exponents computed once for the features and
+        the mask (no blocks, no checks): the exported graph's path."""
+        v, a, e = self._exponents(x)
+        near = self._nearest_sq(a, e)          # before the activations overwrite the exponents
+        y = self._head(v, e.gaussians(a), e)
+        return y, self._mask(x, near, y)
 
-    def _mask(self, x: torch.Tensor, d2: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        """In-workspace mask (B,) from inputs (B, d), squared distances (B, M), outputs (B, out)."""
-        xs = self._feat(x)
-        ok = ((xs >= self.in_low) & (xs <= self.in_high)).all(-1)
-        ok &= d2.min(-1).values.sqrt() <= self.cover_radius
-        return ok & ((y >= self.out_low) & (y <= self.out_high)).all(-1)
+    @staticmethod
+    def _nearest_sq(a: torch.Tensor, e: _Expansion) -> torch.Tensor:
+        """Squared distance (B,) from each row to its nearest centre, from the exponents a (B, M)."""
+        return (a * e.to_sq_dist).amin(-1)
+
+    def _mask(self, x: torch.Tensor, near: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """In-workspace mask (B,) from inputs (B, d), squared distances to the nearest centre
+        (B,) and outputs (B, out)."""
+        ok = _within(self._feat(x), self.in_low, self.in_high)
+        ok &= near.clamp(min=0.0).sqrt() <= self.cover_radius
+        return ok & _within(y, self.out_low, self.out_high)
 
     @torch.no_grad()
     def set_domain(self, x_train: torch.Tensor, y_train: torch.Tensor, margin: float = 0.05) -> None:

@@ -105,16 +105,23 @@ def test_rows_in_blocks_match_one_piece(monkeypatch):
         ref = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
     calls = []
     monkeypatch.setattr(layer, "_sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1))
+    exponents = layer.RBFNetwork._exponents
+    monkeypatch.setattr(layer.RBFNetwork, "_exponents", lambda self, xb: calls.append(xb.shape[0]) or exponents(self, xb))
     net.block_rows = 16
     with torch.no_grad():
         out = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
     assert torch.equal(out[0], ref[0]) and torch.equal(out[1][0], ref[1][0]) and torch.equal(out[1][1], ref[1][1])
     assert torch.equal(out[2], ref[2]) and torch.equal(out[3], ref[3]) and torch.equal(out[4], ref[4])
     assert max(calls) == 16 and not ref[2].all() and ref[2].any()
-    # solve takes the distances once per block, for the features and the workspace test alike.
+    # solve takes the exponents once per block, for the features and the workspace test alike.
     calls.clear()
     net.solve(x)
     assert calls == [16, 16, 16, 2]
+    # By default a block holds about block_elements exponents (rows, M).
+    calls.clear()
+    net.block_rows, net.block_elements = None, 6 * 20
+    net(x)
+    assert calls == [20, 20, 10]
 
 
 def test_design_and_output_weights_reproduce_the_network():
@@ -154,3 +161,77 @@ def test_assemble_without_tail_takes_design_matrix_weights():
     assert torch.equal(net.head.bias, torch.zeros(2, dtype=torch.float64))
     with_bias = torch.cat([weights, torch.ones(1, 2, dtype=torch.float64)])
     assert torch.allclose(assemble(c, w, with_bias, off, sc, tail=False)(x), net(x) + 1, atol=1e-12)
+
+
+def _reference(net, x):
+    """Outputs and in-workspace mask by broadcast distances, as the network computed them before
+    its exponents became one matrix product (same dtype as the network)."""
+    z = (x - net.offset) / net.scale
+    d2 = (z[:, None] - net.centers).square().sum(-1)
+    y = torch.exp(-d2 / (2 * net.widths.square())) @ net.head.weight.T + net.head.bias + z @ net.tail.weight.T
+    ok = ((x >= net.in_low) & (x <= net.in_high)).all(-1) & (d2.min(-1).values.sqrt() <= net.cover_radius)
+    return y, ok & ((y >= net.out_low) & (y <= net.out_high)).all(-1)
+
+
+def _wide_net(seed=3, m=40):
+    """A network with uneven widths, an input offset far from the origin and centres off-centre,
+    and 2000 inputs (the first 1000 its training inputs)."""
+    g = torch.Generator().manual_seed(seed)
+    net = RBFNetwork(torch.rand(m, 3, generator=g, dtype=torch.float64) * 4 - 2,
+                     torch.rand(m, generator=g, dtype=torch.float64) * 1.0 + 0.25, 3,
+                     offset=torch.tensor([5.0, -4.0, 3.0]), scale=torch.tensor([0.5, 0.7, 0.3]))
+    with torch.no_grad():
+        for p in net.parameters():
+            p.copy_(torch.randn(p.shape, generator=g, dtype=torch.float64))
+    x = net.offset + net.scale * (torch.rand(2000, 3, generator=g, dtype=torch.float64) * 5 - 2.5)
+    net.set_domain(x[:1000], net(x[:1000]).detach())
+    net.cover_radius.mul_(0.5)                 # some inputs beyond it, some inside
+    return net.eval(), x
+
+
+def test_matrix_product_exponents_match_broadcast_distances():
+    net, x = _wide_net()
+    with torch.no_grad():
+        y, mask = net.solve(x)
+        y_ref, mask_ref = _reference(net, x)
+        assert (y - y_ref).abs().max() < 1e-12 and torch.equal(mask, mask_ref)
+        assert 0.2 < mask.double().mean() < 0.9
+        assert torch.equal(net.in_workspace(x), mask) and torch.equal(net.in_workspace(x, y), mask)
+        # float32: within 1e-5 (output units) of the float64 reference, the tolerance the fit's
+        # rounding bound (rbfn.fit.ROUND_TOL) keeps deployed networks to; measured 5e-6 here
+        # (3e-6 by broadcast distances in float32).
+        net32 = copy.deepcopy(net).float()
+        y32, mask32 = net32.solve(x.float())
+        assert y32.dtype == torch.float32 and (y32.double() - y_ref).abs().max() < 1e-5
+        y32_ref, mask32_ref = _reference(net32, x.float())
+        assert (mask32 != mask32_ref).sum() <= 2             # rounding at the cover radius only
+        assert (mask32 != mask_ref).sum() <= 2
+
+
+def test_exponents_follow_changed_buffers():
+    """The matrix form is reused between calls, never after a buffer changed."""
+    net, x = _wide_net()
+    fresh = lambda n: assemble(n.centers, n.widths, n.output_weights(), n.offset, n.scale, tail=True)  # noqa: E731
+    with torch.no_grad():
+        y0 = net(x)
+        assert torch.equal(net(x), y0)
+        net.centers[3] += 0.5                                 # in place
+        net.widths.mul_(1.1)
+        net.scale[1] = 0.9
+        net.offset.add_(0.01)
+        y1 = net(x)
+        assert (y1 - y0).abs().max() > 1e-3 and (y1 - fresh(net)(x)).abs().max() < 1e-12
+        other, _ = _wide_net(seed=4)
+        net.load_state_dict(other.state_dict())               # copied in place
+        assert (net(x) - other(x)).abs().max() < 1e-12
+        net.centers = net.centers.flip(0).contiguous()        # a new tensor
+        net.widths = net.widths.flip(0).contiguous()
+        net.head.weight.copy_(net.head.weight.flip(1))
+        assert (net(x) - other(x)).abs().max() < 1e-12
+        net.float()
+        assert net(x).dtype == torch.float32 and (net(x).double() - other(x)).abs().max() < 1e-5
+    with torch.inference_mode():                            # inference tensors: no version counter
+        infer = copy.deepcopy(other).float()
+        y = infer(x)
+        infer.centers[0] += 1.0
+        assert (infer(x) - y).abs().max() > 1e-6
