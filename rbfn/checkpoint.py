@@ -276,10 +276,18 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
     return model.eval().requires_grad_(False)
 
 
-def load_model(path: str | Path) -> RBFNetwork:
-    """The IK network saved at `path`, in eval mode (float64; `.float()` for float32).
+_LOAD_DTYPES = (torch.float32, torch.float64)
 
-    Input: positions (B, 3) in m (float32 or float64). Output: joints (B, 3) (rad, rad, m).
-    `model.in_workspace(x)` / `model.solve(x)` flag positions outside the trained workspace.
+
+def load_model(path: str | Path, dtype: torch.dtype = torch.float32) -> RBFNetwork:
+    """The IK network saved at `path`, in eval mode, in `dtype`: torch.float32 (the default, for
+    inference: fast, and within ~1e-5 (rad, m) of float64) or torch.float64 (the precision it was
+    fitted in, e.g. to reproduce its metrics).
+
+    Input: positions (B, 3) in m (any real dtype; computed in `dtype`). Output: joints (B, 3)
+    (rad, rad, m). `model.in_workspace(x)` / `model.solve(x)` flag positions outside the trained
+    workspace.
     """
-    return model_from_checkpoint(read_checkpoint(path))
+    if not isinstance(dtype, torch.dtype) or dtype not in _LOAD_DTYPES:
+        raise ValueError(f"load_model(dtype={dtype!r}): allowed are torch.float32 (the default) and torch.float64")
+    return model_from_checkpoint(read_checkpoint(path)).to(dtype)

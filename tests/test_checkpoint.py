@@ -1,5 +1,6 @@
 """Checkpoints: weights-only loadable, written atomically, and every broken file says what is wrong."""
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -38,9 +39,23 @@ def test_round_trip_weights_only(ckpt):
     path, net = ckpt
     raw = torch.load(path, weights_only=True)
     assert raw["format_version"] == FORMAT_VERSION and raw["kind"] == "rbfn-ik"
-    loaded = load_model(path)
+    loaded = load_model(path, dtype=torch.float64)
     x = torch.randn(4, 3, dtype=torch.float64)
     assert torch.allclose(loaded(x), net(x).detach())
+
+
+def test_load_model_dtype(ckpt):
+    path, net = ckpt
+    x = torch.randn(4, 3, dtype=torch.float64)
+    model = load_model(path)                                # float32 for inference by default
+    assert model.centers.dtype == torch.float32 and model(x).dtype == torch.float32
+    assert all(t.dtype == torch.float32 for t in model.state_dict().values())
+    assert (model(x).double() - net(x).detach()).abs().max() < 1e-5
+    assert load_model(path, dtype=torch.float64).centers.dtype == torch.float64
+    for bad in (torch.float16, torch.int64, "float32", 64):
+        with pytest.raises(ValueError, match=rf"load_model\(dtype={re.escape(repr(bad))}\): allowed are torch.float32 "
+                                             r"\(the default\) and torch.float64"):
+            load_model(path, dtype=bad)
 
 
 def test_truncated_file(ckpt):

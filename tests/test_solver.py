@@ -35,7 +35,7 @@ def test_pose_metrics_are_reported(ur5_run):
 
 
 def test_pose_network_takes_poses_and_ignores_the_quaternion_sign(ur5_run):
-    net = load_model(ur5_run[0] / "checkpoint.pt")
+    net = load_model(ur5_run[0] / "checkpoint.pt", dtype=torch.float64)
     split, _ = _targets()
     x = split.x
     flipped = torch.cat([x[:, :3], -x[:, 3:]], -1)
@@ -69,7 +69,7 @@ def test_pose_export_matches_the_module(ur5_run, tmp_path):
     out, _ = ur5_run
     split, _ = _targets(50)
     x = split.x.float()
-    q, inside = load_model(out / "checkpoint.pt").float().solve(x)
+    q, inside = load_model(out / "checkpoint.pt").solve(x)
     sess = ort.InferenceSession(str(out / "ik.onnx"), providers=["CPUExecutionProvider"])
     q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
     assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-4)

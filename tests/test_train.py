@@ -45,13 +45,13 @@ def test_outputs_written(trained):
 
 def test_checkpoint_reloads_and_reproduces_metrics(trained, chain, scara_robot):
     out, metrics = trained
-    model = load_model(out / "checkpoint.pt")
+    model = load_model(out / "checkpoint.pt", dtype=torch.float64)
     assert not model.training
     from rbfn.data import make_dataset
 
     data = make_dataset(scara_robot, (400, 200, 300), seed=0)
     x = data.test.x                                   # the run's own test set: metrics must reproduce
-    err = (forward_kinematics(chain, model.double()(x)) - x).norm(dim=-1) * 1000
+    err = (forward_kinematics(chain, model(x)) - x).norm(dim=-1) * 1000
     assert float(err.median()) == pytest.approx(metrics["test_pos_err_mm_median"], rel=1e-6)
     # A 12-centre network on 400 samples: about 1 cm, far better than a constant guess (~0.5 m).
     assert metrics["test_pos_err_mm_median"] < 25.0
@@ -108,7 +108,7 @@ def test_export_command_writes_models_that_reproduce_the_checkpoint(trained, tmp
                        cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     x = torch.tensor([[1.2, 0.8, -1.0], [0.5, 1.4, -0.7], [2.5, 0.0, -1.0]], dtype=torch.float32)
-    q, inside = load_model(out / "checkpoint.pt").float().solve(x)
+    q, inside = load_model(out / "checkpoint.pt").solve(x)
     sess = ort.InferenceSession(str(tmp_path / "ik.onnx"), providers=["CPUExecutionProvider"])
     q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
     assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-5)
