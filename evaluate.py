@@ -9,12 +9,15 @@ Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a 
 checkpoint_online.pt), `control` (`control.enabled`: every controller on every payload case).
 With no checkpoint given and none found, the two checkpoint parts are skipped (and said so).
 Every setting is checked before any part starts. Writes metrics.json (`ik`, `online`, `control`,
-`control_info`), workspace_error_map.png, online_task_error.png, control_<controller>.png,
-TensorBoard events and evaluate.log into the Hydra run directory.
+`control_info`, `evaluate_seconds`: each part's wall seconds), workspace_error_map.png,
+online_task_error.png, control_<controller>.png, TensorBoard events and evaluate.log into the
+Hydra run directory.
 """
 from __future__ import annotations
 
 import logging
+import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
@@ -51,6 +54,15 @@ def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
     return found[-1]
 
 
+@contextmanager
+def _timed(seconds: dict, part: str):
+    """Record the wall seconds of one part under `seconds[part]` and log them."""
+    t0 = time.perf_counter()
+    yield
+    seconds[part] = time.perf_counter() - t0
+    log.info("%s part: %.1f s", part, seconds[part])
+
+
 def run(cfg: EvalConfig, out_dir: Path) -> dict:
     """Evaluate every enabled part into `out_dir`; return metrics.json's content."""
     validate_evaluate(cfg)
@@ -65,18 +77,23 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     metrics: dict = {}
+    seconds: dict[str, float] = {}
     writer = SummaryWriter(log_dir=str(out_dir))
     try:
         if cfg.ik and ckpt is not None:
-            metrics["ik"] = evaluate_ik(ckpt, path, cfg, out_dir, writer)
+            with _timed(seconds, "ik"):
+                metrics["ik"] = evaluate_ik(ckpt, path, cfg, out_dir, writer)
             # Flat IK keys at the top level too, as train.py writes them.
             metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
         if cfg.online.enabled and ckpt is not None:
-            metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
+            with _timed(seconds, "online"):
+                metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
         if cfg.control.enabled:
-            metrics.update(evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot))
+            with _timed(seconds, "control"):
+                metrics.update(evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot))
     finally:
         writer.close()
+    metrics["evaluate_seconds"] = seconds
     write_json(out_dir / "metrics.json", metrics)
     log.info("-> %s", out_dir)
     return metrics

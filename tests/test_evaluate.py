@@ -93,5 +93,5 @@ def test_command_line_runs_the_control_part_alone(tmp_path):
                         f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert list(m) == ["control", "control_info"] and list(m["control"]) == ["smc"]
+    assert list(m) == ["control", "control_info", "evaluate_seconds"] and list(m["control"]) == ["smc"]
     assert "Closed loop" in (tmp_path / "evaluate.log").read_text()

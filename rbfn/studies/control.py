@@ -8,6 +8,7 @@ from ..config import ControlConfig, GainsConfig, RobotConfig
 from ..control.comparison import ControlComparison, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
 from .plots import tracking_figure
+from .rundir import write_figure
 
 __all__ = ["check_control", "evaluate_control", "control_table"]
 
@@ -50,8 +51,7 @@ def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsC
                           roll.tau[:, i].cpu().numpy(),
                           f"{res.robot.name}: {name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, "
                           f"Lambda = {gains.Lambda:g}", (cfg.payload_on, cfg.payload_off), res.robot.units)
-    fig.savefig(out_dir / f"control_{name}.png", dpi=110)
-    writer.add_figure(f"control/{name}", fig, close=False)
+    write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
 
 def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> str:

@@ -16,7 +16,7 @@ from ..pipeline import TrainResult
 from ..robots.robot import Robot, robot_from_record
 from ..solver import DEFAULT_ITERATIONS, IKSolver
 from .plots import workspace_error_map
-from .rundir import write_json
+from .rundir import write_figure, write_json
 
 __all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table"]
 
@@ -81,8 +81,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
     out: dict = {"checkpoint": str(path), "num_centers": model.num_centers, "test_seed": seed, **acc}
     fig = workspace_error_map(test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(),
                               f"IK position error, M = {model.num_centers}")
-    fig.savefig(out_dir / "workspace_error_map.png", dpi=120)
-    writer.add_figure("ik/workspace_error_map", fig, close=False)
+    write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "ik/workspace_error_map")
     for k, v in out.items():
         if isinstance(v, float):
             writer.add_scalar(f"ik/{k}", v)

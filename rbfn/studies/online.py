@@ -14,6 +14,7 @@ from ..config import GainsConfig, OnlineConfig
 from ..control.task_space import desired_path, run_online
 from ..robots.scara import ScaraParams, ik
 from .plots import online_figure
+from .rundir import write_figure
 
 __all__ = ["evaluate_online", "online_table"]
 
@@ -73,9 +74,7 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
         fig = online_figure(t.cpu().numpy(), r["err_adapt"][:, i].cpu().numpy(), r["err_frozen"][:, i].cpu().numpy(),
                             r["err_analytic"][:, i].cpu().numpy(), r["t_update"].cpu().numpy(),
                             r["dw"][:, i].cpu().numpy(), f"online {cfg.learner}, path {cfg.path}")
-        fig.savefig(out_dir / "online_task_error.png", dpi=110)
-        if writer is not None:
-            writer.add_figure("online/task_error", fig, close=False)
+        write_figure(fig, out_dir / "online_task_error.png", 110, writer, "online/task_error")
         if cfg.save_checkpoint:
             adapted = copy.deepcopy(net)
             adapted.set_output_weights(r["weights"][i].to(net.centers.dtype))

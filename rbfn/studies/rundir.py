@@ -8,13 +8,14 @@ processes on other hosts sharing the directory over NFS are not excluded.
 from __future__ import annotations
 
 import fcntl
+import io
 import json
 import os
 from pathlib import Path
 
 from ..checkpoint import atomic_write_bytes
 
-__all__ = ["RunDir", "RunDirInUse", "write_json", "write_text"]
+__all__ = ["RunDir", "RunDirInUse", "write_json", "write_text", "write_figure"]
 
 
 class RunDirInUse(RuntimeError):
@@ -57,3 +58,16 @@ def write_text(path: Path, text: str) -> None:
     """`text` at `path`, written atomically."""
     data = text.encode()
     atomic_write_bytes(Path(path), lambda f: f.write(data))
+
+
+def write_figure(fig, path: Path, dpi: int = 110, writer=None, tag: str = "") -> None:
+    """A matplotlib figure as a PNG at `path`, written atomically, and the same image as
+    TensorBoard's `tag` when a `writer` is given: rendered once for both."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    data = buf.getvalue()
+    atomic_write_bytes(Path(path), lambda f: f.write(data))
+    if writer is not None:
+        from matplotlib.image import imread
+
+        writer.add_image(tag, imread(io.BytesIO(data), format="png")[..., :3], dataformats="HWC")
