@@ -46,7 +46,7 @@ def _in_workspace_positions(n: int, seed: int = 5) -> torch.Tensor:
 
 
 def test_round_trip_10k_positions_batches_1_7_10000(net, tmp_path):
-    """Issue 5's round trip: ONNX (onnxruntime) and .pt2 reproduce the float32 module to 1e-5 on
+    """The round trip: ONNX (onnxruntime) and .pt2 reproduce the float32 module to 1e-5 on
     10k in-workspace positions, fed in batches of 1, 7 and 10000; prints the max differences."""
     ort = pytest.importorskip("onnxruntime")
     x = _in_workspace_positions(10_000)
