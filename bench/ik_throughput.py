@@ -1,6 +1,12 @@
-"""IK queries per second at a large batch, float32: the RBF network (torch module, ONNX under
-onnxruntime) against the closed-form SCARA IK and pytorch-kinematics' iterative IK, each with
-its accuracy (median FK position error of its answers).
+"""IK queries per second at a large batch, float32: the RBF network (torch module as
+`rbfn.load_model` gives it, ONNX under onnxruntime) against the closed-form SCARA IK and
+pytorch-kinematics' iterative IK, each with its accuracy (median FK position error of its answers)
+and its ratio to the closed form. Rates are medians of repeated runs after warm-up, with torch
+and onnxruntime on `threads` threads (set here, and reported in every row).
+
+    python -m bench.ik_throughput [--checkpoint PATH] [--batch 100000] [--threads 1] [--repeats 7]
+
+(without a checkpoint, a network of M = 80 centres is trained first, about a minute).
 
 Positions are FK images of joints drawn uniformly in the trained branch (in the workspace).
 pytorch-kinematics' damped least squares is position-only (orientation weight 0) with restarts
@@ -10,7 +16,9 @@ and its rate is per query.
 """
 from __future__ import annotations
 
+import argparse
 import copy
+import json
 import tempfile
 from pathlib import Path
 
@@ -20,9 +28,9 @@ from rbfn import RBFNetwork, load_model
 from rbfn.config import RobotConfig
 from rbfn.robots import joint_limits, load_serial_chain, scara
 
-from .timing import median_seconds, timed
+from .timing import interleaved_medians, machine_info, median_seconds, timed
 
-__all__ = ["BRANCH_LOW", "BRANCH_HIGH", "build_network", "workspace_positions", "ik_rows"]
+__all__ = ["BRANCH_LOW", "BRANCH_HIGH", "build_network", "workspace_positions", "ik_rows", "main"]
 
 # The trained joint box (rad, rad, m): the default robot config's, defined once there.
 BRANCH_LOW, BRANCH_HIGH = tuple(RobotConfig().joint_low), tuple(RobotConfig().joint_high)
@@ -30,8 +38,9 @@ BRANCH_LOW, BRANCH_HIGH = tuple(RobotConfig().joint_low), tuple(RobotConfig().jo
 
 def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine: bool = True,
                   threads: int = 1) -> RBFNetwork:
-    """The network under test: a checkpoint's, or one trained here by train.py's pipeline
-    (k-means centres with gradient refinement, `num_centers` centres, default data)."""
+    """The network under test: a checkpoint's (as `rbfn.load_model` gives it: float32), or one
+    trained here by train.py's pipeline (k-means centres with gradient refinement, `num_centers`
+    centres, default data; float64 as fitted)."""
     if checkpoint is not None:
         return load_model(checkpoint)
     from rbfn.config import CentersConfig, Method, RefineConfig, TrainConfig
@@ -81,59 +90,112 @@ def ik_rows(net: RBFNetwork, batch: int = 100_000, device: str = "cpu", repeats:
             pk_batch: int = 1000, pk_retries: int = 10, pk_repeats: int = 3, threads: int = 1,
             onnx: bool = True, compiled: bool = False) -> list[dict]:
     """One row per IK method: queries/s, its ratio to the closed form and to pytorch-kinematics,
-    and the median FK error (mm) of its answers. `compiled` adds the torch.compile'd module
-    (its compile seconds in the note); `onnx` the ONNX model under onnxruntime, if installed."""
+    the median FK error (mm) of its answers and the threads it ran on. `compiled` adds the
+    torch.compile'd module (its compile seconds in the note); `onnx` the ONNX model under
+    onnxruntime, if installed; `pk_batch` 0 leaves out pytorch-kinematics. torch runs on
+    `threads` threads for the call (restored after)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        return _ik_rows(net, batch, device, repeats, pk_batch, pk_retries, pk_repeats, threads, onnx, compiled)
+    finally:
+        torch.set_num_threads(before)
+
+
+def _ik_rows(net: RBFNetwork, batch: int, device: str, repeats: int, pk_batch: int, pk_retries: int,
+             pk_repeats: int, threads: int, onnx: bool, compiled: bool) -> list[dict]:
     _, x_cpu = workspace_positions(batch)
     x = x_cpu.to(device)
-    net32 = copy.deepcopy(net).float().to(device).eval()
+    net32 = copy.deepcopy(net).to(torch.float32).to(device).eval()      # what load_model gives
     rows = []
 
-    def add(name: str, dev: str, n: int, seconds: float, answer: torch.Tensor, note: str = "") -> None:
-        rows.append({"method": name, "device": dev, "batch": n, "queries_per_s": n / seconds,
-                     "median_err_mm": _err_mm(answer, x_cpu[:n]), "note": note})
+    def add(name: str, dev: str, n: int, seconds: float | None, answer: torch.Tensor | None, note: str = "") -> None:
+        rows.append({"method": name, "device": dev, "batch": n, "threads": threads,
+                     "queries_per_s": n / seconds if seconds else None,
+                     "median_err_mm": _err_mm(answer, x_cpu[:n]) if answer is not None else None, "note": note})
 
+    fns = {"module": lambda: net32(x), "flag": lambda: net32.solve(x), "closed": lambda: scara.ik(x)}
+    sess, onnx_note = _onnx_session(net, threads) if onnx else (None, "")
+    if sess is not None:
+        xn = x_cpu.numpy()
+        fns["onnx"] = lambda: sess.run(None, {"positions": xn})
     with torch.inference_mode():
-        t, _ = median_seconds(lambda: net32(x), repeats, device)
-        add(f"RBF network, torch (M = {net.num_centers})", device, batch, t, net32(x))
-        t, _ = median_seconds(lambda: net32.solve(x), repeats, device)
-        add("RBF network + workspace flag, torch", device, batch, t, net32(x))
+        # Warm-up 3: onnxruntime's memory arena grows over the first two runs of a batch size.
+        t = interleaved_medians(fns, repeats, device, warmup=3)
+        add(f"RBF network, torch (M = {net.num_centers})", device, batch, t["module"], net32(x))
+        add("RBF network + workspace flag, torch", device, batch, t["flag"], net32(x))
         if compiled:
             fast = torch.compile(net32)
             first = timed(lambda: fast(x), device)
-            t, _ = median_seconds(lambda: fast(x), repeats, device)
-            add("RBF network, torch.compile", device, batch, t, fast(x), f"compile {first - t:.1f} s")
-        t, _ = median_seconds(lambda: scara.ik(x), repeats, device)
-        add("closed-form SCARA IK, torch", device, batch, t, scara.ik(x))
-    try:
-        import onnxruntime as ort
-    except ImportError:
-        ort = None
-        rows.append({"method": "RBF network + flag, ONNX (onnxruntime)", "device": "cpu", "batch": batch,
-                     "queries_per_s": None, "median_err_mm": None, "note": "onnxruntime not installed"})
-    if ort is not None and onnx:
-        from rbfn.export import export_onnx
+            tc, _ = median_seconds(lambda: fast(x), repeats, device)
+            add("RBF network, torch.compile", device, batch, tc, fast(x), f"compile {first - tc:.1f} s")
+        add("closed-form SCARA IK, torch", device, batch, t["closed"], scara.ik(x))
+    if sess is not None:
+        add("RBF network + flag, ONNX (onnxruntime)", "cpu", batch, t["onnx"],
+            torch.from_numpy(fns["onnx"]()[0]), onnx_note)
+    elif onnx_note:
+        add("RBF network + flag, ONNX (onnxruntime)", "cpu", batch, None, None, onnx_note)
 
-        with tempfile.TemporaryDirectory() as d:
-            path = export_onnx(net, Path(d) / "ik.onnx")
-            so = ort.SessionOptions()
-            so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
-            sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-        xn = x_cpu.numpy()
-        t, _ = median_seconds(lambda: sess.run(None, {"positions": xn}), repeats)
-        add("RBF network + flag, ONNX (onnxruntime)", "cpu", batch, t,
-            torch.from_numpy(sess.run(None, {"positions": xn})[0]), f"onnxruntime {ort.__version__}")
-
-    chain = load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float32, device)
-    xs = x[:pk_batch]
-    t, _ = median_seconds(lambda: pk_iterative_ik(chain, xs, pk_retries), pk_repeats, device, warmup=1)
-    best, right = pk_iterative_ik(chain, xs, pk_retries)
-    add(f"pytorch-kinematics PseudoInverseIK ({pk_retries} restarts)", device, pk_batch, t, best,
-        f"position only, 50 iterations max, tol 0.1 mm; right elbow {100 * right:.1f} %")
+    if pk_batch > 0:
+        chain = load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float32, device)
+        xs = x[:pk_batch]
+        t, _ = median_seconds(lambda: pk_iterative_ik(chain, xs, pk_retries), pk_repeats, device, warmup=1)
+        best, right = pk_iterative_ik(chain, xs, pk_retries)
+        add(f"pytorch-kinematics PseudoInverseIK ({pk_retries} restarts)", device, pk_batch, t, best,
+            f"position only, 50 iterations max, tol 0.1 mm; right elbow {100 * right:.1f} %")
 
     closed = next(r["queries_per_s"] for r in rows if r["method"].startswith("closed"))
-    iterative = rows[-1]["queries_per_s"]
+    iterative = next((r["queries_per_s"] for r in rows if r["method"].startswith("pytorch-kinematics")), None)
     for r in rows:
         qps = r["queries_per_s"]
         r["x_closed_form"] = qps / closed if qps else None
-        r["x_pk_iterative"] = qps / iterative if qps else None
+        r["x_pk_iterative"] = qps / iterative if qps and iterative else None
     return rows
+
+
+def _onnx_session(net: RBFNetwork, threads: int):
+    """(onnxruntime session of the exported network on `threads` threads, note), or (None, why not)."""
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        return None, "onnxruntime not installed"
+    from rbfn.export import export_onnx
+
+    with tempfile.TemporaryDirectory() as d:
+        path = export_onnx(net, Path(d) / "ik.onnx")
+        so = ort.SessionOptions()
+        so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+        return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"]), f"onnxruntime {ort.__version__}"
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(prog="python -m bench.ik_throughput", description=__doc__.splitlines()[0])
+    p.add_argument("--checkpoint", type=Path, default=None, help="network to measure (default: train one)")
+    p.add_argument("--num-centers", type=int, default=80, help="M of the network trained without --checkpoint")
+    p.add_argument("--batch", type=int, default=100_000)
+    p.add_argument("--threads", type=int, default=1, help="torch and onnxruntime threads (default 1)")
+    p.add_argument("--repeats", type=int, default=7, help="timed runs per method (the median is reported)")
+    p.add_argument("--pk-batch", type=int, default=0, help="pytorch-kinematics' batch (default 0: left out)")
+    p.add_argument("--json", type=Path, default=None, help="also write the rows and the machine to this file")
+    a = p.parse_args(argv)
+    if a.threads < 1:
+        p.error(f"--threads {a.threads} must be >= 1")
+    from threadpoolctl import threadpool_limits
+
+    torch.set_num_threads(a.threads)
+    with threadpool_limits(a.threads):
+        net = build_network(a.checkpoint, a.num_centers, threads=a.threads)
+        rows = ik_rows(net, a.batch, repeats=a.repeats, pk_batch=a.pk_batch, threads=a.threads)
+    print(f"IK at batch {a.batch}, M = {net.num_centers}, float32, {a.threads} thread(s), median of {a.repeats}:")
+    for r in rows:
+        qps = f"{r['queries_per_s']:10.3g} q/s" if r["queries_per_s"] else f"{'-':>14s}"
+        ratio = f"{r['x_closed_form']:6.3f}x closed form" if r["x_closed_form"] else ""
+        err = f"median FK error {r['median_err_mm']:.4f} mm" if r["median_err_mm"] is not None else ""
+        print(f"  {r['method']:45s} {qps}  {ratio:20s} {err}  {r['note']}")
+    if a.json:
+        a.json.write_text(json.dumps({"machine": machine_info("cpu", a.threads), "rows": rows}, indent=1))
+    return rows
+
+
+if __name__ == "__main__":
+    main()

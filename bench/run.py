@@ -5,7 +5,7 @@ in one process, with how cost grows.
     python bench/run.py --checkpoint outputs/train/DATE/TIME/checkpoint.pt
     python -m bench --merge a/benchmarks.json b/benchmarks.json --out DIR   # sections run apart
 
-Writes `benchmarks.md` (tables, issue 7's targets met or missed, torch.profiler tables of the
+Writes `benchmarks.md` (tables, the performance targets met or missed, torch.profiler tables of the
 slow paths of missed targets), `benchmarks.json` (every number, and the machine: platform, CPU
 model, core counts, torch version, threads, device) and `scaling_<device>.png` into --out. Each
 timing is the median of repeated runs after a warm-up; GPU work is synchronised. --threads sets
@@ -33,7 +33,7 @@ from bench.timing import machine_info, profile_table
 
 __all__ = ["SIZES", "run_suite", "targets", "to_markdown", "merge", "write_report", "main"]
 
-# Problem sizes: `full` is issue 7's grid; `quick` proves every path in about a minute.
+# Problem sizes: `full` is the targets' grid; `quick` proves every path in about a minute.
 SIZES = {
     "full": {
         "ik": {"batch": 100_000, "num_centers": 80, "refine": True, "repeats": 7, "pk_batch": 1000,
@@ -135,7 +135,7 @@ def _row(rows: list[dict], **match) -> dict | None:
 
 
 def targets(res: dict) -> list[dict]:
-    """Issue 7's targets (and issue 3's B = 8192 throughput) against the measured numbers."""
+    """The performance targets (and the simulator's B = 8192 throughput) against the measured numbers."""
     out, sec = [], res["sections"]
 
     def add(key: str, name: str, value, goal: str, met) -> None:
@@ -151,7 +151,7 @@ def targets(res: dict) -> list[dict]:
                 f"{r['x_closed_form']:.3g}x the closed form's queries/s", ">= 0.5x",
                 r["x_closed_form"] >= 0.5)
     for r in ik:
-        if r["method"].startswith("RBF network") and r["queries_per_s"]:
+        if r["method"].startswith("RBF network") and r["queries_per_s"] and r["x_pk_iterative"]:
             add("ik_pk", f"IK: {r['method']} vs pytorch-kinematics iterative IK",
                 f"{r['x_pk_iterative']:.3g}x", ">= 1000x", r["x_pk_iterative"] >= 1000)
     for r in sec.get("select", []):
@@ -172,7 +172,7 @@ def targets(res: dict) -> list[dict]:
             add("sim_mujoco", "simulator vs MuJoCo rollout at B = 8192", "B = 8192 not run" if any(
                 sim["mujoco"].values()) else "mujoco not installed", ">= 10x", None)
         if ours:
-            add("sim_4m", "simulator env-steps/s at B = 8192 (issue 3)", f"{ours['env_steps_per_s']:.3g}",
+            add("sim_4m", "simulator env-steps/s at B = 8192", f"{ours['env_steps_per_s']:.3g}",
                 ">= 4e6", ours["env_steps_per_s"] >= 4e6)
         d = sim["scenario_s"]
         add("scenario", f"one {d:g} s scenario at B = 1, eager", f"{sim['scenario_eager_s']:.3g} s",
@@ -229,11 +229,11 @@ def _table(header: list[str], rows: list[list]) -> str:
 
 
 def _md_ik(rows: list[dict]) -> list[str]:
-    keys = ("method", "device", "batch", "queries_per_s", "x_closed_form", "x_pk_iterative", "median_err_mm",
-            "note")
+    keys = ("method", "device", "batch", "threads", "queries_per_s", "x_closed_form", "x_pk_iterative",
+            "median_err_mm", "note")
     return ["## IK queries per second (float32)", "", _table(
-        ["method", "device", "batch", "queries/s", "x closed form", "x pytorch-kinematics",
-         "median FK error (mm)", "note"], [[r[k] for k in keys] for r in rows]), ""]
+        ["method", "device", "batch", "threads", "queries/s", "x closed form", "x pytorch-kinematics",
+         "median FK error (mm)", "note"], [[r.get(k) for k in keys] for r in rows]), ""]
 
 
 def _md_select(rows: list[dict]) -> list[str]:
@@ -291,7 +291,7 @@ def to_markdown(res: dict, command: str) -> str:
     parts += _md_sim(sec["sim"]) if "sim" in sec else []
     parts += _md_scaling(sec["scaling"], m["device"]) if "scaling" in sec else []
     verdict = {True: "met", False: "missed", None: "—"}
-    parts += ["## Targets (issue 7; issue 3's throughput)", "", _table(
+    parts += ["## Targets", "", _table(
         ["target", "measured", "goal", "met"],
         [[t["target"], t["measured"], t["goal"], verdict[t["met"]]] for t in res["targets"]]), ""]
     for name, table in res.get("profiles", {}).items():

@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import torch
 
-__all__ = ["sync", "timed", "median_seconds", "machine_info", "fit_exponent", "profile_table"]
+__all__ = ["sync", "timed", "median_seconds", "interleaved_medians", "machine_info", "fit_exponent", "profile_table"]
 
 
 def sync(device: str) -> None:
@@ -36,6 +36,21 @@ def median_seconds(fn: Callable[[], object], repeats: int = 5, device: str = "cp
         fn()
     ts = [timed(fn, device) for _ in range(repeats)]
     return statistics.median(ts), ts
+
+
+def interleaved_medians(fns: dict[str, Callable[[], object]], repeats: int = 5, device: str = "cpu",
+                        warmup: int = 1) -> dict[str, float]:
+    """Median wall seconds of each fn over `repeats` rounds that call every fn once in turn, after
+    `warmup` untimed rounds: on a machine shared with other jobs, the load changes during the
+    measurement, and taking the methods turn by turn lets their ratios see the same load."""
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+    ts = {k: [] for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            ts[k].append(timed(fn, device))
+    return {k: statistics.median(v) for k, v in ts.items()}
 
 
 def _cpu_model() -> str:
