@@ -104,28 +104,32 @@ def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor,
     rhs = a_train.transpose(-1, -2) @ y_train
     deploy = a_val_eval.dtype if a_val_eval is not None else eval_dtype
 
-    def evaluate(w_flat: torch.Tensor, rows: slice) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Validation predictions (..., Nv, L * out) and rounding scale (same shape) or None."""
+    def score(weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Validation MSE (..., L) and rounding scale (..., L) or None of weights (..., L, P, out)."""
+        n_l, p, n_out = weights.shape[-3:]
+        w_flat = weights.movedim(-3, -2).reshape(*weights.shape[:-3], p, n_l * n_out)
         if a_val_eval is not None:
             pred = (a_val_eval @ w_flat.to(a_val_eval.dtype)).to(gram.dtype)
         elif eval_dtype is None:
             pred = a_val @ w_flat
         else:
             pred = (a_val.to(eval_dtype) @ w_flat.to(eval_dtype)).to(gram.dtype)
-        bound = None if deploy is None else rounding_scale(a_val, w_flat, deploy)
-        return pred, bound
+        pred = pred.unflatten(-1, (n_l, n_out))                                  # (..., Nv, L, out)
+        mse = (pred - y_val.unsqueeze(-2)).square().sum(-1).mean(-2)
+        if deploy is None:
+            return mse, None
+        return mse, rounding_scale(a_val, w_flat, deploy).unflatten(-1, (n_l, n_out)).amax((-3, -1))
 
-    return ridge_choose(gram, rhs, y_val, evaluate, ridges, deploy, round_tol)
+    return ridge_choose(gram, rhs, score, ridges, deploy, round_tol)
 
 
-def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, y_val: torch.Tensor, evaluate,
-                 ridges: tuple[float, ...] = DEFAULT_RIDGES, deploy: torch.dtype | None = None,
-                 round_tol: float = ROUND_TOL, blocks: int = 1) -> RidgeFit:
-    """`ridge_fit` from the normal equations: gram (..., P, P), rhs (..., P, out), y_val (Nv, out).
+def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[float, ...] = DEFAULT_RIDGES,
+                 deploy: torch.dtype | None = None, round_tol: float = ROUND_TOL) -> RidgeFit:
+    """`ridge_fit` from the normal equations: gram (..., P, P), rhs (..., P, out).
 
-    evaluate(w_flat (..., P, L * out), rows) -> predictions (..., nv, L * out) and rounding scale
-    (..., nv, L * out) or None on the validation rows `rows` (a slice); called on `blocks` row
-    blocks of the validation split, so its design matrix need never be built whole.
+    score(weights (..., L, P, out)) -> validation MSE (..., L) and, with a deployment dtype
+    `deploy`, rounding scale (..., L), max over validation rows and outputs (else None); how it
+    gets them (whole design matrices, row blocks) is the caller's.
     """
     evals, evecs = torch.linalg.eigh(gram)
     proj = evecs.transpose(-1, -2) @ rhs                          # (..., P, out)
@@ -136,26 +140,9 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, y_val: torch.Tensor, eva
         lam = rel * scale                                                       # (..., L)
         coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)
         weights = evecs.unsqueeze(-3) @ coef                                    # (..., L, P, out)
-        n_l, p, n_out = weights.shape[-3:]
-        w_flat = weights.movedim(-3, -2).reshape(*weights.shape[:-3], p, n_l * n_out)
-        n_v = y_val.shape[0]
-        step = -(-n_v // max(blocks, 1))
-        sse, bnd = 0.0, None
-        for r0 in range(0, n_v, step):                                   # validation row blocks
-            rows = slice(r0, min(r0 + step, n_v))
-            pred, b = evaluate(w_flat, rows)
-            pred = pred.reshape(*pred.shape[:-1], n_l, n_out).movedim(-2, -3)   # (..., L, nv, out)
-            err = (pred - y_val[rows]).square().sum(-1)
-            sse = err.sum(-1) + sse if blocks > 1 else err
-            del pred
-            if b is not None:
-                b = b.reshape(*b.shape[:-1], n_l, n_out).amax((-3, -1))          # (..., L)
-                bnd = b if bnd is None else torch.maximum(bnd, b)
-        mse = sse / n_v if blocks > 1 else sse.mean(-1)
+        mse, bnd = score(weights)
         mse = torch.nan_to_num(mse, nan=torch.inf)
-        if deploy is None:
-            return weights, mse, None
-        return weights, mse, torch.nan_to_num(bnd, nan=torch.inf)
+        return weights, mse, None if bnd is None else torch.nan_to_num(bnd, nan=torch.inf)
 
     def choose(mse: torch.Tensor, bound: torch.Tensor | None) -> torch.Tensor:
         """Index (...,) of the best candidate: lowest MSE among the stable ones, else most stable."""

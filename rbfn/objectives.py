@@ -6,31 +6,50 @@ their nearest chosen centre (the k-means objective searched globally; no targets
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
-from .fit import DEFAULT_RIDGES, design_matrix, ridge_choose, ridge_fit, rounding_scale
+from .fit import DEFAULT_RIDGES, ROUND_TOL, ridge_choose
 
 __all__ = ["FitObjective", "cluster_objective"]
+
+LOG2E = 1.0 / math.log(2.0)
+# Bytes of one row block's Gaussians for all ants of a batch on CPU: about what stays in a core's
+# cache while the block is used (exponent, exp2, normal equations; fastest of 0.5-8 MiB here).
+BLOCK_BYTES = 2**21
 
 
 class FitObjective:
     """Callable (centres (K, M, d), widths (K, M)) -> validation MSE (K,), inputs already scaled.
 
-    Where the K design matrices fit in `memory` bytes (32 ants at a time) they are built whole
-    and fitted by `ridge_fit`. Otherwise the normal equations A^T A (P, P) and A^T y are summed
-    over row blocks of `block` rows, so no (N, P) design matrix is ever held, ants go in batches
-    sized from P to stay within `memory`, and validation errors and rounding scales are summed over
-    row blocks too: the same ridge choice (float32-stability rule included), the same result up to
-    the order of floating-point sums.
+    `ridge_fit` on every ant's design matrix A = [phi(z), z, 1] without ever holding one: the
+    normal equations A^T A (P, P) and A^T y are summed over blocks of training rows, validation
+    errors and rounding scales over blocks of validation rows, each block's Gaussians built and
+    used while in cache (blocks of at most `block` rows). What depends on the data only is
+    computed once, here: the inputs' [z, |z|^2, 1] (a block's Gaussian exponents are then one
+    product with the ants' coefficients), the columns [z, 1, y] beside the Gaussians, and their
+    own block [z, 1]^T [z, 1, y] of the normal equations. Ants go in batches sized from P to stay
+    within `memory` bytes. The same ridge choice as `ridge_fit` (one eigendecomposition for all
+    ridges, the float32-stability rule with `round_tol` included), the same result up to the
+    order of floating-point sums.
     """
 
     def __init__(self, z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor,
                  y_val: torch.Tensor, tail: bool = True, ridges: tuple[float, ...] = DEFAULT_RIDGES,
-                 eval_dtype: torch.dtype | None = None, chunk: int = 32, memory: float = 2**31,
-                 block: int = 2048) -> None:
+                 eval_dtype: torch.dtype | None = None, memory: float = 2**31, block: int = 2048,
+                 round_tol: float = ROUND_TOL) -> None:
         self.z_train, self.y_train, self.z_val, self.y_val = z_train, y_train, z_val, y_val
-        self.tail, self.ridges, self.eval_dtype, self.chunk = tail, ridges, eval_dtype, chunk
+        self.tail, self.ridges, self.eval_dtype, self.round_tol = tail, ridges, eval_dtype, round_tol
         self.memory, self.block = memory, block
+        self._train_rows, self._val_rows = _exponent_rows(z_train), _exponent_rows(z_val)
+        # Columns beside the Gaussians: training [z, 1, y] (N, d + 1 + out), validation [z, 1] rows.
+        ones = torch.ones_like(z_train[:, :1])
+        tail_tr = torch.cat([z_train, ones], 1) if tail else z_train[:, :0]
+        self._beside = torch.cat([tail_tr, y_train], 1)
+        self._tail_normal = tail_tr.T @ self._beside                          # (d + 1, d + 1 + out)
+        self._tail_val = torch.cat([z_val.T, torch.ones_like(z_val[:, 0])[None]]) if tail else z_val.T[:0]
+        self._y_val_t = y_val.T.contiguous()
 
     def width(self, m: int) -> int:
         """Design-matrix columns P for M = m."""
@@ -44,44 +63,120 @@ class FitObjective:
 
     def __call__(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
         k, m = centers.shape[0], centers.shape[1]
-        n_rows = self.z_train.shape[0] + self.z_val.shape[0]
+        p, rows = self.width(m), min(self.block, max(self.z_train.shape[0], self.z_val.shape[0]))
         item = self.z_train.element_size()
-        if min(self.chunk, k) * n_rows * self.width(m) * item * 2 <= self.memory:
-            out = []
-            for c, w in zip(centers.split(self.chunk), widths.split(self.chunk)):  # bounds memory only
-                a_tr = design_matrix(self.z_train, c, w, self.tail)
-                a_val = design_matrix(self.z_val, c, w, self.tail)
-                out.append(ridge_fit(a_tr, self.y_train, a_val, self.y_val, self.ridges, self.eval_dtype).val_mse)
-            return torch.cat(out)
-        p = self.width(m)
-        rows = min(self.block, n_rows)
         per_ant = item * (4 * p * p + 3 * rows * p + 2 * len(self.ridges) * p * self.y_train.shape[1])
         batch = max(1, min(k, int(self.memory // per_ant)))
-        return torch.cat([self.blocked(c, w) for c, w in zip(centers.split(batch), widths.split(batch))])
+        if batch == k:
+            return self._batch(centers, widths)
+        return torch.cat([self._batch(c, w) for c, w in zip(centers.split(batch), widths.split(batch))])
 
-    def blocked(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-        """Validation MSE (K,) from normal equations summed over row blocks; centres (K, M, d)."""
-        z, y = self.z_train, self.y_train
-        k, p, n_out = centers.shape[0], self.width(centers.shape[1]), y.shape[1]
-        gram = z.new_zeros(k, p, p)
-        rhs = z.new_zeros(k, p, n_out)
-        for r0 in range(0, z.shape[0], self.block):                          # training row blocks
-            a = design_matrix(z[r0:r0 + self.block], centers, widths, self.tail)   # (K, B, P)
-            gram.baddbmm_(a.transpose(-1, -2), a)
-            rhs.baddbmm_(a.transpose(-1, -2), y[r0:r0 + self.block].expand(k, -1, -1))
-            del a
-        deploy = self.eval_dtype
+    def _batch(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+        """Validation MSE (K,) of one batch of ants, centres (K, M, d), widths (K, M)."""
+        k, m = centers.shape[:2]
+        s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)                    # exponents in base 2
+        coef = torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
+        cache = BLOCK_BYTES if coef.device.type == "cpu" else float("inf")
+        rows = max(64, min(self.block, int(cache // (k * m * coef.element_size()))))
+        gram, rhs = self._normal_equations(coef, rows)
+        val = self._val_blocks(coef, rows)
+        # The rounding scale is summed in the deployment dtype, within (2 P + 3) u of float64's sum:
+        # only a scale that close to round_tol could be judged otherwise; those are redone in float64.
+        tol = self.round_tol
+        slack = 0.0 if self.eval_dtype is None else (2 * gram.shape[-1] + 3) * torch.finfo(self.eval_dtype).eps / 2
 
-        def evaluate(w_flat: torch.Tensor, rows: slice):
-            a = design_matrix(self.z_val[rows], centers, widths, self.tail)       # (K, b, P)
-            if deploy is None:
-                pred = a @ w_flat
-            else:
-                pred = (a.to(deploy) @ w_flat.to(deploy)).to(a.dtype)
-            return pred, None if deploy is None else rounding_scale(a, w_flat, deploy)
+        def score(weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+            mse, bound = self._score(val, weights)
+            if bound is not None and bool(((bound - tol).abs() <= slack * tol).any()):
+                bound = self._score(self._val_blocks(coef, rows, exact=True), weights)[1]   # (rare)
+            return mse, bound
 
-        blocks = -(-self.z_val.shape[0] // self.block)
-        return ridge_choose(gram, rhs, self.y_val, evaluate, self.ridges, deploy, blocks=max(blocks, 2)).val_mse
+        return ridge_choose(gram, rhs, score, self.ridges, self.eval_dtype, tol).val_mse
+
+    def _normal_equations(self, coef: torch.Tensor, rows: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """A^T A (K, P, P) and A^T y (K, P, out) of the ants' training design matrices A, summed
+        over row blocks: phi^T phi and phi^T [z, 1, y] by block, the tail's block once."""
+        k, m = coef.shape[:2]
+        gram = coef.new_zeros(k, m, m)
+        beside = coef.new_zeros(self._beside.shape[1], k * m)                 # [z, 1, y]^T phi
+        for r0 in range(0, self.z_train.shape[0], rows):
+            phi = _gaussians(coef, self._train_rows[:, r0:r0 + rows])           # (K, M, B)
+            gram.baddbmm_(phi, phi.transpose(1, 2))
+            beside.addmm_(self._beside[r0:r0 + rows].T, phi.view(k * m, -1).T)
+            del phi
+        n_tail = self._tail_normal.shape[0]
+        beside = beside.view(-1, k, m).permute(1, 2, 0)                         # (K, M, d + 1 + out)
+        tail = self._tail_normal.expand(k, -1, -1)
+        gram = torch.cat([torch.cat([gram, beside[..., :n_tail]], 2),
+                          torch.cat([beside[..., :n_tail].transpose(1, 2), tail[..., :n_tail]], 2)], 1)
+        return gram, torch.cat([beside[..., n_tail:], tail[..., n_tail:]], 1)
+
+    def _val_blocks(self, coef: torch.Tensor, rows: int, exact: bool = False):
+        """() -> iterable of validation row blocks (r0, design (K, P', b)): A^T = [phi; z, 1] in the
+        deployment dtype (in float64 if `exact`), with [|z|, 1] below it (P' = P + d + 1) where
+        the rounding scale is wanted. Kept for the call where they fit in a quarter of `memory`
+        (the ridge refinement scores twice), else rebuilt on each pass."""
+        k, m = coef.shape[:2]
+        dtype = coef.dtype if exact or self.eval_dtype is None else self.eval_dtype
+        bounds = self.eval_dtype is not None
+        n_v, n_t = self.z_val.shape[0], self._tail_val.shape[0]
+
+        def build(r0: int) -> tuple[int, torch.Tensor]:
+            tail = self._tail_val[:, r0:r0 + rows]
+            a = torch.empty(k, m + n_t * (1 + bounds), tail.shape[1], dtype=dtype, device=coef.device)
+            a[:, :m] = _gaussians(coef, self._val_rows[:, r0:r0 + rows])
+            a[:, m:m + n_t] = tail
+            if bounds:
+                a[:, m + n_t:] = tail.abs()
+            return r0, a
+
+        if exact or k * (m + 2 * n_t) * n_v * torch.finfo(dtype).bits / 8 > self.memory / 4:
+            return lambda: map(build, range(0, n_v, rows))
+        kept = [build(r0) for r0 in range(0, n_v, rows)]
+        return lambda: kept
+
+    def _score(self, val, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Validation MSE (K, L) and rounding scale (K, L) or None of weights (K, L, P, out), as
+        `ridge_fit` measures them: predictions in the deployment dtype, and the rounding scale
+        u * max over rows and outputs of sum_i |a_i w_i| (one product: [w, 0; |w_phi|, 0, |w_tail|]
+        times the blocks' [a; |tail|])."""
+        k, n_l, p, n_out = weights.shape
+        lo, m = n_l * n_out, p - self._tail_val.shape[0]
+        w_t = weights.transpose(-1, -2).reshape(k, lo, p)                         # (K, L * out, P)
+        sse = w_t.new_zeros(k, n_l, n_out)
+        bound = w_t.new_zeros(k, lo)
+        bounds, w2 = self.eval_dtype is not None, None
+        for r0, a in val():
+            if w2 is None:
+                w2 = w_t.new_zeros(k, lo * (1 + bounds), a.shape[1])
+                w2[:, :lo, :p] = w_t
+                if bounds:
+                    w2[:, lo:, :m] = w_t[..., :m].abs()
+                    w2[:, lo:, p:] = w_t[..., m:].abs()
+                w2 = w2.to(a.dtype)
+            out = torch.bmm(w2, a)
+            err = out[:, :lo].to(w_t.dtype).view(k, n_l, n_out, -1).sub_(self._y_val_t[:, r0:r0 + a.shape[-1]])
+            sse.add_(err.square_().sum(-1))
+            if bounds:
+                torch.maximum(bound, out[:, lo:].amax(-1).to(bound.dtype), out=bound)
+            del out, err
+        mse = sse.sum(-1) / self.z_val.shape[0]
+        if not bounds:
+            return mse, None
+        return mse, bound.view(k, n_l, n_out).amax(-1) * (torch.finfo(self.eval_dtype).eps / 2)
+
+
+def _exponent_rows(z: torch.Tensor) -> torch.Tensor:
+    """[z, |z|^2, 1]^T (d + 2, N): with an ant's [-2 c, 1, |c|^2] / (-2 s^2 ln 2) (M, d + 2),
+    their product is the Gaussians' exponent in base 2, -|z - c|^2 / (2 s^2 ln 2) (M, N), as
+    |z|^2 + |c|^2 - 2 z.c: exact enough in float64."""
+    return torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1).T.contiguous()
+
+
+def _gaussians(coef: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    """Gaussians (K, M, B) of ants' exponent coefficients (K, M, d + 2) on rows (d + 2, B), in
+    base 2 (exp2 is about twice as fast as exp in float64 on CPU)."""
+    return (coef @ rows).clamp_(max=0.0).exp2_()
 
 
 def cluster_objective(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:

@@ -1,22 +1,54 @@
+import pytest
 import torch
 
+from rbfn.fit import design_matrix, ridge_fit, rounding_scale
 from rbfn.objectives import FitObjective
 
 
-def _objective(memory=2**31, eval_dtype=torch.float32, block=64):
-    g = torch.Generator().manual_seed(3)
+def _problem(seed=3, k=5, m=30):
+    g = torch.Generator().manual_seed(seed)
     z = torch.rand(700, 3, generator=g, dtype=torch.float64) * 2 - 1
     y = torch.stack([torch.sin(3 * z[:, 0]) * z[:, 1], torch.cos(2 * z[:, 2])], -1)
-    return FitObjective(z[:500], y[:500], z[500:], y[500:], eval_dtype=eval_dtype, memory=memory, block=block), g
+    c = torch.rand(k, m, 3, generator=g, dtype=torch.float64) * 2 - 1
+    w = torch.rand(k, m, generator=g, dtype=torch.float64) * 0.6 + 0.2
+    return z, y, c, w
 
 
-def test_blocked_objective_equals_unblocked():
-    whole, g = _objective()
-    c = torch.rand(5, 30, 3, generator=g, dtype=torch.float64) * 2 - 1
-    w = torch.rand(5, 30, generator=g, dtype=torch.float64) * 0.6 + 0.2
-    for dtype in (torch.float32, None):
-        whole.eval_dtype = dtype
-        blocked, _ = _objective(memory=0, eval_dtype=dtype)           # forces row blocks, one ant a batch
-        a, b = whole(c, w), blocked(c, w)
-        assert torch.allclose(a, b, rtol=1e-6), (a, b)
-        assert torch.allclose(blocked.blocked(c, w), b)                # all ants in one batch
+def _reference(z, y, c, w, tail=True, **kw):
+    """ridge_fit on the whole design matrices: what the objective must equal."""
+    return ridge_fit(design_matrix(z[:500], c, w, tail), y[:500], design_matrix(z[500:], c, w, tail), y[500:], **kw)
+
+
+@pytest.mark.parametrize("eval_dtype", [torch.float32, None])
+@pytest.mark.parametrize("tail", [True, False])
+def test_objective_equals_ridge_fit_on_whole_design_matrices(eval_dtype, tail):
+    z, y, c, w = _problem()
+    ref = _reference(z, y, c, w, tail, eval_dtype=eval_dtype).val_mse
+    rtol = 1e-6 if eval_dtype else 1e-10           # float32 predictions: float32 sums in another order
+    # All ants at once, validation Gaussians kept; one ant a batch in blocks of 64 rows, rebuilt.
+    for memory, block in ((2**31, 2048), (0, 64)):
+        obj = FitObjective(z[:500], y[:500], z[500:], y[500:], tail, eval_dtype=eval_dtype, memory=memory, block=block)
+        assert torch.allclose(obj(c, w), ref, rtol=rtol, atol=0), (memory, block)
+
+
+def test_rounding_scale_near_the_tolerance_is_judged_in_float64():
+    """The objective sums rounding scales in float32; one within float32 rounding of the tolerance
+    is redone in float64, so the stable ridges (and the error) are ridge_fit's on either side."""
+    z, y, c, w = _problem(k=3)
+    a_val = design_matrix(z[500:], c, w)
+    fit = _reference(z, y, c, w, eval_dtype=torch.float32)
+    bound = rounding_scale(a_val, fit.weights, torch.float32).amax((-2, -1))        # float64 sums
+    assert torch.allclose(bound, fit.rounding)
+    chosen = []
+    for factor in (1 - 1e-9, 1 + 1e-9):                       # far below float32's resolution
+        tol = float(bound[0]) * factor
+        obj = FitObjective(z[:500], y[:500], z[500:], y[500:], eval_dtype=torch.float32, round_tol=tol)
+        exact = []
+        blocks = obj._val_blocks
+        obj._val_blocks = lambda *a, **kw: exact.append(kw.get("exact", False)) or blocks(*a, **kw)
+        ref = _reference(z, y, c, w, eval_dtype=torch.float32, round_tol=tol)
+        assert torch.allclose(obj(c, w), ref.val_mse, rtol=1e-6, atol=0)
+        assert any(exact)                                     # the float64 rescoring ran
+        chosen.append(float(ref.ridge[0]))
+    assert chosen[0] > chosen[1]                              # the tolerance decides ant 0's ridge
+
