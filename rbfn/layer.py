@@ -264,7 +264,7 @@ class RBFNetwork(nn.Module):
 
     def _exponents(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
         """[u, 1] (B, d + 1) and the Gaussian exponents (B, M), -||z - mu_i||^2 / (2 sigma_i^2) in
-        the expansion's base, for inputs x (B, d); and the expansion."""
+        the expansion's base, for public inputs x (B, in_features); and the expansion."""
         e = self._expansion()
         v = torch.addmm(e.in_bias, self._feat(x), e.in_weight)
         u = v[:, :-1]
