@@ -235,3 +235,17 @@ def test_exponents_follow_changed_buffers():
         y = infer(x)
         infer.centers[0] += 1.0
         assert (infer(x) - y).abs().max() > 1e-6
+
+
+def test_gradients_through_the_matrix_product_match_broadcast_distances():
+    """Autograd through forward (inputs and head), in place activations included."""
+    net, x = _wide_net()
+    x = x[:20].clone().requires_grad_(True)
+    jac = torch.autograd.functional.jacobian(net, x[:3].detach())
+    ref = torch.autograd.functional.jacobian(lambda t: _reference(net, t)[0], x[:3].detach())
+    assert (jac - ref).abs().max() < 1e-12
+    net.solve(x)[0].square().sum().backward()
+    grads = (x.grad.clone(), net.head.weight.grad.clone())
+    x.grad, net.head.weight.grad = None, None
+    _reference(net, x)[0].square().sum().backward()
+    assert (grads[0] - x.grad).abs().max() < 1e-10 and (grads[1] - net.head.weight.grad).abs().max() < 1e-10
