@@ -1,18 +1,25 @@
 """Centre-selection time: ACO (ACO_R, and the paper's Ant System) at the paper's NC_max = 100
 against scikit-learn KMeans (k-means++, n_init = 10), on the SCARA IK training set.
 
+    python -m bench.select_time [--n 10000] [--m 40] [--iterations 100] [--threads 1] [--repeats 3]
+
 `aco` is ACO_R over centres and per-centre widths on the validation fit objective (seeded by
 k-means), `aco_paper` the Ant System over 500 candidate points with the paper's width rule, both
 with 20 ants. The colony reports after every iteration (`on_state`), which times each one: a
 run's time is its set-up (k-means seed, first archive, candidate pool) plus its iterations. Where
 a full run would take longer than the caller allows, the time of 100 iterations is extrapolated
-from a short probe run (set-up + 100 x the median iteration) and marked so.
+from a short probe run (set-up + 100 x the median iteration) and marked so. The command times
+KMeans and each colony in interleaved rounds, torch and every other thread pool (scikit-learn's
+OpenMP, BLAS) on `--threads` threads (set here, and reported in every row), and reports medians.
 """
 from __future__ import annotations
 
+import argparse
+import json
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 
@@ -22,9 +29,10 @@ from rbfn.objectives import FitObjective
 from rbfn.robots.robot import load_robot
 from rbfn.select import select
 
-from .timing import median_seconds, sync
+from .timing import machine_info, median_seconds, sync
 
-__all__ = ["COLONIES", "selection_objective", "aco_config", "time_aco", "time_kmeans", "select_rows"]
+__all__ = ["COLONIES", "selection_objective", "aco_config", "time_aco", "time_kmeans", "select_rows",
+           "ratio_rows", "main"]
 
 COLONIES = {"aco": ("acor", "per_center"), "aco_paper": ("ant_system", "paper")}   # colony, width rule
 NC_MAX = 100
@@ -107,3 +115,58 @@ def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_
                 if on_row is not None:
                     on_row(rows)
     return rows
+
+
+def ratio_rows(n: int = 10000, m: int = 40, iterations: int = NC_MAX, names=tuple(COLONIES), device: str = "cpu",
+               repeats: int = 3) -> list[dict]:
+    """Rows (one per colony): KMeans' and the colony's median seconds at (N, M) over `repeats`
+    interleaved rounds (KMeans a median of 3 in each), the colony's set-up and per-iteration
+    seconds, and the median of the rounds' ratios colony / KMeans."""
+    obj = selection_objective(n, device)
+    time_aco(obj, names[0], m, 2, device)                                   # warm-up
+    rows = []
+    for name in names:
+        rounds = [(time_kmeans(obj, m, 3), time_aco(obj, name, m, iterations, device)) for _ in range(repeats)]
+        runs = {key: statistics.median(r[key] for _, r in rounds) for key in ("seconds", "setup_s", "per_iter_s")}
+        rows.append({"N": n, "M": m, "method": f"{name} ({COLONIES[name][0]})", "device": device,
+                     "threads": torch.get_num_threads(), "iterations": rounds[0][1]["iterations"],
+                     "kmeans_s": statistics.median(km for km, _ in rounds), **runs,
+                     "x_kmeans": statistics.median(r["seconds"] / km for km, r in rounds),
+                     "how": f"median of {repeats} interleaved rounds"})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(prog="python -m bench.select_time", description=__doc__.splitlines()[0])
+    p.add_argument("--n", type=int, default=10000, help="training pairs N (N / 2 validation pairs; default 10000)")
+    p.add_argument("--m", type=int, default=40, help="centres M (default 40)")
+    p.add_argument("--iterations", type=int, default=NC_MAX, help=f"NC_max (default {NC_MAX})")
+    p.add_argument("--colonies", default=",".join(COLONIES), help="comma-separated subset of " + ", ".join(COLONIES))
+    p.add_argument("--threads", type=int, default=1, help="torch and other thread pools (default 1)")
+    p.add_argument("--repeats", type=int, default=3, help="interleaved rounds (medians are reported)")
+    p.add_argument("--device", default="cpu", help="the colony's device, cpu or cuda (KMeans runs on CPU)")
+    p.add_argument("--json", type=Path, default=None, help="also write the rows and the machine to this file")
+    a = p.parse_args(argv)
+    names = tuple(a.colonies.split(","))
+    if a.threads < 1:
+        p.error(f"--threads {a.threads} must be >= 1")
+    if not set(names) <= set(COLONIES):
+        p.error(f"--colonies {a.colonies}: choose from {', '.join(COLONIES)}")
+    from threadpoolctl import threadpool_limits
+
+    torch.set_num_threads(a.threads)
+    with threadpool_limits(a.threads):
+        rows = ratio_rows(a.n, a.m, a.iterations, names, a.device, a.repeats)
+    info = machine_info(a.device, a.threads)
+    print(f"Selection at N = {a.n}, M = {a.m}, {a.iterations} iterations, {info['threads']} thread(s), "
+          f"{info['cpu']} (load {info['load_average_1min']}), median of {a.repeats} rounds:")
+    for r in rows:
+        print(f"  {r['method']:22s} {r['seconds']:8.2f} s (set-up {r['setup_s']:.2f} s + {r['iterations']} x "
+              f"{r['per_iter_s'] * 1e3:.1f} ms)  KMeans {r['kmeans_s']:.3f} s  {r['x_kmeans']:6.1f}x KMeans")
+    if a.json:
+        a.json.write_text(json.dumps({"machine": info, "rows": rows}, indent=1))
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -18,6 +18,8 @@ LOG2E = 1.0 / math.log(2.0)
 # Bytes of one row block's Gaussians for all ants of a batch on CPU: about what stays in a core's
 # cache while the block is used (exponent, exp2, normal equations; fastest of 0.5-8 MiB here).
 BLOCK_BYTES = 2**21
+# Fewest rows a block has unless `block` says fewer: the normal equations' product stays efficient.
+MIN_ROWS = 256
 
 
 class FitObjective:
@@ -77,7 +79,7 @@ class FitObjective:
         s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)                    # exponents in base 2
         coef = torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
         cache = BLOCK_BYTES if coef.device.type == "cpu" else float("inf")
-        rows = max(64, min(self.block, int(cache // (k * m * coef.element_size()))))
+        rows = min(self.block, max(MIN_ROWS, int(cache // (k * m * coef.element_size()))))
         gram, rhs = self._normal_equations(coef, rows)
         val = self._val_blocks(coef, rows)
         # The rounding scale is summed in the deployment dtype, within (2 P + 3) u of float64's sum:

@@ -44,3 +44,12 @@ def test_suite_runs_at_tiny_sizes(tmp_path):
                     "Targets"):
         assert heading in text
     assert all(t["met"] in (True, False, None) for t in targets(res))
+
+
+def test_select_time_command_sets_and_reports_threads(capsys):
+    from bench import select_time
+
+    rows = select_time.main(["--n", "300", "--m", "5", "--iterations", "2", "--repeats", "1", "--threads", "1"])
+    assert [r["method"].split(" ")[0] for r in rows] == list(select_time.COLONIES)
+    assert all(r["threads"] == 1 and r["iterations"] == 2 and r["x_kmeans"] > 0 for r in rows)
+    assert "1 thread(s)" in capsys.readouterr().out

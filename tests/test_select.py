@@ -40,6 +40,15 @@ def test_acor_is_no_worse_than_its_kmeans_seed(objective):
     assert ((aco.centers >= z.amin(0)) & (aco.centers <= z.amax(0))).all()
 
 
+def test_acor_best_is_the_objective_of_what_it_returns(objective):
+    """The colony's recorded best is the fit objective of the centres and widths it returns,
+    evaluated alone (one ant, other row blocks): the same up to the float32 evaluation's rounding."""
+    cfg = CentersConfig(method="aco")
+    cfg.aco.iterations = 5
+    s = select(cfg, objective, 10, seed=0, max_width=2.0)
+    assert objective(s.centers[None], s.widths[None]).item() == pytest.approx(s.aco_best[-1], rel=1e-6)
+
+
 @pytest.mark.parametrize("search", ["per_center", "scale", "none"])
 def test_acor_width_search_options(objective, search):
     cfg = CentersConfig(method="aco")
