@@ -229,6 +229,7 @@ class ControlConfig:
     joint_scale: list[float] = field(default_factory=list)   # per joint; empty: derived (see above)
     dtype: Dtype = Dtype.float64               # type: ignore[valid-type]
     compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
+    aot: bool = False                  # the step compiled ahead of time, cached on disk (minutes once per configuration)
     figure_payload: Optional[float] = None   # kg, the case drawn in the figures; null: half the rated payload
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
@@ -381,6 +382,7 @@ def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
               f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}")
     _need(len(set(c.controllers)) == len(c.controllers), "control.controllers", list(c.controllers),
           "each controller may appear once")
+    _need(not (c.compile and c.aot), "control.aot", c.aot, "choose one of control.compile and control.aot")
     for k, v in vars(gains).items():
         if isinstance(v, float):
             _need(math.isfinite(v), f"gains.{k}", v, "must be finite")

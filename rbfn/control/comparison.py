@@ -71,7 +71,8 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
         features = w0 = None
         if name.startswith("arbfn_"):
             if pilot is None:
-                pilot = pilot_residuals(plant, sc, ref, gains, model, PILOT_STRIDE, scale)
+                pilot = pilot_residuals(plant, sc, ref, gains, model, PILOT_STRIDE, scale, compile=cfg.compile,
+                                        aot=cfg.aot)
             net = control_network(name[len("arbfn_"):], pilot[0].double().cpu(), pilot[1].double().cpu(),
                                   cfg.network.num_centers, cfg.network.seed, sc.dt * PILOT_STRIDE,
                                   cfg.network.aco, cfg.network.warm_start)
@@ -82,7 +83,7 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
     t0 = time.perf_counter()
     try:
         roll = simulate(plant, ctrl, sc, ref, q0.repeat(k, 1), qd0.repeat(k, 1), payload.repeat(k),
-                        compile=cfg.compile)
+                        compile=cfg.compile, aot=cfg.aot)
     except SimulationDiverged as e:
         i, j = divmod(e.environment, b)
         raise SimulationDiverged(f"controller {cfg.controllers[i]}, payload {case_name(setup.payloads[j])}: {e}",

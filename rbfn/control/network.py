@@ -51,12 +51,15 @@ def desired_states(ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torc
 
 
 def pilot_residuals(plant: Plant, scenario: Scenario, ref, gains: Gains, model: Model,
-                    stride: int = 10, joint_scale: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                    stride: int = 10, joint_scale: torch.Tensor | None = None, compile: bool = False,
+                    aot: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """(x (N, 2n), residual torque (N, n)) every `stride` steps of an `smc_obs` run without payload;
-    the residual is what the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat)."""
+    the residual is what the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat).
+    `compile`, `aot`: as `simulate`'s."""
     q0, qd0 = ref[0][:1].clone(), ref[1][:1].clone()
     ctrl = make_controller("smc_obs", gains, scenario.dt, model, joint_scale=joint_scale)
-    roll = simulate(plant, ctrl, scenario, ref, q0, qd0, torch.zeros(1, dtype=q0.dtype, device=q0.device))
+    roll = simulate(plant, ctrl, scenario, ref, q0, qd0, torch.zeros(1, dtype=q0.dtype, device=q0.device),
+                    compile=compile, aot=aot)
     q, qd, tau = roll.q[:-1, 0], roll.qd[:-1, 0], roll.tau[:-1, 0]
     qdd = (roll.qd[1:, 0] - qd) / scenario.dt
     at = model.at(q, qd)

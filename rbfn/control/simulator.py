@@ -8,6 +8,7 @@ step, time, environment and state where a run diverges; `control_metrics` scores
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -15,6 +16,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from ..config import Integrator
+from .aot import aot_chunk, fingerprint
 from .plants import ArmPlant, Plant, ScaraPlant
 
 if TYPE_CHECKING:
@@ -23,6 +25,7 @@ if TYPE_CHECKING:
 __all__ = ["Plant", "ScaraPlant", "ArmPlant", "Scenario", "Rollout", "SimulationDiverged", "simulate",
            "control_metrics", "make_chunk", "stage_disturbances", "CHECK_EVERY"]
 
+log = logging.getLogger(__name__)
 CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a GPU)
 
 
@@ -115,7 +118,8 @@ def make_chunk(plant: Plant, controller: "Controller", dt: float, integrator: st
 
 def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
              ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
-             payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0) -> Rollout | tuple:
+             payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0,
+             aot: bool = False) -> Rollout | tuple:
     """Run the closed loop from (q0, qd0) (B, n) along ref = (q_d, qd_d, qdd_d), each (steps + 1, n)
     on the scenario's time grid; payload (B,) kg applies inside the window.
 
@@ -123,8 +127,10 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
     (default 100 eager; compiled, the plant's `compile_chunk`: 25 for the SCARA, 1 for a URDF arm,
     whose step alone is a large graph); `compile` fuses them into one torch.compile'd call, which
     removes most of the per-operation overhead at small B and, for a URDF arm, streams its
-    dynamics through registers instead of memory (compiling takes minutes). Raises SimulationDiverged naming the first
-    non-finite step (checked every CHECK_EVERY steps, rounded up to chunks, and at the end).
+    dynamics through registers instead of memory (compiling takes minutes). `aot` runs the same
+    chunks compiled ahead of time and cached on disk (`rbfn.control.aot`): minutes the first time
+    for a configuration, milliseconds to load after that. Raises SimulationDiverged naming the
+    first non-finite step (checked every CHECK_EVERY steps, rounded up to chunks, and at the end).
     """
     scenario.validate()
     n, dt = scenario.steps, scenario.dt
@@ -137,7 +143,7 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
-    chunk = chunk or (plant.compile_chunk if compile else 100)
+    chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     b, kw = q0.shape[0], {"dtype": q0.dtype, "device": q0.device}
     dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3) or (n, 3, joints)
     h = controller.features.to(**kw) if controller.features is not None else None
@@ -155,6 +161,16 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
         # that layout, so the compiled loops read and write contiguous rows and vectorise.
         q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
     state = controller.init_state(q, qd)
+    if aot and n >= chunk:
+        sl = slice(0, chunk)
+        example = (q, qd, state, q_d[sl], v_d[sl], a_d[sl], None if h is None else h[sl], alpha[sl], dist[sl],
+                   tuple(c[sl] for c in co))
+        leaves, spec = torch.utils._pytree.tree_flatten(example)
+        shapes = [(tuple(t.shape), t.dtype, t.device) if isinstance(t, torch.Tensor) else t
+                  for t in leaves]                                     # the graph's, not its values
+        key = fingerprint(plant, controller, dt, scenario.integrator, chunk, shapes, str(spec),
+                          skip=("features", "w0"))
+        run = aot_chunk(run, key, example, log.info)
     if record:
         qs = torch.empty(n + 1, b, plant.n, **kw)
         qds, taus = torch.empty_like(qs), torch.empty_like(qs)

@@ -1,0 +1,124 @@
+"""The closed loop's chunk compiled ahead of time (AOTInductor) and cached on disk.
+
+`torch.compile` pays its tracing and compilation in every process (about 10 s at best for one
+SCARA period, minutes for a chunk of 25). An AOTInductor package is a shared library with the
+chunk's graph: built once per configuration (minutes), then loaded in milliseconds, so a small
+batch, whose eager step is per-operation overhead, runs at compiled speed from the second run on.
+
+The cache key is a fingerprint of everything the chunk's code closes over, so a changed gain,
+plant parameter, robot, integrator, chunk length, input shape, dtype, device, torch version or
+source file of `rbfn.control` / `rbfn.robots` gives a new package, never a stale one. Packages are
+written atomically; the directory is $ACO_RBFN_CACHE/aot, default ~/.cache/aco-rbfn/aot.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import hashlib
+import os
+import tempfile
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+__all__ = ["cache_dir", "fingerprint", "aot_chunk"]
+
+_SOURCES = ("control", "robots")          # packages whose code the chunk runs
+
+
+def cache_dir() -> Path:
+    """Where compiled chunks are kept: $ACO_RBFN_CACHE/aot, default ~/.cache/aco-rbfn/aot."""
+    root = os.environ.get("ACO_RBFN_CACHE") or Path.home() / ".cache" / "aco-rbfn"
+    return Path(root) / "aot"
+
+
+def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
+    """A hex digest of objects' values and this code: tensors by dtype, shape and bytes;
+    dataclasses, plain objects (their public attributes but those named in `skip`), containers
+    and scalars recursively; then the source files of rbfn.control and rbfn.robots and torch's
+    version."""
+    h = hashlib.sha256()
+    seen: set[int] = set()
+
+    def put(x) -> None:
+        if isinstance(x, torch.Tensor):
+            t = x.detach().cpu().contiguous()
+            h.update(f"T{t.dtype}{tuple(t.shape)}{x.device.type}".encode())
+            h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+        elif x is None or isinstance(x, (bool, int, float, str, bytes, enum.Enum, torch.dtype, torch.device)):
+            h.update(f"{type(x).__name__}:{x!r};".encode())
+        elif isinstance(x, (list, tuple)):
+            h.update(f"{type(x).__name__}[{len(x)}".encode())
+            for v in x:
+                put(v)
+            h.update(b"]")
+        elif isinstance(x, dict):
+            h.update(b"{")
+            for k in sorted(x, key=repr):
+                put(k)
+                put(x[k])
+            h.update(b"}")
+        elif id(x) in seen:
+            h.update(b"<seen>")
+        else:
+            seen.add(id(x))
+            h.update(f"<{type(x).__module__}.{type(x).__qualname__}>".encode())
+            if dataclasses.is_dataclass(x):
+                fields = {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}
+            else:
+                # Private attributes are caches (keyed by id, say), not values.
+                fields = {k: v for k, v in vars(x).items() if not k.startswith("_") and k not in skip}
+            put(fields)
+
+    for o in objs:
+        put(o)
+    root = Path(__file__).resolve().parents[1]
+    for pkg in _SOURCES:
+        for f in sorted((root / pkg).glob("*.py")):
+            h.update(f.name.encode() + f.read_bytes())
+    h.update(torch.__version__.encode())
+    return h.hexdigest()[:32]
+
+
+class _Chunk(torch.nn.Module):
+    def __init__(self, run: Callable, with_features: bool) -> None:
+        super().__init__()
+        self.run, self.with_features = run, with_features
+
+    def forward(self, *args):
+        if self.with_features:
+            return self.run(*args)
+        q, qd, state, q_d, v_d, a_d, alpha, dist, co = args
+        return self.run(q, qd, state, q_d, v_d, a_d, None, alpha, dist, co)
+
+
+def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None] | None = None) -> Callable:
+    """`run` (a `make_chunk` function) as the AOTInductor package cached under `key`, built from
+    the `example` arguments on a miss (minutes); returns a function with run's signature."""
+    # torch's own pytree deprecation notice, raised when it pickles the program's input spec.
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
+    with_features = example[6] is not None
+    args = example if with_features else example[:6] + example[7:]
+    path = cache_dir() / f"chunk-{key}.pt2"
+    if not path.is_file():
+        if log:
+            log(f"compiling the closed-loop step ahead of time into {path} (minutes, once per configuration)")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        program = torch.export.export(_Chunk(run, with_features), args, strict=False)
+        fd, tmp = tempfile.mkstemp(suffix=".pt2", dir=path.parent)
+        os.close(fd)
+        try:
+            torch._inductor.aoti_compile_and_package(program, package_path=tmp)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    compiled = torch._inductor.aoti_load_package(str(path))
+    if with_features:
+        return compiled
+
+    def call(q, qd, state, q_d, v_d, a_d, h, alpha, dist, co):
+        return compiled(q, qd, state, q_d, v_d, a_d, alpha, dist, co)
+    return call

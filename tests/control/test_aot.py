@@ -1,0 +1,48 @@
+"""The closed loop's chunk compiled ahead of time and cached on disk."""
+import shutil
+
+import pytest
+import torch
+
+from rbfn.control import Scenario, ScaraPlant, make_controller, paper_trajectory, simulate
+from rbfn.control.aot import fingerprint
+from rbfn.control.controllers import Gains
+
+
+def test_fingerprint_follows_values_not_identity_or_caches():
+    a, b = ScaraPlant(), ScaraPlant()
+    a._joint_values[1] = torch.ones(3)                     # a private cache: not part of the value
+    assert fingerprint(a, 1e-3) == fingerprint(b, 1e-3)
+    assert fingerprint(a, 1e-3) != fingerprint(ScaraPlant(viscous=11.0), 1e-3)
+    assert fingerprint(a, 1e-3) != fingerprint(a, 2e-3)
+    c1 = make_controller("smc_obs", Gains(), 1e-3)
+    c2 = make_controller("smc_obs", Gains(K=49.0), 1e-3)
+    assert fingerprint(c1) != fingerprint(c2)
+    f1 = make_controller("arbfn", Gains(), 1e-3, features=torch.zeros(5, 2))
+    f2 = make_controller("arbfn", Gains(), 1e-3, features=torch.ones(5, 2))
+    assert fingerprint(f1, skip=("features",)) == fingerprint(f2, skip=("features",))
+    assert fingerprint(f1) != fingerprint(f2)
+    assert fingerprint(torch.zeros(2)) != fingerprint(torch.zeros(2, dtype=torch.float64))
+
+
+@pytest.mark.slow
+def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
+    monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
+    sc = Scenario(duration=0.02, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
+    ref = paper_trajectory(sc.times())
+    ctrl = make_controller("smc_obs", Gains(), sc.dt)
+    pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
+    q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
+    eager = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, pay, chunk=4)
+    with caplog.at_level("INFO", logger="rbfn.control.simulator"):
+        first = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, pay, chunk=4, aot=True)
+        (pkg,) = (tmp_path / "aot").glob("chunk-*.pt2")
+        built = pkg.stat().st_mtime_ns
+        again = simulate(ScaraPlant(), ctrl, sc, ref, q0 + 1e-3, qd0, pay, chunk=4, aot=True)  # other values
+    assert sum("compiling the closed-loop step" in r.message for r in caplog.records) == 1
+    assert pkg.stat().st_mtime_ns == built and len(list((tmp_path / "aot").iterdir())) == 1
+    assert torch.allclose(first.q, eager.q, rtol=0, atol=1e-12)
+    assert torch.allclose(first.tau, eager.tau, rtol=0, atol=1e-8)
+    assert not torch.equal(again.q, first.q)
