@@ -75,6 +75,7 @@ def test_cluster_controller_does_not_change_the_shared_aco_config():
     ({"dt": 0.0}, "control.dt=0.0"),
     ({"payload_off": 5.0}, r"control.payload_on/payload_off=\[0.3, 5.0\]"),
     ({"network": NetworkConfig(num_centers=500)}, "control.network.num_centers=500 .*exceeds the pilot run"),
+    ({"compile": True, "aot": True}, "control.aot=True.*choose one of control.compile and control.aot"),
 ])
 def test_bad_control_config(change, match):
     with pytest.raises(ValueError, match=match):
