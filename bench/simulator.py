@@ -42,14 +42,14 @@ from rbfn.robots import scara
 from .timing import median_seconds, timed
 
 __all__ = ["DT", "PAYLOAD", "closed_loop", "env_steps_rows", "scenario_seconds", "compiled_scenario",
-           "scipy_row", "mujoco_rows", "has_c_compiler", "robot_config", "arm_closed_loop", "arm_rows",
-           "arm_mujoco_rows"]
+           "aot_scenario", "scipy_row", "numpy_rk4_row", "mujoco_rows", "has_c_compiler", "robot_config",
+           "arm_closed_loop", "arm_rows", "arm_mujoco_rows"]
 
 DT, PAYLOAD = 1e-3, 10.0
 
 
 def closed_loop(b: int, duration: float, device: str = "cpu", compile: bool = False,
-                payload_window: tuple[float, float] | None = None):
+                payload_window: tuple[float, float] | None = None, aot: bool = False):
     """A no-argument function running B environments for `duration` s (final state only)."""
     on, off = payload_window or (0.0, duration)
     sc = Scenario(duration=duration, dt=DT, payload_on=on, payload_off=off, metrics_after=0.0)
@@ -58,7 +58,7 @@ def closed_loop(b: int, duration: float, device: str = "cpu", compile: bool = Fa
     q0, qd0 = ref[0][0].expand(b, 3).clone(), ref[1][0].expand(b, 3).clone()
     payload = torch.full((b,), PAYLOAD, device=device)
     plant = ScaraPlant()
-    return lambda: simulate(plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile)
+    return lambda: simulate(plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile, aot=aot)
 
 
 def env_steps_rows(steps_for: dict[int, int], device: str = "cpu", repeats: int = 3) -> list[dict]:
@@ -106,12 +106,64 @@ def compiled_scenario(device: str, threads: int, cap_s: float, duration: float =
     return {"status": "ok", **json.loads(lines[-1])}
 
 
-def _compiled_child(device: str, threads: int, duration: float) -> None:
+def _compiled_child(device: str, threads: int, duration: float, aot: bool = False) -> None:
     torch.set_num_threads(threads)
-    run = closed_loop(1, duration, device, compile=True, payload_window=_window(duration))
+    run = closed_loop(1, duration, device, compile=not aot, aot=aot, payload_window=_window(duration))
     first = timed(run, device)
     t, ts = median_seconds(run, 2, device, warmup=0)
     print(json.dumps({"first_call_s": first, "seconds": t, "runs": ts, "compile_s": first - t}))
+
+
+def aot_scenario(device: str, threads: int, cap_s: float, duration: float = 10.0) -> dict:
+    """The scenario with `aot` (rbfn.control.aot) in two child processes sharing a fresh cache:
+    the first builds the package (build_s: its first call minus a run), the second loads it
+    (cached_first_call_s: load and one run in a new process); seconds: the median cached run."""
+    if device == "cpu" and not has_c_compiler():
+        return {"status": "no C++ compiler"}
+    import os
+    import tempfile
+
+    out: dict = {"status": "ok"}
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "ACO_RBFN_CACHE": cache}
+        cmd = [sys.executable, "-m", "bench.simulator", "--aot-scenario", device, "--threads", str(threads),
+               "--duration", str(duration)]
+        for run in ("build", "cached"):
+            try:
+                res = subprocess.run(cmd, capture_output=True, text=True, timeout=cap_s, env=env)
+            except subprocess.TimeoutExpired:
+                return {"status": f"{run}: not done within the {cap_s:.0f} s cap"}
+            lines = [ln for ln in res.stdout.splitlines() if ln.startswith("{")]
+            if res.returncode or not lines:
+                return {"status": f"{run} failed (exit {res.returncode}): {res.stderr.strip()[-300:]}"}
+            r = json.loads(lines[-1])
+            if run == "build":
+                out["build_s"] = r["compile_s"]
+            else:
+                out.update(cached_first_call_s=r["first_call_s"], seconds=r["seconds"], runs=r["runs"])
+    return out
+
+
+def numpy_rk4_row(duration: float = 10.0) -> dict:
+    """One environment stepped by a plain numpy RK4 loop at dt = 1 ms (the same plant, PD in the
+    right-hand side, torque held per step as in `simulate`): wall seconds."""
+    plant = ScaraPlant()
+    rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
+    s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])
+    n, h = int(round(duration / DT)), DT
+
+    def run():
+        s, t = s0.copy(), 0.0
+        for _ in range(n):
+            k1 = rhs(t, s)
+            k2 = rhs(t + h / 2, s + h / 2 * k1)
+            k3 = rhs(t + h / 2, s + h / 2 * k2)
+            k4 = rhs(t + h, s + h * k3)
+            s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            t += h
+    t, _ = median_seconds(run, 1, warmup=0)
+    return {"method": "numpy RK4 loop (PD in the RHS)", "B": 1, "duration": duration, "seconds": t,
+            "env_steps_per_s": n / t}
 
 
 def _pd_rhs(p: scara.ScaraParams, plant: ScaraPlant, gains: Gains, on: float, off: float):
@@ -296,6 +348,7 @@ if __name__ == "__main__":
                                              "python -m bench; this entry point: URDF arms, and the compiled "
                                              "scenario's child process)")
     ap.add_argument("--compiled-scenario", metavar="DEVICE", help="child process of compiled_scenario")
+    ap.add_argument("--aot-scenario", metavar="DEVICE", help="child process of aot_scenario")
     ap.add_argument("--arm", metavar="ROBOT", help="a URDF arm's closed loop against MuJoCo (ur5, panda, scara)")
     ap.add_argument("--batches", default="1,1024,8192", help="comma-separated B")
     ap.add_argument("--env-steps", type=int, default=80_000, help="about B x steps per timed run")
@@ -311,5 +364,7 @@ if __name__ == "__main__":
         _arm_main(a)
     elif a.compiled_scenario:
         _compiled_child(a.compiled_scenario, a.threads, a.duration)
+    elif a.aot_scenario:
+        _compiled_child(a.aot_scenario, a.threads, a.duration, aot=True)
     else:
-        ap.error("give --arm ROBOT or --compiled-scenario DEVICE")
+        ap.error("give --arm ROBOT, --compiled-scenario DEVICE or --aot-scenario DEVICE")
