@@ -51,6 +51,7 @@ class FitObjective:
         self._beside = torch.cat([tail_tr, y_train], 1)
         self._tail_normal = tail_tr.T @ self._beside                          # (d + 1, d + 1 + out)
         self._tail_val = torch.cat([z_val.T, torch.ones_like(z_val[:, 0])[None]]) if tail else z_val.T[:0]
+        self._tail_val_abs = self._tail_val.abs()
         self._y_val_t = y_val.T.contiguous()
 
     def width(self, m: int) -> int:
@@ -126,10 +127,10 @@ class FitObjective:
         def build(r0: int) -> tuple[int, torch.Tensor]:
             tail = self._tail_val[:, r0:r0 + rows]
             a = torch.empty(k, m + n_t * (1 + bounds), tail.shape[1], dtype=dtype, device=coef.device)
-            a[:, :m] = _gaussians(coef, self._val_rows[:, r0:r0 + rows])
+            _gaussians(coef, self._val_rows[:, r0:r0 + rows], out=a[:, :m])     # float64, then rounded
             a[:, m:m + n_t] = tail
             if bounds:
-                a[:, m + n_t:] = tail.abs()
+                a[:, m + n_t:] = self._tail_val_abs[:, r0:r0 + rows]
             return r0, a
 
         if exact or k * (m + 2 * n_t) * n_v * torch.finfo(dtype).bits / 8 > self.memory / 4:
@@ -147,8 +148,9 @@ class FitObjective:
         w_t = weights.transpose(-1, -2).reshape(k, lo, p)                         # (K, L * out, P)
         sse = w_t.new_zeros(k, n_l, n_out)
         bound = w_t.new_zeros(k, lo)
-        bounds, w2 = self.eval_dtype is not None, None
+        bounds, w2, err = self.eval_dtype is not None, None, None
         for r0, a in val():
+            b = a.shape[-1]
             if w2 is None:
                 w2 = w_t.new_zeros(k, lo * (1 + bounds), a.shape[1])
                 w2[:, :lo, :p] = w_t
@@ -156,12 +158,13 @@ class FitObjective:
                     w2[:, lo:, :m] = w_t[..., :m].abs()
                     w2[:, lo:, p:] = w_t[..., m:].abs()
                 w2 = w2.to(a.dtype)
+                err = w_t.new_empty(k, n_l, n_out, b)                              # reused by every block
             out = torch.bmm(w2, a)
-            err = out[:, :lo].to(w_t.dtype).view(k, n_l, n_out, -1).sub_(self._y_val_t[:, r0:r0 + a.shape[-1]])
-            sse.add_(err.square_().sum(-1))
+            pred = out[:, :lo].view(k, n_l, n_out, b)
+            sse.add_(torch.sub(pred, self._y_val_t[:, r0:r0 + b], out=err[..., :b]).square_().sum(-1))
             if bounds:
                 torch.maximum(bound, out[:, lo:].amax(-1).to(bound.dtype), out=bound)
-            del out, err
+            del out, pred
         mse = sse.sum(-1) / self.z_val.shape[0]
         if not bounds:
             return mse, None
@@ -175,10 +178,11 @@ def _exponent_rows(z: torch.Tensor) -> torch.Tensor:
     return torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1).T.contiguous()
 
 
-def _gaussians(coef: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+def _gaussians(coef: torch.Tensor, rows: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
     """Gaussians (K, M, B) of ants' exponent coefficients (K, M, d + 2) on rows (d + 2, B), in
-    base 2 (exp2 is about twice as fast as exp in float64 on CPU)."""
-    return (coef @ rows).clamp_(max=0.0).exp2_()
+    base 2 (exp2 is about twice as fast as exp in float64 on CPU); into `out` (of any dtype:
+    computed in the coefficients' dtype, then rounded) where given."""
+    return torch.exp2((coef @ rows).clamp_(max=0.0), out=out)
 
 
 def cluster_objective(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:

@@ -52,3 +52,11 @@ def test_rounding_scale_near_the_tolerance_is_judged_in_float64():
         chosen.append(float(ref.ridge[0]))
     assert chosen[0] > chosen[1]                              # the tolerance decides ant 0's ridge
 
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_objective_on_cuda_equals_cpu():
+    z, y, c, w = _problem()
+    cpu = FitObjective(z[:500], y[:500], z[500:], y[500:], eval_dtype=torch.float32)
+    gpu = FitObjective(*(t.cuda() for t in (z[:500], y[:500], z[500:], y[500:])), eval_dtype=torch.float32)
+    assert torch.allclose(gpu(c.cuda(), w.cuda()).cpu(), cpu(c, w), rtol=1e-6, atol=0)
