@@ -115,10 +115,29 @@ def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
-    compiled = torch._inductor.aoti_load_package(str(path))
+    compiled = _load(path)
     if with_features:
         return compiled
 
     def call(q, qd, state, q_d, v_d, a_d, h, alpha, dist, co):
         return compiled(q, qd, state, q_d, v_d, a_d, alpha, dist, co)
     return call
+
+
+def _load(path: Path) -> Callable:
+    """The package at `path` as a function of the chunk's arguments.
+
+    Through torch's package loader directly where this torch has it: torch's own
+    `aoti_load_package` first imports the compiler and probes the CPU's vector extensions in
+    subprocesses (about 2 s) only to warn about a device mismatch, which cannot happen with a
+    package built here for this device."""
+    try:
+        loader = torch._C._aoti.AOTIModelPackageLoader(str(path), "model", False, 1, -1)
+        out_spec = torch.utils._pytree.treespec_loads(loader.get_call_spec()[1])
+    except (AttributeError, TypeError, RuntimeError):
+        return torch._inductor.aoti_load_package(str(path))
+
+    def run(*args):
+        flat = [x for x in torch.utils._pytree.tree_leaves(args) if isinstance(x, torch.Tensor)]
+        return torch.utils._pytree.tree_unflatten(loader.boxed_run(flat), out_spec)
+    return run
