@@ -256,6 +256,7 @@ class OnlineConfig:
     decay: float = 0.0                 # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
     forgetting: float = 0.9995         # RLS forgetting factor
     update_every: int = 10             # control periods per update (the pairs of one mini-batch)
+    aot: bool = False                  # the closed-loop chunk compiled ahead of time, cached on disk (as control.aot)
     save_checkpoint: bool = True       # write checkpoint_online.pt (the configured perturbation's network)
 
 

@@ -2,6 +2,8 @@
 parts independent of each other, and the online sweep labelled by its real perturbation."""
 import json
 
+from dataclasses import replace
+
 import pytest
 
 import evaluate
@@ -79,6 +81,22 @@ def test_online_sweep_rows_carry_the_real_perturbation(ckpt):
     assert rows[0.04]["link_error"] == pytest.approx([0.04, -0.02])
     assert rows[0.0]["link_error"] == [0.0, 0.0]
     assert m["task_err_mm_rms_last_2s"] == rows[0.02]["task_err_mm_rms_last_2s"]
+
+
+@pytest.mark.slow
+def test_online_ahead_of_time_equals_eager(ckpt, tmp_path, monkeypatch):
+    """online.aot runs the same closed loop from a package compiled ahead of time."""
+    import shutil
+
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
+    monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
+    cfg = OnlineConfig(duration=0.5, sizes=[0.03])
+    eager = evaluate_online(read_checkpoint(ckpt), cfg, GainsConfig())
+    aot = evaluate_online(read_checkpoint(ckpt), replace(cfg, aot=True), GainsConfig())
+    assert len(list((tmp_path / "aot").glob("chunk-*.pt2"))) == 1
+    for key in ("task_err_mm_rms_first_2s", "task_err_mm_rms_last_2s", "weight_change_norm"):
+        assert aot[key] == pytest.approx(eager[key], rel=1e-9, abs=1e-12), key
 
 
 @pytest.mark.slow

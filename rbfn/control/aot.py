@@ -23,7 +23,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["cache_dir", "fingerprint", "aot_chunk"]
+__all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk"]
 
 _SOURCES = ("control", "robots")          # packages whose code the chunk runs
 
@@ -80,6 +80,15 @@ def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
             h.update(f.name.encode() + f.read_bytes())
     h.update(torch.__version__.encode())
     return h.hexdigest()[:32]
+
+
+def chunk_key(plant, controller, dt: float, integrator: str, chunk: int, example: tuple) -> str:
+    """The cache key of a `make_chunk` function: its plant, controller (not its features or
+    initial weights, which are inputs), time step, integrator, length, and the example
+    arguments' structure, shapes, dtypes and devices (not their values)."""
+    leaves, spec = torch.utils._pytree.tree_flatten(example)
+    shapes = [(tuple(t.shape), t.dtype, t.device) if isinstance(t, torch.Tensor) else t for t in leaves]
+    return fingerprint(plant, controller, dt, integrator, chunk, shapes, str(spec), skip=("features", "w0"))
 
 
 class _Chunk(torch.nn.Module):

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from ..config import Integrator
-from .aot import aot_chunk, fingerprint
+from .aot import aot_chunk, chunk_key
 from .plants import ArmPlant, Plant, ScaraPlant
 
 if TYPE_CHECKING:
@@ -165,11 +165,7 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
         sl = slice(0, chunk)
         example = (q, qd, state, q_d[sl], v_d[sl], a_d[sl], None if h is None else h[sl], alpha[sl], dist[sl],
                    tuple(c[sl] for c in co))
-        leaves, spec = torch.utils._pytree.tree_flatten(example)
-        shapes = [(tuple(t.shape), t.dtype, t.device) if isinstance(t, torch.Tensor) else t
-                  for t in leaves]                                     # the graph's, not its values
-        key = fingerprint(plant, controller, dt, scenario.integrator, chunk, shapes, str(spec),
-                          skip=("features", "w0"))
+        key = chunk_key(plant, controller, dt, scenario.integrator, chunk, example)
         run = aot_chunk(run, key, example, log.info)
     if record:
         qs = torch.empty(n + 1, b, plant.n, **kw)

@@ -10,6 +10,7 @@ desired path, differentiated in time on the control grid, times the current weig
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, replace
 
@@ -19,9 +20,12 @@ from ..config import GainsConfig, OnlineConfig, PathName
 from ..layer import RBFNetwork
 from ..lms import make_learner
 from ..robots.scara import ScaraParams, fk, ik
+from .aot import aot_chunk, chunk_key
 from .controllers import make_controller
 from .simulator import ScaraPlant, Scenario, make_chunk, stage_disturbances
 from .trajectory import paper_trajectory
+
+log = logging.getLogger(__name__)
 
 __all__ = ["RealRobot", "desired_path", "run_online",
            "perturbation_sizes"]
@@ -113,8 +117,11 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
         m = min(cfg.update_every, n - k)
         sl = slice(k, k + m)
         refs = [torch.einsum("np,bpj->nbj", r[sl], learner.w) for r in (a_path, da, dda)]
+        args = (q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
+        if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
+            run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, args), args, log.info)
         fn = run if m == cfg.update_every else make_chunk(plant, ctrl, cfg.dt, "rk4", m)
-        q, qd, state, rq, _, _ = fn(q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
+        q, qd, state, rq, _, _ = fn(*args)
         qs[sl] = rq
         k += m
         if not bool(torch.isfinite(q).all()):
