@@ -1,7 +1,6 @@
 """evaluate.py end to end: its metrics.json layout, every setting checked before any work, the
 parts independent of each other, and the online sweep labelled by its real perturbation."""
 import json
-
 from dataclasses import replace
 
 import pytest
