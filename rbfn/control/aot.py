@@ -47,7 +47,8 @@ def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
             t = x.detach().cpu().contiguous()
             h.update(f"T{t.dtype}{tuple(t.shape)}{x.device.type}".encode())
             h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
-        elif x is None or isinstance(x, (bool, int, float, str, bytes, enum.Enum, torch.dtype, torch.device)):
+        elif x is None or isinstance(x, (bool, int, float, str, bytes, slice, range, enum.Enum, torch.dtype,
+                                         torch.device)):
             h.update(f"{type(x).__name__}:{x!r};".encode())
         elif isinstance(x, (list, tuple)):
             h.update(f"{type(x).__name__}[{len(x)}".encode())
@@ -67,6 +68,8 @@ def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
             h.update(f"<{type(x).__module__}.{type(x).__qualname__}>".encode())
             if dataclasses.is_dataclass(x):
                 fields = {f.name: getattr(x, f.name) for f in dataclasses.fields(x)}
+            elif not hasattr(x, "__dict__"):
+                raise TypeError(f"cannot fingerprint a {type(x).__qualname__} (no attributes to read)")
             else:
                 # Private attributes are caches (keyed by id, say), not values.
                 fields = {k: v for k, v in vars(x).items() if not k.startswith("_") and k not in skip}

@@ -6,7 +6,7 @@ import torch
 
 from rbfn.control import Scenario, ScaraPlant, make_controller, paper_trajectory, simulate
 from rbfn.control.aot import fingerprint
-from rbfn.control.controllers import Gains
+from rbfn.control.controllers import Gains, Stacked
 
 
 def test_fingerprint_follows_values_not_identity_or_caches():
@@ -23,6 +23,11 @@ def test_fingerprint_follows_values_not_identity_or_caches():
     assert fingerprint(f1, skip=("features",)) == fingerprint(f2, skip=("features",))
     assert fingerprint(f1) != fingerprint(f2)
     assert fingerprint(torch.zeros(2)) != fingerprint(torch.zeros(2, dtype=torch.float64))
+    both = Stacked([c1, f1], [2, 2])                                       # slices of its feature columns
+    assert fingerprint(both, skip=("features",)) == fingerprint(Stacked([c1, f2], [2, 2]), skip=("features",))
+    assert fingerprint(both) != fingerprint(Stacked([c2, f1], [2, 2]))
+    with pytest.raises(TypeError, match="cannot fingerprint a"):
+        fingerprint(object())
 
 
 @pytest.mark.slow
