@@ -34,7 +34,7 @@ def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
     Without the tail there is no bias column either (P = M); `assemble` then sets a zero bias.
 
     Squared distances use |z|^2 + |c|^2 - 2 z.c (one matmul), which is fast and exact enough in
-    float64, the precision fitting runs in; the module evaluates by broadcasting instead.
+    float64, the precision fitting runs in.
     """
     # |z|^2 + |c|^2 - 2 z c^T, then exp(-max(., 0) / (2 sigma^2)), in place on one buffer.
     phi = (z @ centers.transpose(-1, -2)).mul_(-2.0)
@@ -49,7 +49,9 @@ def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
 
 def deployed_design(x: torch.Tensor, offset: torch.Tensor, scale: torch.Tensor, centers: torch.Tensor,
                     widths: torch.Tensor, tail: bool, dtype: torch.dtype) -> torch.Tensor:
-    """The design matrix (N, P) exactly as an RBFNetwork in `dtype` computes it from raw inputs x."""
+    """The design matrix (N, P) as `RBFNetwork.design` in `dtype` computes it from raw inputs x
+    (broadcast distances); the module's prediction path expands them instead, which differs by
+    float rounding only (bounded with the rest by ROUND_TOL)."""
     cast = [t.to(dtype) for t in (x, offset, scale, centers, widths)]
     z = (cast[0] - cast[1]) / cast[2]
     phi = gaussian_features(z, cast[3], cast[4])
