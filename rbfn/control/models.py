@@ -14,7 +14,7 @@ import torch
 from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
-from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mdot_times
+from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mass_entries, mdot_times
 
 __all__ = ["NominalModel", "ArmModel"]
 
@@ -39,18 +39,25 @@ class NominalModel:
 
 
 class _ScaraAt:
+    """The model at one state; what several terms share (M's entries, G) is computed once."""
+
     def __init__(self, model: NominalModel, q: torch.Tensor, qd: torch.Tensor) -> None:
         self.model, self.q, self.qd = model, q, qd
         self.s2, self.c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+        self._entries = self._g = None
 
     def m_times(self, v: torch.Tensor) -> torch.Tensor:
-        return m_times(self.c2, self.model.m_co, v)
+        if self._entries is None:
+            self._entries = mass_entries(self.c2, self.model.m_co)
+        return m_times(self.c2, self.model.m_co, v, self._entries)
 
     def c_times(self, y: torch.Tensor) -> torch.Tensor:
         return c_times(self.s2, self.model.c_co, self.qd, y)
 
     def gravity(self) -> torch.Tensor:
-        return self.model.gravity(self.q)
+        if self._g is None:
+            self._g = self.model.gravity(self.q)
+        return self._g
 
     def momentum_rate(self) -> torch.Tensor:
         m = self.model

@@ -22,7 +22,7 @@ import torch
 
 __all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
            "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "m_times", "c_times", "mdot_times", "m_solve", "m_solve_parts"]
+           "mass_entries", "m_times", "c_times", "mdot_times", "m_solve", "m_solve_parts"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -127,12 +127,19 @@ def kinetic_energy(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Ten
 
 # Elementwise products for the simulator's hot path: co = (p1, p2, p3, m3) from inertia_params,
 # c2 = cos q2, s2 = sin q2 (B,); no (B, 3, 3) matrix is formed.
-def m_times(c2, co, v: torch.Tensor) -> torch.Tensor:
-    """M(q) v (B, 3) from c2 = cos q2 (B,), co = (p1, p2, p3, m3) and v (B, 3)."""
-    p1, p2, p3, m3 = co
-    m12 = p3 + p2 * c2
+def mass_entries(c2, co) -> tuple:
+    """(M11, M12) (B,) of the revolute 2x2 block from c2 = cos q2 (B,) and co; M22 = p3, M33 = m3."""
+    p1, p2, p3, _ = co
+    pc = p2 * c2
+    return p1 + (pc + pc), p3 + pc
+
+
+def m_times(c2, co, v: torch.Tensor, entries: tuple | None = None) -> torch.Tensor:
+    """M(q) v (B, 3) from c2 = cos q2 (B,), co = (p1, p2, p3, m3) and v (B, 3); `entries`:
+    `mass_entries(c2, co)` if already computed."""
+    m11, m12 = entries or mass_entries(c2, co)
     v1, v2, v3 = v.unbind(-1)
-    return torch.stack([(p1 + 2 * p2 * c2) * v1 + m12 * v2, m12 * v1 + p3 * v2, m3 * v3], -1)
+    return torch.stack([m11 * v1 + m12 * v2, m12 * v1 + co[2] * v2, co[3] * v3], -1)
 
 
 def c_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
@@ -157,8 +164,7 @@ def m_solve(c2, co, r: torch.Tensor) -> torch.Tensor:
 
 def m_solve_parts(c2, co, r1: torch.Tensor, r2: torch.Tensor, r3: torch.Tensor) -> torch.Tensor:
     """M(q)^-1 r (B, 3) from the components of r, each (B,)."""
-    p1, p2, p3, m3 = co
-    pc = p2 * c2
-    m11, m12 = p1 + (pc + pc), p3 + pc
+    p3, m3 = co[2], co[3]
+    m11, m12 = mass_entries(c2, co)
     det = m11 * p3 - m12 * m12
     return torch.stack([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3], -1)
