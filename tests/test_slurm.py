@@ -29,7 +29,8 @@ SMALL = ["data.n_train=300", "data.n_val=150", "data.n_test=150", "rbfn.growth.s
 LAUNCHER = ["hydra/launcher=slurm", "hydra.launcher.partition=local", "hydra.launcher.timeout_min=5",
             "hydra.launcher.mem_gb=1"]
 # About 15-20 s of colony on one core: long enough to be requeued in the middle.
-LONG = ["centers=aco", "centers.aco.iterations=2000", "rbfn.num_centers=20", *SMALL]
+COLONY_ITERATIONS = 10000
+LONG = ["centers=aco", f"centers.aco.iterations={COLONY_ITERATIONS}", "rbfn.num_centers=20", *SMALL]
 REQUEUE_AFTER = 100          # colony iterations in last.pt before the job is requeued
 
 
@@ -175,7 +176,7 @@ def test_requeued_job_resumes_from_last_pt_to_the_uninterrupted_result(cluster, 
     want = json.loads((ref_dir / "metrics.json").read_text())
     for key in ("val_E", "test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max", "growth"):
         assert got[key] == want[key], key
-    assert k < 2000 and load_sealed(job / "last.pt")["state"]["finished"] is not None
+    assert k < COLONY_ITERATIONS and load_sealed(job / "last.pt")["state"]["finished"] is not None
     print(f"\nSLURM requeue: job {job_id} requeued at colony iteration {k}; "
           f"{resumed[0].split(' - ', 1)[-1]}; metrics equal the uninterrupted run's "
           f"(val_E {got['val_E']:.4g}, test median {got['test_pos_err_mm_median']:.3f} mm); {wall:.1f} s")
