@@ -210,12 +210,31 @@ def scipy_row(duration: float = 10.0, repeats: int = 1) -> dict:
             "env_steps_per_s": duration / DT / t, "nfev": int(sol["r"].nfev), "ok": bool(sol["r"].success)}
 
 
+def _timed_rollout(model, datas: list, q0: torch.Tensor, qd0: torch.Tensor, tau: torch.Tensor, b: int,
+                   repeats: int) -> tuple[float, list[float]]:
+    """(median, runs) seconds of MuJoCo's rollout of B copies of `model` from (q0, qd0), the open-loop
+    torques tau (n, joints) shared by every copy; more than one MjData: rollout's threads."""
+    import mujoco
+    from mujoco import rollout
+
+    d = datas[0]
+    d.qpos[:], d.qvel[:] = q0.numpy(), qd0.numpy()
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state0 = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, d, state0, spec)
+    init = np.tile(state0, (b, 1))
+    ctrl = np.ascontiguousarray(tau.numpy()[None])                       # (1, n, joints), tiled over B
+    out = np.empty((b, tau.shape[0], state0.shape[0]))
+    return median_seconds(lambda: rollout.rollout(model, datas if len(datas) > 1 else d, init, ctrl, state=out),
+                          repeats)
+
+
 def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
                 integrator: str = "RK4") -> list[dict]:
     """MuJoCo's rollout (dt = 1 ms, open loop) of B copies of the arm; [] if not installed."""
     try:
         import mujoco
-        from mujoco import rollout
+        from mujoco import rollout  # noqa: F401  (imported here only to return [] without it)
     except ImportError:
         return []
     from rbfn.robots.mjcf import scara_mjcf
@@ -230,16 +249,7 @@ def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
         tau = (torch.einsum("bij,bj->bi", scara.mass_matrix(q, PAYLOAD), qdd)
                + torch.einsum("bij,bj->bi", scara.coriolis(q, qd, PAYLOAD), qd) + scara.gravity(q, PAYLOAD)
                + plant.friction_torque(qd) - plant.disturbance(t_grid)[:, None])
-        d = datas[0]
-        d.qpos[:], d.qvel[:] = q[0].numpy(), qd[0].numpy()
-        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        state0 = np.empty(mujoco.mj_stateSize(model, spec))
-        mujoco.mj_getState(model, d, state0, spec)
-        init = np.tile(state0, (b, 1))
-        ctrl = np.ascontiguousarray(tau.numpy()[None])                       # (1, n, 3), tiled over B
-        out = np.empty((b, n, state0.shape[0]))
-        t, _ = median_seconds(lambda: rollout.rollout(model, datas if threads > 1 else d, init, ctrl,
-                                                      state=out), repeats)
+        t, _ = _timed_rollout(model, datas, q[0], qd[0], tau, b, repeats)
         rows.append({"B": b, "steps": n, "device": "cpu", "seconds": t, "env_steps_per_s": b * n / t,
                      "mujoco": mujoco.__version__})
     return rows
@@ -292,7 +302,7 @@ def arm_mujoco_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: s
     """MuJoCo's rollout (dt = 1 ms, open loop) of B copies of the same arm, [] without mujoco."""
     try:
         import mujoco
-        from mujoco import rollout
+        from mujoco import rollout  # noqa: F401  (imported here only to return [] without it)
     except ImportError:
         return []
     from rbfn.robots.mjcf import arm_model
@@ -309,16 +319,7 @@ def arm_mujoco_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: s
         q, qd, qdd = setup.trajectory(t_grid)
         tau = (plant.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd)
                - plant.disturbance(t_grid))
-        d = datas[0]
-        d.qpos[:], d.qvel[:] = q[0].numpy(), qd[0].numpy()
-        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        state0 = np.empty(mujoco.mj_stateSize(model, spec))
-        mujoco.mj_getState(model, d, state0, spec)
-        init = np.tile(state0, (b, 1))
-        ctrl = np.ascontiguousarray(tau.numpy()[None])                       # (1, n, joints), tiled over B
-        out = np.empty((b, n, state0.shape[0]))
-        t, ts = median_seconds(lambda: rollout.rollout(model, datas if threads > 1 else d, init, ctrl,
-                                                       state=out), repeats)
+        t, ts = _timed_rollout(model, datas, q[0], qd[0], tau, b, repeats)
         rows.append({"robot": robot, "integrator": integrator, "B": b, "steps": n, "device": "cpu", "seconds": t,
                      "env_steps_per_s": b * n / t, "runs_env_steps_per_s": [b * n / x for x in ts],
                      "mujoco": mujoco.__version__})
