@@ -26,7 +26,7 @@ from ..config import Friction
 from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
-from ..robots.scara import ScaraParams, inertia_params, m_solve_parts, m_times
+from ..robots.scara import ScaraParams, c_qd_parts, inertia_params, m_solve_parts, m_times
 
 __all__ = ["Plant", "ScaraPlant", "ArmPlant"]
 
@@ -123,10 +123,9 @@ class ScaraPlant(Plant):
         component by component (the fewest tensor operations: a step is overhead-bound at small B)."""
         q2 = q[..., 1]
         qd1, qd2, _ = qd.unbind(-1)
-        h = co[1] * torch.sin(q2)
+        c1, c2 = c_qd_parts(torch.sin(q2), co, qd1, qd2)
         r1, r2, r3 = (tau - self.friction_torque(qd) - dist).unbind(-1)
-        r1 = r1 + h * qd2 * (2 * qd1 + qd2)          # minus C qd, C qd = h (-qd2 (2 qd1 + qd2), qd1^2, 0)
-        r2 = r2 - h * qd1 * qd1
+        r1, r2 = r1 - c1, r2 - c2                    # minus C qd (its third component is 0)
         if self.gravity:
             r3 = r3 + co[3] * self.params.g          # the prismatic joint carries m3 g
         return m_solve_parts(torch.cos(q2), co, r1, r2, r3)

@@ -22,7 +22,7 @@ import torch
 
 __all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
            "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "mass_entries", "m_times", "c_times", "mdot_times", "m_solve", "m_solve_parts"]
+           "mass_entries", "m_times", "c_qd_parts", "c_times", "mdot_times", "m_solve", "m_solve_parts"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -140,6 +140,13 @@ def m_times(c2, co, v: torch.Tensor, entries: tuple | None = None) -> torch.Tens
     m11, m12 = entries or mass_entries(c2, co)
     v1, v2, v3 = v.unbind(-1)
     return torch.stack([m11 * v1 + m12 * v2, m12 * v1 + co[2] * v2, co[3] * v3], -1)
+
+
+def c_qd_parts(s2, co, qd1: torch.Tensor, qd2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The two nonzero components (B,) of C(q, qd) qd, -h qd2 (2 qd1 + qd2) and h qd1^2 with
+    h = p2 sin q2 (the third is 0): `c_times(s2, co, qd, qd)` without forming vectors."""
+    h = co[1] * s2
+    return h * qd2 * (-2 * qd1 - qd2), h * qd1 * qd1
 
 
 def c_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
