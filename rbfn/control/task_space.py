@@ -27,8 +27,7 @@ from .trajectory import paper_trajectory
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RealRobot", "desired_path", "run_online",
-           "perturbation_sizes"]
+__all__ = ["RealRobot", "desired_path", "run_online", "perturbation_sizes"]
 
 
 @dataclass
