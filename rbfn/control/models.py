@@ -14,7 +14,7 @@ import torch
 from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
-from ..robots.scara import ScaraParams, c_times, inertia_params, m_times, mass_entries, mdot_times
+from ..robots.scara import ScaraParams, c_times, inertia_params, joint_vector, m_times, mass_entries, mdot_times
 
 __all__ = ["NominalModel", "ArmModel"]
 
@@ -32,7 +32,7 @@ class NominalModel:
 
     def gravity(self, q: torch.Tensor) -> torch.Tensor:
         z = torch.zeros_like(q[..., 0])
-        return torch.stack([z, z, z + self.g3], -1)
+        return joint_vector([z, z, z + self.g3])
 
     def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ScaraAt":
         return _ScaraAt(self, q, qd)

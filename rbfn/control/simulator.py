@@ -155,11 +155,10 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
-    q, qd = q0.clone(), qd0.clone()
-    if compile:
-        # Environments last in memory ((B, n) views of (n, B) storage): elementwise results keep
-        # that layout, so the compiled loops read and write contiguous rows and vectorise.
-        q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
+    # Environments last in memory ((B, n) views of (n, B) storage), the layout the plant's and
+    # models' joint vectors have: elementwise results keep it, each joint's component is a
+    # contiguous row, and compiled loops vectorise over environments.
+    q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
     state = controller.init_state(q, qd)
     if aot and n >= chunk:
         sl = slice(0, chunk)

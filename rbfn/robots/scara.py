@@ -127,6 +127,14 @@ def kinetic_energy(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Ten
 
 # Elementwise products for the simulator's hot path: co = (p1, p2, p3, m3) from inertia_params,
 # c2 = cos q2, s2 = sin q2 (B,); no (B, 3, 3) matrix is formed.
+def joint_vector(parts: list[torch.Tensor]) -> torch.Tensor:
+    """Components (B,) as one (B, n) vector stored joints-first (a view of an (n, B) tensor):
+    stacking rows is a plain copy, where stacking along the last dimension interleaves, and
+    each component read back (v[..., j]) is contiguous."""
+    v = torch.stack(parts, 0)
+    return v.T if v.dim() == 2 else v.movedim(0, -1)
+
+
 def mass_entries(c2, co) -> tuple:
     """(M11, M12) (B,) of the revolute 2x2 block from c2 = cos q2 (B,) and co; M22 = p3, M33 = m3."""
     p1, p2, p3, _ = co
@@ -139,7 +147,7 @@ def m_times(c2, co, v: torch.Tensor, entries: tuple | None = None) -> torch.Tens
     `mass_entries(c2, co)` if already computed."""
     m11, m12 = entries or mass_entries(c2, co)
     v1, v2, v3 = v.unbind(-1)
-    return torch.stack([m11 * v1 + m12 * v2, m12 * v1 + co[2] * v2, co[3] * v3], -1)
+    return joint_vector([m11 * v1 + m12 * v2, m12 * v1 + co[2] * v2, co[3] * v3])
 
 
 def c_qd_parts(s2, co, qd1: torch.Tensor, qd2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -154,14 +162,14 @@ def c_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     h = co[1] * s2
     qd1, qd2, _ = qd.unbind(-1)
     v1, v2, v3 = v.unbind(-1)
-    return torch.stack([-h * (qd2 * v1 + (qd1 + qd2) * v2), h * qd1 * v1, torch.zeros_like(v3)], -1)
+    return joint_vector([-h * (qd2 * v1 + (qd1 + qd2) * v2), h * qd1 * v1, torch.zeros_like(v3)])
 
 
 def mdot_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """dM/dt v (B, 3) along the motion."""
     d = -co[1] * s2 * qd[..., 1]
     v1, v2, v3 = v.unbind(-1)
-    return torch.stack([d * (2 * v1 + v2), d * v1, torch.zeros_like(v3)], -1)
+    return joint_vector([d * (2 * v1 + v2), d * v1, torch.zeros_like(v3)])
 
 
 def m_solve(c2, co, r: torch.Tensor) -> torch.Tensor:
@@ -174,4 +182,4 @@ def m_solve_parts(c2, co, r1: torch.Tensor, r2: torch.Tensor, r3: torch.Tensor) 
     p3, m3 = co[2], co[3]
     m11, m12 = mass_entries(c2, co)
     det = m11 * p3 - m12 * m12
-    return torch.stack([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3], -1)
+    return joint_vector([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3])
