@@ -94,15 +94,59 @@ class SlidingMode(Controller):
                  w0: torch.Tensor | None = None, joint_scale: torch.Tensor | None = None) -> None:
         super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
+        self._observed = self._own = None      # per-environment masks of a `batched` one (set by init_state)
+        self.members: list[tuple["SlidingMode", int]] = []
+
+    @classmethod
+    def batched(cls, parts: list["SlidingMode"], sizes: list[int]) -> "SlidingMode":
+        """Sliding-mode controllers that share gains, time step, model and joint scale as one
+        controller of sum(sizes) environments (part i drives the i-th block of sizes[i]): one model
+        evaluation per period for all of them. Its features are the parts' side by side (T, sum M_i);
+        an environment adds d_hat only if its part has the observer, and W^T h over its own
+        part's feature columns only (its W is zero elsewhere and stays so)."""
+        first = parts[0]
+        feats = [p.features for p in parts if p.features is not None]
+        out = cls(first.gains, first.dt, first.model, any(p.observer for p in parts),
+                  torch.cat(feats, -1) if feats else None, None, first.scale)
+        out.members = list(zip(parts, sizes))
+        # Public, so a compiled chunk's cache key (which leaves features out) sees the column split.
+        out.member_columns = [0 if p.features is None else p.features.shape[1] for p in parts]
+        return out
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
         z = torch.zeros_like(q0)
         p0 = self.model.at(q0, qd0).m_times(qd0)
+        if self.members:
+            self._set_masks(q0)
         if self.features is None:
             return z, z.clone(), p0
         m, n = self.features.shape[1], q0.shape[1]
-        w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
-        return z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone()
+        if not self.members:
+            w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
+            return z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone()
+        w, r, c = z.new_zeros(q0.shape[0], m, n), 0, 0          # each block's own columns hold its w0
+        for part, size in self.members:
+            k = 0 if part.features is None else part.features.shape[1]
+            if k and part.w0 is not None:
+                w[r:r + size, c:c + k] = part.w0.to(z)
+            r, c = r + size, c + k
+        return z, z.clone(), p0, w
+
+    def _set_masks(self, like: torch.Tensor) -> None:
+        """A batched controller's (B, 1) observer mask (None: every part has it) and (B, M) mask of
+        each environment's own feature columns (None: one part's features span them all)."""
+        obs = [p.observer for p, _ in self.members]
+        self._observed = None if all(obs) else torch.cat(
+            [torch.full((s, 1), float(o)) for (_, s), o in zip(self.members, obs)]).to(like)
+        self._own = None
+        if self.features is not None and len(self.members) > 1:
+            own, c = torch.zeros(like.shape[0], self.features.shape[1]), 0
+            r = 0
+            for part, size in self.members:
+                k = 0 if part.features is None else part.features.shape[1]
+                own[r:r + size, c:c + k] = 1.0
+                r, c = r + size, c + k
+            self._own = own.to(like)
 
     def torque(self, ref, q, qd, state):
         g, dt = self.gains, self.dt
@@ -117,19 +161,23 @@ class SlidingMode(Controller):
         tau_m = tau                       # what the nominal model sees: no network, no observer
         if h is not None:
             w = state[3]
-            tau = tau + torch.einsum("m,bmj->bj", h, w)
+            if self._own is None:
+                tau = tau + torch.einsum("m,bmj->bj", h, w)
+            else:
+                h = h * self._own                 # (B, M): each environment's own columns
+                tau = tau + torch.einsum("bm,bmj->bj", h, w)
         if self.observer:
             # Generalized momentum of the nominal model p = M_hat qd. With tau_m the torque the
             # nominal model sees (the network's share removed) and beta = dM_hat/dt qd - C_hat qd
             # - G_hat, d_hat = K_o (p0 + int (tau_m + beta - d_hat) dt - p) obeys
             # d(d_hat)/dt = K_o (miss - d_hat): it tracks what the model (nominal + network) misses.
             d_hat = g.observer_gain * (integral + p0 - at.m_times(qd))
-            tau = tau + d_hat
+            tau = tau + (d_hat if self._observed is None else d_hat * self._observed)
             integral = integral + dt * (tau_m + at.momentum_rate())
         if h is None:
             return tau, (d_hat, integral, p0)
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
-        w = w + h[None, :, None] * step[:, None, :]
+        w = w + (h[None, :, None] if h.dim() == 1 else h[:, :, None]) * step[:, None, :]
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
         return tau, (d_hat, integral, p0, w)
@@ -137,37 +185,60 @@ class SlidingMode(Controller):
 
 class Stacked(Controller):
     """Several controllers as one batch, so that one simulation runs them all: controller i drives
-    the i-th block of `sizes[i]` environments. Its features are theirs side by side (T, sum M_i),
-    its adaptation steps theirs as columns (T, K), its state the tuple of their states."""
+    the i-th block of `sizes[i]` environments. Consecutive sliding-mode controllers that share
+    gains, time step, model and joint scale run as one (`SlidingMode.batched`: the model is
+    evaluated once for all their environments). Its features are the parts' side by side
+    (T, sum M_i), its adaptation steps one column per unit (T, K), its state the units' states."""
 
     def __init__(self, controllers: list[Controller], sizes: list[int]) -> None:
         if len(controllers) != len(sizes) or not controllers:
             raise ValueError(f"need one batch size per controller, got {len(sizes)} for {len(controllers)}")
         self.parts, self.sizes = list(controllers), list(sizes)
-        feats = [c.features for c in self.parts if c.features is not None]
+        runs: list[list[tuple[Controller, int]]] = []
+        for c, size in zip(self.parts, self.sizes):
+            if runs and _batchable(runs[-1][-1][0], c):
+                runs[-1].append((c, size))
+            else:
+                runs.append([(c, size)])
+        self.units = [r[0][0] if len(r) == 1 else SlidingMode.batched([c for c, _ in r], [s for _, s in r])
+                      for r in runs]
+        self.unit_sizes = [sum(s for _, s in r) for r in runs]
+        feats = [c.features for c in self.units if c.features is not None]
         self.features = torch.cat(feats, -1) if feats else None
         self.columns: list[slice | None] = []
         start = 0
-        for c in self.parts:
+        for c in self.units:
             m = 0 if c.features is None else c.features.shape[-1]
             self.columns.append(slice(start, start + m) if m else None)
             start += m
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
-        return tuple(c.init_state(q, qd) for c, q, qd in zip(self.parts, q0.split(self.sizes), qd0.split(self.sizes)))
+        return tuple(c.init_state(q, qd) for c, q, qd in
+                     zip(self.units, q0.split(self.unit_sizes), qd0.split(self.unit_sizes)))
 
     def alphas(self, t: torch.Tensor) -> torch.Tensor:
-        return torch.stack([c.alphas(t) for c in self.parts], -1)
+        return torch.stack([c.alphas(t) for c in self.units], -1)
 
     def torque(self, ref, q, qd, state):
         q_d, v_d, a_d, h, alpha = ref
         taus, states = [], []
-        for i, (c, qi, qdi) in enumerate(zip(self.parts, q.split(self.sizes), qd.split(self.sizes))):
+        for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
             cols = self.columns[i]
             tau, st = c.torque((q_d, v_d, a_d, None if cols is None else h[cols], alpha[i]), qi, qdi, state[i])
             taus.append(tau)
             states.append(st)
         return torch.cat(taus), tuple(states)
+
+
+def _batchable(a: Controller, b: Controller) -> bool:
+    """Whether sliding-mode controllers a and b can run as one: equal gains, time step, joint
+    scale and model (the same object, or the SCARA's with the same coefficients)."""
+    if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
+        return False
+    same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
+    same_model = a.model is b.model or (type(a.model) is type(b.model) is NominalModel
+                                        and vars(a.model) == vars(b.model))
+    return same_scale and same_model
 
 
 def make_controller(name: str, gains: Gains, dt: float, model: Model | None = None,

@@ -93,10 +93,20 @@ def test_stacked_controllers_equal_their_separate_runs():
     plant = ScaraPlant()
     pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
     q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
-    feats = torch.rand(sc.steps + 1, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    gen = torch.Generator().manual_seed(0)
+    feats = torch.rand(sc.steps + 1, 4, generator=gen, dtype=torch.float64)
+    other = torch.rand(sc.steps + 1, 3, generator=gen, dtype=torch.float64)
+    w0 = torch.randn(3, 3, generator=gen, dtype=torch.float64)
+    # pd alone; then one batched sliding-mode unit of four (two networks of different sizes, one
+    # warm-started, with and without the observer); then ctc alone.
     parts = [make_controller("pd", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt, features=feats),
-             make_controller("smc_obs", Gains(), sc.dt)]
-    both = simulate(plant, Stacked(parts, [2, 2, 2]), sc, ref, q0.repeat(3, 1), qd0.repeat(3, 1), pay.repeat(3))
+             make_controller("smc_obs", Gains(), sc.dt), make_controller("smc", Gains(), sc.dt),
+             make_controller("arbfn", Gains(), sc.dt, features=other, w0=w0, observer=False),
+             make_controller("ctc", Gains(), sc.dt)]
+    stacked = Stacked(parts, [2] * len(parts))
+    assert len(stacked.units) == 3 and stacked.unit_sizes == [2, 8, 2]
+    k = len(parts)
+    both = simulate(plant, stacked, sc, ref, q0.repeat(k, 1), qd0.repeat(k, 1), pay.repeat(k))
     for i, ctrl in enumerate(parts):
         one = simulate(plant, ctrl, sc, ref, q0, qd0, pay)
         assert torch.allclose(both.q[:, 2 * i:2 * i + 2], one.q, rtol=0, atol=1e-12)
