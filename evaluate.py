@@ -8,6 +8,8 @@ whose kinematics differ from its model, and the closed-loop controller compariso
 Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; writes
 checkpoint_online.pt), `control` (`control.enabled`: every controller on every payload case).
 With no checkpoint given and none found, the two checkpoint parts are skipped (and said so).
+The checkpoint's parts run in a forked process beside the control part (`parallel`, on by
+default; used where the machine forks, has two cores or more, and the device is the CPU).
 Every setting is checked before any part starts. Writes metrics.json (`ik`, `online`, `control`,
 `control_info`, `evaluate_seconds`: each part's wall seconds), workspace_error_map.png,
 online_task_error.png, control_<controller>.png, TensorBoard events and evaluate.log into the
@@ -30,6 +32,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.checkpoint import read_checkpoint
 from rbfn.config import EvalConfig, register_configs, validate_evaluate
+from rbfn.studies.beside import Beside, can_fork
 from rbfn.studies.control import check_control, evaluate_control
 from rbfn.studies.ik import evaluate_ik
 from rbfn.studies.online import evaluate_online
@@ -63,6 +66,26 @@ def _timed(seconds: dict, part: str):
     log.info("%s part: %.1f s", part, seconds[part])
 
 
+def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> tuple[dict, dict[str, float]]:
+    """The parts that evaluate the checkpoint, `ik` and `online` (as enabled), with a TensorBoard
+    writer of their own (they may run in another process): (metrics, wall seconds per part)."""
+    metrics: dict = {}
+    seconds: dict[str, float] = {}
+    writer = SummaryWriter(log_dir=str(out_dir), filename_suffix=".checkpoint")
+    try:
+        if cfg.ik:
+            with _timed(seconds, "ik"):
+                metrics["ik"] = evaluate_ik(ckpt, path, cfg, out_dir, writer)
+            # Flat IK keys at the top level too, as train.py writes them.
+            metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
+        if cfg.online.enabled:
+            with _timed(seconds, "online"):
+                metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
+    finally:
+        writer.close()
+    return metrics, seconds
+
+
 def run(cfg: EvalConfig, out_dir: Path) -> dict:
     """Evaluate every enabled part into `out_dir`; return metrics.json's content."""
     validate_evaluate(cfg)
@@ -78,21 +101,23 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
         torch.set_num_threads(cfg.num_threads)
     metrics: dict = {}
     seconds: dict[str, float] = {}
-    writer = SummaryWriter(log_dir=str(out_dir))
-    try:
-        if cfg.ik and ckpt is not None:
-            with _timed(seconds, "ik"):
-                metrics["ik"] = evaluate_ik(ckpt, path, cfg, out_dir, writer)
-            # Flat IK keys at the top level too, as train.py writes them.
-            metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
-        if cfg.online.enabled and ckpt is not None:
-            with _timed(seconds, "online"):
-                metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
+    # The checkpoint's parts run in a forked process beside the control part where that is safe
+    # (rbfn.studies.beside), started before this process's TensorBoard writer and its thread.
+    both = ckpt is not None and cfg.control.enabled and cfg.parallel and can_fork(cfg.device)
+    with Beside(checkpoint_parts, ckpt, path, cfg, out_dir, fork=both) as beside:
         if cfg.control.enabled:
-            with _timed(seconds, "control"):
-                metrics.update(evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot))
-    finally:
-        writer.close()
+            writer = SummaryWriter(log_dir=str(out_dir))
+            try:
+                with _timed(seconds, "control"):
+                    control = evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot)
+            finally:
+                writer.close()
+        if ckpt is not None:
+            part_metrics, part_seconds = beside.result()
+            metrics.update(part_metrics)
+            seconds.update(part_seconds)
+        if cfg.control.enabled:
+            metrics.update(control)
     metrics["evaluate_seconds"] = seconds
     write_json(out_dir / "metrics.json", metrics)
     log.info("-> %s", out_dir)

@@ -9,6 +9,7 @@ import evaluate
 import train
 from rbfn.config import OnlineConfig, GainsConfig
 from rbfn.checkpoint import read_checkpoint
+from rbfn.studies.beside import can_fork
 from rbfn.studies.online import evaluate_online
 
 from .conftest import compose_config
@@ -44,6 +45,17 @@ def test_every_part_end_to_end(ckpt, tmp_path):
                  "metrics.json"):
         assert (tmp_path / name).is_file(), name
     assert list(tmp_path.glob("events.out.tfevents.*"))
+    # The checkpoint's parts ran in a forked process beside the control part (this machine forks);
+    # one after the other in this process they give the same metrics.
+    assert can_fork("cpu")
+    seq = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", *SHORT, "parallel=false"), tmp_path / "seq")
+    assert _without_times(seq) == _without_times(m)
+
+
+def _without_times(m):
+    if isinstance(m, dict):
+        return {k: _without_times(v) for k, v in m.items() if "seconds" not in k and k != "checkpoint"}
+    return m
 
 
 def test_explicit_seed_is_a_seed_not_a_stream(ckpt, tmp_path):

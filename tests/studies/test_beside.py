@@ -1,0 +1,50 @@
+"""A part run in a forked process beside the main one: same result as in this process, its
+errors raised here, and stopped when the caller fails first."""
+import os
+import time
+
+import pytest
+import torch
+
+from rbfn.studies.beside import Beside, can_fork
+
+
+def _work(n: int) -> tuple[int, float]:
+    g = torch.Generator().manual_seed(n)
+    return os.getpid(), float(torch.rand(1000, generator=g, dtype=torch.float64).sum())
+
+
+def _fail(msg: str) -> None:
+    raise ValueError(msg)
+
+
+def _sleep(path: str) -> None:
+    time.sleep(5.0)
+    open(path, "w").close()
+
+
+@pytest.mark.skipif(not can_fork("cpu"), reason="this machine does not fork, or has one core")
+def test_forked_part_equals_the_same_part_run_here():
+    with Beside(_work, 3) as forked:
+        pid, value = forked.result()
+    with Beside(_work, 3, fork=False) as here:
+        pid_here, value_here = here.result()
+    assert pid != os.getpid() and pid_here == os.getpid() and value == value_here
+
+
+@pytest.mark.skipif(not can_fork("cpu"), reason="this machine does not fork, or has one core")
+def test_errors_reach_the_caller_and_a_failing_caller_stops_the_part(tmp_path):
+    with pytest.raises(ValueError, match="bad part"):
+        with Beside(_fail, "bad part") as b:
+            b.result()
+    flag = tmp_path / "finished"
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError, match="caller failed"):
+        with Beside(_sleep, str(flag)):
+            raise RuntimeError("caller failed")
+    assert time.perf_counter() - t0 < 4.0 and not flag.exists()
+
+
+def test_no_fork_for_cuda_work():
+    assert not can_fork("cuda")
+    assert not can_fork("cuda:0")
