@@ -14,7 +14,7 @@ import torch
 from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
-from ..robots.scara import ScaraParams, c_times, inertia_params, joint_vector, m_times, mass_entries, mdot_times
+from ..robots.scara import ScaraParams, c_times, inertia_params, joint_vector, m_times, mass_entries
 
 __all__ = ["NominalModel", "ArmModel"]
 
@@ -29,10 +29,15 @@ class NominalModel:
         self.m_co = (m_scale * p1, m_scale * p2, m_scale * p3, m_scale * m3)
         self.c_co = (0.0, c_scale * p2, 0.0, 0.0)
         self.g3 = -g_scale * m3 * params.g
+        self._gravity: dict = {}
 
     def gravity(self, q: torch.Tensor) -> torch.Tensor:
-        z = torch.zeros_like(q[..., 0])
-        return joint_vector([z, z, z + self.g3])
+        """G_hat (3,): the same at every q (only the prismatic joint carries weight); broadcasts
+        against (B, 3). One tensor per dtype and device, made once."""
+        key = (q.dtype, q.device)
+        if key not in self._gravity:
+            self._gravity[key] = torch.tensor([0.0, 0.0, self.g3], dtype=q.dtype, device=q.device)
+        return self._gravity[key]
 
     def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ScaraAt":
         return _ScaraAt(self, q, qd)
@@ -60,8 +65,15 @@ class _ScaraAt:
         return self._g
 
     def momentum_rate(self) -> torch.Tensor:
+        # dM_hat/dt qd - C_hat qd - G_hat by component, with a = m_p2 and c = c_p2 (the models'
+        # cos q2 coefficients in M and C): dM/dt qd = -a s2 qd2 (2 qd1 + qd2, qd1, 0) and
+        # C qd = c s2 (-qd2 (2 qd1 + qd2), qd1^2, 0).
         m = self.model
-        return mdot_times(self.s2, m.m_co, self.qd, self.qd) - c_times(self.s2, m.c_co, self.qd, self.qd) - self.gravity()
+        a, c = m.m_co[1], m.c_co[1]
+        qd1, qd2, _ = self.qd.unbind(-1)
+        r1 = torch.add(qd2, qd1, alpha=2.0) * qd2 * (self.s2 * (c - a))
+        r2 = (self.s2 * qd1) * torch.add(qd2 * -a, qd1, alpha=-c)
+        return joint_vector([r1, r2, torch.full_like(r1, -m.g3)])
 
 
 class ArmModel:

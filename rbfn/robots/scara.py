@@ -22,7 +22,7 @@ import torch
 
 __all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
            "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "mass_entries", "m_times", "c_qd_parts", "c_times", "mdot_times", "m_solve", "m_solve_parts"]
+           "mass_entries", "m_times", "c_qd_parts", "c_times", "m_solve", "m_solve_parts"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -163,13 +163,6 @@ def c_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     qd1, qd2, _ = qd.unbind(-1)
     v1, v2, v3 = v.unbind(-1)
     return joint_vector([-h * (qd2 * v1 + (qd1 + qd2) * v2), h * qd1 * v1, torch.zeros_like(v3)])
-
-
-def mdot_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """dM/dt v (B, 3) along the motion."""
-    d = -co[1] * s2 * qd[..., 1]
-    v1, v2, v3 = v.unbind(-1)
-    return joint_vector([d * (2 * v1 + v2), d * v1, torch.zeros_like(v3)])
 
 
 def m_solve(c2, co, r: torch.Tensor) -> torch.Tensor:

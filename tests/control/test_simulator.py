@@ -4,7 +4,7 @@ import torch
 from rbfn.control import Scenario, ScaraPlant, SimulationDiverged, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Gains, NominalModel, Stacked
 from rbfn.robots.scara import m_solve, m_times
-from rbfn.robots.scara import mass_matrix
+from rbfn.robots.scara import coriolis, gravity, mass_matrix, mass_matrix_dot
 
 
 def _states(b, seed, dtype=torch.float64):
@@ -22,6 +22,21 @@ def test_elementwise_mass_products_match_the_matrix():
     c2 = torch.cos(q[:, 1])
     assert torch.allclose(m_times(c2, co, v), (m @ v[..., None])[..., 0], atol=1e-12)
     assert torch.allclose(m_solve(c2, co, v), torch.linalg.solve(m, v), atol=1e-12)
+
+
+def test_nominal_model_terms_match_the_matrices():
+    """The controllers' elementwise M_hat v, C_hat y, G_hat and dM_hat/dt qd - C_hat qd - G_hat
+    against the SCARA's matrices scaled 0.9, 0.8, 0.85."""
+    q, qd = _states(40, 5)
+    y = _states(40, 6)[1]
+    at = NominalModel().at(q, qd)
+    m, c = 0.9 * mass_matrix(q), 0.8 * coriolis(q, qd)
+    g = 0.85 * gravity(q)
+    assert torch.allclose(at.m_times(y), (m @ y[..., None])[..., 0], atol=1e-12)
+    assert torch.allclose(at.c_times(y), (c @ y[..., None])[..., 0], atol=1e-12)
+    assert torch.allclose(at.gravity().expand_as(g), g, atol=1e-12)
+    rate = ((0.9 * mass_matrix_dot(q, qd) - c) @ qd[..., None])[..., 0] - g
+    assert torch.allclose(at.momentum_rate(), rate, atol=1e-12)
 
 
 @pytest.mark.parametrize("payload", [0.0, 10.0])
