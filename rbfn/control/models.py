@@ -34,6 +34,8 @@ class NominalModel:
     def gravity(self, q: torch.Tensor) -> torch.Tensor:
         """G_hat (3,): the same at every q (only the prismatic joint carries weight); broadcasts
         against (B, 3). One tensor per dtype and device, made once."""
+        if torch.compiler.is_compiling():          # a constant of the graph; a cache would be a guard
+            return torch.tensor([0.0, 0.0, self.g3], dtype=q.dtype, device=q.device)
         key = (q.dtype, q.device)
         if key not in self._gravity:
             self._gravity[key] = torch.tensor([0.0, 0.0, self.g3], dtype=q.dtype, device=q.device)

@@ -171,8 +171,10 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
         qds, taus = torch.empty_like(qs), torch.empty_like(qs)
     k0, checked = 0, 0
     # No autograd bookkeeping (a fifth of a small batch's step): the records are written in place
-    # into ordinary tensors; the final state is copied out of inference mode.
+    # into ordinary tensors; the final state is copied out of inference mode. The state enters as
+    # inference tensors, so that every chunk a compiled step sees is of one kind (no recompiling).
     with torch.inference_mode():
+        q, qd, state = torch.utils._pytree.tree_map(torch.clone, (q, qd, state))
         while k0 < n:
             m = min(chunk, n - k0)
             fn = run if m == chunk else make_chunk(plant, controller, dt, scenario.integrator, m)
