@@ -8,8 +8,9 @@ whose kinematics differ from its model, and the closed-loop controller compariso
 Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; writes
 checkpoint_online.pt), `control` (`control.enabled`: every controller on every payload case).
 With no checkpoint given and none found, the two checkpoint parts are skipped (and said so).
-The checkpoint's parts run in a forked process beside the control part (`parallel`, on by
-default; used where the machine forks, has two cores or more, and the device is the CPU).
+The checkpoint's parts run in a forked process beside the control part, and half the control
+figures in another (`parallel`, on by default; used where the machine forks, has two cores or
+more, and the device is the CPU).
 Every setting is checked before any part starts. Writes metrics.json (`ik`, `online`, `control`,
 `control_info`, `evaluate_seconds`: each part's wall seconds), workspace_error_map.png,
 online_task_error.png, control_<controller>.png, TensorBoard events and evaluate.log into the
@@ -109,7 +110,8 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
             writer = SummaryWriter(log_dir=str(out_dir))
             try:
                 with _timed(seconds, "control"):
-                    control = evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot)
+                    control = evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot,
+                                               cfg.parallel)
             finally:
                 writer.close()
         if ckpt is not None:

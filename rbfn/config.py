@@ -269,7 +269,7 @@ class EvalConfig:
     seed: Optional[int] = None         # null: the checkpoint's training seed; the test stream is derived
     device: str = "cpu"
     num_threads: int = 0
-    parallel: bool = True              # the online part in a forked process beside the others (Linux-like, CPU, >= 2 cores)
+    parallel: bool = True              # checkpoint parts, half the control figures in forked processes (fork, CPU, >= 2 cores)
     robot: RobotConfig = field(default_factory=RobotConfig)   # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)

@@ -2,22 +2,24 @@
 
 evaluate.py's parts are independent, and each closed loop at a small batch is per-operation
 overhead on one core: two parts side by side take the longer one's time on a machine with two
-cores. Forking (not spawning) costs no re-import; it is used where it is safe: a POSIX `fork`,
-more than one usable core, and CPU work only (CUDA cannot be used across a fork). Elsewhere the
-part runs at once, in this process. The child runs with one torch thread (the parent's
-thread pool does not survive a fork) and inherits the logging handlers, so its log lines reach
-the same console and log file.
+cores. Forking (not spawning) costs no re-import and passes the arguments without pickling them;
+it is used where it is safe: a POSIX `fork`, more than one usable core, and CPU work only (CUDA
+cannot be used across a fork). Elsewhere the part runs when its result is asked for, in this
+process. The child runs with one torch thread (the parent's thread pool does not survive a fork)
+and inherits the logging handlers, so its log lines reach the same console and log file; only
+its result (or its exception) is pickled back.
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
+import traceback
 from collections.abc import Callable
 from typing import Any
 
 import torch
 
-__all__ = ["can_fork", "Beside"]
+__all__ = ["can_fork", "Beside", "ChildTraceback"]
 
 
 def can_fork(device: str) -> bool:
@@ -26,39 +28,70 @@ def can_fork(device: str) -> bool:
     return device == "cpu" and cores >= 2 and "fork" in multiprocessing.get_all_start_methods()
 
 
-def _in_child(fn: Callable, args: tuple) -> Any:
+class ChildTraceback(Exception):
+    """The forked part's traceback, as the cause of the exception it raised."""
+
+
+def _in_child(fn: Callable, args: tuple, conn) -> None:
     torch.set_num_threads(1)
-    return fn(*args)
+    try:
+        out = (True, fn(*args), "")
+    except BaseException as e:  # noqa: BLE001 - every failure goes back to the parent
+        out = (False, e, traceback.format_exc())
+    try:
+        conn.send(out)
+    except Exception as e:      # an unpicklable result or exception
+        conn.send((False, RuntimeError(f"the forked part's outcome could not be sent back: {e!r}"),
+                   out[2] or traceback.format_exc()))
+    conn.close()
 
 
 class Beside:
     """`fn(*args)` started in a forked process (if `fork`), else run when `result()` is asked for.
 
-    Use as a context manager: leaving it on an error stops the child."""
+    Use as a context manager: leaving it before `result()` (on an error) stops the child."""
 
     def __init__(self, fn: Callable, *args, fork: bool = True) -> None:
-        self._fn, self._args, self._pool, self._async = fn, args, None, None
+        self._fn, self._args, self._proc, self._conn = fn, args, None, None
         if fork:
-            self._pool = multiprocessing.get_context("fork").Pool(1)
-            self._async = self._pool.apply_async(_in_child, (fn, args))
+            ctx = multiprocessing.get_context("fork")
+            self._conn, send = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(target=_in_child, args=(fn, args, send), daemon=True)
+            self._proc.start()
+            send.close()
 
     def result(self) -> Any:
-        """fn's return value (its exception re-raised here)."""
-        if self._pool is None:
+        """fn's return value; its exception re-raised here (caused by the child's traceback)."""
+        if self._proc is None:
             return self._fn(*self._args)
         try:
-            return self._async.get()
+            ok, value, tb = self._conn.recv()
+        except EOFError:
+            self._proc.join()
+            raise RuntimeError(f"the forked part {getattr(self._fn, '__name__', self._fn)} ended without a "
+                               f"result (exit code {self._proc.exitcode})") from None
         finally:
-            self._pool.close()
-            self._pool.join()
-            self._pool = None
-            self._fn = None
+            self._close()
+        if not ok:
+            raise value from ChildTraceback(tb)
+        return value
+
+    def _close(self) -> None:
+        if self._proc is not None:
+            if self._proc.is_alive():
+                self._proc.join(timeout=5.0)
+            if self._proc.is_alive():
+                self._proc.terminate()
+                self._proc.join()
+            self._conn.close()
+            self._proc = self._conn = None
 
     def __enter__(self) -> "Beside":
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._pool is not None:          # result() was not reached: stop the child
-            self._pool.terminate()
-            self._pool.join()
-            self._pool = None
+        if self._proc is not None:          # result() was not reached: stop the child
+            self._proc.terminate()
+            self._proc.join()
+            self._conn.close()
+            self._proc = self._conn = None

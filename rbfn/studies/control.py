@@ -4,9 +4,12 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from torch.utils.tensorboard import SummaryWriter
+
 from ..config import ControlConfig, GainsConfig, RobotConfig
 from ..control.comparison import ControlComparison, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
+from .beside import Beside, can_fork
 from .plots import tracking_figure
 from .rundir import write_figure
 
@@ -22,8 +25,9 @@ def check_control(cfg: ControlConfig, robot: RobotConfig | None = None) -> Contr
 
 
 def evaluate_control(cfg: ControlConfig, gains: GainsConfig, device: str, writer, out_dir: Path,
-                     robot: RobotConfig | None = None) -> dict:
-    """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`."""
+                     robot: RobotConfig | None = None, parallel: bool = True) -> dict:
+    """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`;
+    `parallel`: half the figures drawn in a forked process where the machine allows."""
     setup = check_control(cfg, robot)
     res = compare_controllers(cfg, gains, device, setup=setup)
     metrics = {name: run.metrics for name, run in res.runs.items()}
@@ -37,9 +41,29 @@ def evaluate_control(cfg: ControlConfig, gains: GainsConfig, device: str, writer
             for key, vals in m.items():
                 for j, v in enumerate(vals):
                     writer.add_scalar(f"control/{name}/{case}/{key}_j{j + 1}", v)
-        _figure(res, name, cfg, gains, writer, out_dir)
+    # The second half of the figures is drawn in a forked process beside this one where it can be
+    # (rbfn.studies.beside), with a TensorBoard writer of its own.
+    names = list(metrics)
+    half = len(names) // 2
+    fork = parallel and half > 0 and can_fork(device)
+    with Beside(_figures, res, names[half:], cfg, gains, out_dir, None if fork else writer, fork=fork) as other:
+        _figures(res, names[:half], cfg, gains, out_dir, writer)
+        other.result()
     log.info("%s", control_table(metrics, setup.units))
     return {"control": metrics, "control_info": info}
+
+
+def _figures(res: ControlComparison, names: list[str], cfg: ControlConfig, gains: GainsConfig, out_dir: Path,
+             writer=None) -> None:
+    """control_<name>.png for each of `names`, also to `writer` (None: a writer of its own)."""
+    own = writer is None
+    writer = SummaryWriter(log_dir=str(out_dir), filename_suffix=".figures") if own else writer
+    try:
+        for name in names:
+            _figure(res, name, cfg, gains, writer, out_dir)
+    finally:
+        if own:
+            writer.close()
 
 
 def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsConfig, writer, out_dir: Path) -> None:

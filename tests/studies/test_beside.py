@@ -6,7 +6,7 @@ import time
 import pytest
 import torch
 
-from rbfn.studies.beside import Beside, can_fork
+from rbfn.studies.beside import Beside, ChildTraceback, can_fork
 
 
 def _work(n: int) -> tuple[int, float]:
@@ -30,12 +30,19 @@ def test_forked_part_equals_the_same_part_run_here():
     with Beside(_work, 3, fork=False) as here:
         pid_here, value_here = here.result()
     assert pid != os.getpid() and pid_here == os.getpid() and value == value_here
+    big = torch.arange(10)                     # arguments reach the child by the fork, unpickled
+    with Beside(lambda: float(big.sum())) as lam:
+        assert lam.result() == 45.0
 
 
 @pytest.mark.skipif(not can_fork("cpu"), reason="this machine does not fork, or has one core")
 def test_errors_reach_the_caller_and_a_failing_caller_stops_the_part(tmp_path):
-    with pytest.raises(ValueError, match="bad part"):
+    with pytest.raises(ValueError, match="bad part") as err:
         with Beside(_fail, "bad part") as b:
+            b.result()
+    assert isinstance(err.value.__cause__, ChildTraceback) and "_fail" in str(err.value.__cause__)
+    with pytest.raises(RuntimeError, match="ended without a result"):
+        with Beside(os._exit, 3) as b:
             b.result()
     flag = tmp_path / "finished"
     t0 = time.perf_counter()
