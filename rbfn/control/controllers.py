@@ -96,6 +96,7 @@ class SlidingMode(Controller):
         self.observer, self.features, self.w0 = observer, features, w0
         self._observed = self._own = None      # per-environment masks of a `batched` one (set by init_state)
         self.members: list[tuple["SlidingMode", int]] = []
+        self.member_columns: list[int] = []  # a batched one's feature columns per member
 
     @classmethod
     def batched(cls, parts: list["SlidingMode"], sizes: list[int]) -> "SlidingMode":
@@ -124,29 +125,34 @@ class SlidingMode(Controller):
         if not self.members:
             w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
             return z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone()
-        w, r, c = z.new_zeros(q0.shape[0], m, n), 0, 0          # each block's own columns hold its w0
-        for part, size in self.members:
-            k = 0 if part.features is None else part.features.shape[1]
-            if k and part.w0 is not None:
-                w[r:r + size, c:c + k] = part.w0.to(z)
-            r, c = r + size, c + k
+        w = z.new_zeros(q0.shape[0], m, n)                    # each block's own columns hold its w0
+        for part, rows, cols in self._blocks():
+            if part.w0 is not None:
+                w[rows, cols] = part.w0.to(z)
         return z, z.clone(), p0, w
+
+    def _blocks(self):
+        """(part, its environments' rows, its feature columns) of a batched controller."""
+        r = c = 0
+        for (part, size), k in zip(self.members, self.member_columns):
+            yield part, slice(r, r + size), slice(c, c + k)
+            r, c = r + size, c + k
 
     def _set_masks(self, like: torch.Tensor) -> None:
         """A batched controller's (B, 1) observer mask (None: every part has it) and (B, M) mask of
         each environment's own feature columns (None: one part's features span them all)."""
-        obs = [p.observer for p, _ in self.members]
-        self._observed = None if all(obs) else torch.cat(
-            [torch.full((s, 1), float(o)) for (_, s), o in zip(self.members, obs)]).to(like)
-        self._own = None
-        if self.features is not None and len(self.members) > 1:
-            own, c = torch.zeros(like.shape[0], self.features.shape[1]), 0
-            r = 0
-            for part, size in self.members:
-                k = 0 if part.features is None else part.features.shape[1]
-                own[r:r + size, c:c + k] = 1.0
-                r, c = r + size, c + k
-            self._own = own.to(like)
+        b = like.shape[0]
+        self._observed = self._own = None
+        if not all(p.observer for p, _ in self.members):
+            self._observed = torch.zeros(b, 1)
+        if self.features is not None:
+            self._own = torch.zeros(b, self.features.shape[1])
+        for part, rows, cols in self._blocks():
+            if self._observed is not None:
+                self._observed[rows] = float(part.observer)
+            if self._own is not None:
+                self._own[rows, cols] = 1.0
+        self._observed, self._own = (None if x is None else x.to(like) for x in (self._observed, self._own))
 
     def torque(self, ref, q, qd, state):
         g, dt = self.gains, self.dt
@@ -177,7 +183,7 @@ class SlidingMode(Controller):
         if h is None:
             return tau, (d_hat, integral, p0)
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
-        w = w + (h[None, :, None] if h.dim() == 1 else h[:, :, None]) * step[:, None, :]
+        w = w + h[..., None] * step[:, None, :]          # h (M,) or, batched, (B, M)
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
         return tau, (d_hat, integral, p0, w)

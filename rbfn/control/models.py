@@ -46,12 +46,12 @@ class NominalModel:
 
 
 class _ScaraAt:
-    """The model at one state; what several terms share (M's entries, G) is computed once."""
+    """The model at one state; what several terms share (M's entries) is computed once."""
 
     def __init__(self, model: NominalModel, q: torch.Tensor, qd: torch.Tensor) -> None:
         self.model, self.q, self.qd = model, q, qd
         self.s2, self.c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
-        self._entries = self._g = None
+        self._entries = None
 
     def m_times(self, v: torch.Tensor) -> torch.Tensor:
         if self._entries is None:
@@ -62,9 +62,7 @@ class _ScaraAt:
         return c_times(self.s2, self.model.c_co, self.qd, y)
 
     def gravity(self) -> torch.Tensor:
-        if self._g is None:
-            self._g = self.model.gravity(self.q)
-        return self._g
+        return self.model.gravity(self.q)
 
     def momentum_rate(self) -> torch.Tensor:
         # dM_hat/dt qd - C_hat qd - G_hat by component, with a = m_p2 and c = c_p2 (the models'

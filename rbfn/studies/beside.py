@@ -71,27 +71,25 @@ class Beside:
             raise RuntimeError(f"the forked part {getattr(self._fn, '__name__', self._fn)} ended without a "
                                f"result (exit code {self._proc.exitcode})") from None
         finally:
-            self._close()
+            self._stop(wait=True)
         if not ok:
             raise value from ChildTraceback(tb)
         return value
 
-    def _close(self) -> None:
-        if self._proc is not None:
-            if self._proc.is_alive():
-                self._proc.join(timeout=5.0)
-            if self._proc.is_alive():
-                self._proc.terminate()
-                self._proc.join()
-            self._conn.close()
-            self._proc = self._conn = None
+    def _stop(self, wait: bool) -> None:
+        """End the child: let it exit for up to 5 s if `wait`, then terminate it."""
+        if self._proc is None:
+            return
+        if wait:
+            self._proc.join(timeout=5.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+        self._proc.join()
+        self._conn.close()
+        self._proc = self._conn = None
 
     def __enter__(self) -> "Beside":
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._proc is not None:          # result() was not reached: stop the child
-            self._proc.terminate()
-            self._proc.join()
-            self._conn.close()
-            self._proc = self._conn = None
+        self._stop(wait=False)              # result() was not reached: stop the child
