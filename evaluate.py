@@ -36,7 +36,7 @@ from rbfn.config import EvalConfig, register_configs, validate_evaluate
 from rbfn.studies.beside import Beside, can_fork
 from rbfn.studies.control import check_control, evaluate_control
 from rbfn.studies.ik import evaluate_ik
-from rbfn.studies.online import evaluate_online
+from rbfn.studies.online import check_online, evaluate_online
 from rbfn.studies.rundir import write_json
 
 register_configs()
@@ -95,6 +95,8 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
     needs_ckpt = cfg.ik or cfg.online.enabled
     path = find_checkpoint(cfg) if needs_ckpt else None
     ckpt = read_checkpoint(path) if path is not None else None      # a bad file stops before any work
+    if ckpt is not None and cfg.online.enabled:
+        check_online(cfg.online, ckpt["robot"])     # the path and perturbation suit the checkpoint's robot
     if needs_ckpt and ckpt is None:
         log.info("no checkpoint.pt under %s (run `python train.py` or pass checkpoint=PATH): skipping the IK "
                  "and online parts", Path(to_absolute_path(cfg.outputs_dir)))

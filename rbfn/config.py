@@ -51,7 +51,7 @@ Integrator = _choice("Integrator", ("rk4", "euler"))           # euler: semi-imp
 Friction = _choice("Friction", ("sign", "smooth"))             # smooth: tanh(qd / 0.01)
 Dtype = _choice("Dtype", ("float64", "float32"))
 Robust = _choice("Robust", ("sign", "sat"))
-PathName = _choice("PathName", ("paper", "circle", "figure8"))
+PathName = _choice("PathName", ("paper", "circle", "figure8", "sinusoid"))
 Learner = _choice("Learner", ("nlms", "rls"))
 Target = _choice("Target", ("position", "pose"))              # IK input: (B, 3) m or (B, 7) m + quaternion
 Trajectory = _choice("Trajectory", ("paper", "sinusoid"))     # the desired joint path of the closed loop
@@ -236,20 +236,24 @@ class ControlConfig:
 
 @dataclass
 class OnlineConfig:
-    """Online IK adaptation in the closed loop (evaluate.py's `online` part; needs a checkpoint).
+    """Online IK adaptation in the closed loop (evaluate.py's `online` part; needs a checkpoint),
+    on the robot the checkpoint was trained for.
 
-    The "real" robot differs from the model by `link_error` (relative, l1 and l2) and
-    `offset_error` (joint offsets). `sizes` are link-1 errors to sweep: each row scales the whole
-    configured perturbation so that its link-1 error equals the size; the configured perturbation
-    itself (size = link_error[0]) is the one the headline metrics report.
+    The "real" robot differs from the model by `link_error` (relative errors of links 1, 2, ...:
+    link k runs from joint k to joint k+1, or to the end link for the last joint) and
+    `offset_error` (offsets added to joints 1, 2, ... in chain order, rad or m); missing entries
+    are 0. `sizes` are link-1 errors to sweep: each row scales the whole configured perturbation
+    so that its link-1 error equals the size; the configured perturbation itself
+    (size = link_error[0]) is the one the headline metrics report.
     """
 
     enabled: bool = True
     duration: float = 20.0             # s
     dt: float = 1e-3                   # s
-    path: PathName = PathName.paper            # type: ignore[valid-type]
-    link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])    # relative, l1 and l2
-    offset_error: list[float] = field(default_factory=lambda: [0.02, 0.0, 0.0])  # rad, rad, m
+    path: Optional[PathName] = None    # type: ignore[valid-type]  # null: paper (SCARA), sinusoid (URDF arms)
+    amplitude: float = 0.25            # sinusoid path: per joint amplitude / half the trained box range
+    link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])    # relative, links 1, 2, ...
+    offset_error: list[float] = field(default_factory=lambda: [0.02, 0.0, 0.0])  # joints 1, 2, ... (rad or m)
     sizes: list[float] = field(default_factory=lambda: [0.0, 0.01, 0.03, 0.05])  # link-1 errors
     learner: Learner = Learner.nlms            # type: ignore[valid-type]
     alpha0: float = 0.5                # NLMS step alpha(0)
@@ -426,10 +430,12 @@ def validate_online(c: OnlineConfig) -> None:
     _need(_finite(c.dt) and c.dt > 0, "online.dt", c.dt, "must be a positive number of seconds")
     _need(_finite(c.duration) and c.duration >= 4.0, "online.duration", c.duration,
           "must be >= 4 s (the metrics use the first and last 2 s)")
-    _need(len(c.link_error) == 2 and all(_finite(v) and v > -1 for v in c.link_error), "online.link_error",
-          list(c.link_error), "two relative errors > -1 (links 1 and 2)")
-    _need(len(c.offset_error) == 3 and all(_finite(v) for v in c.offset_error), "online.offset_error",
-          list(c.offset_error), "three finite joint offsets (rad, rad, m)")
+    _need(len(c.link_error) > 0 and all(_finite(v) and v > -1 for v in c.link_error), "online.link_error",
+          list(c.link_error), "relative errors > -1 of links 1, 2, ... (at least link 1)")
+    _need(all(_finite(v) for v in c.offset_error), "online.offset_error", list(c.offset_error),
+          "finite joint offsets (rad or m) of joints 1, 2, ...")
+    _need(_finite(c.amplitude) and 0 < c.amplitude <= 0.5, "online.amplitude", c.amplitude,
+          "must be in (0, 0.5] (the sinusoid path's two terms then stay inside the trained box)")
     _need(len(c.sizes) > 0 and all(_finite(s) for s in c.sizes), "online.sizes", list(c.sizes),
           "a non-empty list of link-1 errors")
     ref = c.link_error[0]

@@ -47,3 +47,16 @@ def small_data(scara_robot):
     from rbfn.data import make_dataset
 
     return make_dataset(scara_robot, (600, 300, 300), seed=3)
+
+
+@pytest.fixture(scope="session")
+def panda_ckpt(tmp_path_factory):
+    """A coarse Panda pose network (40 centres, joint 3 locked) as a checkpoint dict."""
+    import train
+    from rbfn.checkpoint import read_checkpoint
+
+    out = tmp_path_factory.mktemp("panda")
+    train.run(compose_config("train", "robot=panda", "centers=kmeans", "rbfn.num_centers=40", "rbfn.growth.start=0",
+                             "data.n_train=1500", "data.n_val=500", "data.n_test=200", "progress=false",
+                             "export=false", "num_threads=1"), out)
+    return read_checkpoint(out / "checkpoint.pt")

@@ -1,39 +1,50 @@
 """Online IK adaptation in the closed loop: the learned IK corrects itself on a robot whose
 kinematics differ from the model it was trained on.
 
-Each control period: x_d -> IK network -> q_d -> smc_obs -> simulator -> q -> p = FK_real(q);
+Each control period: x_d -> IK network -> q_d -> smc_obs -> simulator -> q -> x = FK_real(q);
 every `update_every` periods the learner adapts the network's output weights on the recent
-pairs (p, q). Environments are batched: one per (perturbation size, adapt on/off). The
+pairs (x, q). Environments are batched: one per (perturbation size, adapt on/off). The
 perturbation is kinematic (link lengths, joint offsets in FK_real); the dynamics stay nominal.
 The joint references' velocity and acceleration come from the network's design rows along the
 desired path, differentiated in time on the control grid, times the current weights.
+
+The robot is the one the network was trained for: the paper's SCARA in closed form (its
+packaged URDF), or any serial URDF arm through `rbfn.robots.perturbed` and the URDF dynamics.
 """
 from __future__ import annotations
 
 import logging
 import math
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import torch
+from pytorch_kinematics import transforms as tf
 
-from ..config import GainsConfig, OnlineConfig, PathName
+from ..config import ControlConfig, GainsConfig, OnlineConfig, PathName, RobotConfig, Target, Trajectory
 from ..layer import RBFNetwork
 from ..lms import make_learner
-from ..robots.scara import ScaraParams, fk, ik
+from ..robots.dynamics import load_arm
+from ..robots.kinematics import urdf_path
+from ..robots.perturbed import PerturbedChain
+from ..robots.robot import rotation_error_deg, unit_quaternions
+from ..robots.scara import END_LINK, ScaraParams, fk, ik
 from .aot import aot_chunk, chunk_key
-from .controllers import make_controller
-from .simulator import ScaraPlant, Scenario, make_chunk, stage_disturbances
-from .trajectory import paper_trajectory
+from .controllers import Controller, make_controller
+from .robot_setup import control_robot
+from .simulator import Plant, ScaraPlant, Scenario, make_chunk, stage_disturbances
+from .trajectory import paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RealRobot", "desired_path", "run_online", "perturbation_sizes"]
+__all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "is_closed_form_scara", "run_online",
+           "perturbation_sizes", "path_name", "check_online", "box_path"]
 
 
 @dataclass
 class RealRobot:
-    """Kinematics of the real arm: link lengths scaled by (1 + link_error), joint offsets added.
-    Batched: link_error (B, 2), offset (B, 3)."""
+    """Kinematics of the real SCARA: link lengths scaled by (1 + link_error), joint offsets added.
+    Batched: link_error (B, L), L <= 2 (l1, l2), offset (B, 3)."""
 
     link_error: torch.Tensor
     offset: torch.Tensor
@@ -41,24 +52,47 @@ class RealRobot:
 
     def fk(self, q: torch.Tensor) -> torch.Tensor:
         """Measured positions (..., B, 3) of joints q (..., B, 3)."""
-        p = replace(self.params, l1=self.params.l1 * (1 + self.link_error[:, 0]),
-                    l2=self.params.l2 * (1 + self.link_error[:, 1]))
+        e = torch.zeros(self.link_error.shape[0], 2, dtype=self.link_error.dtype, device=self.link_error.device)
+        e[:, :self.link_error.shape[1]] = self.link_error
+        p = replace(self.params, l1=self.params.l1 * (1 + e[:, 0]), l2=self.params.l2 * (1 + e[:, 1]))
         return fk(q + self.offset, p)
 
 
-def perturbation_sizes(cfg: OnlineConfig, sizes: list[float], **kw) -> tuple[torch.Tensor, torch.Tensor]:
-    """Link errors (S, 2) and joint offsets (S, 3) of each sweep row: the configured perturbation
-    scaled so that its link-1 error equals the row's size (a link-1 error)."""
+def is_closed_form_scara(record: dict) -> bool:
+    """Whether a checkpoint's robot entry is the packaged SCARA, which the online part runs in closed
+    form (any other robot runs through its URDF)."""
+    return (record.get("name") == "scara" and record.get("end_link") == END_LINK and not record.get("locked")
+            and record.get("urdf") == urdf_path("scara").read_text())
+
+
+def path_name(cfg: OnlineConfig, record: dict) -> str:
+    """online.path, or its default for the robot: paper for the SCARA, sinusoid for a URDF arm."""
+    if cfg.path is not None:
+        return str(cfg.path)
+    return str(PathName.paper) if is_closed_form_scara(record) else str(PathName.sinusoid)
+
+
+def _padded(values: list[float], n: int, **kw) -> torch.Tensor:
+    out = torch.zeros(n, **kw)
+    out[:len(values)] = torch.tensor(values, **kw)
+    return out
+
+
+def perturbation_sizes(cfg: OnlineConfig, sizes: list[float], n_links: int | None = None,
+                       n_joints: int | None = None, **kw) -> tuple[torch.Tensor, torch.Tensor]:
+    """Link errors (S, n_links) and joint offsets (S, n_joints) of each sweep row (default sizes:
+    the configured lists' lengths, missing entries 0): the configured perturbation scaled so that
+    its link-1 error equals the row's size."""
     s = torch.tensor(sizes, **kw)
     ref = cfg.link_error[0]
     scale = s / ref if ref else torch.zeros_like(s)
-    link = torch.tensor(cfg.link_error, **kw)[None] * scale[:, None]
-    offset = torch.tensor(cfg.offset_error, **kw)[None] * scale[:, None]
+    link = _padded(list(cfg.link_error), n_links or len(cfg.link_error), **kw)[None] * scale[:, None]
+    offset = _padded(list(cfg.offset_error), n_joints or len(cfg.offset_error), **kw)[None] * scale[:, None]
     return link, offset
 
 
 def desired_path(name: str, t: torch.Tensor, params: ScaraParams = ScaraParams()) -> torch.Tensor:
-    """Desired end-effector positions (T, 3) in m at times t (T,) s."""
+    """The SCARA's desired end-effector positions (T, 3) in m at times t (T,) s."""
     if name == PathName.paper:
         return fk(paper_trajectory(t)[0], params)
     centre = fk(torch.tensor([[1.0, 1.15, 1.0]], dtype=t.dtype), params)[0]
@@ -72,44 +106,174 @@ def desired_path(name: str, t: torch.Tensor, params: ScaraParams = ScaraParams()
     return centre + off
 
 
-def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float],
+def box_path(low: torch.Tensor, high: torch.Tensor, amplitude: float, t: torch.Tensor) -> torch.Tensor:
+    """Joints (T, n) of the `sinusoid` path: the box centre plus amplitude * half range *
+    (sin w1 t + sin w2 t) per joint (the closed loop's frequency pairs), inside the box for
+    amplitude <= 0.5."""
+    return sinusoid_trajectory(t, (low + high) / 2, amplitude * (high - low) / 2)[0]
+
+
+@dataclass
+class OnlineRobot:
+    """What the online loop needs of the robot a network was trained for, with its S perturbation
+    rows; `measure` serves 2S environments, [adapted rows, frozen rows]."""
+
+    plant: Plant
+    controller: Controller               # smc_obs on the robot's nominal model
+    x_d: torch.Tensor                    # (T, d) desired targets along the path
+    q_nominal: torch.Tensor              # (T, n_free) the nominal model's exact IK along the path
+    measure: Callable                    # chain joints (..., 2S, n) -> (rotations (..., 2S, 3, 3) | None, positions (..., 2S, 3))
+    measure_rows: Callable               # the same for (..., S, n), one environment per row
+    free: list[int]                      # the chain indices of the network's joints
+    held: torch.Tensor                   # (n,) chain joint values (the locked joints' are used)
+    target: str                          # position | pose
+    link_error: torch.Tensor             # (S, L) each row's link errors
+    offset_error: torch.Tensor           # (S, n) each row's joint offsets
+    q_real: torch.Tensor | None = None   # (T, n_free) the real robot's exact IK of the configured row (SCARA)
+
+    @property
+    def n(self) -> int:
+        return self.held.shape[0]
+
+    def full(self, q: torch.Tensor) -> torch.Tensor:
+        """Chain joints (..., n) from the network's joints (..., n_free)."""
+        out = self.held.to(q).expand(*q.shape[:-1], -1).clone()
+        out[..., self.free] = q
+        return out
+
+    def targets(self, rot: torch.Tensor | None, pos: torch.Tensor) -> torch.Tensor:
+        """The network's inputs (..., d) of measured poses."""
+        if self.target != Target.pose:
+            return pos
+        return torch.cat([pos, unit_quaternions(rot)], -1)
+
+    def errors(self, rot: torch.Tensor | None, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(position error (T, B) in mm, rotation error (T, B) in degrees or None) of measured poses
+        (T, B, ...) against the desired path."""
+        e_pos = (pos - self.x_d[:, None, :3]).norm(dim=-1) * 1000.0
+        if self.target != Target.pose:
+            return e_pos, None
+        r_d = tf.quaternion_to_matrix(self.x_d[:, 3:])[:, None].expand_as(rot)
+        return e_pos, rotation_error_deg(rot.reshape(-1, 3, 3), r_d.reshape(-1, 3, 3)).view(e_pos.shape)
+
+
+def check_online(cfg: OnlineConfig, record: dict) -> tuple[int, int]:
+    """(links, joints) of the checkpoint entry's robot, after checking that online.path,
+    online.link_error and online.offset_error suit it (ValueError naming the key)."""
+    path = path_name(cfg, record)
+    if is_closed_form_scara(record):
+        n_links, n_joints, name = 2, 3, "the SCARA (links l1, l2)"
+    else:
+        if path != PathName.sinusoid:
+            raise ValueError(f"online.path={path!r} is a path of the SCARA's workspace; the checkpoint's robot "
+                             f"({record.get('name') or record['end_link']}) follows online.path=sinusoid")
+        arm = load_arm(record["urdf"], end_link=record["end_link"])
+        n_links = n_joints = arm.n
+        name = f"the chain to {arm.end_link!r} (joints {arm.joint_names})"
+    if len(cfg.link_error) > n_links:
+        raise ValueError(f"online.link_error={list(cfg.link_error)} has {len(cfg.link_error)} entries; "
+                         f"{name} has {n_links} links")
+    if len(cfg.offset_error) > n_joints:
+        raise ValueError(f"online.offset_error={list(cfg.offset_error)} has {len(cfg.offset_error)} entries; "
+                         f"{name} has {n_joints} joints")
+    return n_links, n_joints
+
+
+def _scara(cfg: OnlineConfig, record: dict, gains: GainsConfig, path: str, t: torch.Tensor, sizes: list[float],
+           **kw) -> OnlineRobot:
+    link, offset = perturbation_sizes(cfg, sizes, 2, 3, **kw)
+    if path == PathName.sinusoid:
+        low, high = (torch.tensor(record[k], **kw) for k in ("joint_low", "joint_high"))
+        x_d = fk(box_path(low, high, cfg.amplitude, t))
+    else:
+        x_d = desired_path(path, t).to(**kw)
+    real = RealRobot(torch.cat([link, link]), torch.cat([offset, offset]))
+    rows = RealRobot(link, offset)
+    le, oe = perturbation_sizes(cfg, [cfg.link_error[0]], 2, 3, **kw)
+    p = ScaraParams()
+    q_real = ik(x_d, replace(p, l1=p.l1 * (1 + float(le[0, 0])), l2=p.l2 * (1 + float(le[0, 1])))) - oe[0]
+    return OnlineRobot(ScaraPlant(), make_controller("smc_obs", gains, cfg.dt), x_d, ik(x_d, p),
+                       lambda q: (None, real.fk(q)), lambda q: (None, rows.fk(q)), [0, 1, 2], torch.zeros(3, **kw),
+                       str(Target.position), link, offset, q_real)
+
+
+def _arm(record: dict, cfg: OnlineConfig, gains: GainsConfig, t: torch.Tensor, sizes: list[float],
+         **kw) -> OnlineRobot:
+    robot = RobotConfig(name=record.get("name") or "urdf", urdf=record["urdf"], end_link=record["end_link"],
+                        target=record.get("target", "position"), joint_low=list(record["joint_low"]),
+                        joint_high=list(record["joint_high"]), locked=dict(record.get("locked", {})),
+                        trajectory=Trajectory.sinusoid)
+    setup = control_robot(robot, ControlConfig())      # URDF dynamics; friction, disturbance scaled per joint
+    arm = setup.plant.arm
+    link, offset = perturbation_sizes(cfg, sizes, arm.n, arm.n, **kw)
+    low, high = (torch.tensor(v, **kw) for v in (robot.joint_low, robot.joint_high))
+    q_path = box_path(low, high, cfg.amplitude, t)                                  # (T, n_free)
+    free = [i for i, j in enumerate(arm.joint_names) if j not in robot.locked]
+    held = torch.tensor([float(robot.locked.get(j, 0.0)) for j in arm.joint_names], **kw)
+    real = PerturbedChain(arm, torch.cat([link, link]), torch.cat([offset, offset]))
+    rows = PerturbedChain(arm, link, offset)
+    ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=setup.joint_scale(**kw))
+    out = OnlineRobot(setup.plant, ctrl, torch.empty(0, **kw), q_path, real.pose, rows.pose, free, held,
+                      str(robot.target), link, offset)
+    nominal = PerturbedChain(arm, torch.zeros(1, 0, **kw), torch.zeros(1, arm.n, **kw))
+    out.x_d = out.targets(*(v[:, 0] for v in nominal.pose(out.full(q_path)[:, None])))
+    return out
+
+
+def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], t: torch.Tensor,
+                 **kw) -> OnlineRobot:
+    """The online scenario of a checkpoint's robot entry on the time grid t (T,) s, for the
+    perturbation rows `sizes` (ValueError naming the bad key)."""
+    check_online(cfg, record)
+    if is_closed_form_scara(record):
+        return _scara(cfg, record, gains, path_name(cfg, record), t, sizes, **kw)
+    return _arm(record, cfg, gains, t, sizes, **kw)
+
+
+def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float],
                device: str = "cpu") -> dict:
     """Run adapted and frozen networks for every perturbation size in `sizes` (link-1 errors; see
-    `perturbation_sizes`) and the nominal analytic IK.
+    `perturbation_sizes`) and the nominal model's exact IK, on the robot of the checkpoint entry
+    `record`.
 
     Returns, on the control grid: t (T,), err_adapt / err_frozen / err_analytic (T, S) task-space
-    errors in mm, q_adapt (T, S, 3), dw (U, S) weight-change norms at the update times t_update
-    (U,), final weights (S, P, 3), the rows' link errors (S, 2) and offsets (S, 3), and the number
-    of rejected (non-finite) pairs.
+    position errors in mm, and rot_adapt / rot_frozen / rot_analytic (T, S) rotation errors in
+    degrees for pose targets (else None), q_adapt (T, S, n_free), dw (U, S) weight-change norms at
+    the update times t_update (U,), final weights (S, P, n_free), the rows' link errors (S, L) and
+    offsets (S, n), the real robot's exact IK of the configured row q_real (T, n_free) or None,
+    and the number of rejected (non-finite) pairs.
     """
     kw = {"dtype": torch.float64, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, "rk4", 0.0, cfg.duration, 0.0)
     sc.validate()
     n = sc.steps
     t = sc.times(**kw)
-    x_d = desired_path(cfg.path, t).to(**kw)
+    rob = online_robot(record, cfg, gains, sizes, t, **kw)
     net = net.to(**kw)
-    link, offset = perturbation_sizes(cfg, sizes, **kw)
-    n_s = len(sizes)
-    # Environments: [adapted (S), frozen (S)].
-    real = RealRobot(torch.cat([link, link]), torch.cat([offset, offset]))
-    b = 2 * n_s
-    a_path = net.design(x_d)                                          # (T, P)
+    n_s, nj = len(sizes), rob.n
+    b = 2 * n_s                                                       # environments: [adapted (S), frozen (S)]
+    a_path = net.design(rob.x_d)                                      # (T, P)
     da = torch.gradient(a_path, spacing=cfg.dt, dim=0)[0]
     dda = torch.gradient(da, spacing=cfg.dt, dim=0)[0]
     w0 = net.output_weights().to(**kw)
     learner = make_learner(cfg.learner, w0.expand(b, *w0.shape), cfg.alpha0, cfg.decay, cfg.forgetting)
     frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)])
-    plant = ScaraPlant()
-    ctrl = make_controller("smc_obs", gains, cfg.dt)
-    q = torch.einsum("p,bpj->bj", a_path[0], learner.w)
-    qd = torch.einsum("p,bpj->bj", da[0], learner.w)
+    plant, ctrl = rob.plant, rob.controller
+    vel = torch.zeros(nj, **kw)                                       # locked joints: held, at rest
+
+    def chain(v: torch.Tensor, held: torch.Tensor) -> torch.Tensor:
+        out = held.to(v).expand(*v.shape[:-1], nj).clone()
+        out[..., rob.free] = v
+        return out
+
+    q = rob.full(torch.einsum("p,bpj->bj", a_path[0], learner.w))
+    qd = chain(torch.einsum("p,bpj->bj", da[0], learner.w), vel)
     state = ctrl.init_state(q, qd)
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
     co = plant.coefficients(torch.zeros(cfg.update_every, b, **kw))     # no payload
     alpha = torch.zeros(cfg.update_every, **kw)
     run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
-    qs = torch.empty(n + 1, b, 3, **kw)
+    qs = torch.empty(n + 1, b, nj, **kw)
     dw = []
     k = 0
     with torch.inference_mode():          # no autograd bookkeeping: a fifth of a small batch's step
@@ -117,6 +281,7 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
             m = min(cfg.update_every, n - k)
             sl = slice(k, k + m)
             refs = [torch.einsum("np,bpj->nbj", r[sl], learner.w) for r in (a_path, da, dda)]
+            refs = [rob.full(refs[0]), chain(refs[1], vel), chain(refs[2], vel)]
             args = (q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
             if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
                 run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, args), args, log.info)
@@ -126,21 +291,22 @@ def run_online(net: RBFNetwork, cfg: OnlineConfig, gains: GainsConfig, sizes: li
             k += m
             if not bool(torch.isfinite(q).all()):
                 raise RuntimeError(f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s): q = {q.tolist()}")
-            # Pairs (p, q) of this segment; the frozen environments learn nothing.
-            p = real.fk(rq)                                                     # (m, B, 3)
-            a = net.design(p).transpose(0, 1)                             # (B, m, P)
-            y = rq.transpose(0, 1)
+            # Pairs (x, q) of this segment; the frozen environments learn nothing.
+            x = rob.targets(*rob.measure(rq))                                   # (m, B, d)
+            a = net.design(x).transpose(0, 1)                                  # (B, m, P)
+            y = rq[..., rob.free].transpose(0, 1)
             keep = learner.w.clone()
             learner.update(a, y, k * cfg.dt)
             learner.w = torch.where(frozen[:, None, None], keep, learner.w)
             dw.append((learner.w - w0).flatten(1).norm(dim=-1)[:n_s])
     qs[n] = q
-    err = (real.fk(qs) - x_d[:, None, :]).norm(dim=-1) * 1000.0            # (T, B) mm
-    # Nominal analytic IK on the real robot: the same joints for every size (kinematic perturbation).
-    q_an = ik(x_d, ScaraParams())
-    real_s = RealRobot(link, offset)
-    err_an = (real_s.fk(q_an[:, None, :].expand(-1, n_s, 3)) - x_d[:, None, :]).norm(dim=-1) * 1000.0
-    return {"t": t, "err_adapt": err[:, :n_s], "err_frozen": err[:, n_s:], "err_analytic": err_an,
-            "q_adapt": qs[:, :n_s], "dw": torch.stack(dw), "t_update": torch.arange(1, len(dw) + 1, **kw)
-            * cfg.update_every * cfg.dt, "weights": learner.w[:n_s], "link_error": link, "offset_error": offset,
+    pos, rot = rob.errors(*rob.measure(qs))                                      # (T, B)
+    # The nominal model's exact IK on each real robot (a kinematic perturbation: the same joints).
+    q_an = rob.full(rob.q_nominal)[:, None, :].expand(-1, n_s, nj)
+    pos_an, rot_an = rob.errors(*rob.measure_rows(q_an))
+    return {"t": t, "err_adapt": pos[:, :n_s], "err_frozen": pos[:, n_s:], "err_analytic": pos_an,
+            "rot_adapt": None if rot is None else rot[:, :n_s], "rot_frozen": None if rot is None else rot[:, n_s:],
+            "rot_analytic": rot_an, "q_adapt": qs[:, :n_s, rob.free], "x_d": rob.x_d, "q_real": rob.q_real,
+            "dw": torch.stack(dw), "t_update": torch.arange(1, len(dw) + 1, **kw) * cfg.update_every * cfg.dt,
+            "weights": learner.w[:n_s], "link_error": rob.link_error, "offset_error": rob.offset_error,
             "rejected": learner.rejected}

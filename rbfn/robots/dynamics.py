@@ -125,6 +125,7 @@ class _Model:
     payload_pos: torch.Tensor    # (3,) m, payload point in that body's frame
     lower: torch.Tensor          # (n,) joint limits, rad or m (+-inf where unlimited)
     upper: torch.Tensor
+    end_pose: torch.Tensor       # (4, 4): the end link's frame in body n-1's frame
 
 
 def _build(robot: URDF, end_link: str, payload_link: str | None) -> _Model:
@@ -197,7 +198,7 @@ def _build(robot: URDF, end_link: str, payload_link: str | None) -> _Model:
     return _Model(names, torch.tensor(prismatic), torch.stack(placement), torch.stack(axis),
                   mass, first, inertia, pbody, ppose[:3, 3].clone(),
                   torch.tensor(lower, dtype=torch.float64),
-                  torch.tensor(upper, dtype=torch.float64))
+                  torch.tensor(upper, dtype=torch.float64), where[end_link][1].clone())
 
 
 # ----------------------------------------------------------------------------- spatial algebra
@@ -303,6 +304,13 @@ class Arm:
     def joint_limits(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(lower, upper) (n,) float64 in rad or m; -inf, inf for continuous joints."""
         return self._model.lower.clone(), self._model.upper.clone()
+
+    def frames(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The lumped chain's kinematics, float64: joint i's frame at q_i = 0 in body i-1's frame
+        (n, 4, 4) (m), unit axes (n, 3) in the joint frames, prismatic (n,) bool, and the end
+        link's frame in body n-1's frame (4, 4)."""
+        md = self._model
+        return md.placement.clone(), md.axis.clone(), md.prismatic.clone(), md.end_pose.clone()
 
     def _consts(self, dtype: torch.dtype, device: torch.device) -> dict:
         """Per-joint and per-body constants in `dtype` on `device`, computed once."""

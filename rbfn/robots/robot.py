@@ -18,14 +18,18 @@ from pytorch_kinematics import transforms as tf
 from ..config import RobotConfig, Target
 from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, urdf_path
 
-__all__ = ["Robot", "load_robot", "robot_from_record", "pose_targets", "rotation_error_deg"]
+__all__ = ["Robot", "load_robot", "robot_from_record", "pose_targets", "unit_quaternions", "rotation_error_deg"]
+
+
+def unit_quaternions(rot: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions (..., 4) (w, x, y, z), w >= 0, of rotation matrices (..., 3, 3)."""
+    quat = tf.matrix_to_quaternion(rot)
+    return torch.where(quat[..., :1] < 0, -quat, quat)
 
 
 def pose_targets(pose: torch.Tensor) -> torch.Tensor:
     """Targets (B, 7) = position (m) and unit quaternion (w, x, y, z), w >= 0, of poses (B, 4, 4)."""
-    quat = tf.matrix_to_quaternion(pose[..., :3, :3])
-    quat = torch.where(quat[..., :1] < 0, -quat, quat)
-    return torch.cat([pose[..., :3, 3], quat], -1)
+    return torch.cat([pose[..., :3, 3], unit_quaternions(pose[..., :3, :3])], -1)
 
 
 def rotation_error_deg(r_hat: torch.Tensor, r: torch.Tensor) -> torch.Tensor:

@@ -11,12 +11,11 @@ import torch
 
 from ..checkpoint import model_from_checkpoint, save_sealed
 from ..config import GainsConfig, OnlineConfig
-from ..control.task_space import desired_path, run_online
-from ..robots.scara import ScaraParams, ik
+from ..control.task_space import check_online, path_name, run_online
 from .plots import online_figure
 from .rundir import write_figure
 
-__all__ = ["evaluate_online", "online_table"]
+__all__ = ["evaluate_online", "online_table", "check_online"]
 
 log = logging.getLogger(__name__)
 
@@ -28,38 +27,42 @@ def _rms(e: torch.Tensor, mask: torch.Tensor) -> list[float]:
 def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: str = "cpu",
                     writer=None, out_dir: Path | None = None) -> dict:
     """Metrics for the checkpoint dict `ckpt`: task_err_mm_rms_first_2s / _last_2s (adapted),
-    _no_adapt and _analytic_nominal (last 2 s) for the configured perturbation; `sweep`, one row
-    per size with its real link and offset errors; joint error and weight change. With `out_dir`,
-    writes online_task_error.png and checkpoint_online.pt."""
+    _no_adapt and _analytic_nominal (last 2 s) for the configured perturbation, and the same
+    task_rot_err_deg_rms_* for pose targets; `sweep`, one row per size with its real link and
+    offset errors; joint error (null where the real robot's exact IK is not known: URDF arms) and
+    weight change. With `out_dir`, writes online_task_error.png and checkpoint_online.pt."""
     net = model_from_checkpoint(ckpt)
     sizes = list(cfg.sizes)
-    r = run_online(net, cfg, gains, sizes, device)
+    r = run_online(net, ckpt["robot"], cfg, gains, sizes, device)
     t = r["t"]
     first, last = t <= 2.0, t >= cfg.duration - 2.0
     i = next(k for k, s in enumerate(sizes) if math.isclose(s, cfg.link_error[0], rel_tol=1e-9, abs_tol=1e-12))
     adapt_first, adapt_last = _rms(r["err_adapt"], first), _rms(r["err_adapt"], last)
     frozen, analytic = _rms(r["err_frozen"], last), _rms(r["err_analytic"], last)
-    # Joint error against the real robot's exact IK (same branch), configured perturbation.
-    p = ScaraParams()
-    real = ScaraParams(l1=p.l1 * (1 + cfg.link_error[0]), l2=p.l2 * (1 + cfg.link_error[1]))
-    x_d = desired_path(cfg.path, t).to(r["q_adapt"])
-    q_true = ik(x_d, real) - torch.tensor(cfg.offset_error, dtype=x_d.dtype, device=x_d.device)
-    jerr = (r["q_adapt"][:, i] - q_true).norm(dim=-1)
+    # Joint error against the real robot's exact IK (same branch), where it is known.
+    jerr = None if r["q_real"] is None else (r["q_adapt"][:, i] - r["q_real"]).norm(dim=-1)
     out = {
         "task_err_mm_rms_first_2s": adapt_first[i],
         "task_err_mm_rms_last_2s": adapt_last[i],
         "task_err_mm_rms_no_adapt": frozen[i],
         "task_err_mm_rms_analytic_nominal": analytic[i],
-        "joint_err_rms_last_2s": float(jerr[last].square().mean().sqrt()),
+        "joint_err_rms_last_2s": None if jerr is None else float(jerr[last].square().mean().sqrt()),
         "weight_change_norm": float(r["dw"][-1, i]),
         "rejected_pairs": r["rejected"],
-        "duration_s": cfg.duration, "learner": str(cfg.learner), "path": str(cfg.path),
+        "duration_s": cfg.duration, "learner": str(cfg.learner), "path": path_name(cfg, ckpt["robot"]),
+        "robot": ckpt["robot"].get("name", ""),
         "sweep": [{"size": s, "link_error": le, "offset_error": oe,
                    "task_err_mm_rms_first_2s": a0, "task_err_mm_rms_last_2s": a1,
                    "task_err_mm_rms_no_adapt": f, "task_err_mm_rms_analytic_nominal": an}
                   for s, le, oe, a0, a1, f, an in zip(sizes, r["link_error"].tolist(), r["offset_error"].tolist(),
                                                       adapt_first, adapt_last, frozen, analytic)],
     }
+    if r["rot_adapt"] is not None:                  # pose targets: the orientation error too
+        rot = {"first_2s": _rms(r["rot_adapt"], first), "last_2s": _rms(r["rot_adapt"], last),
+               "no_adapt": _rms(r["rot_frozen"], last), "analytic_nominal": _rms(r["rot_analytic"], last)}
+        out.update({f"task_rot_err_deg_rms_{k}": v[i] for k, v in rot.items()})
+        for j, row in enumerate(out["sweep"]):
+            row.update({f"task_rot_err_deg_rms_{k}": v[j] for k, v in rot.items()})
     if writer is not None:
         stride = max(1, round(0.01 / cfg.dt))
         for k in range(0, t.shape[0], stride):
@@ -88,11 +91,14 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
 
 
 def online_table(m: dict) -> str:
+    rot = "task_rot_err_deg_rms_last_2s" in m
+    unit = "position [mm] / rotation [deg]" if rot else "[mm]"
     lines = [f"\nOnline IK adaptation ({m['learner']}, {m['duration_s']:g} s, path {m['path']}): "
-             "task-space RMS error [mm]",
-             f"{'link-1 error':>12s} {'first 2 s':>10s} {'last 2 s':>10s} {'no adapt':>10s} {'analytic':>10s}"]
+             f"task-space RMS error {unit}",
+             f"{'link-1 error':>12s} {'first 2 s':>16s} {'last 2 s':>16s} {'no adapt':>16s} {'analytic':>16s}"]
+    keys = ("first_2s", "last_2s", "no_adapt", "analytic_nominal")
     for row in m["sweep"]:
-        lines.append(f"{row['size'] * 100:11.3g}% {row['task_err_mm_rms_first_2s']:10.3f} "
-                     f"{row['task_err_mm_rms_last_2s']:10.3f} {row['task_err_mm_rms_no_adapt']:10.3f} "
-                     f"{row['task_err_mm_rms_analytic_nominal']:10.3f}")
+        cells = [f"{row['task_err_mm_rms_' + k]:.3f}" + (f" / {row['task_rot_err_deg_rms_' + k]:.3f}" if rot else "")
+                 for k in keys]
+        lines.append(f"{row['size'] * 100:11.3g}% " + " ".join(f"{c:>16s}" for c in cells))
     return "\n".join(lines)

@@ -1,0 +1,63 @@
+"""The online scenario on any robot: the SCARA through its URDF agrees with its closed form, a
+URDF arm with a locked joint adapts in the closed loop, and settings that do not suit the
+checkpoint's robot are named before any work."""
+from dataclasses import replace
+
+import pytest
+import torch
+
+from rbfn.checkpoint import model_from_checkpoint
+from rbfn.config import GainsConfig, OnlineConfig
+from rbfn.control.task_space import check_online, online_robot, run_online
+from rbfn.robots.robot import load_robot
+
+from ..conftest import compose_config
+
+KW = {"dtype": torch.float64, "device": "cpu"}
+
+
+def _record(robot: str, **change) -> dict:
+    return {**load_robot(compose_config("train", f"robot={robot}").robot).record(), **change}
+
+
+def test_scara_through_its_urdf_equals_its_closed_form():
+    """The same sinusoid path and perturbations: desired targets and the nominal IK's error on
+    the real robots agree between the closed form and the URDF chain."""
+    cfg = OnlineConfig(path="sinusoid", link_error=[0.04, -0.03], offset_error=[0.02, -0.01, 0.005])
+    t = torch.linspace(0.0, 6.0, 301, **KW)
+    closed = online_robot(_record("scara"), cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
+    urdf = online_robot(_record("scara", name="my_scara"), cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
+    assert type(urdf.plant).__name__ == "ArmPlant" and type(closed.plant).__name__ == "ScaraPlant"
+    assert torch.allclose(urdf.x_d, closed.x_d, atol=1e-12, rtol=0)
+    q = closed.full(closed.q_nominal)[:, None].expand(-1, 3, 3)
+    e_closed, e_urdf = closed.errors(*closed.measure_rows(q)), urdf.errors(*urdf.measure_rows(q))
+    assert torch.allclose(e_urdf[0], e_closed[0], atol=1e-9, rtol=0)
+    assert e_closed[0][:, 0].abs().max() < 1e-9 and e_closed[0][:, 2].mean() > 10.0      # mm
+
+
+def test_panda_adapts_online_with_its_locked_joint_held(panda_ckpt):
+    """A 3 s closed loop on the Panda (joint 3 locked) with a coarse 40-centre network: pose
+    errors reported for the six free joints, the adapted rows far below their frozen twins, the
+    size-0 row's nominal IK exact."""
+    cfg = OnlineConfig(duration=3.0, dt=0.002, sizes=[0.0, 0.03], link_error=[0.03, 0.02, -0.02],
+                       offset_error=[0.02, 0.0, 0.0, 0.01])
+    r = run_online(model_from_checkpoint(panda_ckpt), panda_ckpt["robot"], cfg, GainsConfig(), list(cfg.sizes))
+    assert r["q_adapt"].shape[1:] == (2, 6) and r["rot_adapt"] is not None and r["q_real"] is None
+    assert r["err_analytic"][:, 0].abs().max() < 1e-9 and r["err_analytic"][:, 1].mean() > 1.0
+    late = r["t"] >= 2.0
+    adapt, frozen = r["err_adapt"][late].mean(0), r["err_frozen"][late].mean(0)
+    assert (adapt < 0.2 * frozen).all(), (adapt, frozen)
+    assert (r["rot_adapt"][late].mean(0) < 0.5 * r["rot_frozen"][late].mean(0)).all()
+    assert r["dw"][-1].min() > 0
+
+
+def test_settings_that_do_not_suit_the_robot_are_named():
+    ur5 = _record("ur5")
+    with pytest.raises(ValueError, match=r"online.path='circle' is a path of the SCARA's workspace.*sinusoid"):
+        check_online(OnlineConfig(path="circle"), ur5)
+    with pytest.raises(ValueError, match=r"online.offset_error=.* has 7 entries; the chain to 'ee_link' .* has 6 joints"):
+        check_online(OnlineConfig(offset_error=[0.0] * 7), ur5)
+    with pytest.raises(ValueError, match=r"online.link_error=.* has 3 entries; the SCARA .* has 2 links"):
+        check_online(OnlineConfig(link_error=[0.03, 0.0, 0.01]), _record("scara"))
+    assert check_online(OnlineConfig(), ur5) == (6, 6)
+    assert check_online(replace(OnlineConfig(), path=None), _record("scara")) == (2, 3)
