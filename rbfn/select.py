@@ -131,9 +131,12 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
     return centers, widths_of(centers[None])[0], res
 
 
-# Above this many centre coordinates M * d the colony searches a few global width quantities
-# instead of every coordinate (see `_acor_reduced`); at or below it, everything (as the SCARA's).
+# Above this many centre coordinates M * d, or where the full colony's fits would cost more than
+# FULL_FLOPS floating-point operations, the colony searches a few global width quantities instead
+# of every coordinate (see `_acor_reduced`); otherwise everything (as the SCARA's: its M = 80
+# colony costs about 6e10, the UR5's M = 200 one 2.6e12, which took 9 minutes).
 FULL_SEARCH_MAX = 2048
+FULL_FLOPS = 2e11
 # Floating-point operations the reduced colony may spend on its fit objective (about a minute
 # on one core at ~20 GFLOP/s in float64); it runs as many iterations as fit, at least one.
 REDUCED_FLOPS = 1e12
@@ -152,7 +155,8 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     d = z.shape[1]
     c0 = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
-    if m * d > FULL_SEARCH_MAX and a.objective == "fit":
+    full_cost = (a.archive_size + a.ants * a.iterations) * objective.cost(m)
+    if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
         return _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume, on_state)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())

@@ -83,9 +83,10 @@ def test_ant_system_visibility_is_wired(objective):
     assert not torch.equal(run(0.0), run(4.0))
 
 
-def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch):
+@pytest.mark.parametrize("limit", ["FULL_SEARCH_MAX", "FULL_FLOPS"])
+def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch, limit):
     import rbfn.select as sel
-    monkeypatch.setattr(sel, "FULL_SEARCH_MAX", 0)      # the large-M search on a small problem
+    monkeypatch.setattr(sel, limit, 0)      # the large-M search on a small problem (too many coordinates, or flops)
     km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
     cfg = CentersConfig(method="aco")
     cfg.aco.iterations = 4
