@@ -5,8 +5,9 @@ whose kinematics differ from its model, and the closed-loop controller compariso
     python evaluate.py checkpoint=PATH n_test=20000
     python evaluate.py gains=paper ik=false online.enabled=false   # the closed loop alone
 
-Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; writes
-checkpoint_online.pt), `control` (`control.enabled`: every controller on every payload case).
+Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; runs on
+the checkpoint's robot; writes checkpoint_online.pt), `control` (`control.enabled`, on `robot`: every
+controller on every payload case).
 With no checkpoint given and none found, the two checkpoint parts are skipped (and said so).
 The checkpoint's parts run in a forked process beside the control part, and half the control
 figures in another (`parallel`, on by default; used where the machine forks, has two cores or
