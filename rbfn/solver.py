@@ -7,8 +7,10 @@ damped-least-squares (Levenberg-Marquardt) steps on the robot's own FK and Jacob
 Each step solves (J J^T + lambda I) y = e, dq = J^T y for the task error e (position in m, and for
 pose targets the rotation error as an axis-angle vector in rad, root frame), and clamps the
 joints to the trained box, so the answer never leaves the branch the network was trained on.
-`converged` is True where the final error is within `tol_mm` and `tol_deg`. Runs where torch and
-the robot model are available; deployed exports hold the network alone.
+`converged` is True where the final error is within `tol_mm` and `tol_deg`. With `restarts`, the
+targets that did not converge are tried again from random joints in the box, as a sampling IK
+would, so only the hard few pay for it. Runs where torch and the robot model are available;
+deployed exports hold the network alone.
 """
 from __future__ import annotations
 
@@ -48,17 +50,11 @@ class IKSolver:
         e_rot = tf.matrix_to_axis_angle(r_err)                     # (B, 3), world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
-    @torch.no_grad()
-    def solve(self, targets, iterations: int = DEFAULT_ITERATIONS) -> tuple[torch.Tensor, torch.Tensor]:
-        """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math)."""
-        if not (isinstance(iterations, int) and iterations >= 0):
-            raise ValueError(f"iterations={iterations!r} must be an integer >= 0")
-        dev = self.robot.chain.device
-        x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
-        low, high = self.robot.low.to(dev), self.robot.high.to(dev)
-        model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
-        q = model(x).clamp(low, high)
-        eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=dev)
+    def _polish(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """`iterations` damped-least-squares steps from joints q (B, n) toward targets x; (joints,
+        converged (B,))."""
+        low, high = self.robot.low.to(q.device), self.robot.high.to(q.device)
+        eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=q.device)
         for _ in range(iterations):
             e, jac, _, _ = self._errors(q, x)
             y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + self.damping * eye, e.unsqueeze(-1))
@@ -67,6 +63,34 @@ class IKSolver:
         ok = pos * 1000.0 <= self.tol_mm
         if rot is not None:
             ok &= torch.rad2deg(rot) <= self.tol_deg
+        return q, ok
+
+    @torch.no_grad()
+    def solve(self, targets, iterations: int = DEFAULT_ITERATIONS, restarts: int = 0,
+              restart_iterations: int = 20, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math).
+
+        restarts: for the targets not converged after `iterations` steps from the network's answer,
+        up to this many rounds of `restart_iterations` steps from joints drawn uniformly in the
+        trained box (generator seeded by `seed`); a target keeps the first start that converges.
+        """
+        for name, v in (("iterations", iterations), ("restarts", restarts), ("restart_iterations", restart_iterations)):
+            if not (isinstance(v, int) and v >= 0):
+                raise ValueError(f"{name}={v!r} must be an integer >= 0")
+        dev = self.robot.chain.device
+        x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
+        low, high = self.robot.low.to(dev), self.robot.high.to(dev)
+        model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
+        q, ok = self._polish(model(x).clamp(low, high), x, iterations)
+        g = torch.Generator(device=dev).manual_seed(seed)
+        for _ in range(restarts):
+            todo = (~ok).nonzero().squeeze(-1)
+            if todo.numel() == 0:
+                break
+            start = low + (high - low) * torch.rand(todo.numel(), low.shape[0], generator=g, dtype=torch.float64,
+                                                    device=dev)
+            q_r, ok_r = self._polish(start, x[todo], restart_iterations)
+            q[todo[ok_r]], ok[todo[ok_r]] = q_r[ok_r], True
         return q, ok
 
 

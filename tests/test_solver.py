@@ -64,6 +64,23 @@ def test_polish_converges_and_stays_in_the_box(ur5_run):
         solver.solve(split.x, iterations=-1)
 
 
+def test_restarts_rescue_the_targets_the_polish_leaves(ur5_run):
+    """One step from the network leaves many targets; restarts from random joints in the box
+    reach them without leaving the box or touching the targets already solved."""
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, robot = _targets()
+    q1, ok1 = solver.solve(split.x, iterations=1)
+    q, ok = solver.solve(split.x, iterations=1, restarts=5)
+    assert int(ok1.sum()) < 0.9 * len(ok1) and int(ok.sum()) > int(ok1.sum()) + 0.05 * len(ok1)
+    assert torch.equal(q[ok1], q1[ok1]) and ok[ok1].all()
+    pos, rot = robot.errors(q, split.x)
+    assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
+    assert ((q >= robot.low) & (q <= robot.high)).all()
+    assert torch.equal(solver.solve(split.x, iterations=1, restarts=5)[0], q)       # seeded
+    with pytest.raises(ValueError, match="restarts=-2"):
+        solver.solve(split.x, restarts=-2)
+
+
 def test_pose_export_matches_the_module(ur5_run, tmp_path):
     ort = pytest.importorskip("onnxruntime")
     out, _ = ur5_run
