@@ -153,6 +153,9 @@ class RBFNConfig:
     lms_alpha0: float = 0.5
     lms_epochs: int = 50
     max_width: float = 2.0             # cap on widths, scaled units (float32 conditioning)
+    # float32 deployment: a fit's rounding scale may reach this fraction of its own validation RMS
+    # error per output where that exceeds the absolute 2e-6 (rad, m); 0: the absolute bound alone
+    round_rel: float = 0.0
     growth: GrowthConfig = field(default_factory=GrowthConfig)
 
 
@@ -325,6 +328,7 @@ def validate_train(cfg: TrainConfig) -> None:
           c.width_scale, "must be a positive finite number or null")
     _need(c.kmeans_restarts >= 1, "centers.kmeans_restarts", c.kmeans_restarts, "must be >= 1")
     _need(_finite(r.max_width) and r.max_width > 0, "rbfn.max_width", r.max_width, "must be > 0")
+    _need(_finite(r.round_rel) and 0 <= r.round_rel < 1, "rbfn.round_rel", r.round_rel, "must be in [0, 1)")
     if c.method == Method.ols or (c.method == Method.aco and a.colony == Colony.ant_system):
         _need(a.candidates >= r.num_centers, "centers.aco.candidates", a.candidates,
               f"must be >= rbfn.num_centers={r.num_centers}")

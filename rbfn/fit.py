@@ -16,7 +16,7 @@ import torch
 from .layer import gaussian_features
 
 __all__ = ["design_matrix", "RidgeFit", "ridge_fit", "ridge_choose", "ridge_solve", "deployed_design", "rounding_scale",
-           "DEFAULT_RIDGES", "ROUND_TOL"]
+           "DEFAULT_RIDGES", "ROUND_TOL", "rounding_tolerance"]
 
 # Ridge values relative to the mean diagonal of the Gram matrix.
 DEFAULT_RIDGES = tuple(10.0**e for e in range(-13, -1))
@@ -85,7 +85,8 @@ def rounding_scale(a: torch.Tensor, weights: torch.Tensor, dtype: torch.dtype) -
 
 def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor, y_val: torch.Tensor,
               ridges: tuple[float, ...] = DEFAULT_RIDGES, eval_dtype: torch.dtype | None = None,
-              a_val_eval: torch.Tensor | None = None, round_tol: float = ROUND_TOL) -> RidgeFit:
+              a_val_eval: torch.Tensor | None = None, round_tol: float = ROUND_TOL,
+              round_rel: float = 0.0) -> RidgeFit:
     """Ridge least squares for every ridge in `ridges`; keep the one with the lowest validation MSE.
 
     a_train (..., N, P), y_train (N, out), a_val (..., Nv, P), y_val (Nv, out). Solved through
@@ -95,7 +96,8 @@ def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor,
     With a deployment dtype (`eval_dtype`, or the dtype of `a_val_eval`, the validation design as
     the deployed module computes it) the validation MSE is measured in that dtype and only stable
     ridges compete: the fit's rounding scale (`rounding_scale`) must be <= `round_tol` (output
-    units) on every validation row and output. Small ridges give large weights that cancel, and
+    units), or `round_rel` times the best candidate's validation RMS error per output where that
+    is larger (`rounding_tolerance`), on every validation row and output. Small ridges give large weights that cancel, and
     the deployed output then depends on the order of operations (ONNX runtime vs torch, distance
     formula, summation order) by far more than the dtype's precision; choosing on the measured
     error alone would reward the op order that happened to be measured. Where the constraint
@@ -122,11 +124,23 @@ def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor,
             return mse, None
         return mse, rounding_scale(a_val, w_flat, deploy).unflatten(-1, (n_l, n_out)).amax((-3, -1))
 
-    return ridge_choose(gram, rhs, score, ridges, deploy, round_tol)
+    return ridge_choose(gram, rhs, score, ridges, deploy, round_tol, round_rel)
+
+
+def rounding_tolerance(mse: torch.Tensor, outputs: int, round_tol: float = ROUND_TOL,
+                       round_rel: float = 0.0) -> torch.Tensor:
+    """The largest rounding scale (..., 1) a deployed fit may have: round_tol, or round_rel times
+    the per-output validation RMS error of the best candidate (mse (..., L), summed over outputs)
+    where that is larger. A network whose own error is 1e-2 rad gains nothing from rounding held
+    at 2e-6: there the absolute rule forces ridges far larger than float32 needs, and doubled the
+    UR5's error at M = 2000 (`rbfn.round_rel`)."""
+    best = torch.nan_to_num(mse, nan=torch.inf).amin(-1, keepdim=True).clamp(max=torch.finfo(mse.dtype).max)
+    return (round_rel * (best / outputs).sqrt()).clamp(min=round_tol)
 
 
 def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[float, ...] = DEFAULT_RIDGES,
-                 deploy: torch.dtype | None = None, round_tol: float = ROUND_TOL) -> RidgeFit:
+                 deploy: torch.dtype | None = None, round_tol: float = ROUND_TOL,
+                 round_rel: float = 0.0) -> RidgeFit:
     """`ridge_fit` from the normal equations: gram (..., P, P), rhs (..., P, out).
 
     score(weights (..., L, P, out)) -> validation MSE (..., L) and, with a deployment dtype
@@ -150,7 +164,7 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
         """Index (...,) of the best candidate: lowest MSE among the stable ones, else most stable."""
         if bound is None:
             return mse.argmin(-1)
-        stable = bound <= round_tol
+        stable = bound <= tol
         fallback = torch.where(bound == bound.amin(-1, keepdim=True), mse, torch.inf)
         return torch.where(stable.any(-1, keepdim=True), torch.where(stable, mse, torch.inf), fallback).argmin(-1)
 
@@ -159,6 +173,7 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
 
     grid = torch.as_tensor(ridges, dtype=gram.dtype, device=gram.device).expand(*scale.shape[:-1], -1)
     weights, mse, bound = candidates(grid)
+    tol = rounding_tolerance(mse, rhs.shape[-1], round_tol, round_rel)               # (..., 1)
     best = choose(mse, bound)
     ridge, best_mse, best_bound = take(grid, best), take(mse, best), take(bound, best)
     best_w = weights.gather(-3, best[..., None, None, None].expand(*best.shape, 1, *weights.shape[-2:]))
@@ -169,14 +184,14 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
         # try ridges between the two (log-spaced) and keep the best stable one.
         ordered = all(a < b for a, b in zip(ridges, ridges[1:]))
         lower = take(grid, (best - 1).clamp(min=0))
-        binds = (best > 0) & (take(mse, (best - 1).clamp(min=0)) < best_mse) & (best_bound <= round_tol)
+        binds = (best > 0) & (take(mse, (best - 1).clamp(min=0)) < best_mse) & (best_bound <= tol[..., 0])
         if ordered and bool(binds.any()):
             steps = torch.arange(1, 4, dtype=gram.dtype, device=gram.device) / 4
             fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)
             fine = torch.cat([fine, ridge.unsqueeze(-1)], -1)                    # (..., 4)
             w2, mse2, bound2 = candidates(fine)
             b2 = choose(mse2, bound2)
-            use = binds & (bound2.gather(-1, b2.unsqueeze(-1)).squeeze(-1) <= round_tol)
+            use = binds & (bound2.gather(-1, b2.unsqueeze(-1)).squeeze(-1) <= tol[..., 0])
             ridge = torch.where(use, take(fine, b2), ridge)
             best_mse = torch.where(use, take(mse2, b2), best_mse)
             best_bound = torch.where(use, take(bound2, b2), best_bound)

@@ -10,7 +10,7 @@ import math
 
 import torch
 
-from .fit import DEFAULT_RIDGES, ROUND_TOL, ridge_choose
+from .fit import DEFAULT_RIDGES, ROUND_TOL, ridge_choose, rounding_tolerance
 
 __all__ = ["FitObjective", "cluster_objective"]
 
@@ -33,16 +33,17 @@ class FitObjective:
     product with the ants' coefficients), the columns [z, 1, y] beside the Gaussians, and their
     own block [z, 1]^T [z, 1, y] of the normal equations. Ants go in batches sized from P to stay
     within `memory` bytes. The same ridge choice as `ridge_fit` (one eigendecomposition for all
-    ridges, the float32-stability rule with `round_tol` included), the same result up to the
+    ridges, the float32-stability rule with `round_tol` and `round_rel` included), the same result up to the
     order of floating-point sums.
     """
 
     def __init__(self, z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor,
                  y_val: torch.Tensor, tail: bool = True, ridges: tuple[float, ...] = DEFAULT_RIDGES,
                  eval_dtype: torch.dtype | None = None, memory: float = 2**31, block: int = 2048,
-                 round_tol: float = ROUND_TOL) -> None:
+                 round_tol: float = ROUND_TOL, round_rel: float = 0.0) -> None:
         self.z_train, self.y_train, self.z_val, self.y_val = z_train, y_train, z_val, y_val
         self.tail, self.ridges, self.eval_dtype, self.round_tol = tail, ridges, eval_dtype, round_tol
+        self.round_rel = round_rel
         self.memory, self.block = memory, block
         self._train_rows, self._val_rows = _exponent_rows(z_train), _exponent_rows(z_val)
         # Columns beside the Gaussians: training [z, 1, y] (N, d + 1 + out), validation [z, 1] rows.
@@ -85,16 +86,20 @@ class FitObjective:
         val = self._val_blocks(coef, rows)
         # The rounding scale is summed in the deployment dtype, within (2 P + 3) u of float64's sum:
         # only a scale that close to round_tol could be judged otherwise; those are redone in float64.
-        tol = self.round_tol
         slack = 0.0 if self.eval_dtype is None else (2 * gram.shape[-1] + 3) * torch.finfo(self.eval_dtype).eps / 2
+        tols: list[torch.Tensor] = []                          # the grid's tolerance, kept for the finer ridges
 
         def score(weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
             mse, bound = self._score(val, weights)
-            if bound is not None and bool(((bound - tol).abs() <= slack * tol).any()):
+            if bound is None:
+                return mse, bound
+            if not tols:
+                tols.append(rounding_tolerance(mse, rhs.shape[-1], self.round_tol, self.round_rel))
+            if bool(((bound - tols[0]).abs() <= slack * tols[0]).any()):
                 bound = self._score(self._val_blocks(coef, rows, exact=True), weights)[1]   # (rare)
             return mse, bound
 
-        return ridge_choose(gram, rhs, score, self.ridges, self.eval_dtype, tol).val_mse
+        return ridge_choose(gram, rhs, score, self.ridges, self.eval_dtype, self.round_tol, self.round_rel).val_mse
 
     def _normal_equations(self, coef: torch.Tensor, rows: int) -> tuple[torch.Tensor, torch.Tensor]:
         """A^T A (K, P, P) and A^T y (K, P, out) of the ants' training design matrices A, summed

@@ -53,7 +53,7 @@ def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torc
     a_tr = design_matrix((feats[0] - offset) / scale, centers, widths, cfg.rbfn.tail)
     a_val = design_matrix((feats[1] - offset) / scale, centers, widths, cfg.rbfn.tail)
     a_val32 = deployed_design(feats[1], offset, scale, centers, widths, cfg.rbfn.tail, torch.float32)
-    fit = ridge_fit(a_tr, q_tr, a_val, q_val, a_val_eval=a_val32)
+    fit = ridge_fit(a_tr, q_tr, a_val, q_val, a_val_eval=a_val32, round_rel=cfg.rbfn.round_rel)
     if cfg.rbfn.solver == Solver.lms:
         fit.weights = lms_fit(a_tr, q_tr, alpha0=cfg.rbfn.lms_alpha0, epochs=cfg.rbfn.lms_epochs, generator=gen)
         fit.val_mse = (a_val @ fit.weights - q_val).square().sum(-1).mean()
@@ -82,7 +82,8 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     feats = (features(data.train.x), features(data.val.x))
     offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
     z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
-    objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32)
+    objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32,
+                             round_rel=cfg.rbfn.round_rel)
     gen = torch.Generator().manual_seed(cfg.seed)
     if state.gen_after is not None:
         gen.set_state(state.gen_after)
