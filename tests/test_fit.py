@@ -1,3 +1,5 @@
+import math
+import pytest
 import torch
 
 from rbfn.fit import DEFAULT_RIDGES, design_matrix, ridge_fit, ridge_solve
@@ -125,6 +127,31 @@ def test_rounding_constraint_batched_over_ants():
         # Without the constraint the same ant would pick a smaller ridge with larger weights.
         free = ridge_fit(a_tr[k], y[:350], a_val[k], y[350:])
         assert free.ridge <= one.ridge and free.val_mse <= one.val_mse * (1 + 1e-12)
+
+
+def test_relative_rounding_bound_follows_the_fit_error():
+    """round_rel lets the bound grow to a fraction of the best fit's validation RMS error per
+    output: it is met, it lets a smaller ridge in, and 0 is the absolute rule alone. The objective
+    batched over ants chooses the same."""
+    from rbfn.fit import rounding_scale, rounding_tolerance
+    from rbfn.objectives import FitObjective
+
+    z, c, w, true = _problem(3, n=500, m=16)
+    y = torch.sin(3 * z)
+    a_tr, a_val = design_matrix(z[:350], c, w * 2.5), design_matrix(z[350:], c, w * 2.5)
+    absolute = ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7)
+    assert torch.equal(ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7,
+                                 round_rel=0.0).ridge, absolute.ridge)
+    free = ridge_fit(a_tr, y[:350], a_val, y[350:])
+    rel = 1e-3
+    tol = float(rounding_tolerance(free.val_mse[None], 2, 1e-7, rel))
+    assert tol == pytest.approx(rel * math.sqrt(float(free.val_mse) / 2), rel=1e-9) and tol > 1e-7
+    relative = ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7, round_rel=rel)
+    assert relative.rounding <= tol < rounding_scale(a_val, free.weights, torch.float32).amax()
+    assert relative.ridge < absolute.ridge and relative.val_mse < absolute.val_mse
+    obj = FitObjective(z[:350], y[:350], z[350:], y[350:], eval_dtype=torch.float32, round_tol=1e-7, round_rel=rel)
+    assert torch.allclose(obj(c[None], (w * 2.5)[None]), relative.val_mse[None], rtol=1e-4)
+    # (float32 predictions summed in another order: at this ridge they differ by about round_rel)
 
 
 def test_no_stable_ridge_keeps_the_most_stable():
