@@ -131,9 +131,9 @@ def rounding_tolerance(mse: torch.Tensor, outputs: int, round_tol: float = ROUND
                        round_rel: float = 0.0) -> torch.Tensor:
     """The largest rounding scale (..., 1) a deployed fit may have: round_tol, or round_rel times
     the per-output validation RMS error of the best candidate (mse (..., L), summed over outputs)
-    where that is larger. A network whose own error is 1e-2 rad gains nothing from rounding held
-    at 2e-6: there the absolute rule forces ridges far larger than float32 needs, and doubled the
-    UR5's error at M = 2000 (`rbfn.round_rel`)."""
+    where that is larger (`rbfn.round_rel`). A network whose own error is 1e-2 rad gains nothing
+    from rounding held at 2e-6: there the absolute rule forces ridges far larger than float32
+    needs (it doubled the UR5's k-means error at M = 2000)."""
     best = torch.nan_to_num(mse, nan=torch.inf).amin(-1, keepdim=True).clamp(max=torch.finfo(mse.dtype).max)
     return (round_rel * (best / outputs).sqrt()).clamp(min=round_tol)
 
