@@ -13,6 +13,7 @@ packaged URDF), or any serial URDF arm through `rbfn.robots.perturbed` and the U
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, replace
@@ -27,7 +28,7 @@ from ..lms import make_learner
 from ..robots.dynamics import load_arm
 from ..robots.kinematics import urdf_path
 from ..robots.perturbed import PerturbedChain
-from ..robots.robot import rotation_error_deg, unit_quaternions
+from ..robots.robot import robot_from_record, rotation_error_deg, unit_quaternions
 from ..robots.scara import END_LINK, ScaraParams, fk, ik
 from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
@@ -44,7 +45,7 @@ __all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "is_close
 @dataclass
 class RealRobot:
     """Kinematics of the real SCARA: link lengths scaled by (1 + link_error), joint offsets added.
-    Batched: link_error (B, L), L <= 2 (l1, l2), offset (B, 3)."""
+    Batched: link_error (B, 2) (l1, l2), offset (B, 3)."""
 
     link_error: torch.Tensor
     offset: torch.Tensor
@@ -52,17 +53,21 @@ class RealRobot:
 
     def fk(self, q: torch.Tensor) -> torch.Tensor:
         """Measured positions (..., B, 3) of joints q (..., B, 3)."""
-        e = torch.zeros(self.link_error.shape[0], 2, dtype=self.link_error.dtype, device=self.link_error.device)
-        e[:, :self.link_error.shape[1]] = self.link_error
-        p = replace(self.params, l1=self.params.l1 * (1 + e[:, 0]), l2=self.params.l2 * (1 + e[:, 1]))
+        p = replace(self.params, l1=self.params.l1 * (1 + self.link_error[:, 0]),
+                    l2=self.params.l2 * (1 + self.link_error[:, 1]))
         return fk(q + self.offset, p)
+
+
+@functools.cache
+def _scara_urdf() -> str:
+    return urdf_path("scara").read_text()
 
 
 def is_closed_form_scara(record: dict) -> bool:
     """Whether a checkpoint's robot entry is the packaged SCARA, which the online part runs in closed
     form (any other robot runs through its URDF)."""
     return (record.get("name") == "scara" and record.get("end_link") == END_LINK and not record.get("locked")
-            and record.get("urdf") == urdf_path("scara").read_text())
+            and record.get("urdf") == _scara_urdf())
 
 
 def path_name(cfg: OnlineConfig, record: dict) -> str:
@@ -123,7 +128,6 @@ class OnlineRobot:
     x_d: torch.Tensor                    # (T, d) desired targets along the path
     q_nominal: torch.Tensor              # (T, n_free) the nominal model's exact IK along the path
     measure: Callable                    # chain joints (..., 2S, n) -> (rotations (..., 2S, 3, 3) | None, positions (..., 2S, 3))
-    measure_rows: Callable               # the same for (..., S, n), one environment per row
     free: list[int]                      # the chain indices of the network's joints
     held: torch.Tensor                   # (n,) chain joint values (the locked joints' are used)
     target: str                          # position | pose
@@ -135,9 +139,12 @@ class OnlineRobot:
     def n(self) -> int:
         return self.held.shape[0]
 
-    def full(self, q: torch.Tensor) -> torch.Tensor:
-        """Chain joints (..., n) from the network's joints (..., n_free)."""
-        out = self.held.to(q).expand(*q.shape[:-1], -1).clone()
+    def full(self, q: torch.Tensor, held: torch.Tensor | None = None) -> torch.Tensor:
+        """Chain joints (..., n) from the network's joints (..., n_free), the locked ones at `held`
+        (n,) (default: their values; zeros for velocities); q itself where every joint is free."""
+        if len(self.free) == self.n:
+            return q
+        out = (self.held if held is None else held).to(q).expand(*q.shape[:-1], -1).clone()
         out[..., self.free] = q
         return out
 
@@ -188,12 +195,11 @@ def _scara(cfg: OnlineConfig, record: dict, gains: GainsConfig, path: str, t: to
     else:
         x_d = desired_path(path, t).to(**kw)
     real = RealRobot(torch.cat([link, link]), torch.cat([offset, offset]))
-    rows = RealRobot(link, offset)
     le, oe = perturbation_sizes(cfg, [cfg.link_error[0]], 2, 3, **kw)
     p = ScaraParams()
     q_real = ik(x_d, replace(p, l1=p.l1 * (1 + float(le[0, 0])), l2=p.l2 * (1 + float(le[0, 1])))) - oe[0]
     return OnlineRobot(ScaraPlant(), make_controller("smc_obs", gains, cfg.dt), x_d, ik(x_d, p),
-                       lambda q: (None, real.fk(q)), lambda q: (None, rows.fk(q)), [0, 1, 2], torch.zeros(3, **kw),
+                       lambda q: (None, real.fk(q)), [0, 1, 2], torch.zeros(3, **kw),
                        str(Target.position), link, offset, q_real)
 
 
@@ -205,19 +211,14 @@ def _arm(record: dict, cfg: OnlineConfig, gains: GainsConfig, t: torch.Tensor, s
                         trajectory=Trajectory.sinusoid)
     setup = control_robot(robot, ControlConfig())      # URDF dynamics; friction, disturbance scaled per joint
     arm = setup.plant.arm
+    trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
     link, offset = perturbation_sizes(cfg, sizes, arm.n, arm.n, **kw)
-    low, high = (torch.tensor(v, **kw) for v in (robot.joint_low, robot.joint_high))
-    q_path = box_path(low, high, cfg.amplitude, t)                                  # (T, n_free)
-    free = [i for i, j in enumerate(arm.joint_names) if j not in robot.locked]
-    held = torch.tensor([float(robot.locked.get(j, 0.0)) for j in arm.joint_names], **kw)
+    q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)   # (T, n_free)
+    held = trained.full_joints(q_path[:1])[0]
     real = PerturbedChain(arm, torch.cat([link, link]), torch.cat([offset, offset]))
-    rows = PerturbedChain(arm, link, offset)
     ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=setup.joint_scale(**kw))
-    out = OnlineRobot(setup.plant, ctrl, torch.empty(0, **kw), q_path, real.pose, rows.pose, free, held,
-                      str(robot.target), link, offset)
-    nominal = PerturbedChain(arm, torch.zeros(1, 0, **kw), torch.zeros(1, arm.n, **kw))
-    out.x_d = out.targets(*(v[:, 0] for v in nominal.pose(out.full(q_path)[:, None])))
-    return out
+    return OnlineRobot(setup.plant, ctrl, trained.targets(q_path).to(**kw), q_path, real.pose, trained.free, held,
+                       str(robot.target), link, offset)
 
 
 def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], t: torch.Tensor,
@@ -260,14 +261,8 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)])
     plant, ctrl = rob.plant, rob.controller
     vel = torch.zeros(nj, **kw)                                       # locked joints: held, at rest
-
-    def chain(v: torch.Tensor, held: torch.Tensor) -> torch.Tensor:
-        out = held.to(v).expand(*v.shape[:-1], nj).clone()
-        out[..., rob.free] = v
-        return out
-
     q = rob.full(torch.einsum("p,bpj->bj", a_path[0], learner.w))
-    qd = chain(torch.einsum("p,bpj->bj", da[0], learner.w), vel)
+    qd = rob.full(torch.einsum("p,bpj->bj", da[0], learner.w), vel)
     state = ctrl.init_state(q, qd)
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
     co = plant.coefficients(torch.zeros(cfg.update_every, b, **kw))     # no payload
@@ -281,7 +276,7 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
             m = min(cfg.update_every, n - k)
             sl = slice(k, k + m)
             refs = [torch.einsum("np,bpj->nbj", r[sl], learner.w) for r in (a_path, da, dda)]
-            refs = [rob.full(refs[0]), chain(refs[1], vel), chain(refs[2], vel)]
+            refs = [rob.full(refs[0]), rob.full(refs[1], vel), rob.full(refs[2], vel)]
             args = (q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
             if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
                 run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, args), args, log.info)
@@ -302,8 +297,8 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     qs[n] = q
     pos, rot = rob.errors(*rob.measure(qs))                                      # (T, B)
     # The nominal model's exact IK on each real robot (a kinematic perturbation: the same joints).
-    q_an = rob.full(rob.q_nominal)[:, None, :].expand(-1, n_s, nj)
-    pos_an, rot_an = rob.errors(*rob.measure_rows(q_an))
+    q_an = rob.full(rob.q_nominal)[:, None, :].expand(-1, b, nj)
+    pos_an, rot_an = (None if e is None else e[:, :n_s] for e in rob.errors(*rob.measure(q_an)))
     return {"t": t, "err_adapt": pos[:, :n_s], "err_frozen": pos[:, n_s:], "err_analytic": pos_an,
             "rot_adapt": None if rot is None else rot[:, :n_s], "rot_frozen": None if rot is None else rot[:, n_s:],
             "rot_analytic": rot_an, "q_adapt": qs[:, :n_s, rob.free], "x_d": rob.x_d, "q_real": rob.q_real,

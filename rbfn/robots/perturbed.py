@@ -16,13 +16,11 @@ from .dynamics import Arm
 __all__ = ["PerturbedChain"]
 
 
-def _axis_rotation(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """Rotations (..., 3, 3) by `angle` (...) rad about the unit axis (3,) (Rodrigues)."""
-    k = torch.zeros(3, 3, dtype=axis.dtype, device=axis.device)
-    k[0, 1], k[0, 2], k[1, 2] = -axis[2], axis[1], -axis[0]
-    k = k - k.T
-    s, c = torch.sin(angle)[..., None, None], torch.cos(angle)[..., None, None]
-    return torch.eye(3, dtype=axis.dtype, device=axis.device) + s * k + (1 - c) * (k @ k)
+def _skew(axis: torch.Tensor) -> torch.Tensor:
+    """Cross-product matrices (n, 3, 3) of unit axes (n, 3)."""
+    k = torch.zeros(*axis.shape[:-1], 3, 3, dtype=axis.dtype, device=axis.device)
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
+    return k - k.transpose(-1, -2)
 
 
 class PerturbedChain:
@@ -47,6 +45,9 @@ class PerturbedChain:
         self.link_rot = frames[:, :3, :3]                                        # (n, 3, 3)
         self.link_pos = frames[None, :, :3, 3] * scale[..., None]                # (R, n, 3)
         self.axis, self.prismatic = axis.to(**kw), prismatic.tolist()
+        self.skew = _skew(self.axis)                                             # Rodrigues: I + s K + (1 - c) K^2
+        self.skew2 = self.skew @ self.skew
+        self.eye = torch.eye(3, **kw)
         self.offset, self.n = offset, n
 
     def pose(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -59,7 +60,8 @@ class PerturbedChain:
             if self.prismatic[j]:
                 pos = pos + (rot @ self.axis[j]) * q[..., j, None]
             else:
-                rot = rot @ _axis_rotation(self.axis[j], q[..., j])
+                s, c = torch.sin(q[..., j, None, None]), torch.cos(q[..., j, None, None])
+                rot = rot @ (self.eye + s * self.skew[j] + (1 - c) * self.skew2[j])
             pos = pos + (rot @ self.link_pos[:, j, :, None]).squeeze(-1)
             rot = rot @ self.link_rot[j]
         return rot, pos

@@ -29,8 +29,8 @@ def test_scara_through_its_urdf_equals_its_closed_form():
     urdf = online_robot(_record("scara", name="my_scara"), cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
     assert type(urdf.plant).__name__ == "ArmPlant" and type(closed.plant).__name__ == "ScaraPlant"
     assert torch.allclose(urdf.x_d, closed.x_d, atol=1e-12, rtol=0)
-    q = closed.full(closed.q_nominal)[:, None].expand(-1, 3, 3)
-    e_closed, e_urdf = closed.errors(*closed.measure_rows(q)), urdf.errors(*urdf.measure_rows(q))
+    q = closed.full(closed.q_nominal)[:, None].expand(-1, 6, 3)          # [adapted, frozen] x 3 sizes
+    e_closed, e_urdf = closed.errors(*closed.measure(q)), urdf.errors(*urdf.measure(q))
     assert torch.allclose(e_urdf[0], e_closed[0], atol=1e-9, rtol=0)
     assert e_closed[0][:, 0].abs().max() < 1e-9 and e_closed[0][:, 2].mean() > 10.0      # mm
 
