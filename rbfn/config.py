@@ -15,7 +15,7 @@ from enum import Enum
 from typing import Any, Optional
 
 __all__ = [
-    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "Solver", "InputScaling",
+    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "Solver", "InputScaling",
     "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
     "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS", "validate_robot",
     "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
@@ -45,6 +45,7 @@ Colony = _choice("Colony", ("acor", "ant_system"))
 Objective = _choice("Objective", ("fit", "cluster"))
 WidthRule = _choice("WidthRule", ("paper", "global", "per_center"))
 WidthSearch = _choice("WidthSearch", ("per_center", "scale", "none"))
+RefineMode = _choice("RefineMode", ("auto", "full", "minibatch"))   # auto: full where N P^2 <= 2e9
 Solver = _choice("Solver", ("lstsq", "lms"))
 InputScaling = _choice("InputScaling", ("metres", "standard"))
 Integrator = _choice("Integrator", ("rk4", "euler"))           # euler: semi-implicit
@@ -120,8 +121,12 @@ class ACOConfig:
 @dataclass
 class RefineConfig:
     enabled: bool = False
-    steps: int = 300
-    lr: float = 0.01
+    mode: RefineMode = RefineMode.auto  # type: ignore[valid-type]  # full (weights solved in the loss) | minibatch
+    steps: int = 300                   # full: Adam steps on the whole training set
+    lr: float = 0.01                   # full: Adam step size
+    epochs: int = 150                  # minibatch: passes over the training set
+    batch: int = 256                   # minibatch: rows per Adam step
+    batch_lr: float = 0.003            # minibatch: first Adam step size, decayed to 0 on a cosine
     learn_input_scale: bool = True
     min_ridge: float = 1e-11           # floor on the relative ridge inside the loss (conditioning)
 
@@ -336,6 +341,9 @@ def validate_train(cfg: TrainConfig) -> None:
     rf = c.refine
     _need(rf.steps >= 0, "centers.refine.steps", rf.steps, "must be >= 0")
     _need(_finite(rf.lr) and rf.lr > 0, "centers.refine.lr", rf.lr, "must be > 0")
+    _need(rf.epochs >= 0, "centers.refine.epochs", rf.epochs, "must be >= 0")
+    _need(rf.batch >= 1, "centers.refine.batch", rf.batch, "must be >= 1")
+    _need(_finite(rf.batch_lr) and rf.batch_lr > 0, "centers.refine.batch_lr", rf.batch_lr, "must be > 0")
     _need(_finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
     _need(0 < r.lms_alpha0 < 2, "rbfn.lms_alpha0", r.lms_alpha0, "must be in (0, 2)")
     _need(r.lms_epochs >= 1, "rbfn.lms_epochs", r.lms_epochs, "must be >= 1")

@@ -127,10 +127,10 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
         fit = RidgeFit(lf["weights"].to(dev), torch.tensor(lf["ridge"]), torch.tensor(lf["val_mse"]))
 
     history: list[float] = []
-    if cfg.centers.refine.enabled:       # centres, widths and input scales; weights solved inside the loss
+    if cfg.centers.refine.enabled:       # centres, widths and input scales (rbfn.refine)
         r = cfg.centers.refine
-        ref = refine(z_tr, data.train.q, z_val, data.val.q, centers, widths, max(float(fit.ridge), r.min_ridge),
-                     r.steps, r.lr, cfg.rbfn.tail, r.learn_input_scale, cfg.rbfn.max_width)
+        ref = refine(z_tr, data.train.q, z_val, data.val.q, centers, widths, fit.weights,
+                     max(float(fit.ridge), r.min_ridge), r, cfg.rbfn.tail, cfg.rbfn.max_width, cfg.seed)
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history
         fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen)

@@ -39,6 +39,7 @@ def test_unknown_selector_names_it():
     ("centers.aco.colony=magic", "expected one of [acor, ant_system]"),
     ("centers.width_rule=wide", "expected one of [paper, global, per_center]"),
     ("rbfn.solver=adam", "expected one of [lstsq, lms]"),
+    ("centers.refine.mode=sgd", "expected one of [auto, full, minibatch]"),
 ])
 def test_mistyped_value_fails_at_composition(override, options):
     with pytest.raises(Exception) as e:
@@ -58,6 +59,9 @@ def test_mistyped_value_fails_at_composition(override, options):
     ("centers.aco.q=0", "centers.aco.q=0"),
     ("centers.aco.beta=-1", "centers.aco.beta=-1"),
     ("centers.refine.lr=0", "centers.refine.lr=0"),
+    ("centers.refine.batch=0", "centers.refine.batch=0"),
+    ("centers.refine.batch_lr=-1", "centers.refine.batch_lr=-1"),
+    ("centers.refine.epochs=-1", "centers.refine.epochs=-1"),
     ("rbfn.growth.factor=1.0", "rbfn.growth.factor=1.0"),
     ("device=tpu", "device='tpu'"),
     ("seed=-1", "seed=-1 is not allowed: use an integer in [0, 4294967295]"),
