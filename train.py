@@ -64,7 +64,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         # 2-5. Centres and widths, weights, growth, refinement (rbfn.pipeline); 6. outputs.
         writer = SummaryWriter(log_dir=str(out_dir))
         try:
-            result = train_ik(cfg, data, states, state)
+            result = train_ik(cfg, data, states, state, robot)
             metrics = training_metrics(cfg, result, robot, data)
             write_training(out_dir, cfg, robot, result, metrics, writer)
         finally:

@@ -15,7 +15,7 @@ from enum import Enum
 from typing import Any, Optional
 
 __all__ = [
-    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "Solver", "InputScaling",
+    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "RefineLoss", "Solver", "InputScaling",
     "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
     "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS", "validate_robot",
     "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
@@ -46,6 +46,7 @@ Objective = _choice("Objective", ("fit", "cluster"))
 WidthRule = _choice("WidthRule", ("paper", "global", "per_center"))
 WidthSearch = _choice("WidthSearch", ("per_center", "scale", "none"))
 RefineMode = _choice("RefineMode", ("auto", "full", "minibatch"))   # auto: full where N P^2 <= 2e9
+RefineLoss = _choice("RefineLoss", ("task", "joint"))      # minibatch: error J(q) dq, or dq itself
 Solver = _choice("Solver", ("lstsq", "lms"))
 InputScaling = _choice("InputScaling", ("metres", "standard"))
 Integrator = _choice("Integrator", ("rk4", "euler"))           # euler: semi-implicit
@@ -124,9 +125,11 @@ class RefineConfig:
     mode: RefineMode = RefineMode.auto  # type: ignore[valid-type]  # full (weights solved in the loss) | minibatch
     steps: int = 300                   # full: Adam steps on the whole training set
     lr: float = 0.01                   # full: Adam step size
-    epochs: int = 150                  # minibatch: passes over the training set
+    epochs: int = 300                  # minibatch: passes over the training set
     batch: int = 256                   # minibatch: rows per Adam step
     batch_lr: float = 0.003            # minibatch: first Adam step size, decayed to 0 on a cosine
+    loss: RefineLoss = RefineLoss.task  # type: ignore[valid-type]  # minibatch: task error (m; rotation x robot.rotation_scale) | joint error
+    huber: float = 0.005               # minibatch: pseudo-Huber threshold on a row's error norm (m for task); 0: squared
     learn_input_scale: bool = True
     min_ridge: float = 1e-11           # floor on the relative ridge inside the loss (conditioning)
 
@@ -344,6 +347,7 @@ def validate_train(cfg: TrainConfig) -> None:
     _need(rf.epochs >= 0, "centers.refine.epochs", rf.epochs, "must be >= 0")
     _need(rf.batch >= 1, "centers.refine.batch", rf.batch, "must be >= 1")
     _need(_finite(rf.batch_lr) and rf.batch_lr > 0, "centers.refine.batch_lr", rf.batch_lr, "must be > 0")
+    _need(_finite(rf.huber) and rf.huber >= 0, "centers.refine.huber", rf.huber, "must be >= 0 (0: squared error)")
     _need(_finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
     _need(0 < r.lms_alpha0 < 2, "rbfn.lms_alpha0", r.lms_alpha0, "must be in (0, 2)")
     _need(r.lms_epochs >= 1, "rbfn.lms_epochs", r.lms_epochs, "must be >= 1")

@@ -10,22 +10,26 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import torch
 
-from .config import Solver, Target, TrainConfig
+from .config import RefineLoss, Solver, Target, TrainConfig
 from .data import Dataset, input_scaling
-from .fit import RidgeFit, deployed_design, design_matrix, ridge_fit
+from .fit import ROUND_TOL, RidgeFit, deployed_design, design_matrix, ridge_fit, rounding_scale, rounding_tolerance
 from .growth import grow, growth_schedule
 from .layer import RBFNetwork, assemble
 from .lms import lms_fit
 from .objectives import FitObjective
-from .refine import refine
+from .refine import Refined, refine, refine_mode
 from .resume import StateFile, TrainState
 from .select import select
 from .targets import TargetFeatures
 
-__all__ = ["TrainResult", "fit_weights", "train_ik"]
+if TYPE_CHECKING:
+    from .robots.robot import Robot
+
+__all__ = ["TrainResult", "fit_weights", "task_jacobians", "train_ik"]
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +49,14 @@ class TrainResult:
 
 
 def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torch.Tensor], offset: torch.Tensor,
-                scale: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, gen: torch.Generator) -> RidgeFit:
+                scale: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, gen: torch.Generator,
+                refined: Refined | None = None) -> RidgeFit:
     """Output weights (P, n) by ridge least squares (the ridge chosen on validation as the deployed
     float32 module evaluates it) or, with `rbfn.solver=lms`, the paper's normalised LMS. `feats`:
-    the training and validation inputs' features (N, d)."""
+    the training and validation inputs' features (N, d). After mini-batch refinement (`refined`
+    with trained weights) those weights are kept instead where their validation loss (the one
+    refinement minimised) is lower and they are as stable in float32 as the ridge rule demands;
+    the fit's ridge is then NaN."""
     q_tr, q_val = data.train.q, data.val.q
     a_tr = design_matrix((feats[0] - offset) / scale, centers, widths, cfg.rbfn.tail)
     a_val = design_matrix((feats[1] - offset) / scale, centers, widths, cfg.rbfn.tail)
@@ -57,16 +65,52 @@ def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torc
     if cfg.rbfn.solver == Solver.lms:
         fit.weights = lms_fit(a_tr, q_tr, alpha0=cfg.rbfn.lms_alpha0, epochs=cfg.rbfn.lms_epochs, generator=gen)
         fit.val_mse = (a_val @ fit.weights - q_val).square().sum(-1).mean()
+    elif refined is not None and refined.weights is not None:
+        trained = refined.weights
+        pred = (a_val32 @ trained.to(a_val32.dtype)).to(q_val.dtype)
+        mse = (pred - q_val).square().sum(-1).mean()
+        rounding = rounding_scale(a_val, trained, torch.float32).amax()
+        tol = rounding_tolerance(mse[None], q_val.shape[1], ROUND_TOL, cfg.rbfn.round_rel)[0]
+        ridge_pred = (a_val32 @ fit.weights.to(a_val32.dtype)).to(q_val.dtype)
+        if rounding <= tol and refined.val_loss(pred) < refined.val_loss(ridge_pred):
+            fit = RidgeFit(trained, torch.tensor(float("nan"), dtype=q_val.dtype), mse, rounding)
     return fit
 
 
+def task_jacobians(cfg: TrainConfig, robot: "Robot", data: Dataset) -> tuple[torch.Tensor, torch.Tensor]:
+    """Task Jacobians (N, r, n) at the training and validation joints, the rotation rows times
+    `robot.rotation_scale` (m), as the task loss weighs them."""
+    weight = torch.ones(robot.jacobian(data.val.q[:1]).shape[1], dtype=data.val.q.dtype, device=data.val.q.device)
+    weight[3:] = cfg.robot.rotation_scale
+    return tuple(robot.jacobian(split.q) * weight[:, None] for split in (data.train, data.val))
+
+
+def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: "Robot | None") -> bool:
+    """Whether mini-batch refinement at M = num_centers (`features` inputs d) takes the task loss;
+    refuses one that cannot, before any work."""
+    r = cfg.centers.refine
+    p = cfg.rbfn.num_centers + (features + 1 if cfg.rbfn.tail else 0)
+    if not (r.enabled and r.loss == RefineLoss.task and refine_mode(r, data.train.q.shape[0], p) == "minibatch"):
+        return False
+    if robot is None:
+        raise ValueError("centers.refine.loss=task needs the robot (train_ik(..., robot=ROBOT)) for its Jacobian")
+    rows, joints = (6 if cfg.robot.target == Target.pose else 3), data.train.q.shape[1]
+    if rows < joints:
+        raise ValueError(f"centers.refine.loss=task weighs joint errors by the task Jacobian, which has {rows} rows "
+                         f"for robot.target={cfg.robot.target} and the robot has {joints} free joints "
+                         f"({robot.joint_names}): errors in the joints it cannot see would go untrained. "
+                         "Use centers.refine.loss=joint, or hold joints with robot.locked")
+    return True
+
+
 def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
-             state: TrainState | None = None) -> TrainResult:
-    """Train the IK network of `cfg` on `data` (positions (N, 3) m -> joints (N, n)).
+             state: TrainState | None = None, robot: "Robot | None" = None) -> TrainResult:
+    """Train the IK network of `cfg` on `data` (targets (N, 3 or 7) -> joints (N, n)).
 
     With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
     the running colony's snapshots) and an interrupted run continues where it stopped, ending with
-    exactly the result of an uninterrupted one.
+    exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
+    mini-batch refinement's task loss needs (`centers.refine.loss=task`).
     """
     t_start = time.perf_counter()
     state = state or TrainState(config={})
@@ -82,6 +126,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     feats = (features(data.train.x), features(data.val.x))
     offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
     z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
+    jacobians = task_jacobians(cfg, robot, data) if _uses_task_loss(cfg, data, z_tr.shape[1], robot) else None
     objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32,
                              round_rel=cfg.rbfn.round_rel)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -130,10 +175,10 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     if cfg.centers.refine.enabled:       # centres, widths and input scales (rbfn.refine)
         r = cfg.centers.refine
         ref = refine(z_tr, data.train.q, z_val, data.val.q, centers, widths, fit.weights,
-                     max(float(fit.ridge), r.min_ridge), r, cfg.rbfn.tail, cfg.rbfn.max_width, cfg.seed)
+                     max(float(fit.ridge), r.min_ridge), r, cfg.rbfn.tail, cfg.rbfn.max_width, cfg.seed, jacobians)
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history
-        fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen)
+        fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen, ref)
     model = assemble(centers, widths, fit.weights, offset, scale, cfg.rbfn.tail, inputs=features)
     model.set_domain(data.train.x, data.train.q)
     return TrainResult(model, fit, curve,

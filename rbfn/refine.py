@@ -1,6 +1,6 @@
 """Gradient refinement of centres, widths and per-input length scales after selection.
 
-Two ways, chosen by problem size (`refine`):
+Two ways, chosen by problem size (`refine_mode`):
 
 - **full** (small problems, N P^2 <= `FULL_ROWS_MAX`, P the design's columns): Adam on the
   training MSE of the network whose output weights are the ridge least-squares solution for the
@@ -9,57 +9,78 @@ Two ways, chosen by problem size (`refine`):
 - **minibatch** (large problems, where one such step costs seconds): Adam on centres, log
   widths, log input scales *and* the output weights together, over shuffled mini-batches, the
   step size decaying to 0 on a cosine, in float32. Each step costs O(batch M d) instead of
-  O(N P^2 + P^3), so thousands of steps fit where the full way affords a dozen.
+  O(N P^2 + P^3), so thousands of steps fit where the full way affords a dozen. The loss is
+  each row's joint error, or its first-order task error J(q) dq (the robot's Jacobian at the
+  row's joints: what the IK is judged by), under a pseudo-Huber penalty that counts errors
+  above a threshold linearly, so the few rows near singularities do not decide the fit.
 
 Per-input scales (automatic relevance determination) let an input that does not matter for the
-targets be stretched out. Either way the iterate with the lowest validation error is kept (early
-stopping); the caller solves the final output weights by ridge least squares for what is kept.
+targets be stretched out. Either way the iterate with the lowest validation loss is kept (early
+stopping); the caller solves the final output weights by ridge least squares for what is kept
+(and, after mini-batches, keeps the trained weights where they are better).
 """
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
 from .fit import design_matrix, ridge_solve
 
-__all__ = ["Refined", "refine", "refine_full", "refine_minibatch", "FULL_ROWS_MAX"]
+__all__ = ["Refined", "refine", "refine_mode", "refine_full", "refine_minibatch", "row_loss", "gaussian_product",
+           "FULL_ROWS_MAX"]
 
 log = logging.getLogger(__name__)
 
 # Above this N * P^2 `refine` in mode auto takes mini-batches (one full step there costs about
 # a second or more on one core).
 FULL_ROWS_MAX = 2e9
+LOG2E = 1.0 / math.log(2.0)
 
 
 @dataclass
 class Refined:
     """Centres (M, d) and widths (M,) in the new scaled space z' = z / input_scale; input_scale (d,);
-    the kept iterate's validation MSE and the validation curve."""
+    the kept iterate's validation loss and the validation curve. After mini-batches also the kept
+    iterate's trained output weights (P, out) and `val_loss`, validation predictions (Nv, out) ->
+    the loss refinement minimised (None after the full way, which trains no weights)."""
 
     centers: torch.Tensor
     widths: torch.Tensor
     input_scale: torch.Tensor
     val_mse: float
     history: list[float]
+    weights: torch.Tensor | None = None
+    val_loss: Callable[[torch.Tensor], float] | None = None
+
+
+def refine_mode(cfg, n: int, p: int) -> str:
+    """`full` or `minibatch` for `cfg.mode` (a `RefineConfig`) with N = n training rows and P = p
+    design columns (auto: full where N P^2 <= FULL_ROWS_MAX)."""
+    mode = str(cfg.mode)
+    if mode == "auto":
+        return "full" if n * p * p <= FULL_ROWS_MAX else "minibatch"
+    return mode
 
 
 def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_val: torch.Tensor,
            centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, ridge: float, cfg,
-           tail: bool = True, max_width: float = float("inf"), seed: int = 0) -> Refined:
-    """Refine by `cfg.mode` (a `RefineConfig`): full, minibatch, or auto (full where
-    N P^2 <= FULL_ROWS_MAX). weights (P, out): the current fit's, the mini-batch start."""
-    mode = str(cfg.mode)
-    if mode == "auto":
-        p = centers.shape[0] + (z_train.shape[1] + 1 if tail else 0)
-        mode = "full" if z_train.shape[0] * p * p <= FULL_ROWS_MAX else "minibatch"
-    if mode == "full":
+           tail: bool = True, max_width: float = float("inf"), seed: int = 0,
+           jacobians: tuple[torch.Tensor, torch.Tensor] | None = None) -> Refined:
+    """Refine by `refine_mode` of `cfg` (a `RefineConfig`). weights (P, out): the current fit's, the
+    mini-batch start. jacobians: (J_train (N, r, out), J_val (Nv, r, out)), the task Jacobians
+    at the rows' joints, rows weighted as the task error is measured; the mini-batch loss then
+    is the task error (`cfg.loss=task`), else the joint error."""
+    p = centers.shape[0] + (z_train.shape[1] + 1 if tail else 0)
+    if refine_mode(cfg, z_train.shape[0], p) == "full":
         return refine_full(z_train, y_train, z_val, y_val, centers, widths, ridge, cfg.steps, cfg.lr, tail,
                            cfg.learn_input_scale, max_width)
     return refine_minibatch(z_train, y_train, z_val, y_val, centers, widths, weights, cfg.epochs, cfg.batch,
-                            cfg.batch_lr, tail, cfg.learn_input_scale, max_width, seed)
+                            cfg.batch_lr, tail, cfg.learn_input_scale, max_width, seed, huber=cfg.huber,
+                            jacobians=jacobians)
 
 
 def refine_full(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_val: torch.Tensor,
@@ -101,18 +122,80 @@ def refine_full(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tenso
     return Refined(centers=cb, widths=lwb.clamp(max=log_max).exp(), input_scale=lsb.exp(), val_mse=e, history=history)
 
 
+class _GaussianProduct(torch.autograd.Function):
+    """phi(z) @ w (B, out) for Gaussians phi (B, M) = exp(-|z - c|^2 / (2 s^2)), with a backward
+    that needs no (B, M) temporaries beyond phi and one product.
+
+    Autograd through `design_matrix` keeps about ten (B, M) intermediates and walks each in the
+    backward; here the exponent is one product of [z, |z|^2, 1] (B, d + 2) with per-centre
+    coefficients, and the gradients of c, s and z are products of h = (dL/dphi) * phi with
+    [z, |z|^2, 1] and [a, a c] (a = 1 / (2 s^2)). Every product is written with its long side
+    last: on a CPU the (M, out)-shaped ones (phi^T G) took 5-7x as long as their transposes.
+    """
+
+    @staticmethod
+    def forward(ctx, z: torch.Tensor, c: torch.Tensor, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        a = 0.5 / s.square()                                                       # (M,)
+        rows = torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1)       # (B, d + 2)
+        coef = torch.cat([2.0 * c, -torch.ones_like(a)[:, None], -c.square().sum(-1, keepdim=True)], 1)
+        coef = coef * (a * LOG2E)[:, None]                                         # exponent in base 2
+        phi = torch.exp2((rows @ coef.T).clamp_(max=0.0))                          # (B, M)
+        ctx.save_for_backward(rows, c, s, w, a, phi)
+        return (w.T @ phi.T).T
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        rows, c, s, w, a, phi = ctx.saved_tensors
+        d = c.shape[1]
+        grad_w = (grad.T @ phi).T if ctx.needs_input_grad[3] else None
+        h = (grad @ w.T).mul_(phi)                                                  # (B, M)
+        q = (rows.T @ h).T                                                          # (M, d + 2)
+        hz, hzz, hs = q[:, :d], q[:, d], q[:, d + 1]                                # h^T z, h^T |z|^2, sum h
+        grad_c = 2.0 * a[:, None] * (hz - c * hs[:, None])
+        hd = hzz + c.square().sum(-1) * hs - 2.0 * (hz * c).sum(-1)                 # sum_b h_bj |z_b - c_j|^2
+        grad_s = hd / s.pow(3)
+        grad_z = None
+        if ctx.needs_input_grad[0]:
+            r = (torch.cat([a[:, None], a[:, None] * c], 1).T @ h.T).T             # (B, 1 + d)
+            grad_z = 2.0 * (r[:, 1:] - rows[:, :d] * r[:, :1])
+        return grad_z, grad_c, grad_s, grad_w
+
+
+def gaussian_product(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """phi(z) @ weights (B, out): Gaussians of z (B, d) about centres (M, d) with widths (M,),
+    times weights (M, out); differentiable in all four at the cost of a few products."""
+    return _GaussianProduct.apply(z, centers, widths, weights)
+
+
+def row_loss(err: torch.Tensor, jac: torch.Tensor | None = None, huber: float = 0.0) -> torch.Tensor:
+    """Loss (B,) of each row's joint error err (B, n): of the task error J err where jac (B, r, n)
+    is given, else of err itself; the squared norm, or with huber > 0 the pseudo-Huber penalty
+    huber * (sqrt(|e|^2 + huber^2) - huber), |e|^2 / 2 for small errors and huber * |e| for large."""
+    if jac is not None:
+        err = (jac @ err.unsqueeze(-1)).squeeze(-1)
+    sq = err.square().sum(-1)
+    if huber <= 0:
+        return sq
+    return huber * ((sq + huber * huber).sqrt() - huber)
+
+
 def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_val: torch.Tensor,
-                     centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, epochs: int = 150,
+                     centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, epochs: int = 300,
                      batch: int = 256, lr: float = 3e-3, tail: bool = True, learn_input_scale: bool = True,
                      max_width: float = float("inf"), seed: int = 0, eval_every: int = 5,
-                     dtype: torch.dtype = torch.float32) -> Refined:
+                     dtype: torch.dtype = torch.float32, huber: float = 0.0,
+                     jacobians: tuple[torch.Tensor, torch.Tensor] | None = None) -> Refined:
     """Adam on (centres, log widths, log input scales, output weights (P, out)) over mini-batches
     of `batch` shuffled training rows for `epochs` passes, the step size cosine-annealed from `lr`
     to 0, computed in `dtype` (float32: about 1.4x the steps per second of float64 on a CPU, and
-    no worse a result on the UR5); validation MSE with the trained weights every `eval_every`
-    epochs and at the end, the best iterate kept. Returned tensors have the inputs' dtype."""
+    no worse a result on the UR5). The loss is the mean `row_loss` (task error where `jacobians`
+    (J_train (N, r, out), J_val (Nv, r, out)) are given; `huber`); the validation loss with the
+    trained weights every `eval_every` epochs and at the end, the best iterate kept. Returned
+    tensors have the inputs' dtype."""
     out_dtype = z_train.dtype
     z_tr, y_tr, z_v, y_v = (t.to(dtype) for t in (z_train, y_train, z_val, y_val))
+    j_tr = None if jacobians is None else jacobians[0].to(dtype)
+    m = centers.shape[0]
     c = centers.detach().to(dtype).clone().requires_grad_(True)
     log_w = widths.detach().to(dtype).log().clone().requires_grad_(True)
     w_out = weights.detach().to(dtype).clone().requires_grad_(True)
@@ -126,22 +209,29 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
     g = torch.Generator().manual_seed(seed)
 
     def predict(z: torch.Tensor) -> torch.Tensor:
-        return design_matrix(z / log_s.exp(), c, log_w.clamp(max=log_max).exp(), tail) @ w_out
+        z = z / log_s.exp()
+        out = gaussian_product(z, c, log_w.clamp(max=log_max).exp(), w_out[:m])
+        return out + z @ w_out[m:-1] + w_out[-1] if tail else out
+
+    def val_loss(pred: torch.Tensor) -> float:
+        """Mean loss of validation predictions (Nv, out), in their dtype."""
+        jac = None if jacobians is None else jacobians[1].to(pred.dtype)
+        return float(row_loss(pred - y_val.to(pred.dtype), jac, huber).mean())
 
     def val_error() -> float:
         with torch.no_grad():
-            pred = torch.cat([predict(zb) for zb in z_v.split(4096)])
-            return float((pred - y_v).square().sum(-1).mean())
+            return val_loss(torch.cat([predict(zb) for zb in z_v.split(4096)]))
 
     def snapshot() -> tuple[torch.Tensor, ...]:
-        return c.detach().clone(), log_w.detach().clone(), log_s.detach().clone()
+        return c.detach().clone(), log_w.detach().clone(), log_s.detach().clone(), w_out.detach().clone()
 
     best = (val_error(), *snapshot())
     history = [best[0]]
     diverged = False
     for epoch in range(1, epochs + 1):
         for rows in torch.randperm(n, generator=g).to(z_tr.device).split(batch):
-            loss = (predict(z_tr[rows]) - y_tr[rows]).square().sum(-1).mean()
+            jac = None if j_tr is None else j_tr[rows]
+            loss = row_loss(predict(z_tr[rows]) - y_tr[rows], jac, huber).mean()
             if not torch.isfinite(loss):
                 log.warning("mini-batch refinement diverged in epoch %d (loss %s); keeping the best iterate "
                             "before it (a smaller centers.refine.batch_lr than %g avoids this)", epoch, loss.item(), lr)
@@ -158,6 +248,7 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
             history.append(e)
             if e < best[0]:
                 best = (e, *snapshot())
-    e, cb, lwb, lsb = best
+    e, cb, lwb, lsb, wb = best
     return Refined(centers=cb.to(out_dtype), widths=lwb.clamp(max=log_max).exp().to(out_dtype),
-                   input_scale=lsb.exp().to(out_dtype), val_mse=e, history=history)
+                   input_scale=lsb.exp().to(out_dtype), val_mse=e, history=history, weights=wb.to(out_dtype),
+                   val_loss=val_loss)

@@ -69,3 +69,53 @@ def test_mode_picks_the_way(monkeypatch, mode, rows_max, full):
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
     rf.refine(z_tr, y_tr, z_val, y_val, c, w, weights, 1e-8, RefineConfig(mode=RefineMode(mode)))
     assert calls == ["full" if full else "minibatch"]
+
+
+def test_gaussian_product_equals_the_design_matrix_and_its_gradients_are_exact():
+    g = torch.Generator().manual_seed(1)
+    z = torch.randn(30, 4, dtype=torch.float64, generator=g).requires_grad_(True)
+    c = torch.randn(6, 4, dtype=torch.float64, generator=g).requires_grad_(True)
+    s = (torch.rand(6, dtype=torch.float64, generator=g) + 0.5).requires_grad_(True)
+    w = torch.randn(6, 3, dtype=torch.float64, generator=g).requires_grad_(True)
+    ref = design_matrix(z, c, s, tail=False) @ w
+    assert torch.allclose(rf.gaussian_product(z, c, s, w), ref, atol=1e-13)
+    assert torch.autograd.gradcheck(rf.gaussian_product, (z, c, s, w))
+    # Without the input's gradient (fixed input scales) the others are unchanged.
+    grads = torch.autograd.grad(rf.gaussian_product(z.detach(), c, s, w).sin().sum(), (c, s, w))
+    want = torch.autograd.grad((design_matrix(z.detach(), c, s, tail=False) @ w).sin().sum(), (c, s, w))
+    assert all(torch.allclose(a, b, atol=1e-12) for a, b in zip(grads, want))
+
+
+def test_row_loss_squared_task_and_pseudo_huber():
+    err = torch.tensor([[0.003, -0.004], [0.0, 0.0], [3.0, 4.0]], dtype=torch.float64)
+    assert torch.allclose(rf.row_loss(err), torch.tensor([25e-6, 0.0, 25.0], dtype=torch.float64))
+    jac = torch.tensor([[2.0, 0.0], [0.0, 1.0], [1.0, 1.0]], dtype=torch.float64).expand(3, 3, 2)
+    task = rf.row_loss(err, jac)                              # |J err|^2: (2 e1)^2 + e2^2 + (e1 + e2)^2
+    assert torch.allclose(task, (4 * err[:, 0] ** 2 + err[:, 1] ** 2 + err.sum(-1) ** 2))
+    h = rf.row_loss(err, huber=0.1)
+    assert h[1] == 0.0
+    assert h[0] == pytest.approx(25e-6 / 2, rel=1e-3)          # small errors: |e|^2 / 2
+    assert h[2] == pytest.approx(0.1 * 5.0, rel=3e-2)          # large ones: huber * |e|, linear
+
+
+def test_minibatch_task_loss_lowers_the_task_error_and_returns_trained_weights():
+    z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
+    # A fixed per-row "Jacobian" that weighs output 0 ten times output 1.
+    jac_tr = torch.diag(torch.tensor([10.0, 1.0], dtype=torch.float64)).expand(400, 2, 2)
+    jac_val = jac_tr[:200]
+    r = rf.refine_minibatch(z_tr, y_tr, z_val, y_val, c, w, weights, epochs=30, batch=32, lr=0.01,
+                            huber=0.05, jacobians=(jac_tr, jac_val))
+    assert r.val_mse == min(r.history) and r.history[-1] < 0.5 * r.history[0]
+    assert r.weights.shape == weights.shape and r.weights.dtype == torch.float64
+    pred = design_matrix(z_val / r.input_scale, r.centers, r.widths) @ r.weights
+    assert r.val_loss(pred) == pytest.approx(r.val_mse, rel=1e-4)     # the loss it kept, from the weights it returns
+    start = design_matrix(z_val, c, w) @ weights
+    assert r.val_loss(pred) < r.val_loss(start)
+
+
+def test_refine_mode_auto_takes_minibatches_for_large_problems():
+    cfg = RefineConfig()
+    assert rf.refine_mode(cfg, 2000, 84) == "full"                       # the SCARA's
+    assert rf.refine_mode(cfg, 20000, 2010) == "minibatch"               # the UR5's M = 2000
+    cfg.mode = RefineMode.full
+    assert rf.refine_mode(cfg, 20000, 2010) == "full"

@@ -92,6 +92,12 @@ class Robot:
         pose = self.pose(q)
         return pose_targets(pose) if self.target == Target.pose else pose[:, :3, 3]
 
+    def jacobian(self, q: torch.Tensor) -> torch.Tensor:
+        """Task Jacobian (B, 3 or 6, n) at the free joints q (B, n), root frame: the end link's
+        linear velocity (m per rad or m of joint) and, for pose targets, its angular velocity below."""
+        jac = self.chain.jacobian(self.full_joints(q))[:, :, self.free]
+        return jac if self.target == Target.pose else jac[:, :3]
+
     def errors(self, q_hat: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(position error (B,) in mm, rotation error (B,) in degrees or None for position targets)
         of joints q_hat (B, n) against targets x."""

@@ -3,6 +3,7 @@ and evaluate.py's accuracy on a fresh test set with its workspace error map."""
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 import torch
@@ -33,6 +34,19 @@ def polished_metrics(model, robot: Robot, x, iterations: int = DEFAULT_ITERATION
     return {f"{prefix}{k}": v for k, v in out.items()}
 
 
+def _ridge(ridge) -> float | None:
+    """The fit's relative ridge, None where refinement's trained weights were kept (NaN)."""
+    r = float(ridge)
+    return None if math.isnan(r) else r
+
+
+def _weights_from(cfg: TrainConfig, ridge) -> str:
+    """How the output weights were found: `lms`, `ridge` (least squares) or `trained` (mini-batch refinement)."""
+    if cfg.rbfn.solver == "lms":
+        return "lms"
+    return "trained" if math.isnan(float(ridge)) else "ridge"
+
+
 def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: Dataset) -> dict:
     """metrics.json of a training run: test accuracy in float64 and float32, raw and polished, E
     against M, times."""
@@ -40,7 +54,8 @@ def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: 
     acc.update(polished_metrics(result.model, robot, data.test.x))
     return {"num_centers": result.model.num_centers, "selector": cfg.centers.name, "target": str(robot.target),
             **acc,
-            "val_E": 0.5 * float(result.fit.val_mse), "ridge": float(result.fit.ridge),
+            "val_E": 0.5 * float(result.fit.val_mse), "ridge": _ridge(result.fit.ridge),
+            "output_weights": _weights_from(cfg, result.fit.ridge),
             "growth": [{"num_centers": m, "val_E": e} for m, e in result.curve],
             "select_seconds": result.select_seconds, "train_seconds": result.train_seconds}
 

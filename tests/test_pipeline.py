@@ -1,0 +1,104 @@
+"""Training's library path: the task Jacobians, the choice of output weights after mini-batch
+refinement, and the task loss refused where it cannot see every joint."""
+import math
+
+import pytest
+import torch
+
+import train
+from rbfn.data import input_scaling, make_dataset
+from rbfn.fit import design_matrix
+from rbfn.pipeline import fit_weights, task_jacobians
+from rbfn.refine import Refined
+from rbfn.robots.robot import load_robot
+from rbfn.targets import TargetFeatures
+
+from .conftest import compose_config
+
+UR5_SMALL = ["robot=ur5", "centers=kmeans_refine", "rbfn.num_centers=40", "data.n_train=800", "data.n_val=300",
+             "data.n_test=200", "centers.refine.mode=minibatch", "centers.refine.epochs=4", "progress=false",
+             "export=false", "num_threads=1"]
+
+
+@pytest.fixture(scope="module")
+def ur5():
+    cfg = compose_config("train", *UR5_SMALL)
+    robot = load_robot(cfg.robot)
+    return cfg, robot, make_dataset(robot, (800, 300, 200), seed=0)
+
+
+def test_task_jacobians_weigh_rotation_rows_by_the_rotation_scale(ur5):
+    cfg, robot, data = ur5
+    j_tr, j_val = task_jacobians(cfg, robot, data)
+    assert j_tr.shape == (800, 6, 6) and j_val.shape == (300, 6, 6)
+    raw = robot.chain.jacobian(robot.full_joints(data.val.q))
+    assert torch.allclose(j_val[:, :3], raw[:, :3]) and torch.allclose(j_val[:, 3:], 0.3 * raw[:, 3:])
+    # First order: J dq is the pose change of a small joint step.
+    dq = 1e-6 * torch.ones_like(data.val.q[:5])
+    p0, p1 = robot.pose(data.val.q[:5]), robot.pose(data.val.q[:5] + dq)
+    assert torch.allclose((j_val[:5, :3] @ dq[..., None])[..., 0], p1[:, :3, 3] - p0[:, :3, 3], atol=1e-11)
+
+
+def _fit_inputs(cfg, data, m=30):
+    features = TargetFeatures(True, cfg.robot.rotation_scale)
+    feats = (features(data.train.x), features(data.val.x))
+    offset, scale = input_scaling(feats[0], "metres")
+    z = (feats[0] - offset) / scale
+    centers, widths = z[:m].clone(), torch.full((m,), 0.6, dtype=torch.float64)
+    return feats, offset, scale, centers, widths
+
+
+def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
+    cfg, _, data = ur5
+    feats, offset, scale, centers, widths = _fit_inputs(cfg, data)
+    gen = torch.Generator().manual_seed(0)
+    ridge = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen)
+    a_val = design_matrix((feats[1] - offset) / scale, centers, widths)
+    other = ridge.weights + 1e-3 * torch.randn(ridge.weights.shape, dtype=torch.float64, generator=gen)
+    # A loss that prefers `other`'s predictions: its weights are kept, with no ridge.
+    target = a_val @ other
+
+    def prefers_other(pred):
+        return float((pred - target).abs().mean())
+
+    kept = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen,
+                       Refined(centers, widths, scale, 0.0, [], other, prefers_other))
+    assert torch.equal(kept.weights, other) and math.isnan(float(kept.ridge)) and kept.rounding <= 2e-6
+    assert float(kept.val_mse) == pytest.approx(float(((a_val @ other - data.val.q) ** 2).sum(-1).mean()), rel=1e-4)
+    # The plain validation MSE prefers the ridge fit: it stays.
+    mse = Refined(centers, widths, scale, 0.0, [], other, lambda p: float(((p - data.val.q) ** 2).sum(-1).mean()))
+    assert torch.equal(fit_weights(cfg, data, feats, offset, scale, centers, widths, gen, mse).weights, ridge.weights)
+    # Weights that cancel in float32 (+-1e4 pairs on two equal columns) are refused however good.
+    unstable = other.clone()
+    unstable[0] += 1e4
+    unstable[1] -= 1e4
+    c2 = centers.clone()
+    c2[1] = c2[0]
+    calls = []
+
+    def prefers_trained(pred):          # called with the trained weights' predictions first
+        calls.append(1)
+        return float(len(calls) > 1)
+
+    kept = fit_weights(cfg, data, feats, offset, scale, c2, widths, gen,
+                       Refined(c2, widths, scale, 0.0, [], unstable, prefers_trained))
+    assert not torch.equal(kept.weights, unstable) and not math.isnan(float(kept.ridge))
+    stable = fit_weights(cfg, data, feats, offset, scale, c2, widths, gen,
+                         Refined(c2, widths, scale, 0.0, [], other, prefers_trained))
+    assert torch.equal(stable.weights, other)
+
+
+def test_task_loss_is_refused_where_the_jacobian_misses_joints(tmp_path):
+    cfg = compose_config("train", *UR5_SMALL, "robot.target=position")
+    with pytest.raises(ValueError, match=r"centers.refine.loss=task .* 3 rows .* 6 free joints"):
+        train.run(cfg, tmp_path)
+    assert not (tmp_path / "checkpoint.pt").exists()
+
+
+def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
+    m = train.run(compose_config("train", *UR5_SMALL), tmp_path)
+    assert m["output_weights"] in ("trained", "ridge")
+    assert (m["ridge"] is None) == (m["output_weights"] == "trained")
+    joint = train.run(compose_config("train", *UR5_SMALL, "centers.refine.loss=joint", "centers.refine.huber=0"),
+                      tmp_path / "joint")
+    assert joint["test_pos_err_mm_median"] != m["test_pos_err_mm_median"]
