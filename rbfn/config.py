@@ -117,6 +117,8 @@ class ACOConfig:
     alpha: float = 1.0                 # Ant System pheromone exponent
     beta: float = 0.0                  # Ant System heuristic exponent (visibility: local data density)
     candidates: int = 500              # Ant System / OLS candidate pool
+    fit_rows: int = 2048               # fit objective: the colony ranks ants on at most max(fit_rows, 50 P) training
+                                       # and validation rows (a seeded subset; 0: every row); the final fit uses all
 
 
 @dataclass
@@ -394,6 +396,7 @@ def _validate_aco(a: ACOConfig, key: str) -> None:
     _need(_finite(a.alpha) and a.alpha >= 0, f"{key}.alpha", a.alpha, "must be >= 0")
     _need(_finite(a.beta) and a.beta >= 0, f"{key}.beta", a.beta, "must be >= 0")
     _need(a.candidates >= 1, f"{key}.candidates", a.candidates, "must be >= 1")
+    _need(a.fit_rows >= 0, f"{key}.fit_rows", a.fit_rows, "must be >= 0 (0: every row)")
 
 
 def validate_control(c: ControlConfig, gains: GainsConfig) -> None:

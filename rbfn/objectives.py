@@ -55,6 +55,18 @@ class FitObjective:
         self._tail_val_abs = self._tail_val.abs()
         self._y_val_t = y_val.T.contiguous()
 
+    def subset(self, rows: int, seed: int) -> "FitObjective":
+        """The same objective on at most `rows` training and `rows` validation rows, drawn without
+        replacement by a generator seeded with `seed` (itself where both sets are that small)."""
+        n, n_v = self.z_train.shape[0], self.z_val.shape[0]
+        if rows >= n and rows >= n_v:
+            return self
+        g = torch.Generator().manual_seed(seed)
+        tr = torch.randperm(n, generator=g)[:rows].sort().values.to(self.z_train.device)
+        va = torch.randperm(n_v, generator=g)[:rows].sort().values.to(self.z_val.device)
+        return FitObjective(self.z_train[tr], self.y_train[tr], self.z_val[va], self.y_val[va], self.tail, self.ridges,
+                            self.eval_dtype, self.memory, self.block, self.round_tol, self.round_rel)
+
     def width(self, m: int) -> int:
         """Design-matrix columns P for M = m."""
         return m + (self.z_train.shape[1] + 1 if self.tail else 0)

@@ -21,7 +21,7 @@ from .config import CentersConfig
 from .objectives import FitObjective, cluster_objective
 from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
 
-__all__ = ["Selection", "select", "choose_widths", "visibility"]
+__all__ = ["Selection", "select", "choose_widths", "colony_objective", "visibility"]
 
 
 @dataclass
@@ -86,6 +86,20 @@ def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_w
     return Selection(centers, widths, time.perf_counter() - t0, aco_best, aco_mean)
 
 
+# The colony's subset keeps at least this many rows per design column P (the fit's excess
+# validation error grows as P / rows: about 2 % here), whatever `centers.aco.fit_rows` says.
+ROWS_PER_COLUMN = 50
+
+
+def colony_objective(objective: FitObjective, m: int, fit_rows: int, seed: int) -> FitObjective:
+    """The objective a colony ranks its ants on at M = m: `objective` on a seeded subset of at most
+    max(fit_rows, ROWS_PER_COLUMN x P) training and validation rows (every row for fit_rows = 0).
+    Ants are thousands of fits; the one fit that is kept is redone on every row."""
+    if not fit_rows:
+        return objective
+    return objective.subset(max(fit_rows, ROWS_PER_COLUMN * objective.width(m)), seed)
+
+
 def _candidate_pool(z: torch.Tensor, n: int, g: torch.Generator) -> torch.Tensor:
     """At most n distinct training inputs, uniformly chosen (all of them when n >= N)."""
     if n >= z.shape[0]:
@@ -115,9 +129,11 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
         return (base_widths(c, cfg.width_rule) * (scale or 1.0)).clamp(max=max_width)
 
     if cfg.aco.objective == "fit":
+        ranked = colony_objective(objective, m, cfg.aco.fit_rows, seed)
+
         def obj(idx: torch.Tensor) -> torch.Tensor:
             c = pool[idx.to(pool.device)]
-            return objective(c, widths_of(c))
+            return ranked(c, widths_of(c))
     else:
         def obj(idx: torch.Tensor) -> torch.Tensor:
             return cluster_objective(objective.z_train, pool[idx.to(pool.device)])
@@ -155,9 +171,10 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     d = z.shape[1]
     c0 = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
-    full_cost = (a.archive_size + a.ants * a.iterations) * objective.cost(m)
+    ranked = colony_objective(objective, m, a.fit_rows, seed) if a.objective == "fit" else objective
+    full_cost = (a.archive_size + a.ants * a.iterations) * ranked.cost(m)
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
-        return _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume, on_state)
+        return _acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
     # Width coordinates: M log widths, one log scale of the seed widths, or none.
@@ -181,7 +198,7 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
 
     if a.objective == "fit":
         def obj(x: torch.Tensor) -> torch.Tensor:
-            return objective(*unpack(x))
+            return ranked(*unpack(x))
     else:
         def obj(x: torch.Tensor) -> torch.Tensor:
             return cluster_objective(z, unpack(x)[0])

@@ -40,6 +40,7 @@ def test_unknown_selector_names_it():
     ("centers.width_rule=wide", "expected one of [paper, global, per_center]"),
     ("rbfn.solver=adam", "expected one of [lstsq, lms]"),
     ("centers.refine.mode=sgd", "expected one of [auto, full, minibatch]"),
+    ("centers.refine.loss=mse", "expected one of [task, joint]"),
 ])
 def test_mistyped_value_fails_at_composition(override, options):
     with pytest.raises(Exception) as e:
@@ -62,6 +63,8 @@ def test_mistyped_value_fails_at_composition(override, options):
     ("centers.refine.batch=0", "centers.refine.batch=0"),
     ("centers.refine.batch_lr=-1", "centers.refine.batch_lr=-1"),
     ("centers.refine.epochs=-1", "centers.refine.epochs=-1"),
+    ("centers.refine.huber=-0.1", "centers.refine.huber=-0.1"),
+    ("centers.aco.fit_rows=-5", "centers.aco.fit_rows=-5"),
     ("rbfn.growth.factor=1.0", "rbfn.growth.factor=1.0"),
     ("device=tpu", "device='tpu'"),
     ("seed=-1", "seed=-1 is not allowed: use an integer in [0, 4294967295]"),

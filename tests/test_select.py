@@ -97,3 +97,46 @@ def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch, l
     e_aco = objective(aco.centers[None], aco.widths[None]).item()
     assert e_aco <= e_km * (1 + 1e-12)
     assert (aco.widths > 0).all() and (aco.widths <= 2.0).all()
+
+
+def test_objective_subset_is_the_objective_on_seeded_rows(objective):
+    sub = objective.subset(100, seed=3)
+    assert sub.z_train.shape == (100, 3) and sub.z_val.shape == (100, 3)
+    assert torch.equal(sub.z_train, objective.subset(100, seed=3).z_train)           # seeded
+    assert not torch.equal(sub.z_train, objective.subset(100, seed=4).z_train)
+    rows = (sub.z_train[:, None] == objective.z_train[None]).all(-1)                 # rows of the original, once each
+    assert (rows.sum(1) == 1).all() and torch.equal(objective.y_train[rows.int().argmax(1)], sub.y_train)
+    direct = FitObjective(sub.z_train, sub.y_train, sub.z_val, sub.y_val, eval_dtype=torch.float32)
+    c, w = objective.z_train[:8][None], torch.full((1, 8), 0.5, dtype=torch.float64)
+    assert torch.equal(sub(c, w), direct(c, w))
+    assert objective.subset(10**6, seed=0) is objective
+
+
+def test_colony_ranks_on_a_subset_of_at_least_50_rows_per_column(objective):
+    from rbfn.select import colony_objective
+
+    assert colony_objective(objective, 10, 0, seed=0) is objective                   # fit_rows = 0: every row
+    assert colony_objective(objective, 10, 100, seed=0) is objective                 # 50 x 14 columns >= 600 rows
+    small = colony_objective(objective, 2, 100, seed=0)                              # 50 x 6 = 300 rows
+    assert small.z_train.shape[0] == 300 and small.z_val.shape[0] == 300
+
+
+@pytest.mark.parametrize("colony", ["acor", "ant_system"])
+def test_colony_ranks_ants_on_its_subset(objective, monkeypatch, colony):
+    """The recorded best is the subset objective's value of what the colony returns; where the
+    rows are fewer than fit_rows the selection is the one on every row, exactly."""
+    import rbfn.select as sel
+
+    def run(fit_rows):
+        cfg = CentersConfig(method="aco")
+        cfg.aco.colony, cfg.aco.iterations, cfg.aco.candidates, cfg.aco.fit_rows = colony, 3, 100, fit_rows
+        return select(cfg, objective, 6, seed=0, max_width=2.0)
+
+    every, default = run(0), run(2048)
+    assert torch.equal(every.centers, default.centers) and every.aco_best == default.aco_best
+    monkeypatch.setattr(sel, "ROWS_PER_COLUMN", 1)
+    s = run(150)
+    ranked = sel.colony_objective(objective, 6, 150, seed=0)
+    assert ranked.z_train.shape[0] == 150
+    assert ranked(s.centers[None], s.widths[None]).item() == pytest.approx(s.aco_best[-1], rel=1e-6)
+    assert objective(s.centers[None], s.widths[None]).item() != pytest.approx(s.aco_best[-1], rel=1e-6)
