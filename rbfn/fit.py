@@ -154,8 +154,12 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
     def candidates(rel: torch.Tensor):
         """Weights (..., L, P, out), validation MSE (..., L) and rounding scale (..., L) or None."""
         lam = rel * scale                                                       # (..., L)
-        coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)
-        weights = evecs.unsqueeze(-3) @ coef                                    # (..., L, P, out)
+        coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)   # (..., L, P, out)
+        # One product for every ridge, (P, P) @ (P, L out): broadcasting evecs over L copies it
+        # L times (about 9x slower at P = 44, 18x at P = 2010).
+        n_l, p, n_out = coef.shape[-3:]
+        flat = coef.movedim(-3, -2).reshape(*coef.shape[:-3], p, n_l * n_out)
+        weights = (evecs @ flat).unflatten(-1, (n_l, n_out)).movedim(-2, -3)   # (..., L, P, out)
         mse, bnd = score(weights)
         mse = torch.nan_to_num(mse, nan=torch.inf)
         return weights, mse, None if bnd is None else torch.nan_to_num(bnd, nan=torch.inf)

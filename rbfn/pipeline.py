@@ -80,9 +80,10 @@ def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torc
 def task_jacobians(cfg: TrainConfig, robot: "Robot", data: Dataset) -> tuple[torch.Tensor, torch.Tensor]:
     """Task Jacobians (N, r, n) at the training and validation joints, the rotation rows times
     `robot.rotation_scale` (m), as the task loss weighs them."""
-    weight = torch.ones(robot.jacobian(data.val.q[:1]).shape[1], dtype=data.val.q.dtype, device=data.val.q.device)
-    weight[3:] = cfg.robot.rotation_scale
-    return tuple(robot.jacobian(split.q) * weight[:, None] for split in (data.train, data.val))
+    jacs = robot.jacobian(data.train.q), robot.jacobian(data.val.q)
+    for j in jacs:
+        j[:, 3:] *= cfg.robot.rotation_scale
+    return jacs
 
 
 def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: "Robot | None") -> bool:
