@@ -41,11 +41,10 @@ class IKSolver:
 
     def _errors(self, q: torch.Tensor, x: torch.Tensor):
         """Task error e (B, 3 or 6), Jacobian J (B, 3 or 6, n), position error (B,) m, rotation (B,) rad."""
-        jac, pose = self.robot.chain.jacobian(self.robot.full_joints(q), ret_eef_pose=True)
-        jac = jac[:, :, self.robot.free]
+        jac, pose = self.robot.jacobian(q, with_pose=True)
         e_pos = x[:, :3] - pose[:, :3, 3]
         if not self.pose_target:
-            return e_pos, jac[:, :3], e_pos.norm(dim=-1), None
+            return e_pos, jac, e_pos.norm(dim=-1), None
         r_err = tf.quaternion_to_matrix(x[:, 3:]) @ pose[:, :3, :3].transpose(-1, -2)
         e_rot = tf.matrix_to_axis_angle(r_err)                     # (B, 3), world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)

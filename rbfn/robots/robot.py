@@ -92,11 +92,13 @@ class Robot:
         pose = self.pose(q)
         return pose_targets(pose) if self.target == Target.pose else pose[:, :3, 3]
 
-    def jacobian(self, q: torch.Tensor) -> torch.Tensor:
+    def jacobian(self, q: torch.Tensor, with_pose: bool = False):
         """Task Jacobian (B, 3 or 6, n) at the free joints q (B, n), root frame: the end link's
-        linear velocity (m per rad or m of joint) and, for pose targets, its angular velocity below."""
-        jac = self.chain.jacobian(self.full_joints(q))[:, :, self.free]
-        return jac if self.target == Target.pose else jac[:, :3]
+        linear velocity (m per rad or m of joint) and, for pose targets, its angular velocity below;
+        with `with_pose`, (Jacobian, end-link poses (B, 4, 4))."""
+        jac, pose = self.chain.jacobian(self.full_joints(q), ret_eef_pose=True)
+        jac = jac[:, :, self.free] if self.target == Target.pose else jac[:, :3, self.free]
+        return (jac, pose) if with_pose else jac
 
     def errors(self, q_hat: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(position error (B,) in mm, rotation error (B,) in degrees or None for position targets)
