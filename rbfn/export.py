@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from .checkpoint import atomic_write_bytes, load_model
-from .layer import RBFNetwork
+from .layer import RBFNetwork, cover_foldable
 
 __all__ = ["DeployedIK", "export_onnx", "export_pt2", "export_all", "main"]
 
@@ -33,6 +33,7 @@ class DeployedIK(nn.Module):
     def __init__(self, net: RBFNetwork) -> None:
         super().__init__()
         self.net = copy.deepcopy(net).float().eval().requires_grad_(False)
+        self.net.traced_cover_fold = cover_foldable(self.net.widths, self.net.cover_radius)
 
     def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.net._solve_rows(self.net._inputs(positions))

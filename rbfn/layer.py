@@ -5,9 +5,14 @@ Scaling, centres and widths are buffers (chosen, not trained); the head is an nn
 optional linear tail A z an nn.Linear without bias.
 
 Predictions (`forward`, `solve`, `in_workspace`: the IK path, and the exported graph's) take all
-Gaussian exponents in one matrix product: with u = z - (the centres' centroid),
--||z - mu_i||^2 / (2 sigma_i^2) = [u, 1, |u|^2] @ K_i, K from the centres and widths
-(`_expansion`). About the centroid u and the centres stay O(1), so the expansion's cancellation
+Gaussian exponents in one matrix product: with u = z - (the centres' centroid) and v = [u, 1],
+-||z - mu_i||^2 / (2 sigma_i^2) = [v, |v|^2] @ K_i, K from the centres and widths
+(`_expansion`; |v|^2 = |u|^2 + 1). `solve` also folds the workspace flag's cover test into that
+product: it adds s_i = r^2 / (2 sigma_i^2) to exponent i, so that "some centre lies within the
+cover radius r" reads max_i (exponent_i + s_i) >= 0, and scales head weight i by exp(-s_i), so the
+outputs are the same; one pass over the (B, M) exponents less (where every s_i <= MAX_COVER_SHIFT,
+so that nothing overflows float32; otherwise the squared distances are taken).
+About the centroid u and the centres stay O(1), so the expansion's cancellation
 costs float32 little: on the trained SCARA network (M = 80, 1e5 workspace positions) the joints
 differ from float64 by at most 9e-6 (rad, m), against 3e-6 by broadcasting, and the median FK
 error is unchanged (0.856 mm). `features` and `design` (fitting, float64) keep the broadcast
@@ -57,29 +62,49 @@ def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Ten
 
 class _Expansion(NamedTuple):
     """Gaussian exponents of features x (B, d) as matrix products, in base 2 (eager) or e (traced):
-    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |u|^2] @ weight."""
+    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |v|^2] @ weight."""
 
     centroid: torch.Tensor     # (d,) the centres' mean, the origin of u
     in_weight: torch.Tensor    # (d, d + 1): [diag(1 / scale), 0]
     in_bias: torch.Tensor      # (d + 1,): [-offset / scale - centroid, 1]
-    weight: torch.Tensor       # (d + 2, M): rows mu_i' / sigma_i^2, -|mu_i'|^2 / (2 sigma_i^2) and -1 / (2 sigma_i^2),
-                               # times log_base(e), mu_i' = mu_i - centroid
+    weight: torch.Tensor       # (d + 2, M): rows mu_i' / sigma_i^2, (1 - |mu_i'|^2) / (2 sigma_i^2) and
+                               # -1 / (2 sigma_i^2), times log_base(e), mu_i' = mu_i - centroid
     to_sq_dist: torch.Tensor   # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base))
     gaussians: Callable[[torch.Tensor], torch.Tensor]   # exponents -> activations (eager: in place)
+    cover_weight: torch.Tensor | None   # (d + 2, M): weight with the cover shift s_i (base units) added
+                                        # to the constant row; None where the cover test is not folded
+    head_scale: torch.Tensor | None     # (M,): base^-s_i, the head weights' factor for cover_weight's exponents
+
+
+MAX_COVER_SHIFT = 60.0     # largest cover shift s_i folded (natural units): e^60 and e^-60 are normal float32
+
+
+def cover_foldable(widths: torch.Tensor, cover_radius: torch.Tensor) -> bool:
+    """Whether `solve` folds the cover test into the exponents: a finite cover radius with every
+    shift r^2 / (2 sigma_i^2) <= MAX_COVER_SHIFT (an eager check; exporters record it)."""
+    r = float(cover_radius)
+    return math.isfinite(r) and r * r * 0.5 / float(widths.min()) ** 2 <= MAX_COVER_SHIFT
 
 
 def _expand(centers: torch.Tensor, widths: torch.Tensor, offset: torch.Tensor, scale: torch.Tensor,
-            base2: bool) -> _Expansion:
-    """The exponents' matrix form for centres (M, d), widths (M,) and the input scaling (d,)."""
+            cover_radius: torch.Tensor, base2: bool, fold: bool) -> _Expansion:
+    """The exponents' matrix form for centres (M, d), widths (M,), the input scaling (d,) and,
+    with `fold`, the cover radius (0-dim)."""
     centroid = centers.mean(0)
     mu = centers - centroid
     log_e = math.log2(math.e) if base2 else 1.0
     inv = log_e / widths.square()                                    # log_base(e) / sigma^2
-    weight = torch.stack([*(mu.T * inv), -0.5 * mu.square().sum(-1) * inv, -0.5 * inv])
+    weight = torch.stack([*(mu.T * inv), 0.5 * (1.0 - mu.square().sum(-1)) * inv, -0.5 * inv])
     in_weight = torch.cat([torch.diag(1.0 / scale), torch.zeros_like(scale)[:, None]], 1)
     in_bias = torch.cat([-offset / scale - centroid, torch.ones_like(scale[:1])])
+    cover_weight = head_scale = None
+    if fold:
+        shift = 0.5 * cover_radius.square() * inv                    # (M,) in base units
+        d = centers.shape[1]
+        cover_weight = torch.cat([weight[:d], (weight[d] + shift)[None], weight[d + 1:]])
+        head_scale = torch.exp2(-shift) if base2 else torch.exp(-shift)
     return _Expansion(centroid, in_weight, in_bias, weight, -2.0 / log_e * widths.square(),
-                      torch.Tensor.exp2_ if base2 else torch.exp)
+                      torch.Tensor.exp2_ if base2 else torch.exp, cover_weight, head_scale)
 
 
 class RBFNetwork(nn.Module):
@@ -98,6 +123,9 @@ class RBFNetwork(nn.Module):
     # (2 MB in float32: fastest measured at M = 80 and M = 2000, twice as fast as 16384 rows at M = 2000).
     block_rows: int | None = None
     block_elements: int = 1 << 19
+    # Whether traced graphs (torch.compile, torch.export, ONNX) fold the cover test into the
+    # exponents: set by the exporters from the eager check (`cover_foldable`), which a graph cannot take.
+    traced_cover_fold: bool = False
 
     def __init__(self, centers: torch.Tensor, widths: torch.Tensor, out_features: int,
                  offset: torch.Tensor | None = None, scale: torch.Tensor | None = None,
@@ -251,32 +279,36 @@ class RBFNetwork(nn.Module):
         the buffers stay the same tensors, unmodified (identity, version counter and storage
         checked). Traced graphs compute it in the graph in base e: ONNX has Exp, not Exp2.
         """
-        bufs = (self.centers, self.widths, self.offset, self.scale)
+        bufs = (self.centers, self.widths, self.offset, self.scale, self.cover_radius)
         if torch.compiler.is_compiling() or torch.compiler.is_exporting():
-            return _expand(*bufs, base2=False)
+            return _expand(*bufs, base2=False, fold=self.traced_cover_fold)
         if any(t.is_inference() or t.requires_grad for t in bufs):
-            return _expand(*bufs, base2=True)      # no version counter, or a graph to keep
+            return _expand(*bufs, base2=True, fold=cover_foldable(self.widths, self.cover_radius))
         key = [(t._version, t.data_ptr()) for t in bufs]
         hit = self._expansion_cache
         if hit is None or any(a is not b for a, b in zip(hit[0], bufs)) or hit[1] != key:
-            hit = self._expansion_cache = (bufs, key, _expand(*bufs, base2=True))
+            fold = cover_foldable(self.widths, self.cover_radius)
+            hit = self._expansion_cache = (bufs, key, _expand(*bufs, base2=True, fold=fold))
         return hit[2]
 
-    def _exponents(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
+    def _exponents(self, x: torch.Tensor, cover: bool = False) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
         """[u, 1] (B, d + 1) and the Gaussian exponents (B, M), -||z - mu_i||^2 / (2 sigma_i^2) in
-        the expansion's base, for public inputs x (B, in_features); and the expansion."""
+        the expansion's base, for public inputs x (B, in_features); and the expansion. With `cover`
+        and a folded cover test, the exponents carry the cover shift (see the module docstring)."""
         e = self._expansion()
         v = torch.addmm(e.in_bias, self._feat(x), e.in_weight)
-        u = v[:, :-1]
-        return v, torch.cat([v, u.square().sum(-1, keepdim=True)], -1) @ e.weight, e
+        weight = e.cover_weight if cover and e.cover_weight is not None else e.weight
+        return v, torch.cat([v, v.square().sum(-1, keepdim=True)], -1) @ weight, e
 
-    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion) -> torch.Tensor:
-        """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M)."""
+    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion, shifted: bool = False) -> torch.Tensor:
+        """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M) (`shifted`: of
+        cover-shifted exponents, the head weights scaled back)."""
+        w = self.head.weight * e.head_scale if shifted else self.head.weight
         if self.tail is None:
-            return self.head(phi)
+            return torch.addmm(self.head.bias, phi, w.T)
         a = self.tail.weight                                   # A z = A u + A centroid
         linear = torch.cat([a.T, (a @ e.centroid + self.head.bias).unsqueeze(0)])
-        return torch.addmm(v @ linear, phi, self.head.weight.T)
+        return torch.addmm(v @ linear, phi, w.T)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Outputs (B, out) for inputs x (B, d) (e.g. joints for positions in m)."""
@@ -312,21 +344,26 @@ class RBFNetwork(nn.Module):
     def _solve_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """`solve` on rows (B, d) in one piece, the exponents computed once for the features and
         the mask (no blocks, no checks): the exported graph's path."""
-        v, a, e = self._exponents(x)
-        near = self._nearest_sq(a, e)          # before the activations overwrite the exponents
-        y = self._head(v, e.gaussians(a), e)
-        return y, self._mask(x, near, y)
+        v, a, e = self._exponents(x, cover=True)
+        if e.cover_weight is None:
+            near = self._nearest_sq(a, e)      # before the activations overwrite the exponents
+            y = self._head(v, e.gaussians(a), e)
+            return y, self._mask(x, near, y)
+        covered = a.amax(-1) >= 0              # some centre within the cover radius
+        y = self._head(v, e.gaussians(a), e, shifted=True)
+        return y, self._mask(x, None, y, covered)
 
     @staticmethod
     def _nearest_sq(a: torch.Tensor, e: _Expansion) -> torch.Tensor:
         """Squared distance (B,) from each row to its nearest centre, from the exponents a (B, M)."""
         return (a * e.to_sq_dist).amin(-1)
 
-    def _mask(self, x: torch.Tensor, near: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    def _mask(self, x: torch.Tensor, near: torch.Tensor | None, y: torch.Tensor,
+              covered: torch.Tensor | None = None) -> torch.Tensor:
         """In-workspace mask (B,) from inputs (B, d), squared distances to the nearest centre
-        (B,) and outputs (B, out)."""
+        (B,) (or `covered` (B,), the cover test already taken) and outputs (B, out)."""
         ok = _within(self._feat(x), self.in_low, self.in_high)
-        ok &= near.clamp(min=0.0).sqrt() <= self.cover_radius
+        ok &= near.clamp(min=0.0).sqrt() <= self.cover_radius if covered is None else covered
         return ok & _within(y, self.out_low, self.out_high)
 
     @torch.no_grad()

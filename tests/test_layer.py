@@ -106,7 +106,8 @@ def test_rows_in_blocks_match_one_piece(monkeypatch):
     calls = []
     monkeypatch.setattr(layer, "_sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1))
     exponents = layer.RBFNetwork._exponents
-    monkeypatch.setattr(layer.RBFNetwork, "_exponents", lambda self, xb: calls.append(xb.shape[0]) or exponents(self, xb))
+    monkeypatch.setattr(layer.RBFNetwork, "_exponents",
+                        lambda self, xb, **kw: calls.append(xb.shape[0]) or exponents(self, xb, **kw))
     net.block_rows = 16
     with torch.no_grad():
         out = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
