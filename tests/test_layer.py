@@ -209,6 +209,31 @@ def test_matrix_product_exponents_match_broadcast_distances():
         assert (mask32 != mask_ref).sum() <= 2
 
 
+def test_cover_test_folded_into_the_exponents_or_not_matches_the_reference():
+    """solve folds the cover test into the exponents where every shift r^2 / (2 sigma_i^2) is at
+    most MAX_COVER_SHIFT, and takes the squared distances otherwise: the same outputs and mask."""
+    from rbfn.layer import MAX_COVER_SHIFT, cover_foldable
+
+    net, x = _wide_net()
+    assert cover_foldable(net.widths, net.cover_radius)
+    with torch.no_grad():
+        assert net._expansion().cover_weight is not None
+        narrow = copy.deepcopy(net)
+        r = float(narrow.cover_radius)
+        narrow.widths[0] = r / (2 * MAX_COVER_SHIFT) ** 0.5 * 0.99     # shift just over the limit
+        assert not cover_foldable(narrow.widths, narrow.cover_radius)
+        assert narrow._expansion().cover_weight is None
+        unbounded = copy.deepcopy(net)
+        unbounded.cover_radius.fill_(float("inf"))
+        assert not cover_foldable(unbounded.widths, unbounded.cover_radius)
+        for model in (net, narrow, unbounded):
+            y, mask = model.solve(x)
+            y_ref, mask_ref = _reference(model, x)
+            assert (y - y_ref).abs().max() < 1e-12 and torch.equal(mask, mask_ref)
+            assert (model(x) - y).abs().max() < 1e-12 and torch.equal(model.in_workspace(x), mask)
+        assert not net.solve(x)[1].all() and unbounded.solve(x)[1].sum() > net.solve(x)[1].sum()
+
+
 def test_exponents_follow_changed_buffers():
     """The matrix form is reused between calls, never after a buffer changed."""
     net, x = _wide_net()
