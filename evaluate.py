@@ -11,7 +11,8 @@ controller on every payload case).
 With no checkpoint given and none found, the two checkpoint parts are skipped (and said so).
 The checkpoint's parts run in a forked process beside the control part, and half the control
 figures in another (`parallel`, on by default; used where the machine forks, has two cores or
-more, and the device is the CPU).
+more, and the device is the CPU); each process then runs one torch thread (unless `num_threads`
+says otherwise).
 Every setting is checked before any part starts. Writes metrics.json (`ik`, `online`, `control`,
 `control_info`, `evaluate_seconds`: each part's wall seconds), workspace_error_map.png,
 online_task_error.png, control_<controller>.png, TensorBoard events and evaluate.log into the
@@ -108,6 +109,10 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
     # The checkpoint's parts run in a forked process beside the control part where that is safe
     # (rbfn.studies.beside), started before this process's TensorBoard writer and its thread.
     both = ckpt is not None and cfg.control.enabled and cfg.parallel and can_fork(cfg.device)
+    if both and not cfg.num_threads:
+        # The forked parts keep a core busy: this process takes one thread too. Two threads here
+        # beside them measured the control part 1.2x slower and its centre selection 2-4x.
+        torch.set_num_threads(1)
     with Beside(checkpoint_parts, ckpt, path, cfg, out_dir, fork=both) as beside:
         if cfg.control.enabled:
             writer = SummaryWriter(log_dir=str(out_dir))

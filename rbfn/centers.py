@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from sklearn.cluster import KMeans
 
 from .fit import design_matrix
 from .layer import gaussian_features
@@ -35,6 +34,10 @@ def kmeans_centers(z: torch.Tensor, m: int, seed: int, restarts: int = 10) -> to
     """k-means++ initialised Lloyd iterations, best of `restarts` (scikit-learn's KMeans), fewer
     restarts on large problems (`kmeans_restarts`)."""
     restarts = kmeans_restarts(z.shape[0], m, z.shape[1], restarts)
+    # Imported here, not with the module: scikit-learn and SciPy take a second to import, which
+    # evaluate.py's forked parts then pay side by side instead of before the fork.
+    from sklearn.cluster import KMeans
+
     km = KMeans(n_clusters=m, init="k-means++", n_init=restarts, random_state=seed)
     km.fit(z.detach().cpu().numpy().astype(np.float64))
     return torch.as_tensor(km.cluster_centers_, dtype=z.dtype, device=z.device)

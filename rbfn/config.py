@@ -285,7 +285,7 @@ class EvalConfig:
     n_test: int = 10000
     seed: Optional[int] = None         # null: the checkpoint's training seed; the test stream is derived
     device: str = "cpu"
-    num_threads: int = 0
+    num_threads: int = 0               # torch threads; 0: torch's default, or one per process while the parts run side by side
     parallel: bool = True              # checkpoint parts, half the control figures in forked processes (fork, CPU, >= 2 cores)
     robot: RobotConfig = field(default_factory=RobotConfig)   # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)

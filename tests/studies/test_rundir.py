@@ -16,3 +16,4 @@ def test_write_figure_writes_the_png_and_the_same_image_to_tensorboard(tmp_path)
     events = EventAccumulator(str(tmp_path / "tb"), size_guidance={"images": 0}).Reload()
     (image,) = events.Images("fig/line")
     assert (image.width, image.height) == (100, 50)                          # 2 x 1 in at 50 dpi
+    assert image.encoded_image_string == (tmp_path / "f.png").read_bytes()   # the same PNG
