@@ -185,17 +185,17 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
     del weights
     if bound is not None and len(ridges) > 1:
         # The constraint binds where the next smaller grid ridge fits better but is unstable:
-        # try ridges between the two (log-spaced) and keep the best stable one.
+        # try ridges between the two (log-spaced) and keep the best stable one, if better than
+        # the grid's (already scored).
         ordered = all(a < b for a, b in zip(ridges, ridges[1:]))
         lower = take(grid, (best - 1).clamp(min=0))
         binds = (best > 0) & (take(mse, (best - 1).clamp(min=0)) < best_mse) & (best_bound <= tol[..., 0])
         if ordered and bool(binds.any()):
             steps = torch.arange(1, 4, dtype=gram.dtype, device=gram.device) / 4
-            fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)
-            fine = torch.cat([fine, ridge.unsqueeze(-1)], -1)                    # (..., 4)
+            fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)   # (..., 3)
             w2, mse2, bound2 = candidates(fine)
             b2 = choose(mse2, bound2)
-            use = binds & (bound2.gather(-1, b2.unsqueeze(-1)).squeeze(-1) <= tol[..., 0])
+            use = binds & (take(bound2, b2) <= tol[..., 0]) & (take(mse2, b2) <= best_mse)
             ridge = torch.where(use, take(fine, b2), ridge)
             best_mse = torch.where(use, take(mse2, b2), best_mse)
             best_bound = torch.where(use, take(bound2, b2), best_bound)
