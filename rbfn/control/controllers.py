@@ -158,11 +158,15 @@ class SlidingMode(Controller):
         g, dt = self.gains, self.dt
         q_d, v_d, a_d, h, alpha = ref
         e, de = q_d - q, v_d - qd
-        s = de + g.Lambda * e
+        s = torch.add(de, e, alpha=g.Lambda)        # x + alpha y in one operation: overhead-bound at small B
         at = self.model.at(q, qd)
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
-        tau = (at.m_times(a_d + g.Lambda * de) + at.c_times(v_d + g.Lambda * e)
-               + at.gravity() + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust)
+        tau = (at.m_times(torch.add(a_d, de, alpha=g.Lambda)) + at.c_times(torch.add(v_d, e, alpha=g.Lambda))
+               + at.gravity())
+        if self.scale is None:
+            tau = torch.add(torch.add(tau, s, alpha=g.K), robust, alpha=g.epsilon)
+        else:
+            tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
         d_hat, integral, p0 = state[:3]
         tau_m = tau                       # what the nominal model sees: no network, no observer
         if h is not None:
@@ -179,7 +183,7 @@ class SlidingMode(Controller):
             # d(d_hat)/dt = K_o (miss - d_hat): it tracks what the model (nominal + network) misses.
             d_hat = g.observer_gain * (integral + p0 - at.m_times(qd))
             tau = tau + (d_hat if self._observed is None else d_hat * self._observed)
-            integral = integral + dt * (tau_m + at.momentum_rate())
+            integral = torch.add(integral, tau_m + at.momentum_rate(), alpha=dt)
         if h is None:
             return tau, (d_hat, integral, p0)
         step = alpha * s if self.scale is None else alpha * (self.scale * s)

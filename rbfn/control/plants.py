@@ -14,7 +14,7 @@ step like the torque (zero-order hold).
   point mass at the arm's payload link.
 
 Both give `coefficients(payload)` (what a step needs of the payload schedule, each (T, B)),
-`accel(q, qd, tau, dist, co)`, `step(...)` and `energy(q, qd, payload)`.
+`accel(q, qd, tau - tau_d, co)`, `step(...)` and `energy(q, qd, payload)`.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from ..config import Friction
 from ..robots.arm_scalar import ArmScalarTerms
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
-from ..robots.scara import ScaraParams, c_qd_parts, inertia_params, m_solve_parts, m_times
+from ..robots.scara import ScaraParams, inertia_params, m_solve_parts, m_times, minus_c_qd
 
 __all__ = ["Plant", "ScaraPlant", "ArmPlant"]
 
@@ -71,6 +71,14 @@ class Plant:
         sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
         return self._per_joint(self.viscous, qd) * qd + self._per_joint(self.coulomb, qd) * sgn
 
+    def minus_friction(self, r: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
+        """r - F(qd) (B, n): with one viscous and one Coulomb coefficient for every joint, two
+        fused x + alpha y operations (a step is overhead-bound at small B)."""
+        if not (isinstance(self.viscous, (int, float)) and isinstance(self.coulomb, (int, float))):
+            return r - self.friction_torque(qd)
+        sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
+        return torch.add(torch.add(r, qd, alpha=-self.viscous), sgn, alpha=-self.coulomb)
+
     def disturbance(self, t: torch.Tensor) -> torch.Tensor:
         """Disturbance torque tau_d(t): the shape of t for a single amplitude (every joint feels
         it), else (..., n); N m (N)."""
@@ -79,7 +87,8 @@ class Plant:
             return self.dist * s
         return self._per_joint(self.dist, t) * s.unsqueeze(-1)
 
-    def accel(self, q, qd, tau, dist, co) -> torch.Tensor:
+    def accel(self, q, qd, r, co) -> torch.Tensor:
+        """Joint accelerations (B, n) under r = tau - tau_d (B, n), the torque less the disturbance."""
         raise NotImplementedError
 
     def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist: torch.Tensor, dt: float, co,
@@ -87,17 +96,18 @@ class Plant:
         """State (q, qd) after dt seconds, torque and payload held; dist: the disturbance torque at
         the step's start, middle and end, tau_d(t), tau_d(t + dt/2), tau_d(t + dt) (3,) or (3, n)."""
         if method == "euler":
-            qd = qd + dt * self.accel(q, qd, tau, dist[0], co)
+            qd = qd + dt * self.accel(q, qd, tau - dist[0], co)
             return q + dt * qd, qd
         # x + h y as one operation (torch.add's alpha): a step is overhead-bound at small B.
         h = 0.5 * dt
-        a1 = self.accel(q, qd, tau, dist[0], co)
+        r_mid = tau - dist[1]                            # the two middle stages share it
+        a1 = self.accel(q, qd, tau - dist[0], co)
         v2 = torch.add(qd, a1, alpha=h)
-        a2 = self.accel(torch.add(q, qd, alpha=h), v2, tau, dist[1], co)
+        a2 = self.accel(torch.add(q, qd, alpha=h), v2, r_mid, co)
         v3 = torch.add(qd, a2, alpha=h)
-        a3 = self.accel(torch.add(q, v2, alpha=h), v3, tau, dist[1], co)
+        a3 = self.accel(torch.add(q, v2, alpha=h), v3, r_mid, co)
         v4 = torch.add(qd, a3, alpha=dt)
-        a4 = self.accel(torch.add(q, v3, alpha=dt), v4, tau, dist[2], co)
+        a4 = self.accel(torch.add(q, v3, alpha=dt), v4, tau - dist[2], co)
         q_next = torch.add(q, qd.add(v2, alpha=2.0).add_(v3, alpha=2.0).add_(v4), alpha=dt / 6)
         qd_next = torch.add(qd, a1.add(a2, alpha=2.0).add_(a3, alpha=2.0).add_(a4), alpha=dt / 6)
         return q_next, qd_next
@@ -115,20 +125,18 @@ class ScaraPlant(Plant):
         self.params = params
 
     def coefficients(self, payload: torch.Tensor):
-        """(p1, p2, p3, m3), each shaped like the payloads (kg)."""
-        return inertia_params(payload, self.params)
+        """(p1, p2, p3, m3, m3 g or 0 without gravity), each shaped like the payloads (kg)."""
+        p1, p2, p3, m3 = inertia_params(payload, self.params)
+        return p1, p2, p3, m3, m3 * (self.params.g if self.gravity else 0.0)
 
-    def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
-        """Joint accelerations (B, 3) under torques tau (B, 3) and disturbance torque `dist`,
-        component by component (the fewest tensor operations: a step is overhead-bound at small B)."""
+    def accel(self, q: torch.Tensor, qd: torch.Tensor, r: torch.Tensor, co) -> torch.Tensor:
+        """Joint accelerations (B, 3) under r = tau - tau_d (B, 3), component by component (the
+        fewest tensor operations: a step is overhead-bound at small B)."""
         q2 = q[..., 1]
         qd1, qd2, _ = qd.unbind(-1)
-        c1, c2 = c_qd_parts(torch.sin(q2), co, qd1, qd2)
-        r1, r2, r3 = (tau - self.friction_torque(qd) - dist).unbind(-1)
-        r1, r2 = r1 - c1, r2 - c2                    # minus C qd (its third component is 0)
-        if self.gravity:
-            r3 = r3 + co[3] * self.params.g          # the prismatic joint carries m3 g
-        return m_solve_parts(torch.cos(q2), co, r1, r2, r3)
+        r1, r2, r3 = self.minus_friction(r, qd).unbind(-1)
+        r1, r2 = minus_c_qd(torch.sin(q2), co, qd1, qd2, r1, r2)
+        return m_solve_parts(torch.cos(q2), co, r1, r2, r3 + co[4])     # the prismatic joint carries m3 g
 
     def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
         """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at q3 = 0."""
@@ -162,10 +170,10 @@ class ArmPlant(Plant):
         """(payload,): the payload masses themselves (kg)."""
         return (payload,)
 
-    def accel(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist, co) -> torch.Tensor:
-        """Joint accelerations (B, n): M qdd = tau - C qd - G - F - tau_d, by Cholesky."""
+    def accel(self, q: torch.Tensor, qd: torch.Tensor, r: torch.Tensor, co) -> torch.Tensor:
+        """Joint accelerations (B, n): M qdd = r - C qd - G - F with r = tau - tau_d, by Cholesky."""
         cfg = self.dynamics_terms().at(q, co[0])
-        r = tau - cfg.coriolis_qd(qd) - self.friction_torque(qd) - dist
+        r = self.minus_friction(r - cfg.coriolis_qd(qd), qd)
         if self.gravity:
             r = r - cfg.gravity()
         if self.fused_solve and torch.compiler.is_compiling():

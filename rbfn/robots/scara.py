@@ -22,7 +22,7 @@ import torch
 
 __all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
            "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "mass_entries", "m_times", "c_qd_parts", "c_times", "m_solve", "m_solve_parts"]
+           "mass_entries", "m_times", "minus_c_qd", "c_times", "m_solve", "m_solve_parts"]
 
 URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
 END_LINK = "quill"
@@ -137,9 +137,9 @@ def joint_vector(parts: list[torch.Tensor]) -> torch.Tensor:
 
 def mass_entries(c2, co) -> tuple:
     """(M11, M12) (B,) of the revolute 2x2 block from c2 = cos q2 (B,) and co; M22 = p3, M33 = m3."""
-    p1, p2, p3, _ = co
-    pc = p2 * c2
-    return p1 + (pc + pc), p3 + pc
+    pc = co[1] * c2
+    m11 = torch.add(co[0], pc, alpha=2.0) if isinstance(co[0], torch.Tensor) else (pc + pc) + co[0]
+    return m11, co[2] + pc
 
 
 def m_times(c2, co, v: torch.Tensor, entries: tuple | None = None) -> torch.Tensor:
@@ -150,11 +150,12 @@ def m_times(c2, co, v: torch.Tensor, entries: tuple | None = None) -> torch.Tens
     return joint_vector([m11 * v1 + m12 * v2, m12 * v1 + co[2] * v2, co[3] * v3])
 
 
-def c_qd_parts(s2, co, qd1: torch.Tensor, qd2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The two nonzero components (B,) of C(q, qd) qd, -h qd2 (2 qd1 + qd2) and h qd1^2 with
-    h = p2 sin q2 (the third is 0): `c_times(s2, co, qd, qd)` without forming vectors."""
+def minus_c_qd(s2, co, qd1: torch.Tensor, qd2: torch.Tensor, r1: torch.Tensor,
+               r2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(r1, r2) minus the two nonzero components (B,) of C(q, qd) qd, -h qd2 (2 qd1 + qd2) and
+    h qd1^2 with h = p2 sin q2 (the third is 0): `c_times(s2, co, qd, qd)` without forming vectors."""
     h = co[1] * s2
-    return h * qd2 * (-2 * qd1 - qd2), h * qd1 * qd1
+    return r1 + h * qd2 * torch.add(qd2, qd1, alpha=2.0), r2 - h * qd1 * qd1
 
 
 def c_times(s2, co, qd: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
