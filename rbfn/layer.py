@@ -16,8 +16,9 @@ About the centroid u and the centres stay O(1), so the expansion's cancellation
 costs float32 little: on the trained SCARA network (M = 80, 1e5 workspace positions) the joints
 differ from float64 by at most 9e-6 (rad, m), against 3e-6 by broadcasting, and the median FK
 error is unchanged (0.856 mm); `solve`, its cover test folded, 1.0e-5 on another trained network
-(9.3e-6 by `forward`), with the same flags as float64. `features` and `design` (fitting, float64) keep the broadcast
-distances. Eager calls process rows in blocks of about `block_elements` exponents, which stay in
+(9.3e-6 by `forward`), with the same flags as float64. `design` (the online learner's rows) takes
+the same product; `features` keeps the broadcast distances. (Fitting builds its design matrices
+with `rbfn.fit.design_matrix`, by broadcasting, in float64.) Eager calls process rows in blocks of about `block_elements` exponents, which stay in
 cache; traced and exported graphs are one piece with a dynamic batch dimension.
 
 The output weights as one matrix: net(x) = net.design(x) @ net.output_weights(), the design
@@ -245,11 +246,12 @@ class RBFNetwork(nn.Module):
         return self._rows(self._design_rows, x)
 
     def _design_rows(self, x: torch.Tensor) -> torch.Tensor:
-        z = self._scaled(x)
-        cols = [gaussian_features(z, self.centers, self.widths)]
+        """Design rows (B, P) by `forward`'s matrix product (z = u + centroid)."""
+        v, a, e = self._exponents(x)
+        cols = [e.gaussians(a)]
         if self.tail is not None:
-            cols.append(z)
-        return torch.cat(cols + [torch.ones_like(z[:, :1])], -1)
+            cols.append(v[:, :-1] + e.centroid)
+        return torch.cat(cols + [v[:, -1:]], -1)                  # v's last column is the ones
 
     def output_weights(self) -> torch.Tensor:
         """Output weights W (P, out) ordered as `design`'s columns (a detached copy)."""

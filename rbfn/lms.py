@@ -37,12 +37,16 @@ class NLMS:
     def update(self, a: torch.Tensor, y: torch.Tensor, t: float = 0.0) -> torch.Tensor:
         """One step on pairs a (B, n, P), y (B, n, out); returns the prior errors (B, n, out)."""
         ok = _finite(a, y)
-        a, y = torch.where(ok[..., None], a, 0.0), torch.where(ok[..., None], y, 0.0)
-        e = (y - a @ self.w) * ok[..., None]
+        rejected = int((~ok).sum())
+        if rejected:
+            a, y = torch.where(ok[..., None], a, 0.0), torch.where(ok[..., None], y, 0.0)
+            e = (y - a @ self.w) * ok[..., None]
+            n = ok.sum(-1).clamp_min(1)[:, None, None]
+        else:                                  # every pair finite (the usual case): no masks
+            e, n = y - a @ self.w, a.shape[1]
         norm = a.square().sum(-1, keepdim=True) + self.eps
-        n = ok.sum(-1).clamp_min(1)[:, None, None]
         self.w = self.w + self.alpha(t) * (a / norm).transpose(1, 2) @ e / n
-        self.rejected += int((~ok).sum())
+        self.rejected += rejected
         return e
 
 

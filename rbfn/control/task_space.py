@@ -255,14 +255,15 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     b = 2 * n_s                                                       # environments: [adapted (S), frozen (S)]
     a_path = net.design(rob.x_d)                                      # (T, P)
     da = torch.gradient(a_path, spacing=cfg.dt, dim=0)[0]
-    dda = torch.gradient(da, spacing=cfg.dt, dim=0)[0]
+    path = torch.stack([a_path, da, torch.gradient(da, spacing=cfg.dt, dim=0)[0]])   # (3, T, P): a, a', a''
+    del a_path, da
     w0 = net.output_weights().to(**kw)
     learner = make_learner(cfg.learner, w0.expand(b, *w0.shape), cfg.alpha0, cfg.decay, cfg.forgetting)
     frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)])
     plant, ctrl = rob.plant, rob.controller
     vel = torch.zeros(nj, **kw)                                       # locked joints: held, at rest
-    q = rob.full(torch.einsum("p,bpj->bj", a_path[0], learner.w))
-    qd = rob.full(torch.einsum("p,bpj->bj", da[0], learner.w), vel)
+    q = rob.full(torch.einsum("p,bpj->bj", path[0, 0], learner.w))
+    qd = rob.full(torch.einsum("p,bpj->bj", path[1, 0], learner.w), vel)
     state = ctrl.init_state(q, qd)
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
     co = plant.coefficients(torch.zeros(cfg.update_every, b, **kw))     # no payload
@@ -275,7 +276,7 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
         while k < n:
             m = min(cfg.update_every, n - k)
             sl = slice(k, k + m)
-            refs = [torch.einsum("np,bpj->nbj", r[sl], learner.w) for r in (a_path, da, dda)]
+            refs = (path[:, None, sl] @ learner.w).transpose(1, 2)      # (3, m, B, n_free): q_d, qd_d, qdd_d
             refs = [rob.full(refs[0]), rob.full(refs[1], vel), rob.full(refs[2], vel)]
             args = (q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
             if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
