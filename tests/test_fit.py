@@ -161,3 +161,22 @@ def test_no_stable_ridge_keeps_the_most_stable():
     fit = ridge_fit(a[:300], y[:300], a[300:], y[300:], ridges=(1e-12, 1e-8, 1e-4), eval_dtype=torch.float32,
                     round_tol=0.0)
     assert float(fit.ridge) == 1e-4 and fit.rounding > 0
+
+
+@pytest.mark.parametrize("gain, expected", [(1.005, 10**-2.25), (1.009, 1e-2)])
+def test_binding_constraint_refines_between_the_grid_ridges(gain, expected):
+    """One weight w = gain / (1 + ridge) (a 1 x 1 problem), its error falling and its rounding scale
+    rising with |w|: the stable ridges are those >= gain - 1. Where the grid's best stable ridge
+    (1e-2) has an unstable, better neighbour (1e-3), the three ridges between them are tried and
+    the best stable one kept; where none of them is stable, the grid's."""
+    from rbfn.fit import ridge_choose
+
+    def score(weights):
+        w = weights[..., 0, 0].abs()
+        return 2.0 - w, w                                       # (mse, rounding scale), each (..., L)
+
+    gram = torch.ones(1, 1, dtype=torch.float64)
+    fit = ridge_choose(gram, gain * gram, score, ridges=(1e-4, 1e-3, 1e-2), deploy=torch.float32, round_tol=1.0)
+    assert math.isclose(float(fit.ridge), expected, rel_tol=1e-9)
+    assert math.isclose(float(fit.weights[0, 0]), gain / (1 + expected), rel_tol=1e-12)
+    assert math.isclose(float(fit.val_mse), 2.0 - gain / (1 + expected), rel_tol=1e-12) and float(fit.rounding) <= 1.0
