@@ -61,6 +61,19 @@ def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
 
 
 @contextmanager
+def _torch_threads(n: Optional[int]):
+    """torch's intra-op threads set to `n` inside the block and restored after it (None: unchanged)."""
+    before = torch.get_num_threads()
+    if n is not None:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if n is not None:
+            torch.set_num_threads(before)
+
+
+@contextmanager
 def _timed(seconds: dict, part: str):
     """Record the wall seconds of one part under `seconds[part]` and log them."""
     t0 = time.perf_counter()
@@ -109,11 +122,10 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
     # The checkpoint's parts run in a forked process beside the control part where that is safe
     # (rbfn.studies.beside), started before this process's TensorBoard writer and its thread.
     both = ckpt is not None and cfg.control.enabled and cfg.parallel and can_fork(cfg.device)
-    if both and not cfg.num_threads:
-        # The forked parts keep a core busy: this process takes one thread too. Two threads here
-        # beside them measured the control part 1.2x slower and its centre selection 2-4x.
-        torch.set_num_threads(1)
-    with Beside(checkpoint_parts, ckpt, path, cfg, out_dir, fork=both) as beside:
+    # The forked parts keep a core busy: this process takes one thread too while they run. Two
+    # threads here beside them measured the control part 1.2x slower and its centre selection 2-4x.
+    one = both and not cfg.num_threads
+    with _torch_threads(1 if one else None), Beside(checkpoint_parts, ckpt, path, cfg, out_dir, fork=both) as beside:
         if cfg.control.enabled:
             writer = SummaryWriter(log_dir=str(out_dir))
             try:

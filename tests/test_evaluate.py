@@ -4,6 +4,7 @@ import json
 from dataclasses import replace
 
 import pytest
+import torch
 
 import evaluate
 import train
@@ -29,8 +30,18 @@ def ckpt(tmp_path_factory):
     return out / "checkpoint.pt"
 
 
-def test_every_part_end_to_end(ckpt, tmp_path):
-    m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", *SHORT), tmp_path)
+def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
+    threads, seen = torch.get_num_threads(), []
+    control = evaluate.evaluate_control
+    monkeypatch.setattr(evaluate, "evaluate_control",
+                        lambda *a, **kw: seen.append(torch.get_num_threads()) or control(*a, **kw))
+    torch.set_num_threads(2)                 # the suite runs one thread; the default is more
+    try:
+        m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", *SHORT), tmp_path)
+        # Beside the forked parts this process ran one torch thread, and has its own count back.
+        assert seen == [1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(threads)
     on_disk = json.loads((tmp_path / "metrics.json").read_text())
     assert set(on_disk) >= {"ik", "online", "control", "control_info", "test_pos_err_mm_median"}
     assert on_disk["ik"]["test_pos_err_mm_median"] == m["test_pos_err_mm_median"] > 0
