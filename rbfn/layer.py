@@ -336,8 +336,8 @@ class RBFNetwork(nn.Module):
                              f"{x.shape[0]} inputs, got {got}")
 
         def rows(xb: torch.Tensor, yb: torch.Tensor) -> torch.Tensor:
-            _, a, e = self._exponents(xb)
-            return self._mask(xb, self._nearest_sq(a, e), yb)
+            _, a, e = self._exponents(xb, cover=True)
+            return self._mask(xb, self._covered(a, e), yb)
         return self._blocks(rows, x, y)
 
     def solve(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -348,25 +348,21 @@ class RBFNetwork(nn.Module):
         """`solve` on rows (B, d) in one piece, the exponents computed once for the features and
         the mask (no blocks, no checks): the exported graph's path."""
         v, a, e = self._exponents(x, cover=True)
-        if e.cover_weight is None:
-            near = self._nearest_sq(a, e)      # before the activations overwrite the exponents
-            y = self._head(v, e.gaussians(a), e)
-            return y, self._mask(x, near, y)
-        covered = a.amax(-1) >= 0              # some centre within the cover radius
-        y = self._head(v, e.gaussians(a), e, shifted=True)
-        return y, self._mask(x, None, y, covered)
+        covered = self._covered(a, e)          # before the activations overwrite the exponents
+        y = self._head(v, e.gaussians(a), e, shifted=e.cover_weight is not None)
+        return y, self._mask(x, covered, y)
 
-    @staticmethod
-    def _nearest_sq(a: torch.Tensor, e: _Expansion) -> torch.Tensor:
-        """Squared distance (B,) from each row to its nearest centre, from the exponents a (B, M)."""
-        return (a * e.to_sq_dist).amin(-1)
+    def _covered(self, a: torch.Tensor, e: _Expansion) -> torch.Tensor:
+        """Rows (B,) with some centre within the cover radius, from `_exponents(..., cover=True)`'s
+        exponents a (B, M): a shifted exponent >= 0 where the test is folded, else the nearest
+        centre's squared distance."""
+        if e.cover_weight is not None:
+            return a.amax(-1) >= 0
+        return (a * e.to_sq_dist).amin(-1).clamp(min=0.0).sqrt() <= self.cover_radius
 
-    def _mask(self, x: torch.Tensor, near: torch.Tensor | None, y: torch.Tensor,
-              covered: torch.Tensor | None = None) -> torch.Tensor:
-        """In-workspace mask (B,) from inputs (B, d), squared distances to the nearest centre
-        (B,) (or `covered` (B,), the cover test already taken) and outputs (B, out)."""
-        ok = _within(self._feat(x), self.in_low, self.in_high)
-        ok &= near.clamp(min=0.0).sqrt() <= self.cover_radius if covered is None else covered
+    def _mask(self, x: torch.Tensor, covered: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """In-workspace mask (B,) from inputs (B, d), the cover test (B,) and outputs (B, out)."""
+        ok = _within(self._feat(x), self.in_low, self.in_high) & covered
         return ok & _within(y, self.out_low, self.out_high)
 
     @torch.no_grad()

@@ -67,17 +67,18 @@ class Plant:
             self._joint_values[key] = torch.tensor(list(value), dtype=like.dtype, device=like.device)
         return self._joint_values[key]
 
+    def _coulomb_sign(self, qd: torch.Tensor) -> torch.Tensor:
+        return torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
+
     def friction_torque(self, qd: torch.Tensor) -> torch.Tensor:
-        sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
-        return self._per_joint(self.viscous, qd) * qd + self._per_joint(self.coulomb, qd) * sgn
+        return self._per_joint(self.viscous, qd) * qd + self._per_joint(self.coulomb, qd) * self._coulomb_sign(qd)
 
     def minus_friction(self, r: torch.Tensor, qd: torch.Tensor) -> torch.Tensor:
         """r - F(qd) (B, n): with one viscous and one Coulomb coefficient for every joint, two
         fused x + alpha y operations (a step is overhead-bound at small B)."""
         if not (isinstance(self.viscous, (int, float)) and isinstance(self.coulomb, (int, float))):
             return r - self.friction_torque(qd)
-        sgn = torch.sign(qd) if self.friction == "sign" else torch.tanh(qd / self.smooth_velocity)
-        return torch.add(torch.add(r, qd, alpha=-self.viscous), sgn, alpha=-self.coulomb)
+        return torch.add(torch.add(r, qd, alpha=-self.viscous), self._coulomb_sign(qd), alpha=-self.coulomb)
 
     def disturbance(self, t: torch.Tensor) -> torch.Tensor:
         """Disturbance torque tau_d(t): the shape of t for a single amplitude (every joint feels
