@@ -179,7 +179,7 @@ class FitObjective:
                 err = w_t.new_empty(k, n_l, n_out, b)                              # reused by every block
             out = torch.bmm(w2, a)
             pred = out[:, :lo].view(k, n_l, n_out, b)
-            sse.add_(torch.sub(pred, self._y_val_t[:, r0:r0 + b], out=err[..., :b]).square_().sum(-1))
+            sse.add_(err[..., :b].copy_(pred).sub_(self._y_val_t[:, r0:r0 + b]).square_().sum(-1))
             if bounds:
                 torch.maximum(bound, out[:, lo:].amax(-1).to(bound.dtype), out=bound)
             del out, pred
