@@ -107,13 +107,14 @@ def test_online_sweep_rows_carry_the_real_perturbation(ckpt):
 
 @pytest.mark.slow
 def test_online_ahead_of_time_equals_eager(ckpt, tmp_path, monkeypatch):
-    """online.aot runs the same closed loop from a package compiled ahead of time."""
+    """online.aot runs the same closed loop from a package compiled ahead of time (two control
+    periods per update here: the package's graph, and its compile time, grow with the periods)."""
     import shutil
 
     if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
         pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
     monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
-    cfg = OnlineConfig(duration=0.5, sizes=[0.03])
+    cfg = OnlineConfig(duration=0.5, sizes=[0.03], update_every=2)
     eager = evaluate_online(read_checkpoint(ckpt), cfg, GainsConfig())
     aot = evaluate_online(read_checkpoint(ckpt), replace(cfg, aot=True), GainsConfig())
     assert len(list((tmp_path / "aot").glob("chunk-*.pt2"))) == 1
