@@ -285,13 +285,15 @@ class RBFNetwork(nn.Module):
         bufs = (self.centers, self.widths, self.offset, self.scale, self.cover_radius)
         if torch.compiler.is_compiling() or torch.compiler.is_exporting():
             return _expand(*bufs, base2=False, fold=self.traced_cover_fold)
-        if any(t.is_inference() or t.requires_grad for t in bufs):
+        def eager() -> _Expansion:
             return _expand(*bufs, base2=True, fold=cover_foldable(self.widths, self.cover_radius))
+
+        if any(t.is_inference() or t.requires_grad for t in bufs):
+            return eager()                         # no version counter, or a graph to keep
         key = [(t._version, t.data_ptr()) for t in bufs]
         hit = self._expansion_cache
         if hit is None or any(a is not b for a, b in zip(hit[0], bufs)) or hit[1] != key:
-            fold = cover_foldable(self.widths, self.cover_radius)
-            hit = self._expansion_cache = (bufs, key, _expand(*bufs, base2=True, fold=fold))
+            hit = self._expansion_cache = (bufs, key, eager())
         return hit[2]
 
     def _exponents(self, x: torch.Tensor, cover: bool = False) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
@@ -303,10 +305,10 @@ class RBFNetwork(nn.Module):
         weight = e.cover_weight if cover and e.cover_weight is not None else e.weight
         return v, torch.cat([v, v.square().sum(-1, keepdim=True)], -1) @ weight, e
 
-    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion, shifted: bool = False) -> torch.Tensor:
-        """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M) (`shifted`: of
-        cover-shifted exponents, the head weights scaled back)."""
-        w = self.head.weight * e.head_scale if shifted else self.head.weight
+    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion, cover: bool = False) -> torch.Tensor:
+        """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M) of
+        `_exponents(x, cover)`'s exponents (cover-shifted ones: the head weights scaled back)."""
+        w = self.head.weight * e.head_scale if cover and e.head_scale is not None else self.head.weight
         if self.tail is None:
             return torch.addmm(self.head.bias, phi, w.T)
         a = self.tail.weight                                   # A z = A u + A centroid
@@ -349,7 +351,7 @@ class RBFNetwork(nn.Module):
         the mask (no blocks, no checks): the exported graph's path."""
         v, a, e = self._exponents(x, cover=True)
         covered = self._covered(a, e)          # before the activations overwrite the exponents
-        y = self._head(v, e.gaussians(a), e, shifted=e.cover_weight is not None)
+        y = self._head(v, e.gaussians(a), e, cover=True)
         return y, self._mask(x, covered, y)
 
     def _covered(self, a: torch.Tensor, e: _Expansion) -> torch.Tensor:
