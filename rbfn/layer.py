@@ -156,6 +156,12 @@ class RBFNetwork(nn.Module):
         self._expansion_cache: tuple | None = None     # see `_expansion`
 
     @property
+    def rows_per_block(self) -> int:
+        """Rows per block in eager calls and in the ONNX graph: `block_rows`, or about
+        `block_elements` exponents (rows, M) a block."""
+        return self.block_rows or max(1, self.block_elements // self.num_centers)
+
+    @property
     def num_centers(self) -> int:
         return self.centers.shape[0]
 
@@ -212,8 +218,7 @@ class RBFNetwork(nn.Module):
 
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
         """fn applied to blocks of `block_rows` rows of xs and concatenated (one call when traced)."""
-        n = xs[0].shape[0]
-        rows = self.block_rows or max(1, self.block_elements // self.num_centers)
+        n, rows = xs[0].shape[0], self.rows_per_block
         if torch.compiler.is_compiling() or n <= rows:
             return fn(*xs)
         outs = [fn(*parts) for parts in zip(*(t.split(rows) for t in xs))]

@@ -85,3 +85,21 @@ def test_export_is_one_graph_whatever_the_eager_block_size(net, small_data, tmp_
     assert sum(n.target == torch.ops.aten.exp.default and n.meta["val"].dim() == 2 for n in prog.graph.nodes) == 1
     y, inside = prog.module()(x)
     assert torch.allclose(y, y_ref, atol=1e-6) and torch.equal(inside, in_ref)
+
+
+@pytest.mark.parametrize("batch", [1, 8, 9, 50])
+def test_onnx_runs_rows_in_blocks_row_for_row_as_one_pass(net, small_data, tmp_path, batch):
+    """The ONNX graph's Scan over blocks of 8 rows (the last one padded) gives bitwise the answers
+    of one block holding every row, for batches below, at and across the block size."""
+    ort = pytest.importorskip("onnxruntime")
+    import onnx
+
+    path = export_onnx(net, tmp_path / "ik8.onnx", block_rows=8)
+    assert [n.op_type for n in onnx.load(str(path)).graph.node].count("Scan") == 1
+    blocked = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    whole = ort.InferenceSession(str(export_onnx(net, tmp_path / "ik.onnx", block_rows=64)),
+                                 providers=["CPUExecutionProvider"])
+    x = small_data.test.x[:batch].float().numpy()
+    (y8, in8), (y, inside) = blocked.run(None, {"positions": x}), whole.run(None, {"positions": x})
+    assert y8.shape == (batch, 3) and in8.shape == (batch,) and in8.dtype == bool
+    assert (y8 == y).all() and (in8 == inside).all()
