@@ -20,6 +20,8 @@ Hydra run directory.
 """
 from __future__ import annotations
 
+import atexit
+import gc
 import logging
 import time
 from contextlib import contextmanager
@@ -152,4 +154,7 @@ def main(dcfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
+    # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
+    atexit.register(gc.freeze)
     main()

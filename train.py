@@ -11,6 +11,8 @@ left exactly as it was.
 """
 from __future__ import annotations
 
+import atexit
+import gc
 import logging
 from pathlib import Path
 
@@ -107,4 +109,7 @@ def main(dcfg: DictConfig) -> float:
 
 
 if __name__ == "__main__":
+    # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
+    # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
+    atexit.register(gc.freeze)
     main()
