@@ -3,9 +3,9 @@
     python -m rbfn.export CHECKPOINT [--out-dir DIR]
 
 Both take positions (B, 3) float32 in m (B dynamic) and return joints (B, 3) float32 (rad, rad,
-m) and in_workspace (B,) bool. The ONNX graph runs its rows in blocks, as the module's eager calls
-do (one Scan over blocks of `RBFNetwork.rows_per_block` rows, so that a block's (rows, M)
-intermediates stay in cache); the .pt2 program is one pass over all B rows. TorchScript is
+m) and in_workspace (B,) bool. The ONNX graph runs large batches in blocks, as the module's eager
+calls do (above `RBFNetwork.rows_per_block` rows, one Scan over equal blocks, so that a block's
+(rows, M) intermediates stay in cache); the .pt2 program is one pass over all B rows. TorchScript is
 deprecated in current torch and is not used.
 """
 from __future__ import annotations
@@ -97,48 +97,74 @@ def export_onnx(net: RBFNetwork, path: str | Path, block_rows: int | None = None
 
 
 def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
-    """`model` (one input (B, d); outputs (B, ...)) run by one Scan over blocks of `rows` rows:
-    the input padded to whole blocks with copies of its last row, the outputs cut back to B rows.
-    Row for row the same arithmetic as the one-pass graph."""
+    """`model` (one input (B, d); outputs (B, ...)) with its rows in blocks: where B > `rows`, one
+    Scan over ceil(B / rows) blocks of equal size (the input padded with copies of its last row,
+    the outputs cut back to B rows); else the graph as it was, on all B rows (an If between the
+    two, so small batches pay nothing for the blocks). Row for row the same arithmetic."""
     graph = model.graph
-    body = onnx.GraphProto()
-    body.CopyFrom(graph)
-    body.name = "row_block"
-    del body.value_info[:]                      # shapes in the batch's symbol; ORT infers them again
-    rename = {v.name: f"block_{v.name}" for v in (*body.input, *body.output)}
-    for node in body.node:
-        for names in (node.input, node.output):
-            renamed = [rename.get(n, n) for n in names]
-            del names[:]
-            names.extend(renamed)
-    for v in (*body.input, *body.output):
-        v.name = rename[v.name]
-        v.type.tensor_type.shape.dim[0].dim_param = "rows"
+    x, outputs = graph.input[0], list(graph.output)
 
-    x = graph.input[0]
+    def copy(name: str, rename: dict[str, str], inputs: list) -> onnx.GraphProto:
+        """graph's nodes with values renamed, as a subgraph named `name` (weights stay outside)."""
+        sub = helper.make_graph([], name, inputs, [])
+        for op in graph.node:
+            new = sub.node.add()
+            new.CopyFrom(op)
+            for names in (new.input, new.output):
+                renamed = [rename.get(n, n) for n in names]
+                del names[:]
+                names.extend(renamed)
+        for y in outputs:
+            out = sub.output.add()
+            out.CopyFrom(y)
+            out.name = rename[y.name]
+        return sub
+
+    block_in = onnx.ValueInfoProto()
+    block_in.CopyFrom(x)
+    block_in.name = f"block_{x.name}"
+    block = copy("row_block", {x.name: block_in.name, **{y.name: f"block_{y.name}" for y in outputs}}, [block_in])
+    for v in (*block.input, *block.output):
+        v.type.tensor_type.shape.dim[0].dim_param = "rows"
+    whole = copy("all_rows", {y.name: f"all_{y.name}" for y in outputs}, [])
+
     width = x.type.tensor_type.shape.dim[1].dim_value
     ints = lambda name, values: numpy_helper.from_array(np.array(values, dtype=np.int64), name)
-    inits = [ints("rows", [rows]), ints("rows_less_1", [rows - 1]), ints("zero", [0]),
-             ints("block_shape", [-1, rows, width])]
-    nodes = [helper.make_node("Shape", [x.name], ["batch"], end=1),
-             helper.make_node("Add", ["batch", "rows_less_1"], ["batch_up"]),
-             helper.make_node("Div", ["batch_up", "rows"], ["blocks"]),          # ceil(B / rows)
-             helper.make_node("Mul", ["blocks", "rows"], ["padded_batch"]),
-             helper.make_node("Sub", ["padded_batch", "batch"], ["pad_rows"]),
-             helper.make_node("Concat", ["zero", "zero", "pad_rows", "zero"], ["pads"], axis=0),
-             helper.make_node("Pad", [x.name, "pads"], ["padded"], mode="edge"),
-             helper.make_node("Reshape", ["padded", "block_shape"], ["in_blocks"]),
-             helper.make_node("Scan", ["in_blocks"], [f"{y.name}_blocks" for y in graph.output],
-                              num_scan_inputs=1, body=body)]
-    for y in graph.output:
+    consts = [ints("rows", [rows]), ints("one", [1]), ints("zero", [0]), ints("block_shape_end", [width])]
+    node = helper.make_node
+    scan = [  # blocks = ceil(B / rows) of ceil(B / blocks) rows each: fewer than `blocks` rows of padding
+        node("Sub", ["batch", "one"], ["batch_less_1"]),
+        node("Div", ["batch_less_1", "rows"], ["blocks_less_1"]),
+        node("Add", ["blocks_less_1", "one"], ["blocks"]),
+        node("Div", ["batch_less_1", "blocks"], ["size_less_1"]),
+        node("Add", ["size_less_1", "one"], ["size"]),
+        node("Mul", ["blocks", "size"], ["padded_batch"]),
+        node("Sub", ["padded_batch", "batch"], ["pad_rows"]),
+        node("Concat", ["zero", "zero", "pad_rows", "zero"], ["pads"], axis=0),
+        node("Pad", [x.name, "pads"], ["padded"], mode="edge"),
+        node("Concat", ["blocks", "size", "block_shape_end"], ["block_shape"], axis=0),
+        node("Reshape", ["padded", "block_shape"], ["in_blocks"]),
+        node("Scan", ["in_blocks"], [f"{y.name}_blocks" for y in outputs], num_scan_inputs=1, body=block)]
+    for y in outputs:
         trailing = [d.dim_value for d in y.type.tensor_type.shape.dim[1:]]
-        inits.append(ints(f"{y.name}_shape", [-1, *trailing]))
-        nodes += [helper.make_node("Reshape", [f"{y.name}_blocks", f"{y.name}_shape"], [f"{y.name}_padded"]),
-                  helper.make_node("Slice", [f"{y.name}_padded", "zero", "batch"], [y.name])]
-    blocked = onnx.ModelProto()
-    blocked.CopyFrom(model)
-    blocked.graph.CopyFrom(helper.make_graph(nodes, graph.name, [x], list(graph.output), initializer=inits))
-    return blocked
+        consts.append(ints(f"{y.name}_shape", [-1, *trailing]))
+        scan += [node("Reshape", [f"{y.name}_blocks", f"{y.name}_shape"], [f"{y.name}_padded"]),
+                 node("Slice", [f"{y.name}_padded", "zero", "batch"], [f"blocked_{y.name}"])]
+    blocked_out = []
+    for y in outputs:
+        out = onnx.ValueInfoProto()
+        out.CopyFrom(y)
+        out.name = f"blocked_{y.name}"
+        blocked_out.append(out)
+    in_blocks = helper.make_graph(scan, "in_blocks", [], blocked_out)
+    nodes = [node("Shape", [x.name], ["batch"], end=1),
+             node("Greater", ["batch", "rows"], ["many_rows"]),
+             node("If", ["many_rows"], [y.name for y in outputs], then_branch=in_blocks, else_branch=whole)]
+    result = onnx.ModelProto()
+    result.CopyFrom(model)
+    result.graph.CopyFrom(helper.make_graph(nodes, graph.name, [x], outputs,
+                                            initializer=[*graph.initializer, *consts]))
+    return result
 
 
 def export_all(net: RBFNetwork, out_dir: str | Path, stem: str = "ik") -> list[Path]:
