@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import copy
-import io
 import logging
 import warnings
 from pathlib import Path
@@ -104,9 +103,16 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
     graph = model.graph
     x, outputs = graph.input[0], list(graph.output)
 
+    def named(v: onnx.ValueInfoProto, name: str) -> onnx.ValueInfoProto:
+        """A copy of the value's type and shape under another name."""
+        out = onnx.ValueInfoProto()
+        out.CopyFrom(v)
+        out.name = name
+        return out
+
     def copy(name: str, rename: dict[str, str], inputs: list) -> onnx.GraphProto:
         """graph's nodes with values renamed, as a subgraph named `name` (weights stay outside)."""
-        sub = helper.make_graph([], name, inputs, [])
+        sub = helper.make_graph([], name, inputs, [named(y, rename[y.name]) for y in outputs])
         for op in graph.node:
             new = sub.node.add()
             new.CopyFrom(op)
@@ -114,15 +120,9 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
                 renamed = [rename.get(n, n) for n in names]
                 del names[:]
                 names.extend(renamed)
-        for y in outputs:
-            out = sub.output.add()
-            out.CopyFrom(y)
-            out.name = rename[y.name]
         return sub
 
-    block_in = onnx.ValueInfoProto()
-    block_in.CopyFrom(x)
-    block_in.name = f"block_{x.name}"
+    block_in = named(x, f"block_{x.name}")
     block = copy("row_block", {x.name: block_in.name, **{y.name: f"block_{y.name}" for y in outputs}}, [block_in])
     for v in (*block.input, *block.output):
         v.type.tensor_type.shape.dim[0].dim_param = "rows"
@@ -150,13 +150,7 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
         consts.append(ints(f"{y.name}_shape", [-1, *trailing]))
         scan += [node("Reshape", [f"{y.name}_blocks", f"{y.name}_shape"], [f"{y.name}_padded"]),
                  node("Slice", [f"{y.name}_padded", "zero", "batch"], [f"blocked_{y.name}"])]
-    blocked_out = []
-    for y in outputs:
-        out = onnx.ValueInfoProto()
-        out.CopyFrom(y)
-        out.name = f"blocked_{y.name}"
-        blocked_out.append(out)
-    in_blocks = helper.make_graph(scan, "in_blocks", [], blocked_out)
+    in_blocks = helper.make_graph(scan, "in_blocks", [], [named(y, f"blocked_{y.name}") for y in outputs])
     nodes = [node("Shape", [x.name], ["batch"], end=1),
              node("Greater", ["batch", "rows"], ["many_rows"]),
              node("If", ["many_rows"], [y.name for y in outputs], then_branch=in_blocks, else_branch=whole)]

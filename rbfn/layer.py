@@ -217,7 +217,7 @@ class RBFNetwork(nn.Module):
         return x if self.inputs is None else self.inputs(x)
 
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
-        """fn applied to blocks of `block_rows` rows of xs and concatenated (one call when traced)."""
+        """fn applied to blocks of `rows_per_block` rows of xs and concatenated (one call when traced)."""
         n, rows = xs[0].shape[0], self.rows_per_block
         if torch.compiler.is_compiling() or n <= rows:
             return fn(*xs)
