@@ -1,6 +1,6 @@
 """Summarize a Hydra multirun: one row per swept setting, mean +- std over seeds.
 
-    python -m rbfn.summarize SWEEP_DIR [--metrics KEY ...] [--out PREFIX] [--compare KEY=A,B ...]
+    python -m rbfn.summarize SWEEP_DIR [--metrics KEY ...] [--out PREFIX] [--compare KEY=A,B ...] [--force]
 
 Reads every job's metrics.json and .hydra/overrides.yaml under SWEEP_DIR, groups the jobs by the
 overrides that vary across the sweep (all but `seed`), prints a Markdown table and writes
@@ -11,21 +11,32 @@ table: for jobs that differ only in that key (same seed, so the same data), A - 
 
 Jobs without a metrics.json are listed after the table with their error: "failed" when the job
 recorded one in failed.json (train.py does so in a multirun), "unfinished" otherwise (running,
-or killed or timed out; the last ERROR line of its log, if any, is shown).
+or killed or timed out; the last ERROR line of its log, if any, is shown). So are "malformed" jobs,
+whose metrics.json is not a JSON object (NaN and Infinity are not JSON) or holds something other than
+a finite number under a summarized metric (null is a blank cell: train.py writes it where a metric
+does not apply); they are left out of the tables.
+
+A bad argument (a SWEEP_DIR without jobs, a metric no job has, a --compare key that is not swept or
+values it does not take, an output that is a directory or write-protected without --force) is a
+one-line error, exit status 2, and nothing is written. The outputs are written all or none: each to
+a temporary file beside it, renamed over the old one once every output is written.
 """
 from __future__ import annotations
 
 import argparse
 import csv
+import difflib
 import io
 import json
 import math
+import os
 import re
+import tempfile
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Job", "find_jobs", "load_jobs", "summarize", "compare", "main"]
+__all__ = ["Job", "compare", "find_jobs", "load_jobs", "main", "summarize", "unwritable", "write_files"]
 
 DEFAULT_METRICS = ("test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max",
                    "test_pos_err_mm_median_float32", "select_seconds", "train_seconds")
@@ -43,7 +54,10 @@ def _parse_overrides(lines) -> dict[str, str]:
 
 def _overrides(job: Path) -> dict[str, str]:
     f = job / ".hydra" / "overrides.yaml"
-    return _parse_overrides(f.read_text().splitlines()) if f.is_file() else {}
+    try:
+        return _parse_overrides(f.read_text(errors="replace").splitlines())
+    except OSError:
+        return {}
 
 
 @dataclass
@@ -52,7 +66,7 @@ class Job:
 
     path: Path
     overrides: dict[str, str]
-    status: str                  # "completed", "failed" or "unfinished"
+    status: str                  # "completed", "failed", "unfinished" or "malformed"
     metrics: dict | None = None
     error: str = ""
 
@@ -69,7 +83,11 @@ def _job_number(path: Path, root: Path) -> tuple:
 def _last_log_error(job: Path) -> str:
     found = ""
     for log in sorted(job.glob("*.log")):
-        for line in log.read_text(errors="replace").splitlines():
+        try:
+            text = log.read_text(errors="replace")
+        except OSError:
+            continue
+        for line in text.splitlines():
             m = _LOG_ERROR.search(line)
             if m:
                 found = m.group(1).strip()
@@ -81,9 +99,13 @@ def _load_job(d: Path) -> Job:
     # A rerun that completed after a recorded failure leaves a metrics.json newer than failed.json.
     if metrics.is_file() and not (failed.is_file() and failed.stat().st_mtime_ns > metrics.stat().st_mtime_ns):
         try:
-            return Job(d, _overrides(d), "completed", json.loads(metrics.read_text()))
+            got = json.loads(metrics.read_text(), parse_constant=_not_json)
         except (OSError, ValueError) as e:
-            return Job(d, _overrides(d), "failed", error=f"unreadable metrics.json: {e}")
+            return Job(d, _overrides(d), "malformed", error=f"metrics.json is not valid JSON: {e}")
+        if not isinstance(got, dict):
+            return Job(d, _overrides(d), "malformed", error=f"metrics.json holds a JSON {_json_type(got)}, not an "
+                                                            "object of metrics")
+        return Job(d, _overrides(d), "completed", got)
     if failed.is_file():
         try:
             rec = json.loads(failed.read_text())
@@ -95,6 +117,36 @@ def _load_job(d: Path) -> Job:
                                    "timed out)" + ("; a rerun resumes from its last.pt" if (d / "last.pt").is_file()
                                                    else ""))
     return Job(d, _overrides(d), "unfinished", error=error)
+
+
+def _not_json(token: str):
+    raise ValueError(f"{token} is not a JSON number")
+
+
+def _json_type(v) -> str:
+    return {bool: "boolean", int: "number", float: "number", str: "string", list: "array", dict: "object",
+            type(None): "null"}[type(v)]
+
+
+def _is_number(v) -> bool:
+    """A finite JSON number (bool is not one)."""
+    try:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    except OverflowError:        # an int beyond float's range
+        return False
+
+
+def _bad_metric(metrics: dict, keys) -> str:
+    """Why a job's `metrics` cannot be summarized under `keys` ('' when it can): a value that is
+    neither a finite number nor null (absent and null values are blank cells)."""
+    for k in keys:
+        v = metrics.get(k)
+        if v is None or _is_number(v):
+            continue
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            return f"metrics.json: {k} is a number beyond float's range"
+        return f"metrics.json: {k} is a JSON {_json_type(v)} ({json.dumps(v)[:60]}), not a number"
+    return ""
 
 
 def find_jobs(sweep_dir: Path) -> list[Job]:
@@ -128,6 +180,15 @@ def _num(v: str):
         return v
 
 
+def _order(value: str) -> tuple:
+    """Sort key of an override's value: numbers by value, after the words."""
+    return isinstance(_num(value), float), _num(value)
+
+
+def _order_all(values: tuple) -> tuple:
+    return tuple(map(_order, values))
+
+
 def summarize(jobs, metrics=DEFAULT_METRICS, ignore=("seed",)):
     """(group keys, rows): each row = (group values, n, {metric: (mean, std)})."""
     keys = sorted({k for o, _ in jobs for k in o})
@@ -136,7 +197,7 @@ def summarize(jobs, metrics=DEFAULT_METRICS, ignore=("seed",)):
     for o, m in jobs:
         groups[tuple(o.get(k, "") for k in swept)].append(m)
     rows = []
-    for g in sorted(groups, key=lambda t: tuple((isinstance(_num(x), float), _num(x)) for x in t)):
+    for g in sorted(groups, key=_order_all):
         stats = {}
         for key in metrics:
             vals = [float(m[key]) for m in groups[g] if key in m and m[key] is not None]
@@ -169,7 +230,7 @@ def compare(jobs, key: str, a: str, b: str, metrics=DEFAULT_METRICS, ignore=("se
     if not groups:
         raise ValueError(f"no pairs of jobs with {key}={a} and {key}={b} agreeing on every other override")
     rows = []
-    for g in sorted(groups, key=lambda t: tuple((isinstance(_num(x), float), _num(x)) for x in t)):
+    for g in sorted(groups, key=_order_all):
         stats = {}
         for metric in metrics:
             pairs = [(float(ma[metric]), float(mb[metric])) for ma, mb in groups[g]
@@ -186,7 +247,7 @@ def compare_to_markdown(key, a, b, swept, rows, metrics) -> str:
     head = [*swept, "pairs"] + [c for m in metrics for c in (f"{m}: {a} − {b}", f"{a} / {b}", f"{a} lower")]
     lines = [f"{key}: {a} against {b}, paired by seed", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for g, n, stats in rows:
-        cells = [*g, str(n)]
+        cells = [*map(_cell, g), str(n)]
         for m in metrics:
             if m in stats:
                 d, sd, r, wins = stats[m]
@@ -201,7 +262,8 @@ def to_markdown(swept, rows, metrics) -> str:
     head = [*swept, "n", *metrics]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for g, n, stats in rows:
-        cells = [*g, str(n)] + [f"{stats[k][0]:.4g} ± {stats[k][1]:.2g}" if k in stats else "" for k in metrics]
+        cells = [*map(_cell, g), str(n)] + [f"{stats[k][0]:.4g} ± {stats[k][1]:.2g}" if k in stats else ""
+                                            for k in metrics]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -211,12 +273,12 @@ def _cell(text: str) -> str:
 
 
 def failures_to_markdown(jobs: list[Job], sweep_dir: Path) -> str:
-    """The jobs without metrics: job, status, the overrides that vary across the sweep, error."""
+    """The jobs left out of the tables: job, status, the overrides that vary across the sweep, error."""
     known = [j.overrides for j in jobs if j.overrides]       # a job killed at its start may have none
     keys = sorted({k for o in known for k in o})
     varying = [k for k in keys if len({o.get(k) for o in known}) > 1]
     bad = [j for j in jobs if j.status != "completed"]
-    lines = [f"Jobs without metrics ({len(bad)} of {len(jobs)})", "", "| job | status | overrides | error |",
+    lines = [f"Jobs not summarized ({len(bad)} of {len(jobs)})", "", "| job | status | overrides | error |",
              "|---|---|---|---|"]
     for j in bad:
         shown = [k for k in (varying or keys) if k in j.overrides]
@@ -235,17 +297,21 @@ def to_csv(swept, rows, metrics) -> str:
     return buf.getvalue()
 
 
-def plot_against_m(swept, rows, metric: str, path: Path) -> bool:
-    """Error against M (log-log), one line per setting of the other swept keys."""
+def plot_against_m(swept, rows, metric: str) -> bytes | None:
+    """Error against M (log-log), one line per setting of the other swept keys, as PNG bytes; None
+    when `rbfn.num_centers` is not swept or no group has a positive number of centres and `metric`."""
     if "rbfn.num_centers" not in swept:
-        return False
+        return None
     from matplotlib.figure import Figure       # object API: no pyplot, no backend switch
 
     i_m = swept.index("rbfn.num_centers")
     lines: dict[tuple, list] = defaultdict(list)
     for g, _, stats in rows:
-        if metric in stats:
-            lines[g[:i_m] + g[i_m + 1:]].append((float(g[i_m]), *stats[metric]))
+        m = _num(g[i_m])
+        if metric in stats and isinstance(m, float) and m > 0:
+            lines[g[:i_m] + g[i_m + 1:]].append((m, *stats[metric]))
+    if not lines:
+        return None
     fig = Figure(figsize=(6.4, 4.8), layout="constrained")
     ax = fig.subplots()
     for label, pts in sorted(lines.items()):
@@ -258,44 +324,169 @@ def plot_against_m(swept, rows, metric: str, path: Path) -> bool:
     ax.set_ylabel(metric)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.savefig(path, dpi=120)
-    return True
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    return buf.getvalue()
+
+
+def _write_protected(path: Path) -> bool:
+    """No write permission for this process, or none in the mode at all (root may write anything,
+    but a mode without write bits still says: keep this)."""
+    access = os.W_OK | (os.X_OK if path.is_dir() else 0)
+    return not os.access(path, access) or not path.stat().st_mode & 0o222
+
+
+def unwritable(paths, force: bool = False) -> str:
+    """Why the files `paths` cannot or must not be written ('' when they may): a folder on the way
+    is a file or write-protected, a path is a directory, or (unless `force`) an existing file is
+    write-protected."""
+    for path in map(Path, paths):
+        folder = path.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            return f"{folder} is not a directory"
+        if _write_protected(folder):
+            return f"{folder} is a write-protected directory (mode {folder.stat().st_mode & 0o777:#o})"
+        if path.is_dir():
+            return f"{path} is a directory"
+        if path.exists() and not force and _write_protected(path):
+            return (f"{path} is write-protected (mode {path.stat().st_mode & 0o777:#o}); not replacing it "
+                    "(--force replaces it)")
+    return ""
+
+
+def write_files(files: dict[Path, bytes]) -> None:
+    """Write every file of `files` or none: each goes to a temporary file beside it and, once all are
+    written, each is renamed over its target (an existing target's mode is kept, a new file gets
+    0o666 less the umask). On an error no target has changed and no temporary file is left."""
+    from .checkpoint import _umask
+
+    temps: list[str] = []
+    try:
+        for path, data in files.items():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            mode = path.stat().st_mode & 0o777 if path.is_file() else 0o666 & ~_umask()
+            fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+            temps.append(tmp)
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.chmod(tmp, mode)
+        for tmp, path in zip(temps, files):
+            os.replace(tmp, path)
+    finally:
+        for tmp in temps:
+            Path(tmp).unlink(missing_ok=True)
+
+
+def _did_you_mean(word: str, known) -> str:
+    close = difflib.get_close_matches(word, list(known), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def _metrics(p: argparse.ArgumentParser, asked: list[str] | None, jobs: list[Job]) -> list[str]:
+    """The metrics to summarize: those asked for (each a number in some job, else a usage error
+    naming the numbers the jobs hold), or the default ones that some job holds."""
+    if asked is None:
+        held = {k for j in jobs for k in j.metrics}
+        return [k for k in DEFAULT_METRICS if k in held] if jobs else list(DEFAULT_METRICS)
+    asked = list(dict.fromkeys(asked))
+    numeric = sorted({k for j in jobs for k, v in j.metrics.items() if _is_number(v)})
+    unknown = [k for k in asked if k not in numeric]
+    if jobs and unknown:
+        names = ", ".join(repr(k) + _did_you_mean(repr(k), map(repr, numeric)) for k in unknown)
+        _fail(p, f"--metrics: no number named {names} in any job's metrics.json; the jobs' numeric metrics are: "
+                 f"{', '.join(numeric) or 'none'}")
+    return asked
+
+
+def _compare_pair(p: argparse.ArgumentParser, spec: str, jobs) -> tuple[str, str, str]:
+    """KEY, A, B of a --compare KEY=A,B whose KEY varies across `jobs` and takes the values A and B
+    (which may hold commas); else a usage error naming the swept keys or KEY's values."""
+    key, eq, values = spec.partition("=")
+    if not key or not eq:
+        _fail(p, f"--compare {spec}: expected KEY=A,B")
+    taken: dict[str, set] = defaultdict(set)
+    for o, _ in jobs:
+        for k, v in o.items():
+            taken[k].add(v)
+    swept = sorted(k for k in taken if len({o.get(k) for o, _ in jobs}) > 1)
+    if key not in swept:
+        _fail(p, f"--compare {spec}: {key} is not a swept override{_did_you_mean(key, swept)}; swept: "
+                 f"{', '.join(swept) or 'none'}" + ("" if jobs else " (no completed job)"))
+    pairs = [(values[:i], values[i + 1:]) for i, c in enumerate(values) if c == ","]
+    pair = next((ab for ab in pairs if ab[0] != ab[1] and set(ab) <= taken[key]), None)
+    if pair is None:
+        _fail(p, f"--compare {spec}: expected {key}=A,B with A and B two different values of {key}: "
+                 f"{', '.join(sorted(taken[key], key=_order))}")
+    return key, *pair
+
+
+def _fail(p: argparse.ArgumentParser, message: str, status: int = 2):
+    """A one-line error in argparse's manner (without the usage), and exit."""
+    p.exit(status, f"{p.prog}: error: {' '.join(message.split())}\n")
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m rbfn.summarize", description=__doc__.splitlines()[0])
-    p.add_argument("sweep_dir", type=Path)
-    p.add_argument("--metrics", nargs="+", default=list(DEFAULT_METRICS))
-    p.add_argument("--out", type=Path, default=None, help="output prefix (default SWEEP_DIR/summary)")
+    p = argparse.ArgumentParser(
+        prog="python -m rbfn.summarize", description=__doc__.splitlines()[0],
+        epilog="Jobs whose metrics.json is damaged are listed as malformed and left out of the tables. A bad "
+               "argument is an error (exit status 2) that writes nothing; the outputs are replaced all together "
+               "or not at all (exit status 1 if writing them fails).")
+    p.add_argument("sweep_dir", type=Path, metavar="SWEEP_DIR",
+                   help="a Hydra multirun directory (hydra.sweep.dir), one subdirectory per job")
+    p.add_argument("--metrics", nargs="+", default=None, metavar="KEY",
+                   help="numeric keys of the jobs' metrics.json to tabulate (default: whichever of "
+                        f"{', '.join(DEFAULT_METRICS)} the jobs have)")
+    p.add_argument("--out", type=Path, default=None, metavar="PREFIX",
+                   help="write PREFIX.md, PREFIX.csv and, when rbfn.num_centers is swept, PREFIX.png "
+                        "(default SWEEP_DIR/summary)")
     p.add_argument("--compare", action="append", default=[], metavar="KEY=A,B",
-                   help="paired table of KEY=A against KEY=B (repeatable)")
+                   help="paired table of KEY=A against KEY=B over jobs equal in every other override "
+                        "(KEY a swept override; repeatable)")
+    p.add_argument("--force", action="store_true",
+                   help="replace outputs even when write-protected (they keep their mode)")
     a = p.parse_args(argv)
+    if not a.sweep_dir.is_dir():
+        _fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))
     found = find_jobs(a.sweep_dir)
     if not found:
-        p.error(f"no job directories under {a.sweep_dir} (none holds a metrics.json, failed.json, "
-                ".hydra/overrides.yaml, last.pt or log file)")
+        _fail(p, f"SWEEP_DIR {a.sweep_dir}: no job directories under it (none holds a metrics.json, failed.json, "
+                 ".hydra/overrides.yaml, last.pt or log file)")
+    metrics = _metrics(p, a.metrics, [j for j in found if j.status == "completed"])
+    for j in found:
+        if j.status == "completed" and _bad_metric(j.metrics, metrics):
+            j.status, j.error = "malformed", _bad_metric(j.metrics, metrics)
     jobs = [(j.overrides, j.metrics) for j in found if j.status == "completed"]
-    swept, rows = summarize(jobs, a.metrics) if jobs else ([], [])
-    md = to_markdown(swept, rows, a.metrics) if jobs else "No completed job.\n"
+    swept, rows = summarize(jobs, metrics) if jobs else ([], [])
+    md = to_markdown(swept, rows, metrics) if jobs else "No completed job.\n"
     for spec in a.compare:
-        key, _, values = spec.partition("=")
-        pair = values.split(",")
-        if not key or len(pair) != 2:
-            p.error(f"--compare {spec!r}: expected KEY=A,B")
+        key, x, y = _compare_pair(p, spec, jobs)
         try:
-            md += "\n" + compare_to_markdown(key, *pair, *compare(jobs, key, *pair, a.metrics), a.metrics)
+            md += "\n" + compare_to_markdown(key, x, y, *compare(jobs, key, x, y, metrics), metrics)
         except ValueError as e:
-            p.error(f"--compare {spec}: {e}")
+            _fail(p, f"--compare {spec}: {e}")
     if len(jobs) < len(found):
         md += "\n" + failures_to_markdown(found, a.sweep_dir)
     prefix = a.out or a.sweep_dir / "summary"
-    Path(f"{prefix}.md").write_text(md)
-    Path(f"{prefix}.csv").write_text(to_csv(swept, rows, a.metrics))
-    plotted = bool(jobs) and plot_against_m(swept, rows, a.metrics[0], Path(f"{prefix}.png"))
-    counts = {s: sum(j.status == s for j in found) for s in ("completed", "failed", "unfinished")}
+    files = {Path(f"{prefix}.md"): md.encode(), Path(f"{prefix}.csv"): to_csv(swept, rows, metrics).encode()}
+    png = plot_against_m(swept, rows, metrics[0]) if jobs and metrics else None
+    if png is not None:
+        files[Path(f"{prefix}.png")] = png
+    where = f"--out {a.out}" if a.out else f"SWEEP_DIR {a.sweep_dir} (the default output folder; --out picks another)"
+    problem = unwritable(files, a.force)
+    if problem:
+        _fail(p, f"{where}: {problem}")
+    try:
+        write_files(files)
+    except OSError as e:
+        _fail(p, f"{where}: cannot write the summary, nothing was replaced: {e}", status=1)
+    counts = {s: sum(j.status == s for j in found) for s in ("completed", "failed", "unfinished", "malformed")}
     print(md)
-    print(f"{len(found)} jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items()))
-    print(f"wrote {prefix}.md, {prefix}.csv" + (f", {prefix}.png" if plotted else ""))
+    print(f"{len(found)} jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n or s != "malformed"))
+    print("wrote " + ", ".join(map(str, files)))
 
 
 if __name__ == "__main__":

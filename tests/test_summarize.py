@@ -1,4 +1,7 @@
 import json
+import os
+
+import pytest
 
 from rbfn.summarize import compare, find_jobs, load_jobs, main, summarize
 
@@ -100,3 +103,167 @@ def test_a_sweep_where_every_job_failed_is_still_summarized(tmp_path, capsys):
     main([str(tmp_path)])
     out = capsys.readouterr().out
     assert "No completed job." in out and "| 0 | failed | seed=0 | ValueError: bad |" in out
+
+
+# Bad inputs: a malformed job is listed and skipped, a bad argument is a one-line error (exit 2)
+# that writes nothing, and a good summary is replaced only by a complete one.
+
+GOOD = {"test_pos_err_mm_median": 2.0, "select_seconds": 1.0, "selector": "aco", "growth": [{"val_E": 1.0}]}
+
+
+def _sweep(root):
+    """Four good jobs: centers aco / kmeans, seeds 0 and 1."""
+    for n, (c, seed) in enumerate((c, s) for c in ("aco", "kmeans") for s in (0, 1)):
+        _job(root, n, [f"centers={c}", f"seed={seed}"], {**GOOD, "test_pos_err_mm_median": 1.0 + n})
+    return root
+
+
+def _outputs(root):
+    return {f.name: f.read_bytes() for f in sorted(root.iterdir()) if f.is_file()}
+
+
+def _error_line(capsys, *argv, status=2):
+    """The one stderr line of a refused `main(argv)` (with its exit status checked)."""
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    assert e.value.code == status
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m rbfn.summarize: error: "), err
+    return err
+
+
+@pytest.mark.parametrize("text, why", [
+    ('"oops"', "holds a JSON string, not an object"),
+    ("{not json", "not valid JSON"),
+    ("[1, 2]", "holds a JSON array"),
+    ("3.5", "holds a JSON number"),
+    ("null", "holds a JSON null"),
+    ("", "not valid JSON"),
+    (b"\xff\xfe{}", "not valid JSON"),
+    ('{"test_pos_err_mm_median": NaN}', "NaN is not a JSON number"),
+    ('{"test_pos_err_mm_median": -Infinity}', "-Infinity is not a JSON number"),
+    ('{"test_pos_err_mm_median": 1e400}', "test_pos_err_mm_median is a number beyond float's range"),
+    ('{"test_pos_err_mm_median": 1' + "0" * 400 + "}", "test_pos_err_mm_median is a number beyond float's range"),
+    ('{"test_pos_err_mm_median": "1.5"}', 'test_pos_err_mm_median is a JSON string ("1.5"), not a number'),
+    ('{"test_pos_err_mm_median": [1.0]}', "test_pos_err_mm_median is a JSON array ([1.0]), not a number"),
+    ('{"test_pos_err_mm_median": {"a": 1}}', 'test_pos_err_mm_median is a JSON object ({"a": 1}), not a number'),
+    ('{"test_pos_err_mm_median": true}', "test_pos_err_mm_median is a JSON boolean (true), not a number"),
+])
+def test_a_malformed_job_is_listed_and_the_good_ones_summarized(tmp_path, capsys, text, why):
+    _sweep(tmp_path)
+    bad = tmp_path / "4" / "metrics.json"
+    _job(tmp_path, 4, ["centers=random", "seed=0"], {})
+    bad.write_bytes(text if isinstance(text, bytes) else text.encode())
+    main([str(tmp_path), "--metrics", "test_pos_err_mm_median"])
+    out = capsys.readouterr().out
+    assert "| aco | 2 | 1.5 ± 0.71 |" in out and "| kmeans | 2 | 3.5 ± 0.71 |" in out
+    assert "random" not in out.split("Jobs not summarized")[0]           # the bad job is in no row
+    assert "| 4 | malformed | centers=random seed=0 |" in out and why in out
+    assert "5 jobs: 4 completed, 0 failed, 0 unfinished, 1 malformed" in out
+    assert (tmp_path / "summary.md").read_text() in out
+
+
+def test_a_null_metric_is_a_blank_cell_not_a_malformed_job(tmp_path, capsys):
+    """train.py writes null where a metric does not apply (ridge after refinement)."""
+    _job(tmp_path, 0, ["solver=ridge"], {"ridge": 1e-6})
+    _job(tmp_path, 1, ["solver=refine"], {"ridge": None})
+    main([str(tmp_path), "--metrics", "ridge"])
+    out = capsys.readouterr().out
+    assert "| refine | 1 |  |" in out and "| ridge | 1 | 1e-06 ± 0 |" in out and "malformed" not in out
+
+
+@pytest.mark.parametrize("metrics, message", [
+    (["test_pos_err_mm_mediam"], ("--metrics: no number named 'test_pos_err_mm_mediam' (did you mean "
+                                  "'test_pos_err_mm_median'?) in any job's metrics.json; the jobs' numeric "
+                                  "metrics are: select_seconds, test_pos_err_mm_median")),
+    (["select_seconds", "selector", "nothing_like_it"], ("--metrics: no number named 'selector' (did you mean "
+                                                          "'select_seconds'?), 'nothing_like_it' in any job's "
+                                                          "metrics.json")),
+    (["growth"], "no number named 'growth'"),
+])
+def test_an_unknown_metric_is_an_error_and_writes_nothing(tmp_path, capsys, metrics, message):
+    main([str(_sweep(tmp_path))])
+    good = _outputs(tmp_path)
+    assert set(good) == {"summary.md", "summary.csv"}
+    err = _error_line(capsys, tmp_path, "--metrics", *metrics)
+    assert message in err
+    assert _outputs(tmp_path) == good
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("center=aco,kmeans", ("--compare center=aco,kmeans: center is not a swept override (did you mean "
+                           "centers?); swept: centers, seed")),
+    ("rbfn.num_centers=10,20", "rbfn.num_centers is not a swept override"),
+    ("centers=aco,kmean", ("--compare centers=aco,kmean: expected centers=A,B with A and B two different "
+                           "values of centers: aco, kmeans")),
+    ("centers=aco", "expected centers=A,B"),
+    ("centers=aco,aco", "two different values"),
+    ("centers=aco,kmeans,random", "two different values"),
+    ("=aco,kmeans", "--compare =aco,kmeans: expected KEY=A,B"),
+    ("centers", "expected KEY=A,B"),
+])
+def test_a_bad_compare_is_an_error_and_writes_nothing(tmp_path, capsys, spec, message):
+    main([str(_sweep(tmp_path))])
+    good = _outputs(tmp_path)
+    assert message in _error_line(capsys, tmp_path, "--compare", spec)
+    assert _outputs(tmp_path) == good
+
+
+def test_compare_accepts_values_holding_commas(tmp_path, capsys):
+    for n, (w, seed) in enumerate((w, s) for w in ("[1,2]", "[3,4]") for s in (0, 1)):
+        _job(tmp_path, n, [f"widths={w}", f"seed={seed}"], {"test_pos_err_mm_median": 1.0 + n})
+    main([str(tmp_path), "--metrics", "test_pos_err_mm_median", "--compare", "widths=[1,2],[3,4]"])
+    assert "widths: [1,2] against [3,4], paired by seed" in capsys.readouterr().out
+
+
+def test_a_missing_or_empty_sweep_dir_is_an_error_and_writes_nothing(tmp_path, capsys):
+    assert "SWEEP_DIR " + str(tmp_path / "nope") + ": no such directory" in _error_line(capsys, tmp_path / "nope")
+    (tmp_path / "file").write_text("x")
+    assert "is not a directory" in _error_line(capsys, tmp_path / "file")
+    (tmp_path / "empty").mkdir()
+    assert "no job directories under" in _error_line(capsys, tmp_path / "empty")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "file"] and not any((tmp_path / "empty").iterdir())
+
+
+def test_a_write_protected_summary_is_kept_unless_forced(tmp_path, capsys):
+    main([str(_sweep(tmp_path))])
+    md = tmp_path / "summary.md"
+    md.write_text("kept")
+    md.chmod(0o444)
+    (tmp_path / "summary.csv").write_text("old csv")
+    err = _error_line(capsys, tmp_path)
+    assert f"{md} is write-protected (mode 0o444); not replacing it (--force replaces it)" in err
+    assert md.read_text() == "kept" and (tmp_path / "summary.csv").read_text() == "old csv"
+    main([str(tmp_path), "--force"])
+    assert "| aco | 2 |" in md.read_text() and (md.stat().st_mode & 0o777) == 0o444
+    assert "old csv" not in (tmp_path / "summary.csv").read_text()
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_an_output_that_cannot_be_written_is_an_error_and_writes_nothing(tmp_path, capsys):
+    main([str(_sweep(tmp_path))])
+    good = _outputs(tmp_path)
+    (tmp_path / "summary.csv").unlink()
+    (tmp_path / "summary.csv").mkdir()
+    assert f"{tmp_path / 'summary.csv'} is a directory" in _error_line(capsys, tmp_path)
+    (tmp_path / "out").write_text("a file")
+    assert "--out " in _error_line(capsys, tmp_path, "--out", tmp_path / "out" / "summary")
+    assert _outputs(tmp_path) == {**{k: v for k, v in good.items() if k != "summary.csv"}, "out": b"a file"}
+
+
+def test_files_are_written_all_or_none(tmp_path, monkeypatch):
+    """A failure while writing the second file (here: the disk fills up) replaces neither."""
+    from rbfn.summarize import write_files
+
+    (tmp_path / "a").write_text("old a")
+    calls = []
+
+    def fsync(fd):
+        calls.append(fd)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    with pytest.raises(OSError):
+        write_files({tmp_path / "a": b"new a", tmp_path / "b": b"new b"})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a"] and (tmp_path / "a").read_text() == "old a"
