@@ -1,18 +1,26 @@
 """Exports that run without this package: single-file ONNX and a torch.export program (.pt2).
 
-    python -m rbfn.export CHECKPOINT [--out-dir DIR]
+    python -m rbfn.export CHECKPOINT [--out-dir DIR] [--force]
 
 Both take positions (B, 3) float32 in m (B dynamic) and return joints (B, 3) float32 (rad, rad,
 m) and in_workspace (B,) bool. The ONNX graph runs large batches in blocks, as the module's eager
 calls do (above `RBFNetwork.rows_per_block` rows, one Scan over equal blocks, so that a block's
 (rows, M) intermediates stay in cache); the .pt2 program is one pass over all B rows. TorchScript is
 deprecated in current torch and is not used.
+
+Both files are built in memory first and written only when both are built, all or none (each to a
+temporary file beside it, renamed over the old one once both are written): an export that fails
+leaves the old ik.onnx and ik.pt2 as they were. A write-protected ik.onnx or ik.pt2 is not replaced
+unless --force is given (it then keeps its mode). A bad argument (no such checkpoint, a damaged or
+foreign one, an --out-dir that is a file or write-protected) is a one-line error with exit status 2;
+a failed export or write, one with exit status 1.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
 import copy
+import io
 import logging
 import warnings
 from pathlib import Path
@@ -23,10 +31,11 @@ import torch
 from onnx import helper, numpy_helper
 from torch import nn
 
-from .checkpoint import atomic_write_bytes, load_model
+from .checkpoint import load_model
 from .layer import RBFNetwork, cover_foldable
+from .summarize import unwritable, write_files
 
-__all__ = ["DeployedIK", "export_onnx", "export_pt2", "export_all", "main"]
+__all__ = ["DeployedIK", "export_all", "export_onnx", "export_pt2", "main", "onnx_bytes", "pt2_bytes"]
 
 
 class DeployedIK(nn.Module):
@@ -53,12 +62,19 @@ def _example(net: RBFNetwork) -> torch.Tensor:
     return x
 
 
-def export_pt2(net: RBFNetwork, path: str | Path) -> Path:
-    """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
+def pt2_bytes(net: RBFNetwork) -> bytes:
+    """A torch.export program with a dynamic batch dimension, as the bytes of a .pt2 file."""
     batch = torch.export.Dim("batch", min=1)
+    buf = io.BytesIO()
     with _quiet_exporter():
         prog = torch.export.export(DeployedIK(net).eval(), (_example(net),), dynamic_shapes={"positions": {0: batch}})
-        atomic_write_bytes(Path(path), lambda f: torch.export.save(prog, f))
+        torch.export.save(prog, buf)
+    return buf.getvalue()
+
+
+def export_pt2(net: RBFNetwork, path: str | Path) -> Path:
+    """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
+    write_files({Path(path): pt2_bytes(net)})
     return Path(path)
 
 
@@ -83,7 +99,13 @@ def _quiet_exporter():
 
 def export_onnx(net: RBFNetwork, path: str | Path, block_rows: int | None = None) -> Path:
     """Write a single-file ONNX model (input "positions", outputs "joints", "in_workspace") that
-    runs the rows in blocks of `block_rows` (default `net.rows_per_block`)."""
+    runs the rows in blocks of `block_rows` (default `net.rows_per_block`), atomically."""
+    write_files({Path(path): onnx_bytes(net, block_rows)})
+    return Path(path)
+
+
+def onnx_bytes(net: RBFNetwork, block_rows: int | None = None) -> bytes:
+    """The single-file ONNX model of `export_onnx`, as bytes."""
     batch = torch.export.Dim("batch", min=1)
     with _quiet_exporter():
         prog = torch.onnx.export(DeployedIK(net).eval(), (_example(net),), dynamo=True, external_data=False,
@@ -91,8 +113,7 @@ def export_onnx(net: RBFNetwork, path: str | Path, block_rows: int | None = None
                                  dynamic_shapes={"positions": {0: batch}}, verbose=False)
     model = _in_row_blocks(prog.model_proto, block_rows or net.rows_per_block)
     onnx.checker.check_model(model)
-    atomic_write_bytes(Path(path), lambda f: f.write(model.SerializeToString()))
-    return Path(path)
+    return model.SerializeToString()
 
 
 def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
@@ -162,17 +183,60 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
 
 
 def export_all(net: RBFNetwork, out_dir: str | Path, stem: str = "ik") -> list[Path]:
-    """Write `stem`.onnx and `stem`.pt2 into `out_dir`."""
+    """Write `stem`.onnx and `stem`.pt2 into `out_dir`: both are built before either is written, and
+    written all or none, so a failure leaves the old files as they were."""
     out_dir = Path(out_dir)
-    return [export_onnx(net, out_dir / f"{stem}.onnx"), export_pt2(net, out_dir / f"{stem}.pt2")]
+    files = {out_dir / f"{stem}.onnx": onnx_bytes(net), out_dir / f"{stem}.pt2": pt2_bytes(net)}
+    write_files(files)
+    return list(files)
+
+
+def _fail(p: argparse.ArgumentParser, message: str, status: int = 2):
+    """A one-line error in argparse's manner (without the usage), and exit."""
+    p.exit(status, f"{p.prog}: error: {' '.join(message.split())}\n")
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return f"{type(e).__name__}: {text.splitlines()[0]}" if text else type(e).__name__
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m rbfn.export", description=__doc__.splitlines()[0])
-    p.add_argument("checkpoint", type=Path)
-    p.add_argument("--out-dir", type=Path, default=None, help="default: the checkpoint's directory")
+    p = argparse.ArgumentParser(
+        prog="python -m rbfn.export",
+        description="Export a trained IK network (a checkpoint.pt written by train.py) as ik.onnx, an ONNX model "
+                    "in one file, and ik.pt2, a torch.export program, to run without this package.",
+        epilog="Both files are written all or none: a failed export leaves the old ones as they were. An existing "
+               "write-protected ik.onnx or ik.pt2 is refused unless --force. A bad argument is an error with exit "
+               "status 2, a failed export or write one with exit status 1.")
+    p.add_argument("checkpoint", type=Path, metavar="CHECKPOINT", help="the checkpoint.pt that train.py wrote")
+    p.add_argument("--out-dir", type=Path, default=None, metavar="DIR",
+                   help="where to write ik.onnx and ik.pt2, created if missing (default: the checkpoint's directory)")
+    p.add_argument("--force", action="store_true",
+                   help="replace ik.onnx and ik.pt2 even when write-protected (they keep their mode)")
     a = p.parse_args(argv)
-    for path in export_all(load_model(a.checkpoint), a.out_dir or a.checkpoint.parent):
+    if not a.checkpoint.is_file():
+        _fail(p, f"CHECKPOINT {a.checkpoint}: " + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir()
+                                                   else "no such file"))
+    out_dir = a.out_dir or a.checkpoint.parent
+    where = (f"--out-dir {out_dir}" if a.out_dir
+             else f"the output directory {out_dir} (the checkpoint's; --out-dir picks another)")
+    problem = unwritable([out_dir / "ik.onnx", out_dir / "ik.pt2"], a.force)
+    if problem:
+        _fail(p, f"{where}: {problem}")
+    try:
+        net = load_model(a.checkpoint)
+    except (OSError, ValueError) as e:
+        message = str(e) if isinstance(e, ValueError) else _first_line(e)
+        _fail(p, f"CHECKPOINT: {message}" if str(a.checkpoint) in message else f"CHECKPOINT {a.checkpoint}: {message}")
+    except Exception as e:  # noqa: BLE001 (a checkpoint that passes its checks but does not build: a bug)
+        _fail(p, f"CHECKPOINT {a.checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
+    try:
+        paths = export_all(net, out_dir)
+    except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
+        _fail(p, f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
+              status=1)
+    for path in paths:
         print(f"wrote {path}")
 
 

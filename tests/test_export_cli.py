@@ -1,0 +1,117 @@
+"""`python -m rbfn.export` on bad inputs: one-line errors, and no good file destroyed or half written."""
+import pytest
+import torch
+
+import rbfn.export
+from rbfn.checkpoint import save_checkpoint
+from rbfn.export import main
+from rbfn.layer import RBFNetwork
+
+
+@pytest.fixture()
+def ckpt(tmp_path, scara_robot):
+    """A checkpoint of a small SCARA network (random weights), alone in tmp_path/run."""
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.parent.mkdir()
+    net = RBFNetwork(torch.randn(5, 3, dtype=torch.float64), torch.ones(5, dtype=torch.float64), 3)
+    save_checkpoint(path, net, scara_robot.record(), {"seed": 0}, {})
+    return path
+
+
+@pytest.fixture()
+def fake_export(monkeypatch):
+    """Exports that take no time: the files' bytes name their format."""
+    monkeypatch.setattr(rbfn.export, "onnx_bytes", lambda net: b"onnx")
+    monkeypatch.setattr(rbfn.export, "pt2_bytes", lambda net: b"pt2")
+
+
+def _error_line(capsys, *argv, status=2):
+    """The one stderr line of a refused `main(argv)` (with its exit status checked)."""
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    assert e.value.code == status
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("python -m rbfn.export: error: "), err
+    return err
+
+
+def _files(folder):
+    return {f.name: f.read_bytes() for f in sorted(folder.iterdir())}
+
+
+def test_a_missing_or_bad_checkpoint_is_one_line(tmp_path, capsys, fake_export):
+    assert f"CHECKPOINT {tmp_path / 'nope.pt'}: no such file" in _error_line(capsys, tmp_path / "nope.pt")
+    assert f"CHECKPOINT {tmp_path}: is a directory" in _error_line(capsys, tmp_path)
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    err = _error_line(capsys, tmp_path / "junk.pt")
+    assert f"CHECKPOINT: {tmp_path / 'junk.pt'} is not a readable checkpoint (truncated or corrupted?)" in err
+    torch.save({"a": 1}, tmp_path / "foreign.pt")
+    assert "has no aco-rbfn seal" in _error_line(capsys, tmp_path / "foreign.pt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["foreign.pt", "junk.pt"]
+
+
+def test_a_bad_out_dir_is_one_line(ckpt, tmp_path, capsys, fake_export):
+    (tmp_path / "file").write_text("x")
+    assert f"--out-dir {tmp_path / 'file'}: {tmp_path / 'file'} is not a directory" in _error_line(
+        capsys, ckpt, "--out-dir", tmp_path / "file")
+    assert f"{tmp_path / 'file'} is not a directory" in _error_line(capsys, ckpt, "--out-dir", tmp_path / "file" / "sub")
+    (tmp_path / "ro").mkdir(mode=0o555)
+    assert f"{tmp_path / 'ro'} is a write-protected directory (mode 0o555)" in _error_line(
+        capsys, ckpt, "--out-dir", tmp_path / "ro" / "sub")
+    (tmp_path / "out" / "ik.pt2").mkdir(parents=True)
+    assert f"{tmp_path / 'out' / 'ik.pt2'} is a directory" in _error_line(capsys, ckpt, "--out-dir", tmp_path / "out")
+    assert not any((tmp_path / "ro").iterdir()) and [p.name for p in (tmp_path / "out").iterdir()] == ["ik.pt2"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "out", "ro", "run"]
+
+
+def test_a_write_protected_output_is_kept_unless_forced(ckpt, capsys, fake_export):
+    onnx = ckpt.parent / "ik.onnx"
+    onnx.write_bytes(b"good")
+    onnx.chmod(0o444)
+    err = _error_line(capsys, ckpt)
+    assert (f"the output directory {ckpt.parent} (the checkpoint's; --out-dir picks another): {onnx} is "
+            "write-protected (mode 0o444); not replacing it (--force replaces it)") in err
+    assert onnx.read_bytes() == b"good" and not (ckpt.parent / "ik.pt2").exists()
+    main([str(ckpt), "--force"])
+    assert onnx.read_bytes() == b"onnx" and (onnx.stat().st_mode & 0o777) == 0o444
+    assert (ckpt.parent / "ik.pt2").read_bytes() == b"pt2"
+    assert f"wrote {onnx}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("failing", ["onnx_bytes", "pt2_bytes"])
+def test_an_export_that_fails_writes_nothing(ckpt, capsys, monkeypatch, fake_export, failing):
+    (ckpt.parent / "ik.onnx").write_bytes(b"old onnx")
+
+    def fail(net):
+        raise RuntimeError("the exporter broke\nwith a long story")
+
+    monkeypatch.setattr(rbfn.export, failing, fail)
+    err = _error_line(capsys, ckpt, status=1)
+    assert f"exporting {ckpt} failed (RuntimeError: the exporter broke); ik.onnx and ik.pt2 were left as they were" \
+        in err
+    assert _files(ckpt.parent) == {"checkpoint.pt": ckpt.read_bytes(), "ik.onnx": b"old onnx"}
+
+
+def test_a_failed_write_replaces_neither_file(ckpt, capsys, monkeypatch, fake_export):
+    import os
+
+    calls = []
+
+    def fsync(fd):
+        calls.append(fd)
+        if len(calls) == 2:
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    assert "No space left on device" in _error_line(capsys, ckpt, "--out-dir", ckpt.parent / "new", status=1)
+    assert not any((ckpt.parent / "new").iterdir())
+
+
+def test_the_command_exports_for_real(ckpt, tmp_path, capsys):
+    ort = pytest.importorskip("onnxruntime")
+    main([str(ckpt), "--out-dir", str(tmp_path / "deploy")])
+    assert sorted(p.name for p in (tmp_path / "deploy").iterdir()) == ["ik.onnx", "ik.pt2"]
+    x = torch.zeros(2, 3)
+    sess = ort.InferenceSession(str(tmp_path / "deploy" / "ik.onnx"), providers=["CPUExecutionProvider"])
+    joints = torch.export.load(str(tmp_path / "deploy" / "ik.pt2")).module()(x)[0]
+    assert torch.allclose(torch.from_numpy(sess.run(None, {"positions": x.numpy()})[0]), joints, atol=1e-5)
