@@ -97,10 +97,12 @@ def _last_log_error(job: Path) -> str:
 def _load_job(d: Path) -> Job:
     metrics, failed = d / "metrics.json", d / "failed.json"
     # A rerun that completed after a recorded failure leaves a metrics.json newer than failed.json.
-    if metrics.is_file() and not (failed.is_file() and failed.stat().st_mtime_ns > metrics.stat().st_mtime_ns):
+    if metrics.exists() and not (failed.is_file() and failed.stat().st_mtime_ns > metrics.stat().st_mtime_ns):
         try:
             got = json.loads(metrics.read_text(), parse_constant=_not_json)
-        except (OSError, ValueError) as e:
+        except OSError as e:
+            return Job(d, _overrides(d), "malformed", error=f"metrics.json cannot be read: {e.strerror or e}")
+        except ValueError as e:
             return Job(d, _overrides(d), "malformed", error=f"metrics.json is not valid JSON: {e}")
         if not isinstance(got, dict):
             return Job(d, _overrides(d), "malformed", error=f"metrics.json holds a JSON {_json_type(got)}, not an "
@@ -109,10 +111,13 @@ def _load_job(d: Path) -> Job:
     if failed.is_file():
         try:
             rec = json.loads(failed.read_text())
-            over = _parse_overrides(rec.get("overrides") or []) or _overrides(d)
-            return Job(d, over, "failed", error=f"{rec.get('error', 'error')}: {rec.get('message', '')}")
-        except (OSError, ValueError, AttributeError) as e:
+        except (OSError, ValueError) as e:
             return Job(d, _overrides(d), "failed", error=f"unreadable failed.json: {e}")
+        if not isinstance(rec, dict):
+            return Job(d, _overrides(d), "failed", error=f"unreadable failed.json: a JSON {_json_type(rec)}, not an "
+                                                         "object")
+        over = _parse_overrides(rec["overrides"]) if isinstance(rec.get("overrides"), list) else {}
+        return Job(d, over or _overrides(d), "failed", error=f"{rec.get('error', 'error')}: {rec.get('message', '')}")
     error = _last_log_error(d) or ("no metrics.json: still running, or stopped without an error (killed, "
                                    "timed out)" + ("; a rerun resumes from its last.pt" if (d / "last.pt").is_file()
                                                    else ""))

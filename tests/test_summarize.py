@@ -148,12 +148,17 @@ def _error_line(capsys, *argv, status=2):
     ('{"test_pos_err_mm_median": [1.0]}', "test_pos_err_mm_median is a JSON array ([1.0]), not a number"),
     ('{"test_pos_err_mm_median": {"a": 1}}', 'test_pos_err_mm_median is a JSON object ({"a": 1}), not a number'),
     ('{"test_pos_err_mm_median": true}', "test_pos_err_mm_median is a JSON boolean (true), not a number"),
+    (None, "metrics.json cannot be read: Is a directory"),
 ])
 def test_a_malformed_job_is_listed_and_the_good_ones_summarized(tmp_path, capsys, text, why):
     _sweep(tmp_path)
     bad = tmp_path / "4" / "metrics.json"
     _job(tmp_path, 4, ["centers=random", "seed=0"], {})
-    bad.write_bytes(text if isinstance(text, bytes) else text.encode())
+    if text is None:
+        bad.unlink()
+        bad.mkdir()
+    else:
+        bad.write_bytes(text if isinstance(text, bytes) else text.encode())
     main([str(tmp_path), "--metrics", "test_pos_err_mm_median"])
     out = capsys.readouterr().out
     assert "| aco | 2 | 1.5 ± 0.71 |" in out and "| kmeans | 2 | 3.5 ± 0.71 |" in out
@@ -267,3 +272,16 @@ def test_files_are_written_all_or_none(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         write_files({tmp_path / "a": b"new a", tmp_path / "b": b"new b"})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a"] and (tmp_path / "a").read_text() == "old a"
+
+
+@pytest.mark.parametrize("record, error", [
+    ([1], "unreadable failed.json: a JSON array, not an object"),
+    ({"error": "ValueError", "message": "bad", "overrides": 5}, "ValueError: bad"),
+])
+def test_a_malformed_failed_json_is_listed(tmp_path, capsys, record, error):
+    _sweep(tmp_path)
+    (tmp_path / "4").mkdir()
+    (tmp_path / "4" / "failed.json").write_text(json.dumps(record))
+    main([str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "| aco | 2 |" in out and f"| 4 | failed |  | {error} |" in out
