@@ -10,8 +10,9 @@ deprecated in current torch and is not used.
 
 Both files are built in memory first and written only when both are built, all or none (each to a
 temporary file beside it, renamed over the old one once both are written): an export that fails
-leaves the old ik.onnx and ik.pt2 as they were. A write-protected ik.onnx or ik.pt2 is not replaced
-unless --force is given (it then keeps its mode). A bad argument (no such checkpoint, a damaged or
+leaves the old ik.onnx and ik.pt2 as they were. A write-protected ik.onnx or ik.pt2 is not replaced,
+nor a write-protected directory written into, unless --force is given (a replaced file keeps its
+mode). A bad argument (no such checkpoint, a damaged or
 foreign one, an --out-dir that is a file or write-protected) is a one-line error with exit status 2;
 a failed export or write, one with exit status 1.
 """
@@ -213,7 +214,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out-dir", type=Path, default=None, metavar="DIR",
                    help="where to write ik.onnx and ik.pt2, created if missing (default: the checkpoint's directory)")
     p.add_argument("--force", action="store_true",
-                   help="replace ik.onnx and ik.pt2 even when write-protected (they keep their mode)")
+                   help="write even over a write-protected ik.onnx or ik.pt2 or into a write-protected directory "
+                        "(replaced files keep their mode)")
     a = p.parse_args(argv)
     if not a.checkpoint.is_file():
         _fail(p, f"CHECKPOINT {a.checkpoint}: " + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir()

@@ -335,24 +335,26 @@ def plot_against_m(swept, rows, metric: str) -> bytes | None:
 
 
 def _write_protected(path: Path) -> bool:
-    """No write permission for this process, or none in the mode at all (root may write anything,
-    but a mode without write bits still says: keep this)."""
-    access = os.W_OK | (os.X_OK if path.is_dir() else 0)
-    return not os.access(path, access) or not path.stat().st_mode & 0o222
+    """No write bit in the mode (which says "keep this" even to root, who may write anything), or no
+    write permission for this process."""
+    return not path.stat().st_mode & 0o222 or not os.access(path, os.W_OK)
 
 
 def unwritable(paths, force: bool = False) -> str:
     """Why the files `paths` cannot or must not be written ('' when they may): a folder on the way
-    is a file or write-protected, a path is a directory, or (unless `force`) an existing file is
-    write-protected."""
+    is a file or one this process cannot write into, a path is a directory, or (unless `force`) an
+    existing file or its folder is write-protected."""
     for path in map(Path, paths):
         folder = path.parent
         while not folder.exists() and folder != folder.parent:
             folder = folder.parent
         if not folder.is_dir():
             return f"{folder} is not a directory"
-        if _write_protected(folder):
-            return f"{folder} is a write-protected directory (mode {folder.stat().st_mode & 0o777:#o})"
+        protected = f"{folder} is a write-protected directory (mode {folder.stat().st_mode & 0o777:#o})"
+        if not os.access(folder, os.W_OK | os.X_OK):
+            return f"{protected}: this process cannot write into it"
+        if not force and _write_protected(folder):
+            return f"{protected}; not writing into it (--force does)"
         if path.is_dir():
             return f"{path} is a directory"
         if path.exists() and not force and _write_protected(path):
@@ -452,7 +454,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="paired table of KEY=A against KEY=B over jobs equal in every other override "
                         "(KEY a swept override; repeatable)")
     p.add_argument("--force", action="store_true",
-                   help="replace outputs even when write-protected (they keep their mode)")
+                   help="write even over write-protected outputs or into a write-protected directory (replaced "
+                        "files keep their mode)")
     a = p.parse_args(argv)
     if not a.sweep_dir.is_dir():
         _fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))

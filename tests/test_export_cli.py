@@ -1,4 +1,7 @@
 """`python -m rbfn.export` on bad inputs: one-line errors, and no good file destroyed or half written."""
+import os
+import shutil
+
 import pytest
 import torch
 
@@ -58,6 +61,10 @@ def test_a_bad_out_dir_is_one_line(ckpt, tmp_path, capsys, fake_export):
     (tmp_path / "ro").mkdir(mode=0o555)
     assert f"{tmp_path / 'ro'} is a write-protected directory (mode 0o555)" in _error_line(
         capsys, ckpt, "--out-dir", tmp_path / "ro" / "sub")
+    if os.geteuid() == 0:                    # root may write there: --force does
+        main([str(ckpt), "--out-dir", str(tmp_path / "ro" / "sub"), "--force"])
+        assert sorted(p.name for p in (tmp_path / "ro" / "sub").iterdir()) == ["ik.onnx", "ik.pt2"]
+        shutil.rmtree(tmp_path / "ro" / "sub")
     (tmp_path / "out" / "ik.pt2").mkdir(parents=True)
     assert f"{tmp_path / 'out' / 'ik.pt2'} is a directory" in _error_line(capsys, ckpt, "--out-dir", tmp_path / "out")
     assert not any((tmp_path / "ro").iterdir()) and [p.name for p in (tmp_path / "out").iterdir()] == ["ik.pt2"]
@@ -93,8 +100,6 @@ def test_an_export_that_fails_writes_nothing(ckpt, capsys, monkeypatch, fake_exp
 
 
 def test_a_failed_write_replaces_neither_file(ckpt, capsys, monkeypatch, fake_export):
-    import os
-
     calls = []
 
     def fsync(fd):
