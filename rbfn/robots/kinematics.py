@@ -9,19 +9,43 @@ exact to the URDF text.
 Conventions (URDF's): a joint's origin is xyz (m) then fixed-axis roll-pitch-yaw (rad),
 R = Rz(yaw) Ry(pitch) Rx(roll); a missing <axis> is (1, 0, 0); `continuous` is a revolute joint
 without limits. Supported joint types: revolute, continuous, prismatic, fixed.
+
+A URDF is read from a file (a `pathlib.Path`: a regular file of at most MAX_URDF_BYTES,
+decoded by its byte-order mark or XML declaration) or given as its text (a str, never taken
+for a file name) or bytes. lxml parses it without loading a DTD, external entities or anything
+from the network, with libxml2's limits on entity expansion (a "billion laughs" document is
+refused); meshes and other referenced files (`package://...`) are never opened.
 """
 from __future__ import annotations
 
+import codecs
 import math
+import os
+import re
+import reprlib
+import stat
 from importlib.resources import files
 from pathlib import Path
 
 import pytorch_kinematics as pk
 import torch
+from lxml import etree
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
+from pytorch_kinematics.urdf_parser_py.xml_reflection.core import Path as XmlPath
 
-__all__ = ["load_serial_chain", "forward_kinematics", "forward_kinematics_pose", "joint_limits",
-           "urdf_path"]
+__all__ = ["MAX_URDF_BYTES", "forward_kinematics", "forward_kinematics_pose", "joint_limits", "load_serial_chain",
+           "read_urdf", "urdf_path"]
+
+MAX_URDF_BYTES = 16 * 2**20
+"""Largest URDF read, in bytes (a file, bytes) or characters (text): 16 MiB, 80 times the largest
+URDF example-robot-data ships (tiago_dual.urdf, 0.2 MB). Anything larger is refused before it is
+read whole, so a device such as /dev/zero cannot exhaust memory."""
+
+# Byte-order marks, longest first (UTF-32-LE's begins with UTF-16-LE's), and the codecs that drop them.
+_BOMS = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
+         (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16"))
+# The encoding named by an XML declaration (group 2).
+_DECLARED = re.compile(r"""<\?xml[^>]*?\sencoding\s*=\s*(["'])([A-Za-z][\w.:-]*)\1""")
 
 _JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic",
                 "fixed": "fixed"}
@@ -54,21 +78,82 @@ def _transform(origin, dtype: torch.dtype) -> pk.Transform3d:
     return pk.Transform3d(matrix=m[None], dtype=dtype)
 
 
-def _parse(urdf: str | Path) -> tuple[URDF, str]:
-    """Parsed URDF and a name for messages (the file, or "URDF text")."""
-    if isinstance(urdf, Path) or not str(urdf).lstrip().startswith("<"):
-        source = str(urdf)
-        text = Path(urdf).read_text()
-    else:
-        source, text = "URDF text", str(urdf)
+def _too_large(size: int, source: str) -> ValueError:
+    return ValueError(f"{source}: the URDF has {size} bytes or characters or more; allowed: at most "
+                      f"MAX_URDF_BYTES = {MAX_URDF_BYTES}")
+
+
+def _decode(data: bytes, source: str) -> str:
+    """Text of a URDF document's bytes, decoded by its byte-order mark, else by its XML declaration's
+    encoding, else as UTF-8. A declaration naming another encoding is rewritten to name UTF-8: the
+    text is handed on (to lxml, MuJoCo, checkpoints) as UTF-8."""
+    if len(data) > MAX_URDF_BYTES:
+        raise _too_large(len(data), source)
+    declared = _DECLARED.match(data[:1024].decode("latin-1"))
+    encoding = next((codec for bom, codec in _BOMS if data.startswith(bom)),
+                    declared.group(2) if declared else "utf-8")
     try:
-        robot = URDF.from_xml_string(text)
+        text = data.decode(encoding)
+    except (LookupError, UnicodeDecodeError) as e:
+        raise ValueError(f"{source}: cannot decode the URDF as {encoding!r} ({e}); allowed: an encoding "
+                         f"Python knows, named by a byte-order mark or the XML declaration (UTF-8 without either)") from None
+    declared = _DECLARED.match(text)
+    if declared and declared.group(2).upper() != "UTF-8":
+        text = text[:declared.start(2)] + "UTF-8" + text[declared.end(2):]
+    return text
+
+
+def read_urdf(path: str | os.PathLike) -> str:
+    """Text of the URDF file at `path`, decoded as `_decode` says.
+
+    Only a regular file of at most MAX_URDF_BYTES is read (a FIFO or device is refused before any
+    read: opening does not block); FileNotFoundError if there is none at `path`.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError(f"{path} is not a regular file; a URDF is read only from a regular file")
+        with open(fd, "rb", closefd=False) as f:
+            data = f.read(MAX_URDF_BYTES + 1)
+    finally:
+        os.close(fd)
+    return _decode(data, str(path))
+
+
+def _parse(text: str, source: str) -> URDF:
+    """The parsed URDF of `text`; ValueError naming `source` when it is no URDF.
+
+    Parsed as UTF-8 whatever the XML declaration says (a str has no encoding), without a leading
+    byte-order mark or whitespace; comments and processing instructions are dropped, and so is all
+    but the <joint> elements and the <link> elements' names (geometry, materials, inertials,
+    transmissions: whatever pytorch-kinematics' parser would trip over in them, kinematics does not
+    use). The parser is lxml's default made explicit: internal entities only, no DTD, no network,
+    no huge trees.
+    """
+    if len(text) > MAX_URDF_BYTES:
+        raise _too_large(len(text), source)
+    text = text.lstrip("\ufeff \t\r\n")
+    if not text.startswith("<"):
+        raise ValueError(f"{source}: {reprlib.repr(text)} is not URDF text; allowed: XML whose root element "
+                         "is <robot> (a string is never read as a file name: pass a pathlib.Path for a file)")
+    parser = etree.XMLParser(encoding="utf-8", resolve_entities="internal", load_dtd=False, no_network=True,
+                             huge_tree=False, remove_comments=True, remove_pis=True)
+    try:
+        root = etree.fromstring(text.encode("utf-8"), parser)
+        if etree.QName(root).localname != "robot":
+            raise ValueError(f"the root element is <{root.tag}>; a URDF's is <robot>")
+        for child in list(root):             # kinematics needs the joints and the links' names only
+            if child.tag == "link":
+                del child[:]
+            elif child.tag != "joint":
+                root.remove(child)
+        robot = URDF.from_xml(root, XmlPath(URDF.XML_REFL.tag, tree=etree.ElementTree(root)))
     except Exception as e:  # lxml's XMLSyntaxError, the parser's ParseError, AssertionError
         msg = " ".join(str(e).split()) or type(e).__name__
         raise ValueError(f"{source}: malformed URDF: {msg}") from e
     if robot is None or not robot.links:
         raise ValueError(f"{source}: malformed URDF: no <robot> with <link> elements")
-    return robot, source
+    return robot
 
 
 def _path_to(robot: URDF, source: str, end_link: str) -> list:
@@ -130,15 +215,28 @@ def _joint(j, source: str, dtype: torch.dtype) -> pk.Joint:
                     velocity_limits=velocity, effort_limits=effort)
 
 
-def load_serial_chain(urdf: str | Path, end_link: str, dtype: torch.dtype = torch.float64,
-                      device: str | torch.device = "cpu") -> pk.SerialChain:
+def load_serial_chain(urdf: str | bytes | os.PathLike, end_link: str, dtype: torch.dtype = torch.float64,
+                      device: str | torch.device = "cpu", source: str | None = None) -> pk.SerialChain:
     """Serial chain from the URDF's root link to `end_link`, frames named after the links.
 
-    `urdf` is a file path or URDF text. Offsets are exact to the URDF's numbers in float64
-    (rounded once to `dtype`). Raises ValueError (naming the file) for a malformed URDF, an
-    unknown `end_link`, a URDF that is not one tree, or a floating/planar joint on the path.
+    `urdf` is a file (a `pathlib.Path` or other path object, read by `read_urdf`), the URDF's text
+    (a str: never taken for a file name) or its bytes (decoded by their BOM or XML declaration).
+    `source` names the URDF in messages (default: the file, or "URDF text"). Offsets are exact to
+    the URDF's numbers in float64 (rounded once to `dtype`). Raises ValueError (naming `source`)
+    for a malformed URDF, an unknown `end_link`, a URDF that is not one tree, or a floating/planar
+    joint on the path.
     """
-    robot, source = _parse(urdf)
+    if isinstance(urdf, os.PathLike):
+        source, text = source or str(urdf), read_urdf(urdf)
+    elif isinstance(urdf, bytes):
+        source = source or "URDF bytes"
+        text = _decode(urdf, source)
+    elif isinstance(urdf, str):
+        source, text = source or "URDF text", urdf
+    else:
+        raise TypeError(f"urdf={reprlib.repr(urdf)} is a {type(urdf).__name__}; allowed: a pathlib.Path, "
+                        "the URDF's text (str) or its bytes")
+    robot = _parse(text, source)
     path = _path_to(robot, source, end_link)
     root_name = path[0].parent if path else end_link
     root = pk.Frame(root_name, link=pk.Link(root_name), joint=pk.Joint(dtype=dtype))

@@ -8,6 +8,8 @@ URDF's order along the chain; `locked` joints are held at their values.
 """
 from __future__ import annotations
 
+import math
+import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,7 +18,7 @@ import torch
 from pytorch_kinematics import transforms as tf
 
 from ..config import RobotConfig, Target
-from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, urdf_path
+from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, read_urdf, urdf_path
 
 __all__ = ["Robot", "load_robot", "robot_from_record", "pose_targets", "unit_quaternions", "rotation_error_deg"]
 
@@ -121,8 +123,9 @@ def _check_box(robot: Robot, where: str) -> None:
     names = robot.joint_names
     low, high = robot.low, robot.high
     if len(names) != low.shape[0]:
-        raise ValueError(f"{where}: robot.joint_low/joint_high give {low.shape[0]} joints, the chain to "
-                         f"{robot.end_link!r} has {len(names)} free joints: {names}")
+        raise ValueError(f"{where}: robot.joint_low/joint_high give {low.shape[0]} joints "
+                         f"({reprlib.repr(low.tolist())}); allowed: one per free joint of the chain to "
+                         f"{robot.end_link!r}, which has {len(names)}: {names}")
     u_low, u_high = (t[robot.free] for t in joint_limits(robot.chain))
     outside = (low < u_low - 1e-12) | (high > u_high + 1e-12)
     if bool(outside.any()):
@@ -137,16 +140,61 @@ def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
     path = Path(cfg.urdf) if cfg.urdf else urdf_path(cfg.name)
     if not path.is_file():
         raise FileNotFoundError(f"robot.urdf={cfg.urdf!r}: no such file ({path.resolve()})")
-    chain = load_serial_chain(path, cfg.end_link, torch.float64, device)
-    robot = Robot(chain, path.read_text(), cfg.end_link, torch.tensor(cfg.joint_low, dtype=torch.float64),
+    text = read_urdf(path)
+    chain = load_serial_chain(text, cfg.end_link, torch.float64, device, source=str(path))
+    robot = Robot(chain, text, cfg.end_link, torch.tensor(cfg.joint_low, dtype=torch.float64),
                   torch.tensor(cfg.joint_high, dtype=torch.float64), str(cfg.target), dict(cfg.locked), cfg.name)
     _check_box(robot, str(path))
     return robot
 
 
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_fields(record: dict) -> None:
+    """ValueError naming the first field of a checkpoint's robot entry of the wrong type or range."""
+    def need(ok: bool, key: str, allowed: str) -> None:
+        if not ok:
+            raise ValueError(f"robot.{key}={reprlib.repr(record.get(key))} is not allowed; allowed: {allowed}")
+
+    need(isinstance(record.get("urdf"), str), "urdf", "the URDF's text (a str of XML whose root element is <robot>)")
+    need(isinstance(record.get("end_link"), str), "end_link", "the name of a link of the URDF (a str)")
+    for key in ("joint_low", "joint_high"):
+        value = record.get(key)
+        need(isinstance(value, (list, tuple)) and all(_finite(v) for v in value), key,
+             "a list of finite numbers (rad or m), one per free joint")
+    low, high = record["joint_low"], record["joint_high"]
+    need(len(low) == len(high), "joint_high", f"as many entries as robot.joint_low ({len(low)})")
+    need(all(a < b for a, b in zip(low, high)), "joint_high",
+         f"each entry above robot.joint_low's ({reprlib.repr(low)})")
+    names = record.get("joint_names", [])
+    need(isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names), "joint_names",
+         "a list of joint names (str)")
+    need(record.get("target", "position") in list(Target), "target", f"one of {[str(t) for t in Target]}")
+    locked = record.get("locked", {})
+    need(isinstance(locked, dict) and all(isinstance(k, str) and _finite(v) for k, v in locked.items()), "locked",
+         "a dict from joint name (str) to a finite held value (rad or m)")
+    need(isinstance(record.get("name", ""), str), "name", "a label (str)")
+
+
 def robot_from_record(record: dict, device: str = "cpu") -> Robot:
-    """The Robot of a checkpoint's `robot` entry."""
-    chain = load_serial_chain(record["urdf"], record["end_link"], torch.float64, device)
-    return Robot(chain, record["urdf"], record["end_link"], torch.tensor(record["joint_low"], dtype=torch.float64),
-                 torch.tensor(record["joint_high"], dtype=torch.float64), record.get("target", "position"),
-                 dict(record.get("locked", {})), record.get("name", ""))
+    """The Robot of a checkpoint's `robot` entry, checked first: ValueError naming the field, its
+    value and what is allowed when a field has the wrong type or range (urdf: URDF text, never a
+    file name; end_link: a link of it; joint_low < joint_high: finite, one per free joint of the
+    chain, within the URDF's limits; joint_names: the chain's free joints; target: position or
+    pose; locked: joints of the chain -> finite values; name: str)."""
+    if not isinstance(record, dict):
+        raise TypeError(f"robot={reprlib.repr(record)} is a {type(record).__name__}; allowed: a dict (the "
+                         "checkpoint's robot entry, as Robot.record() writes it)")
+    _check_fields(record)
+    chain = load_serial_chain(record["urdf"], record["end_link"], torch.float64, device, source="robot.urdf")
+    robot = Robot(chain, record["urdf"], record["end_link"], torch.tensor(record["joint_low"], dtype=torch.float64),
+                  torch.tensor(record["joint_high"], dtype=torch.float64), str(record.get("target", "position")),
+                  {k: float(v) for k, v in record.get("locked", {}).items()}, record.get("name", ""))
+    _check_box(robot, "robot entry")
+    names = record.get("joint_names")
+    if names is not None and list(names) != robot.joint_names:
+        raise ValueError(f"robot.joint_names={reprlib.repr(names)} is not allowed; allowed: the free joints of the "
+                         f"chain to {robot.end_link!r}, in chain order: {robot.joint_names}")
+    return robot

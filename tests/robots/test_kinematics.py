@@ -1,6 +1,10 @@
-"""URDF loading and FK: the SCARA against its closed form, loader errors, and the shipped UR5 and
-Panda against Pinocchio on example-robot-data's descriptions (skipped without those packages)."""
+"""URDF loading and FK: the SCARA against its closed form, loader errors, the shipped UR5 and Panda
+against Pinocchio on example-robot-data's descriptions, URDF documents in any encoding (and the
+files and entities the loader must not read), and every URDF example-robot-data ships against
+Pinocchio (the Pinocchio tests skipped without those packages)."""
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,9 +12,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rbfn.robots import (forward_kinematics, forward_kinematics_pose, joint_limits, load_serial_chain,
-                         urdf_path)
-from rbfn.robots import scara
+from rbfn.robots import forward_kinematics, forward_kinematics_pose, joint_limits, load_serial_chain, scara, urdf_path
+from rbfn.robots.kinematics import MAX_URDF_BYTES, read_urdf
+from tests.guarded import run_guarded
 
 joints = st.lists(st.tuples(st.floats(-3.1, 3.1), st.floats(-2.5, 2.5), st.floats(0.0, 2.0)),
                   min_size=1, max_size=16)
@@ -92,6 +96,10 @@ def test_malformed_urdf_file_named(tmp_path):
         load_serial_chain(path, "quill")
     path.write_text(_urdf(_joint("j1", "a", "b").replace("<parent link='a'/>", "")))
     with pytest.raises(ValueError, match=r"broken_arm\.urdf: malformed URDF: .*parent"):
+        load_serial_chain(path, "b")
+    # A str is the URDF's text, never a file name.
+    with pytest.raises(ValueError, match=r"URDF text: '.*\.urdf' is not URDF text; allowed: XML whose root "
+                                         r"element is <robot> \(a string is never read as a file name"):
         load_serial_chain(str(path), "b")
 
 
@@ -170,25 +178,20 @@ REFERENCE = {"ur5": ("ur_description/urdf/ur5_robot.urdf", ["ee_link", "tool0"],
 def reference(request):
     """(name, Pinocchio model and data of example-robot-data's URDF)."""
     pin = pytest.importorskip("pinocchio")
-    from importlib import metadata
-
-    try:
-        dist = metadata.distribution("example-robot-data")
-    except metadata.PackageNotFoundError:
-        pytest.skip("example-robot-data is not installed")
-    suffix = REFERENCE[request.param][0]
-    found = [f for f in dist.files or () if str(f).endswith(suffix)]
-    if not found:
-        pytest.skip(f"example-robot-data ships no {suffix}")
-    model = pin.buildModelFromUrdf(str(dist.locate_file(found[0])))
+    rel = REFERENCE[request.param][0]
+    if rel not in ERD_URDFS:
+        pytest.skip(f"example-robot-data (installed: {bool(ERD_URDFS)}) ships no {rel}")
+    model = pin.buildModelFromUrdf(str(ERD_URDFS[rel]))
     return request.param, pin, model, model.createData()
 
 
 def _pin_q(pin, model, names, q):
-    """Pinocchio configuration (nq,) for our joint values `q` (n,), other joints neutral."""
+    """Pinocchio configuration (nq,) for our joint values `q` (n,), other joints neutral (a
+    continuous joint's two coordinates are (cos q, sin q))."""
     qp = pin.neutral(model)
     for name, v in zip(names, q):
-        qp[model.joints[model.getJointId(name)].idx_q] = v
+        joint = model.joints[model.getJointId(name)]
+        qp[joint.idx_q:joint.idx_q + joint.nq] = [math.cos(v), math.sin(v)] if joint.nq == 2 else [v]
     return qp
 
 
@@ -246,3 +249,215 @@ def test_jacobian_matches_pinocchio(reference):
         ref = pin.computeFrameJacobian(model, data, _pin_q(pin, model, names, qi), model.getFrameId(end),
                                        pin.LOCAL_WORLD_ALIGNED)[:, cols]
         assert np.abs(ji - ref).max() < 1e-9
+
+
+# --- Every URDF document loads: encodings, BOM, comments, meshes; entities and files stay out -----
+
+_BODY = ("<robot name='t'><!-- café --><?editor keep?>"
+         "<link name='a'><visual><geometry><mesh filename='package://nowhere/a.stl'/></geometry>"
+         "<material name='m'><texture/></material></visual></link>"
+         "<link name='b'><collision><geometry><mesh filename='file:///dev/zero'/></geometry></collision></link>"
+         "<link name='c'/>"
+         "<joint name='j1' type='revolute'><!-- inside --><parent link='a'/><child link='b'/>"
+         "<origin xyz='0.1 0 0.2' rpy='0 0.5 0'/><axis xyz='0 0 1'/>"
+         "<limit lower='-1' upper='1' effort='1' velocity='1'/></joint>"
+         + _joint("j2", "b", "c") + "<transmission name='tr'><joint name='j1'/></transmission></robot>")
+_DOCUMENTS = {
+    "utf-8 declaration": ('<?xml version="1.0" encoding="utf-8"?>\n' + _BODY).encode(),
+    "UTF-8 declaration, standalone": ("<?xml version='1.0' encoding='UTF-8' standalone='yes'?>" + _BODY).encode(),
+    "latin-1 declaration": ('<?xml version="1.0" encoding="latin-1"?>\n' + _BODY).encode("latin-1"),
+    "ISO-8859-1 declaration": ('<?xml version="1.0" encoding="ISO-8859-1"?>' + _BODY).encode("latin-1"),
+    "cp1252 declaration": ('<?xml version="1.0" encoding="cp1252"?>' + _BODY).encode("cp1252"),
+    "UTF-8 BOM": b"\xef\xbb\xbf" + ('<?xml version="1.0"?>\n' + _BODY).encode(),
+    "UTF-8 BOM, no declaration": b"\xef\xbb\xbf" + _BODY.encode(),
+    "UTF-16 with BOM": ('<?xml version="1.0" encoding="UTF-16"?>\n' + _BODY).encode("utf-16"),
+    "comments first": ("<!-- generated -->\n<!-- by hand -->\n" + _BODY).encode(),
+}
+
+_CODECS = {"latin-1 declaration": "latin-1", "ISO-8859-1 declaration": "latin-1", "cp1252 declaration": "cp1252",
+           "UTF-16 with BOM": "utf-16"}
+
+
+def _same_chain(chain, ref):
+    q = torch.rand(20, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(3)) * 2 - 1
+    assert chain.get_joint_parameter_names() == ["j1", "j2"]
+    assert torch.equal(forward_kinematics_pose(chain, q), forward_kinematics_pose(ref, q))
+
+
+@pytest.mark.parametrize("name", sorted(_DOCUMENTS))
+def test_urdf_document_loads_from_file_bytes_and_text(tmp_path, name):
+    ref = load_serial_chain(_BODY, "c")
+    data = _DOCUMENTS[name]
+    path = tmp_path / "arm.urdf"
+    path.write_bytes(data)
+    _same_chain(load_serial_chain(path, "c"), ref)
+    _same_chain(load_serial_chain(data, "c"), ref)
+    text = read_urdf(path)
+    assert "café" in text and not text.startswith("\ufeff")
+    _same_chain(load_serial_chain(text, "c"), ref)
+    # The text as another reader decodes it: declaration (lxml alone refuses a str naming an
+    # encoding) and BOM kept.
+    decoded = data.decode(_CODECS.get(name, "utf-8"))
+    _same_chain(load_serial_chain(decoded, "c"), ref)
+
+
+def test_read_urdf_text_is_utf8_throughout(tmp_path):
+    # A declared encoding other than UTF-8 is rewritten: the text is handed on as UTF-8 (to MuJoCo,
+    # to the URDF dynamics, in checkpoints), and a plain UTF-8 parse of it reads the same document.
+    from lxml import etree
+
+    path = tmp_path / "arm.urdf"
+    path.write_bytes(_DOCUMENTS["latin-1 declaration"])
+    text = read_urdf(path)
+    assert text.startswith('<?xml version="1.0" encoding="UTF-8"?>') and "café" in text
+    assert etree.fromstring(text.encode()).get("name") == "t"
+    # UTF-8 files read back exactly as written.
+    assert read_urdf(urdf_path("ur5")) == urdf_path("ur5").read_text()
+
+
+def test_entities_stay_inside_the_document(tmp_path):
+    secret = tmp_path / "secret.txt"
+    secret.write_text("TOP-SECRET")
+    xxe = (f'<?xml version="1.0"?><!DOCTYPE robot [<!ENTITY s SYSTEM "file://{secret}">]>'
+           "<robot name='&s;'><link name='a'/></robot>")
+    for urdf in (xxe, xxe.encode()):
+        with pytest.raises(ValueError, match="malformed URDF: Entity 's' not defined") as e:
+            load_serial_chain(urdf, "a")
+        assert "TOP-SECRET" not in str(e.value)
+    # An external DTD is not loaded; internal entities expand.
+    chain = load_serial_chain(f'<!DOCTYPE robot SYSTEM "file://{secret}"><robot name="t"><link name="a"/></robot>',
+                              "a")
+    assert chain.get_frame_names(exclude_fixed=False) == ["a"]
+    internal = "<!DOCTYPE robot [<!ENTITY e 'b'>]>" + _urdf(_joint("j1", "a", "&e;"), ("a", "b"))
+    assert load_serial_chain(internal, "b").get_joint_parameter_names() == ["j1"]
+    lol = "<!DOCTYPE robot [<!ENTITY a0 'ha'>" + "".join(
+        f"<!ENTITY a{i} '{('&a' + str(i - 1) + ';') * 10}'>" for i in range(1, 10)) + "]><robot name='&a9;'/>"
+    with pytest.raises(ValueError, match="malformed URDF: .*(amplification|loop|entit)"):
+        load_serial_chain(lol, "a")
+
+
+def test_a_string_is_text_and_a_path_a_regular_file(tmp_path):
+    with pytest.raises(ValueError, match=r"URDF text: '/etc/hostname' is not URDF text; allowed: XML whose root element "
+                                         r"is <robot> \(a string is never read as a file name: pass a pathlib\.Path"):
+        load_serial_chain("/etc/hostname", "a")
+    with pytest.raises(TypeError, match=r"urdf=42 is a int; allowed: a pathlib\.Path, the URDF's text \(str\) or its"):
+        load_serial_chain(42, "a")
+    with pytest.raises(ValueError, match=r"URDF bytes: the URDF has 16777218 bytes or characters or more; allowed: at "
+                                         r"most MAX_URDF_BYTES = 16777216"):
+        load_serial_chain(b"<" * (MAX_URDF_BYTES + 2), "a")
+    with pytest.raises(FileNotFoundError):
+        load_serial_chain(tmp_path / "none.urdf", "a")
+    with pytest.raises(ValueError, match=f"{tmp_path} is not a regular file; a URDF is read only from a regular file"):
+        load_serial_chain(tmp_path, "a")
+    big = tmp_path / "big.urdf"
+    big.write_bytes(b"<robot name='t'><link name='a'/></robot>" + b" " * MAX_URDF_BYTES)
+    with pytest.raises(ValueError, match=r"big\.urdf: the URDF has 16777217 bytes or characters or more"):
+        load_serial_chain(big, "a")
+
+
+@pytest.mark.parametrize("target", ["/dev/zero", "fifo"])
+def test_devices_and_fifos_are_not_read(tmp_path, target):
+    # /dev/zero never ends and a FIFO without a writer blocks: both are refused before any read.
+    if target == "fifo":
+        target = str(tmp_path / "arm.urdf")
+        os.mkfifo(target)
+    out = run_guarded(f"from pathlib import Path\nfrom rbfn.robots import load_serial_chain\n"
+                      f"load_serial_chain(Path({target!r}), 'a')")
+    assert f"ValueError: {target} is not a regular file; a URDF is read only from a regular file" in out, out
+
+
+def test_load_robot_records_the_decoded_text(tmp_path):
+    from rbfn.config import RobotConfig
+    from rbfn.robots.robot import load_robot, robot_from_record
+
+    path = tmp_path / "arm.urdf"
+    path.write_bytes(_DOCUMENTS["UTF-16 with BOM"])
+    robot = load_robot(RobotConfig(name="t", urdf=str(path), end_link="c", joint_low=[-1.0, -1.0],
+                                   joint_high=[1.0, 1.0]))
+    again = robot_from_record(robot.record())
+    assert again.urdf_text == read_urdf(path) and again.joint_names == ["j1", "j2"]
+
+
+# --- Every URDF example-robot-data ships, against Pinocchio ---------------------------------------
+
+def _erd_urdfs() -> dict[str, Path]:
+    """example-robot-data's URDFs by path under its robots/ folder (empty without the package)."""
+    from importlib import metadata
+
+    try:
+        dist = metadata.distribution("example-robot-data")
+    except metadata.PackageNotFoundError:
+        return {}
+    found = {}
+    for f in dist.files or ():
+        parts = Path(str(f)).parts
+        if str(f).endswith(".urdf") and "robots" in parts:
+            found["/".join(parts[parts.index("robots") + 1:])] = Path(str(dist.locate_file(f)))
+    return found
+
+
+ERD_URDFS = _erd_urdfs()
+# The serial arms among them (all must be there and match Pinocchio; the rest are checked alike).
+ARMS = ("ur_description/urdf/ur3_robot.urdf", "ur_description/urdf/ur3_joint_limited_robot.urdf",
+        "ur_description/urdf/ur3_gripper.urdf", "ur_description/urdf/ur5_robot.urdf",
+        "ur_description/urdf/ur5_joint_limited_robot.urdf", "ur_description/urdf/ur5_gripper.urdf",
+        "ur_description/urdf/ur10_robot.urdf", "ur_description/urdf/ur10_joint_limited_robot.urdf",
+        "panda_description/urdf/panda.urdf", "panda_description/urdf/panda_collision.urdf",
+        "kinova_description/robots/kinova.urdf", "xarm_description/urdf/xarm7.urdf", "z1_description/urdf/z1.urdf",
+        "so_arm_description/urdf/so100.urdf", "so_arm_description/urdf/so101.urdf",
+        "talos_data/robots/talos_left_arm.urdf", "finger_edu_description/robots/finger_edu.urdf",
+        "asr_twodof_description/urdf/TwoDofs.urdf", "double_pendulum_description/urdf/double_pendulum.urdf",
+        "double_pendulum_description/urdf/double_pendulum_continuous.urdf",
+        "double_pendulum_description/urdf/double_pendulum_simple.urdf")
+EMPTY = {"ur_description/urdf/ur3.urdf"}        # a <robot> without links: refused, not a robot
+
+
+def _longest_chain_end(path: Path) -> str:
+    """The link with the most moving joints (then joints) above it, read with lxml alone."""
+    from lxml import etree
+
+    root = etree.parse(str(path)).getroot()
+    up = {j.find("child").get("link"): (j.find("parent").get("link"), j.get("type") != "fixed")
+          for j in root.findall("joint")}
+
+    def depth(link):
+        moving = total = 0
+        while link in up:
+            link, move = up[link]
+            moving, total = moving + move, total + 1
+        return moving, total
+
+    return max((link.get("name") for link in root.findall("link")), key=depth)
+
+
+def test_every_arm_is_shipped():
+    if not ERD_URDFS:
+        pytest.skip("example-robot-data is not installed")
+    assert sorted(set(ARMS) - set(ERD_URDFS)) == []
+
+
+@pytest.mark.parametrize("rel", sorted(ERD_URDFS))
+def test_example_robot_data_urdf_matches_pinocchio(rel):
+    pin = pytest.importorskip("pinocchio")
+    path = ERD_URDFS[rel]
+    if rel in EMPTY:
+        with pytest.raises(ValueError, match="malformed URDF: no <robot> with <link> elements"):
+            load_serial_chain(path, "base_link")
+        return
+    end = _longest_chain_end(path)
+    chain = load_serial_chain(path, end, torch.float64)
+    names = chain.get_joint_parameter_names()
+    if rel in ARMS:
+        assert len(names) >= 2, (rel, end, names)
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    low, high = joint_limits(chain)
+    low, high = low.clamp(min=-math.pi), high.clamp(max=math.pi)      # continuous joints: one turn
+    q = low + torch.rand(100, len(names), generator=torch.Generator().manual_seed(4), dtype=torch.float64) * (high - low)
+    ours = forward_kinematics_pose(chain, q).numpy()
+    ref = []
+    for qi in q.numpy():
+        pin.framesForwardKinematics(model, data, _pin_q(pin, model, names, qi))
+        ref.append(data.oMf[model.getFrameId(end)].homogeneous.copy())
+    pos, rot = _errors(pin, ours, np.stack(ref))
+    assert pos < 1e-12 and rot < 1e-12, (rel, end, pos, rot)
