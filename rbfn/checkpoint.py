@@ -22,9 +22,11 @@ from typing import Any
 import torch
 
 from .layer import RBFNetwork
+from .robots.robot import robot_from_record
 from .targets import TargetFeatures
 
-__all__ = ["FORMAT_VERSION", "KIND", "save_checkpoint", "save_sealed", "load_sealed", "read_checkpoint", "load_model", "model_from_checkpoint"]
+__all__ = ["FORMAT_VERSION", "KIND", "MIN_WIDTH", "load_model", "load_sealed", "model_from_checkpoint", "read_checkpoint",
+           "save_checkpoint", "save_sealed"]
 
 FORMAT_VERSION = 1
 KIND = "rbfn-ik"
@@ -36,6 +38,13 @@ _MODEL_ARGS = ("num_centers", "in_features", "out_features", "tail")
 _UNBOUNDED = {"in_low": -math.inf, "out_low": -math.inf, "in_high": math.inf, "out_high": math.inf,
               "cover_radius": math.inf}
 _ADVICE = "Re-run training or restore the file from a copy."
+
+MIN_WIDTH = 1e-12
+"""Smallest Gaussian width sigma (scaled input units, those of z = (x - offset) / scale) a checkpoint
+may hold. Below it exp(-d^2 / (2 sigma^2)) underflows to 0 in float64 for every input farther than
+4e-11 from the centre (d^2 / (2 sigma^2) > 745), far inside the 6e-8 resolution of float32 inputs of
+order 1, so the Gaussian answers 0 everywhere but at its centre. Training never makes one: the
+smallest width it gives is rbfn.widths' floor 1e-9 times the smallest scale tried, 0.25."""
 
 
 def _umask() -> int:
@@ -205,9 +214,10 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
     pose = a.get("target", "position") == "pose"
     if a.get("target", "position") not in ("position", "pose"):
         return f"model_args target={a['target']!r}; expected 'position' or 'pose'"
+    if d != (9 if pose else 3):
+        return (f"model_args in_features={d} with target={a.get('target', 'position')!r}; allowed: "
+                f"{9 if pose else 3} features")
     if pose:
-        if d != 9:
-            return f"model_args in_features={d} with target='pose'; pose networks have 9 features"
         expected["inputs.rotation_scale"] = ()
     missing, unexpected = sorted(set(expected) - set(sd)), sorted(set(sd) - set(expected))
     if missing or unexpected:
@@ -227,13 +237,21 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
             return (f"non-finite weights in {k}: {int(torch.isnan(t).sum())} NaN and "
                     f"{int(bad.sum()) - int(torch.isnan(t).sum())} inf of {t.numel()} values{allowed}; "
                     "the fit diverged or the file was altered. Retrain")
-    if not bool((sd["widths"] > 0).all()):
-        return f"state_dict widths has minimum {sd['widths'].min().item():.3g}; widths must be positive"
+    if not bool((sd["widths"] >= MIN_WIDTH).all()):
+        return (f"state_dict widths has minimum {sd['widths'].min().item():.3g}; allowed: widths of at least "
+                f"MIN_WIDTH = {MIN_WIDTH:g} (scaled input units), below which a Gaussian is 0 but at its centre")
+    for k in ("scale", "inputs.rotation_scale"):
+        if k in sd and not bool((sd[k] > 0).all()):
+            return f"state_dict {k} has minimum {sd[k].min().item():.3g}; allowed: positive input scales"
+    if not float(sd["cover_radius"]) >= 0:
+        return f"state_dict cover_radius is {float(sd['cover_radius']):.3g}; allowed: a radius >= 0 (inf: unbounded)"
     return None
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The checkpoint dict at `path`, checked for format, kind, robot entry, shapes and finite weights."""
+    """The checkpoint dict at `path`, checked for format, kind, shapes and finite weights, and its robot
+    entry field by field (`robot_from_record`: the URDF text parses, never read as a file name), so
+    a bad file fails here with a ValueError naming it and the field."""
     path = Path(path)
     ckpt = load_sealed(path)
     if not isinstance(ckpt, dict):
@@ -261,6 +279,15 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     problem = _model_problem(ckpt)
     if problem:
         raise ValueError(f"{path}: {problem}")
+    try:
+        robot_from_record(robot)       # every field, and the URDF text parsed (never opened as a file)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from e
+    a = ckpt["model_args"]
+    if a["out_features"] != len(robot["joint_low"]) or a.get("target", "position") != robot.get("target", "position"):
+        raise ValueError(f"{path}: model_args out_features={a['out_features']}, target={a.get('target', 'position')!r} "
+                         f"do not fit the robot entry; allowed: one output per free joint "
+                         f"({len(robot['joint_low'])}) and its target {robot.get('target', 'position')!r}")
     return ckpt
 
 

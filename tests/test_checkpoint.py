@@ -1,6 +1,7 @@
 """Checkpoints: weights-only loadable, written atomically, and every broken file says what is wrong."""
 import os
 import re
+import reprlib
 import signal
 import subprocess
 import sys
@@ -9,13 +10,25 @@ import time
 import pytest
 import torch
 
-from rbfn.checkpoint import (FORMAT_VERSION, atomic_write_bytes, load_model, load_sealed, model_from_checkpoint,
-                             read_checkpoint, save_checkpoint, save_sealed, seal)
+from rbfn.checkpoint import (
+    FORMAT_VERSION,
+    MIN_WIDTH,
+    atomic_write_bytes,
+    load_model,
+    load_sealed,
+    model_from_checkpoint,
+    read_checkpoint,
+    save_checkpoint,
+    save_sealed,
+    seal,
+)
+from rbfn.config import RobotConfig
 from rbfn.layer import RBFNetwork
 from rbfn.resume import StateFile, TrainState
+from rbfn.robots.robot import load_robot
+from tests.guarded import run_guarded
 
-ROBOT = {"urdf": "<robot/>", "end_link": "tip", "joint_names": ["j1", "j2", "j3"],
-         "joint_low": [-1.0, -1.0, 0.0], "joint_high": [1.0, 1.0, 0.5]}
+ROBOT = load_robot(RobotConfig()).record()          # the SCARA: 3 free joints, position targets
 
 
 def _resave(raw, path):
@@ -270,4 +283,136 @@ def test_model_args_disagree_with_state_dict(ckpt, args, match):
         model_from_checkpoint(raw)
     _resave(raw, path)
     with pytest.raises(ValueError, match=f"{path.name}: .*" + match):
+        read_checkpoint(path)
+
+
+# --- A checkpoint is data: its robot entry is checked field by field, its URDF never a file name ----
+
+
+def _crafted(path, model=None, **robot):
+    """Write a sealed checkpoint of a SCARA network (3 -> 3) whose robot entry has `robot`'s fields."""
+    net = model or RBFNetwork(torch.randn(5, 3, dtype=torch.float64), torch.ones(5, dtype=torch.float64), 3)
+    save_checkpoint(path, net, {**ROBOT, **robot}, {}, {})
+    return path
+
+
+@pytest.mark.parametrize("target", ["/etc/hostname", "/dev/zero", "fifo"])
+def test_urdf_naming_a_file_is_refused_unread(tmp_path, target):
+    # Reading the file named (/etc/hostname: its text; /dev/zero: endless; a FIFO: blocks forever)
+    # would be reading something the checkpoint does not hold. Every loader refuses it unopened.
+    if target == "fifo":
+        target = str(tmp_path / "robot.urdf")
+        os.mkfifo(target)
+    path = _crafted(tmp_path / "crafted.pt", urdf=target)
+    out = run_guarded(f"""
+from rbfn.checkpoint import load_sealed, read_checkpoint
+from rbfn.robots.robot import robot_from_record
+from rbfn.solver import load_solver
+P = {str(path)!r}
+for load in (read_checkpoint, load_solver, lambda p: robot_from_record(load_sealed(p)["robot"])):
+    try:
+        load(P)
+        print("loaded")
+    except ValueError as e:
+        print("ValueError:", e)
+""")
+    lines = out.strip().splitlines()
+    assert len(lines) == 3 and "loaded" not in out, out
+    refused = rf"robot\.urdf: {re.escape(reprlib.repr(target))} is not URDF text; allowed: XML whose root element is <robot>"
+    assert all(re.search(refused, line) for line in lines), out
+    assert all(line.startswith(f"ValueError: {path}: ") for line in lines[:2]), out
+
+
+_BAD_FIELDS = [
+    ("urdf", 42, r"robot\.urdf=42 is not allowed; allowed: the URDF's text \(a str of XML"),
+    ("urdf", b"<robot/>", r"robot\.urdf=b'<robot/>' is not allowed; allowed: the URDF's text"),
+    ("urdf", "<robot name='r'><link name='a'/>", r"robot\.urdf: malformed URDF: .*line 1"),
+    ("urdf", "<rbt><link name='quill'/></rbt>", r"robot\.urdf: malformed URDF: the root element is <rbt>; a URDF's is <robot>"),
+    ("urdf", "<robot name='r'><link name='a'/></robot>" + " " * (16 << 20),
+     r"robot\.urdf: the URDF has 16777256 bytes or characters or more; allowed: at most MAX_URDF_BYTES = 16777216"),
+    ("end_link", 3, r"robot\.end_link=3 is not allowed; allowed: the name of a link of the URDF"),
+    ("end_link", "gripper", r"robot\.urdf: end_link 'gripper' is not a link of the URDF; links: \['base', 'link1'"),
+    ("joint_low", [0.0, float("nan"), 0.5], (r"robot\.joint_low=\[0\.0, nan, 0\.5\] is not allowed; allowed: a list of "
+                                            r"finite numbers \(rad or m\), one per free joint")),
+    ("joint_low", "0 0.3 0.5", r"robot\.joint_low='0 0\.3 0\.5' is not allowed; allowed: a list of finite numbers"),
+    ("joint_high", [2.0, True, 1.5], r"robot\.joint_high=\[2\.0, True, 1\.5\] is not allowed; allowed: a list of finite"),
+    ("joint_high", [2.0, 2.0], (r"robot\.joint_high=\[2\.0, 2\.0\] is not allowed; allowed: as many entries as "
+                               r"robot\.joint_low \(3\)")),
+    ("joint_high", [2.0, 0.2, 1.5], (r"robot\.joint_high=\[2\.0, 0\.2, 1\.5\] is not allowed; allowed: each entry above "
+                                    r"robot\.joint_low's \(\[0\.0, 0\.3, 0\.5\]\)")),
+    ("joint_names", ["joint1", 2, "joint3"], (r"robot\.joint_names=\['joint1', 2, 'joint3'\] is not allowed; allowed: a "
+                                             r"list of joint names")),
+    ("joint_names", ["a", "b", "c"], (r"robot\.joint_names=\['a', 'b', 'c'\] is not allowed; allowed: the free joints "
+                                     r"of the chain to 'quill', in chain order: \['joint1', 'joint2', 'joint3'\]")),
+    ("target", "orientation", r"robot\.target='orientation' is not allowed; allowed: one of \['position', 'pose'\]"),
+    ("target", "pose", (r"model_args out_features=3, target='position' do not fit the robot entry; allowed: one output "
+                       r"per free joint \(3\) and its target 'pose'")),
+    ("locked", {"joint3": float("inf")}, (r"robot\.locked=\{'joint3': inf\} is not allowed; allowed: a dict from joint "
+                                         r"name \(str\) to a finite held value")),
+    ("locked", ["joint3"], r"robot\.locked=\['joint3'\] is not allowed; allowed: a dict"),
+    ("locked", {"elbow": 0.0}, r"robot\.locked names \['elbow'\], which are not joints of the chain to 'quill'"),
+    ("name", None, r"robot\.name=None is not allowed; allowed: a label \(str\)"),
+]
+
+
+@pytest.mark.parametrize("key,value,match", _BAD_FIELDS, ids=[f"{k}-{i}" for i, (k, _, _) in enumerate(_BAD_FIELDS)])
+def test_bad_robot_field_is_named(tmp_path, key, value, match):
+    path = _crafted(tmp_path / "crafted.pt", **{key: value})
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(path))}: .*{match}"):
+        read_checkpoint(path)
+
+
+@pytest.mark.parametrize("low,high,match", [
+    ([0.0, 0.3], [2.0, 2.0], (r"robot\.joint_low/joint_high give 2 joints \(\[0\.0, 0\.3\]\); allowed: one per free "
+                             r"joint of the chain to 'quill', which has 3")),
+    ([-9.0, 0.3, 0.5], [2.0, 2.0, 1.5], r"joint range of joint1 \[-9, 2\] leaves the URDF limits \[-3\.142, 3\.142\]"),
+])
+def test_robot_box_must_fit_the_chain(tmp_path, low, high, match):
+    path = _crafted(tmp_path / "crafted.pt", joint_low=low, joint_high=high)
+    with pytest.raises(ValueError, match=f"{path.name}: robot entry: {match}"):
+        read_checkpoint(path)
+
+
+def test_robot_entry_with_only_the_required_keys_loads(tmp_path):
+    path = tmp_path / "crafted.pt"
+    _crafted(path)
+    raw = torch.load(path, weights_only=True)
+    raw["robot"] = {k: ROBOT[k] for k in ("urdf", "end_link", "joint_low", "joint_high")}
+    save_sealed(path, raw)
+    assert read_checkpoint(path)["robot"]["end_link"] == "quill"
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("widths", 1e-300, (r"widths has minimum 1e-300; allowed: widths of at least MIN_WIDTH = 1e-12 \(scaled input "
+                       r"units\), below which a Gaussian is 0 but at its centre")),
+    ("widths", -1.0, r"widths has minimum -1; allowed: widths of at least MIN_WIDTH"),
+    ("scale", 0.0, r"scale has minimum 0; allowed: positive input scales"),
+    ("cover_radius", -1.0, r"cover_radius is -1; allowed: a radius >= 0 \(inf: unbounded\)"),
+])
+def test_useless_model_buffers_are_refused(ckpt, key, value, match):
+    path, _ = ckpt
+    raw = torch.load(path, weights_only=True)
+    raw["state_dict"][key].view(-1)[0] = value
+    save_sealed(path, raw)
+    with pytest.raises(ValueError, match=f"{path.name}: state_dict {match}"):
+        read_checkpoint(path)
+
+
+def test_min_width_is_where_gaussians_vanish():
+    # At MIN_WIDTH a Gaussian is already 0 in float64 a few 1e-11 from its centre; training's
+    # smallest width (1e-9 times the scale 0.25) is far above it.
+    from rbfn.layer import gaussian_features
+    from rbfn.widths import SCALE_GRID
+
+    z = torch.tensor([[0.0, 0.0, 0.0], [4e-11, 0.0, 0.0]], dtype=torch.float64)
+    phi = gaussian_features(z, torch.zeros(1, 3, dtype=torch.float64), torch.full((1,), MIN_WIDTH, dtype=torch.float64))
+    assert phi[:, 0].tolist() == [1.0, 0.0]
+    assert 1e-9 * min(SCALE_GRID) > 100 * MIN_WIDTH
+
+
+def test_network_outputs_must_match_the_robot(tmp_path):
+    net = RBFNetwork(torch.randn(5, 3, dtype=torch.float64), torch.ones(5, dtype=torch.float64), 2)
+    path = _crafted(tmp_path / "crafted.pt", model=net)
+    with pytest.raises(ValueError, match=r"model_args out_features=2, target='position' do not fit the robot entry; "
+                                         r"allowed: one output per free joint \(3\)"):
         read_checkpoint(path)
