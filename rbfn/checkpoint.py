@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from .layer import RBFNetwork
+from .layer import MIN_WIDTH, RBFNetwork
 from .robots.robot import robot_from_record
 from .targets import TargetFeatures
 
@@ -39,12 +39,6 @@ _UNBOUNDED = {"in_low": -math.inf, "out_low": -math.inf, "in_high": math.inf, "o
               "cover_radius": math.inf}
 _ADVICE = "Re-run training or restore the file from a copy."
 
-MIN_WIDTH = 1e-12
-"""Smallest Gaussian width sigma (scaled input units, those of z = (x - offset) / scale) a checkpoint
-may hold. Below it exp(-d^2 / (2 sigma^2)) underflows to 0 in float64 for every input farther than
-4e-11 from the centre (d^2 / (2 sigma^2) > 745), far inside the 6e-8 resolution of float32 inputs of
-order 1, so the Gaussian answers 0 everywhere but at its centre. Training never makes one: the
-smallest width it gives is rbfn.widths' floor 1e-9 times the smallest scale tried, 0.25."""
 
 
 def _umask() -> int:
@@ -174,6 +168,9 @@ def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVIC
     """
     path = Path(path)
     if not path.is_file():
+        if path.exists():
+            kind = "a directory" if path.is_dir() else "not a regular file (a device, FIFO or socket)"
+            raise ValueError(f"{path} is {kind}; a {what} is a file")
         raise FileNotFoundError(f"no {what} at {path}")
     data = unseal(path.read_bytes(), path, what, advice)
     try:

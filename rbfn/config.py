@@ -67,6 +67,12 @@ CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
 ROBOT_PRESETS = ("scara", "ur5", "panda")
 # Seeds feed scikit-learn's random_state (< 2**32) and derive data streams seed * 1000 + k.
 MAX_SEED = 2**32 - 1
+# Useful widths, as multiples of a width rule's base (the paper's d_max / sqrt(2M), or the mean
+# distance to the nearest centres): validation chooses among 0.25 .. 64 (rbfn.widths.SCALE_GRID).
+# Below 1/16, a Gaussian is exp(-128) ~ 3e-56 half-way to the next centre: the network is its bias
+# alone between centres (and float32 features underflow to zero).
+MIN_WIDTH_SCALE = 1.0 / 16.0
+MAX_WIDTH_SCALE = 1024.0
 PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10 control periods
 
 
@@ -329,13 +335,16 @@ def validate_train(cfg: TrainConfig) -> None:
     """Raise ValueError naming the first bad value of a training config."""
     c, r, d, a = cfg.centers, cfg.rbfn, cfg.data, cfg.centers.aco
     _need(c.name in SELECTORS, "centers.name", c.name, f"choose one of {list(SELECTORS)}")
-    for name in ("n_train", "n_val", "n_test"):
+    _need(d.n_train >= 2, "data.n_train", d.n_train, "must be >= 2 (widths come from distances between samples)")
+    for name in ("n_val", "n_test"):
         _need(getattr(d, name) > 0, f"data.{name}", getattr(d, name), "must be > 0")
     _need(r.num_centers > 0, "rbfn.num_centers", r.num_centers, "must be > 0")
     _need(r.num_centers <= d.n_train, "rbfn.num_centers", r.num_centers,
           f"exceeds the training set size data.n_train={d.n_train}; use at most {d.n_train} centres")
-    _need(c.width_scale is None or (_finite(c.width_scale) and c.width_scale > 0), "centers.width_scale",
-          c.width_scale, "must be a positive finite number or null")
+    _need(c.width_scale is None or (_finite(c.width_scale) and MIN_WIDTH_SCALE <= c.width_scale <= MAX_WIDTH_SCALE),
+          "centers.width_scale", c.width_scale,
+          f"must be null (chosen on validation) or in [{MIN_WIDTH_SCALE:g}, {MAX_WIDTH_SCALE:g}] times the width "
+          f"rule's base: narrower Gaussians vanish between the centres, and the network returns its bias alone")
     _need(c.kmeans_restarts >= 1, "centers.kmeans_restarts", c.kmeans_restarts, "must be >= 1")
     _need(_finite(r.max_width) and r.max_width > 0, "rbfn.max_width", r.max_width, "must be > 0")
     _need(_finite(r.round_rel) and 0 <= r.round_rel < 1, "rbfn.round_rel", r.round_rel, "must be in [0, 1)")
@@ -360,6 +369,22 @@ def validate_train(cfg: TrainConfig) -> None:
     _need(_finite(g.goal) and g.goal >= 0, "rbfn.growth.goal", g.goal, "must be >= 0")
     _seed("seed", cfg.seed)
     validate_device(cfg.device, cfg.num_threads)
+    _train_fits(cfg)
+
+
+def _train_fits(cfg: TrainConfig) -> None:
+    """The training set and the least-squares design matrix (float64) fit in memory."""
+    from .memory import FLOAT64, check_fits      # a runtime fact, not a schema one
+
+    d, n_q = cfg.data, len(cfg.robot.joint_low)
+    pose = cfg.robot.target == Target.pose
+    row = (7 if pose else 3) + n_q                         # target and joints of one sample
+    p = cfg.rbfn.num_centers + (9 if pose else 3) + 1      # design columns: M Gaussians, the tail, a bias
+    parts = {"n_train": d.n_train * (row + p), "n_val": d.n_val * row, "n_test": d.n_test * row}
+    key = max(parts, key=lambda k: parts[k])
+    check_fits(f"data.{key}", getattr(d, key), sum(parts.values()) * FLOAT64, cfg.device,
+               f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
+               f"design matrix of rbfn.num_centers={cfg.rbfn.num_centers}")
 
 
 def validate_robot(r: RobotConfig) -> None:
@@ -444,6 +469,16 @@ def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
         _validate_aco(n.aco, "control.network.aco")
 
 
+def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: int, device: str) -> None:
+    """A run of duration / dt steps recording `columns` float64 values per step for `batch`
+    environments fits in memory."""
+    from .memory import FLOAT64, check_fits
+
+    steps = duration / dt + 1
+    check_fits(key, duration, steps * batch * columns * FLOAT64, device,
+               f"{steps:.3g} steps of {dt:g} s, each recording {columns} float64 values for {batch} run(s)")
+
+
 def validate_online(c: OnlineConfig) -> None:
     """Raise ValueError naming the first bad value of the online part (`online.*`)."""
     _need(_finite(c.dt) and c.dt > 0, "online.dt", c.dt, "must be a positive number of seconds")
@@ -479,6 +514,23 @@ def validate_evaluate(cfg: EvalConfig) -> None:
         validate_control(cfg.control, cfg.gains)
     if cfg.online.enabled:
         validate_online(cfg.online)
+    _evaluate_fits(cfg)
+
+
+def _evaluate_fits(cfg: EvalConfig) -> None:
+    """The test set, the recorded closed loops and the online runs fit in memory (lower bounds)."""
+    from .memory import FLOAT64, check_fits
+
+    if cfg.ik:    # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
+        check_fits("n_test", cfg.n_test, cfg.n_test * (7 + 7 + 16) * FLOAT64, cfg.device,
+                   "float64 test targets, joints and forward-kinematics poses")
+    n = len(cfg.robot.joint_low)
+    c = cfg.control
+    if c.enabled:   # q, qd and tau (n each) recorded every step, for each payload case at least
+        _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, cfg.device)
+    o = cfg.online
+    if o.enabled:   # joints and task position recorded every step, for each perturbation size
+        _trajectory_fits("online.duration", o.duration, o.dt, len(o.sizes), 3 + 3, cfg.device)
 
 
 def plain(cfg: Any) -> dict:

@@ -37,7 +37,15 @@ from torch import nn
 
 from .targets import TargetFeatures
 
-__all__ = ["RBFNetwork", "gaussian_features", "assemble"]
+__all__ = ["RBFNetwork", "gaussian_features", "assemble", "MIN_WIDTH"]
+
+MIN_WIDTH = 1e-12
+"""Smallest Gaussian width sigma (scaled input units, those of z = (x - offset) / scale) a network
+or checkpoint may hold. Below it exp(-d^2 / (2 sigma^2)) underflows to 0 in float64 for every input
+farther than 4e-11 from the centre (d^2 / (2 sigma^2) > 745), far inside the 6e-8 resolution of
+float32 inputs of order 1, so the Gaussian answers 0 everywhere but at its centre (and far enough
+below, 1 / (2 sigma^2) overflows float32 and the network returns NaN). Training never makes one:
+the smallest width it gives is rbfn.widths' floor 1e-9 times the smallest scale tried, 0.25."""
 
 
 def gaussian_features(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
@@ -135,11 +143,21 @@ class RBFNetwork(nn.Module):
         super().__init__()
         # Public inputs -> features (d): pose targets (B, 7) become 9 features; None: inputs are features.
         self.inputs = inputs
+        for name, t in (("centers", centers), ("widths", widths)):
+            if not isinstance(t, torch.Tensor) or not t.is_floating_point():
+                got = f"dtype {t.dtype}" if isinstance(t, torch.Tensor) else type(t).__name__
+                raise TypeError(f"{name} must be a floating-point torch.Tensor, got {got}")
+            if not bool(torch.isfinite(t).all()):
+                raise ValueError(f"{name} must be finite, got {int((~torch.isfinite(t)).sum())} non-finite values")
+        if centers.dim() != 2 or centers.shape[0] < 1 or centers.shape[1] < 1:
+            raise ValueError(f"centers must have shape (M, d) with M, d >= 1, got {tuple(centers.shape)}")
         m, d = centers.shape
         if widths.shape != (m,):
             raise ValueError(f"widths must have shape ({m},), got {tuple(widths.shape)}")
-        if not bool((widths > 0).all()):
-            raise ValueError(f"widths must be positive, got min {widths.min().item():.3g}")
+        if not bool((widths >= MIN_WIDTH).all()):
+            raise ValueError(f"widths must be >= {MIN_WIDTH:g} (scaled units), got min {widths.min().item():.3g}")
+        if isinstance(out_features, bool) or not isinstance(out_features, int) or out_features < 1:
+            raise ValueError(f"out_features={out_features!r} must be a positive integer")
         kw = {"dtype": centers.dtype, "device": centers.device}
         self.register_buffer("offset", torch.zeros(d, **kw) if offset is None else offset.to(**kw))
         self.register_buffer("scale", torch.ones(d, **kw) if scale is None else scale.to(**kw))
@@ -202,9 +220,15 @@ class RBFNetwork(nn.Module):
             raise ValueError(f"{name} must be {want}{hint}, got shape {tuple(x.shape)}")
         if x.dtype == torch.bool or x.is_complex():
             raise TypeError(f"{name} must be real numbers, got dtype {x.dtype}")
-        tracing = torch.compiler.is_compiling() or torch.compiler.is_exporting()
-        if self.inputs is not None and self.inputs.pose and not leading and not tracing:
-            self.inputs.check(x)          # unit quaternions, finite values (data checks: eager only)
+        if torch.compiler.is_compiling() or torch.compiler.is_exporting():
+            return x                      # data checks: eager only
+        if self.inputs is not None and self.inputs.pose and not leading:
+            self.inputs.check(x)          # unit quaternions, finite values
+        elif x.is_floating_point():
+            bad = ~torch.isfinite(x).all(-1)
+            if bool(bad.any()):
+                i = tuple(int(k) for k in bad.nonzero()[0])
+                raise ValueError(f"{name} must be finite; row {i[0] if len(i) == 1 else i} is {x[i].tolist()}")
         return x
 
     def check_inputs(self, x) -> torch.Tensor:
@@ -274,6 +298,9 @@ class RBFNetwork(nn.Module):
         if tuple(w.shape) != (p, out):
             rows = f"{m} Gaussians + {self.centers.shape[1]} tail + bias" if self.tail is not None else f"{m} Gaussians + bias"
             raise ValueError(f"output weights must be ({p}, {out}) (rows: {rows}), got shape {tuple(w.shape)}")
+        if not w.is_floating_point() or not bool(torch.isfinite(w).all()):
+            raise ValueError(f"output weights must be finite floating-point numbers, got dtype {w.dtype} with "
+                             f"{int((~torch.isfinite(w)).sum()) if w.is_floating_point() else 0} non-finite values")
         self.head.weight.copy_(w[:m].T)
         if self.tail is not None:
             self.tail.weight.copy_(w[m:-1].T)
@@ -341,6 +368,9 @@ class RBFNetwork(nn.Module):
             got = tuple(y.shape) if isinstance(y, torch.Tensor) else type(y).__name__
             raise ValueError(f"outputs y must be ({x.shape[0]}, {self.out_features}) for "
                              f"{x.shape[0]} inputs, got {got}")
+        if y.dtype == torch.bool or y.is_complex():
+            raise TypeError(f"outputs y must be real numbers, got dtype {y.dtype}")
+        y = y.to(self.centers.dtype)      # compared in the module's dtype, as its own outputs are
 
         def rows(xb: torch.Tensor, yb: torch.Tensor) -> torch.Tensor:
             _, a, e = self._exponents(xb, cover=True)

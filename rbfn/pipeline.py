@@ -25,6 +25,7 @@ from .refine import Refined, refine, refine_mode
 from .resume import StateFile, TrainState
 from .select import select
 from .targets import TargetFeatures
+from .widths import check_max_width
 
 if TYPE_CHECKING:
     from .robots.robot import Robot
@@ -127,6 +128,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     feats = (features(data.train.x), features(data.val.x))
     offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
     z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
+    check_max_width(z_tr, cfg.rbfn.max_width, cfg.rbfn.num_centers)
     jacobians = task_jacobians(cfg, robot, data) if _uses_task_loss(cfg, data, z_tr.shape[1], robot) else None
     objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32,
                              round_rel=cfg.rbfn.round_rel)

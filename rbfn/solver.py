@@ -15,19 +15,34 @@ deployed exports hold the network alone.
 from __future__ import annotations
 
 import copy
+import math
 from pathlib import Path
 
 import torch
 from pytorch_kinematics import transforms as tf
 
 from .checkpoint import model_from_checkpoint, read_checkpoint
-from .config import Target
+from .config import Target, validate_device
 from .layer import RBFNetwork
 from .robots.robot import Robot, robot_from_record
 
-__all__ = ["IKSolver", "load_solver", "DEFAULT_ITERATIONS"]
+__all__ = ["IKSolver", "load_solver", "DEFAULT_ITERATIONS", "MAX_ITERATIONS"]
 
 DEFAULT_ITERATIONS = 3
+MAX_ITERATIONS = 1000     # per call and per restart: a guard against typos (the polish converges in a few)
+
+
+def _count(name: str, v) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_ITERATIONS:
+        raise ValueError(f"{name}={v!r} is not allowed: use an integer in [0, {MAX_ITERATIONS}]")
+    return v
+
+
+def _positive(name: str, v, zero: bool = False) -> float:
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (v >= 0 if zero else v > 0)
+    if not ok:
+        raise ValueError(f"{name}={v!r} is not allowed: use a finite number {'>= 0' if zero else '> 0'}")
+    return float(v)
 
 
 class IKSolver:
@@ -35,8 +50,16 @@ class IKSolver:
 
     def __init__(self, model: RBFNetwork, robot: Robot, tol_mm: float = 0.1, tol_deg: float = 0.1,
                  damping: float = 1e-8) -> None:
+        if not isinstance(model, RBFNetwork):
+            raise TypeError(f"model must be an RBFNetwork, got {type(model).__name__}")
+        if not isinstance(robot, Robot):
+            raise TypeError(f"robot must be a rbfn.robots.robot.Robot, got {type(robot).__name__}")
+        if model.out_features != len(robot.joint_names):
+            raise ValueError(f"the model returns {model.out_features} joints, the robot has {len(robot.joint_names)} "
+                             f"free joints ({robot.joint_names})")
         self.model, self.robot = model, robot
-        self.tol_mm, self.tol_deg, self.damping = tol_mm, tol_deg, damping
+        self.tol_mm, self.tol_deg = _positive("tol_mm", tol_mm), _positive("tol_deg", tol_deg)
+        self.damping = _positive("damping", damping, zero=True)
         self.pose_target = robot.target == Target.pose
 
     def _errors(self, q: torch.Tensor, x: torch.Tensor):
@@ -74,8 +97,9 @@ class IKSolver:
         trained box (generator seeded by `seed`); a target keeps the first start that converges.
         """
         for name, v in (("iterations", iterations), ("restarts", restarts), ("restart_iterations", restart_iterations)):
-            if not (isinstance(v, int) and v >= 0):
-                raise ValueError(f"{name}={v!r} must be an integer >= 0")
+            _count(name, v)
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+            raise ValueError(f"seed={seed!r} is not allowed: use an integer in [0, 2**63)")
         dev = self.robot.chain.device
         x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
         low, high = self.robot.low.to(dev), self.robot.high.to(dev)
@@ -95,5 +119,6 @@ class IKSolver:
 
 def load_solver(path: str | Path, device: str = "cpu", tol_mm: float = 0.1, tol_deg: float = 0.1) -> IKSolver:
     """The IKSolver of the checkpoint at `path`: its network (float64) and its robot's kinematics."""
+    validate_device(device, 0, prefix="")
     ckpt = read_checkpoint(path)
     return IKSolver(model_from_checkpoint(ckpt).to(device), robot_from_record(ckpt["robot"], device), tol_mm, tol_deg)

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import torch
 
-from .config import WidthRule
+from .config import MIN_WIDTH_SCALE, WidthRule
 
-__all__ = ["paper_widths", "nearest_widths", "base_widths", "SCALE_GRID"]
+__all__ = ["paper_widths", "nearest_widths", "base_widths", "check_max_width", "SCALE_GRID"]
 
 # Scales tried on validation (log-spaced, 0.25x to 64x the base width).
 SCALE_GRID = tuple(2.0 ** (e / 2) for e in range(-4, 13))
@@ -40,3 +40,16 @@ def base_widths(centers: torch.Tensor, rule: str) -> torch.Tensor:
     if rule == "per_center":
         return nearest_widths(centers)
     raise ValueError(f"unknown width rule {rule!r}; allowed: {[str(r) for r in WidthRule]}")
+
+
+def check_max_width(z: torch.Tensor, max_width: float, m: int) -> None:
+    """ValueError naming rbfn.max_width where it caps every width below MIN_WIDTH_SCALE / 2 of the
+    paper's rule for M = m centres among the scaled inputs z (N, d): a lenient reference, the box
+    diagonal of z / sqrt(2M) (centres' d_max is at most the diagonal), so a useful cap is never refused."""
+    diag = float((z.amax(0) - z.amin(0)).norm())
+    floor = 0.5 * MIN_WIDTH_SCALE * diag / (2.0 * m) ** 0.5
+    if max_width < floor:
+        raise ValueError(f"rbfn.max_width={max_width!r} is not allowed: it caps every width below {floor:.3g} "
+                         f"(1/{1 / (0.5 * MIN_WIDTH_SCALE):g} of the paper's width d_max / sqrt(2M) = "
+                         f"{diag / (2.0 * m) ** 0.5:.3g} scaled units for these inputs at M = {m}), where "
+                         f"the Gaussians vanish between centres; use at least {floor:.3g}")

@@ -138,3 +138,52 @@ def test_launchers_compose(launcher, target):
                         else "hydra_plugins.hydra_submitit_launcher")
     cfg = compose_config("train", f"hydra/launcher={launcher}", hydra=True)
     assert cfg.hydra.launcher._target_.endswith(target)
+
+
+# --- settings that make a useless network, or cannot fit in memory, fail before any work ----------
+@pytest.mark.parametrize("override,key", [
+    ("centers.width_scale=1e-30", "centers.width_scale"),
+    ("centers.width_scale=0.01", "centers.width_scale"),
+    ("centers.width_scale=1e9", "centers.width_scale"),
+    ("data.n_train=1", "data.n_train"),
+])
+def test_settings_that_make_a_useless_network_are_refused_by_key(override, key):
+    with pytest.raises(ValueError, match=re.escape(key)):
+        validate_train(_cfg(override, "rbfn.num_centers=1"))
+
+
+def test_a_useful_width_scale_is_accepted():
+    validate_train(_cfg("centers.width_scale=0.25"))
+    validate_train(_cfg("centers.width_scale=64"))
+
+
+@pytest.mark.parametrize("override,key", [
+    ("data.n_train=1000000000000", "data.n_train"),
+    ("data.n_val=1000000000000", "data.n_val"),
+    ("data.n_test=1000000000000", "data.n_test"),
+])
+def test_training_sizes_that_cannot_fit_name_the_key_the_estimate_and_the_limit(override, key):
+    # 1e12 rows need terabytes: more than any machine this runs on.
+    with pytest.raises(ValueError, match=rf"{re.escape(key)}=1000000000000 needs at least [\d.]+ TiB .*"
+                                         r"more than this machine's available memory \([\d.]+ \w+\)"):
+        validate_train(_cfg(override))
+
+
+def test_the_memory_estimate_is_held_against_what_is_available(monkeypatch):
+    import rbfn.memory
+
+    cfg = _cfg("data.n_train=100000", "rbfn.num_centers=1000")   # 100000 x 1004 float64: 0.75 GiB
+    validate_train(cfg)
+    monkeypatch.setattr(rbfn.memory, "available_bytes", lambda device="cpu": 512 << 20)
+    with pytest.raises(ValueError, match=r"data.n_train=100000 needs at least 7\d\d MiB .*\(512 MiB\)"):
+        validate_train(cfg)
+
+
+@pytest.mark.parametrize("override,key", [
+    ("n_test=1000000000000", "n_test"),
+    ("control.duration=1e12", "control.duration"),
+    ("online.duration=1e12", "online.duration"),
+])
+def test_evaluation_sizes_that_cannot_fit_name_the_key(override, key):
+    with pytest.raises(ValueError, match=rf"{re.escape(key)}=1.*needs at least .* more than this machine's"):
+        validate_evaluate(compose_config("evaluate", override))

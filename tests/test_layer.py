@@ -1,5 +1,6 @@
 import copy
 
+import pytest
 import torch
 
 from rbfn.layer import RBFNetwork, assemble, gaussian_features
@@ -39,7 +40,7 @@ def test_assemble_matches_design_matrix():
 def test_negative_width_rejected():
     import pytest
 
-    with pytest.raises(ValueError, match="widths must be positive"):
+    with pytest.raises(ValueError, match="widths must be >= "):
         RBFNetwork(torch.zeros(2, 3), torch.tensor([1.0, -0.5]), 1)
 
 
@@ -275,3 +276,38 @@ def test_gradients_through_the_matrix_product_match_broadcast_distances():
     x.grad, net.head.weight.grad = None, None
     _reference(net, x)[0].square().sum().backward()
     assert (grads[0] - x.grad).abs().max() < 1e-10 and (grads[1] - net.head.weight.grad).abs().max() < 1e-10
+
+
+def test_non_finite_inputs_are_refused_by_every_entry_point():
+    net = RBFNetwork(torch.rand(4, 3), torch.ones(4), 2)
+    bad = torch.tensor([[0.1, 0.2, 0.3], [0.1, float("nan"), 0.3]])
+    for call in (net, net.solve, net.in_workspace, net.features, net.design, net.scaled):
+        with pytest.raises(ValueError, match=r"positions must be finite; row 1 is \[0.1.*nan"):
+            call(bad)
+    with pytest.raises(ValueError, match="finite"):
+        net(torch.tensor([[float("inf"), 0.0, 0.0]]).numpy())
+
+
+def test_in_workspace_takes_outputs_of_another_float_dtype():
+    net = RBFNetwork(torch.rand(4, 3), torch.ones(4), 2)
+    x = torch.rand(5, 3)
+    assert torch.equal(net.in_workspace(x, net(x).double()), net.in_workspace(x, net(x)))
+
+
+@pytest.mark.parametrize("centers,widths,out,message", [
+    (torch.full((2, 3), float("nan")), torch.ones(2), 3, "centers must be finite"),
+    (torch.zeros(2, 3), torch.tensor([1.0, float("inf")]), 3, "widths must be finite"),
+    (torch.zeros(2, 3), torch.tensor([1.0, 1e-30]), 3, "widths must be >= 1e-12"),
+    (torch.zeros(2, 3, dtype=torch.int64), torch.ones(2), 3, "floating-point"),
+    (torch.zeros(3), torch.ones(3), 3, r"shape \(M, d\)"),
+    (torch.zeros(2, 3), torch.ones(2), 0, "out_features=0"),
+])
+def test_the_constructor_checks_its_arguments(centers, widths, out, message):
+    with pytest.raises((ValueError, TypeError), match=message):
+        RBFNetwork(centers, widths, out)
+
+
+def test_non_finite_output_weights_are_refused():
+    net = RBFNetwork(torch.rand(4, 3), torch.ones(4), 2)
+    with pytest.raises(ValueError, match="output weights must be finite"):
+        net.set_output_weights(torch.full((net.num_design, 2), float("nan")))

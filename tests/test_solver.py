@@ -91,3 +91,39 @@ def test_pose_export_matches_the_module(ur5_run, tmp_path):
     q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
     assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-4)
     assert inside_onnx.tolist() == inside.tolist()
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"iterations": True}, r"iterations=True is not allowed: use an integer in \[0, 1000\]"),
+    ({"iterations": 10**9}, r"iterations=1000000000 is not allowed"),
+    ({"iterations": 2.0}, r"iterations=2.0 is not allowed"),
+    ({"restarts": -1}, r"restarts=-1 is not allowed"),
+    ({"restart_iterations": "5"}, r"restart_iterations='5' is not allowed"),
+    ({"seed": -1}, r"seed=-1 is not allowed"),
+])
+def test_solve_checks_its_arguments(panda_ckpt, kwargs, message):
+    from rbfn.checkpoint import model_from_checkpoint
+    from rbfn.robots.robot import robot_from_record
+    from rbfn.solver import IKSolver
+
+    robot = robot_from_record(panda_ckpt["robot"])
+    solver = IKSolver(model_from_checkpoint(panda_ckpt), robot)
+    x = robot.targets(0.5 * (robot.low + robot.high)[None])
+    with pytest.raises(ValueError, match=message):
+        solver.solve(x, **kwargs)
+    with pytest.raises(ValueError, match="poses must be finite|non-finite"):
+        solver.solve(torch.full_like(x, float("nan")))
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"tol_mm": -1}, r"tol_mm=-1 is not allowed: use a finite number > 0"),
+    ({"tol_deg": float("nan")}, r"tol_deg=nan is not allowed"),
+    ({"damping": -1e-3}, r"damping=-0.001 is not allowed: use a finite number >= 0"),
+])
+def test_solver_settings_are_checked(panda_ckpt, kwargs, message):
+    from rbfn.checkpoint import model_from_checkpoint
+    from rbfn.robots.robot import robot_from_record
+    from rbfn.solver import IKSolver
+
+    with pytest.raises(ValueError, match=message):
+        IKSolver(model_from_checkpoint(panda_ckpt), robot_from_record(panda_ckpt["robot"]), **kwargs)
