@@ -310,7 +310,7 @@ def arm_mujoco_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: s
     cfg = robot_config(robot)
     setup = control_robot(cfg, ControlConfig())
     plant = setup.plant
-    model = arm_model(cfg.urdf or cfg.name, payload=ARM_PAYLOAD, payload_link=plant.arm.end_link,
+    model = arm_model(Path(cfg.urdf) if cfg.urdf else cfg.name, payload=ARM_PAYLOAD, payload_link=plant.arm.end_link,
                       viscous=plant.viscous, coulomb=plant.coulomb, dt=DT, integrator=integrator, gravity=cfg.gravity)
     datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]
     rows = []

@@ -9,7 +9,9 @@ controlled: joints in robot.locked are held at their value (desired amplitude 0)
 """
 from __future__ import annotations
 
+import reprlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
@@ -66,17 +68,16 @@ def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]
     return cases, (rated / 2 if cfg.figure_payload is None else cfg.figure_payload)
 
 
-def _arm_source(robot: RobotConfig) -> str:
-    return robot.urdf or robot.name
-
-
-def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = ScaraParams()) -> ControlRobot:
-    """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key)."""
+def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = ScaraParams(),
+                  urdf_text: str | None = None) -> ControlRobot:
+    """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key).
+    `urdf_text`: the URDF's text (a checkpoint's robot entry: data, never a file name), used
+    instead of the file robot.urdf or the preset robot.name."""
     payloads, figure_payload = payload_cases(cfg, robot.rated_payload)
-    if robot.name == "scara" and not robot.urdf:
+    if robot.name == "scara" and not robot.urdf and urdf_text is None:
         n, names, prismatic, arm = 3, ["joint1", "joint2", "joint3"], [False, False, True], None
     else:
-        arm = _load(robot, cfg)
+        arm = _load(robot, cfg, urdf_text)
         n, names, prismatic = arm.n, arm.joint_names, arm._model.prismatic.tolist()
     scale = _scale(cfg, robot, arm, n)
     home, amplitude = _sinusoid(robot, names)
@@ -95,13 +96,15 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = 
                         payloads, figure_payload)
 
 
-def _load(robot: RobotConfig, cfg: ControlConfig):
-    source = _arm_source(robot)
+def _load(robot: RobotConfig, cfg: ControlConfig, urdf_text: str | None):
+    # the text, else robot.urdf (a file), else the preset robot.name
+    source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
     try:
         arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity)
-    except ValueError as e:
-        raise ValueError(f"robot.urdf={robot.urdf!r} (robot.name={robot.name!r}, robot.end_link="
-                         f"{robot.end_link!r}): {e}") from None
+    except (FileNotFoundError, ValueError) as e:
+        urdf = repr(robot.urdf) if urdf_text is None else reprlib.repr(urdf_text)     # a file name, or text
+        raise type(e)(f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link="
+                      f"{robot.end_link!r}): {e}") from None
     if cfg.payload_link:
         try:
             arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity, payload_link=cfg.payload_link)

@@ -205,11 +205,12 @@ def _scara(cfg: OnlineConfig, record: dict, gains: GainsConfig, path: str, t: to
 
 def _arm(record: dict, cfg: OnlineConfig, gains: GainsConfig, t: torch.Tensor, sizes: list[float],
          **kw) -> OnlineRobot:
-    robot = RobotConfig(name=record.get("name") or "urdf", urdf=record["urdf"], end_link=record["end_link"],
+    robot = RobotConfig(name=record.get("name") or "urdf", end_link=record["end_link"],
                         target=record.get("target", "position"), joint_low=list(record["joint_low"]),
                         joint_high=list(record["joint_high"]), locked=dict(record.get("locked", {})),
                         trajectory=Trajectory.sinusoid)
-    setup = control_robot(robot, ControlConfig())      # URDF dynamics; friction, disturbance scaled per joint
+    # URDF dynamics of the entry's text; friction, disturbance scaled per joint
+    setup = control_robot(robot, ControlConfig(), urdf_text=record["urdf"])
     arm = setup.plant.arm
     trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
     link, offset = perturbation_sizes(cfg, sizes, arm.n, arm.n, **kw)

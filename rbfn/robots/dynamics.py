@@ -36,25 +36,29 @@ Panda's M_77 about the root, 1.6e-6 about the wrist).
   Christoffel matrix (checked against autograd Christoffel symbols in the tests).
 
 URDF origins and inertials are parsed from the XML's floats in float64, lumped once at load and
-cached per dtype and device; every method follows the dtype and device of its inputs.
+cached per dtype and device; every method follows the dtype and device of its inputs. The URDF
+is read and parsed as the kinematics reads it (`rbfn.robots.kinematics.urdf_text`, `parse_urdf`):
+a file only from a `pathlib.Path`, a str is a preset's name or URDF text, never a file name.
 """
 from __future__ import annotations
 
 import math
+import os
+import reprlib
 from dataclasses import dataclass
-from importlib.resources import files
-from pathlib import Path
 
 import torch
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
-__all__ = ["Arm", "PRESETS", "load_arm"]
+from .kinematics import _matrix, _path_to, is_urdf_text, parse_urdf, urdf_path, urdf_text
 
-# preset name -> (URDF file in rbfn/robots, end links in order of preference, gravity m/s^2)
-PRESETS: dict[str, tuple[str, tuple[str, ...], float]] = {
-    "scara": ("scara.urdf", ("quill",), 9.8),
-    "ur5": ("ur5.urdf", ("ee_link", "tool0"), 9.81),
-    "panda": ("panda.urdf", ("panda_hand", "panda_link8"), 9.81),
+__all__ = ["PRESETS", "Arm", "load_arm", "urdf_source"]
+
+# preset name (its URDF: rbfn/robots/NAME.urdf) -> (end links in order of preference, gravity m/s^2)
+PRESETS: dict[str, tuple[tuple[str, ...], float]] = {
+    "scara": (("quill",), 9.8),
+    "ur5": (("ee_link", "tool0"), 9.81),
+    "panda": (("panda_hand", "panda_link8"), 9.81),
 }
 _MOVING = ("revolute", "continuous", "prismatic")
 
@@ -62,25 +66,9 @@ Payload = float | torch.Tensor
 
 
 # ----------------------------------------------------------------------------- URDF parsing
-def _rpy(rpy) -> torch.Tensor:
-    """Rotation (3, 3) float64 of URDF roll-pitch-yaw (rad): Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = (float(v) for v in rpy)
-    cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
-    cy, sy = math.cos(y), math.sin(y)
-    return torch.tensor([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                         [-sp, cp * sr, cp * cr]], dtype=torch.float64)
-
-
 def _pose(origin) -> torch.Tensor:
-    """Homogeneous transform (4, 4) float64 of a URDF <origin> (None is the identity)."""
-    t = torch.eye(4, dtype=torch.float64)
-    if origin is not None:
-        if origin.rpy is not None:
-            t[:3, :3] = _rpy(origin.rpy)
-        if origin.xyz is not None:
-            t[:3, 3] = torch.tensor([float(v) for v in origin.xyz], dtype=torch.float64)
-    return t
+    """Homogeneous transform (4, 4) float64 (m) of a URDF <origin> (None is the identity)."""
+    return torch.tensor(_matrix(origin), dtype=torch.float64)
 
 
 def _link_inertia(link, to_body: torch.Tensor) -> tuple[float, torch.Tensor, torch.Tensor]:
@@ -100,14 +88,16 @@ def _link_inertia(link, to_body: torch.Tensor) -> tuple[float, torch.Tensor, tor
     return m, m * c, j
 
 
-def _read_urdf(source: str | Path) -> URDF:
-    text = str(source)
-    if not text.lstrip().startswith("<"):
-        path = Path(source)
-        if not path.is_file():
-            raise ValueError(f"no URDF file at {str(path)!r}")
-        return URDF.from_xml_string(path.read_bytes())
-    return URDF.from_xml_string(text.encode())
+def urdf_source(name_or_urdf: str | bytes | os.PathLike, arg: str = "name_or_urdf") -> tuple[str, str]:
+    """(URDF text, its name in messages) of a preset's name (PRESETS: its packaged URDF), a URDF
+    file (a `pathlib.Path`), the URDF's text (a str: never taken for a file name) or its bytes;
+    `arg` names the argument in messages."""
+    if isinstance(name_or_urdf, str) and name_or_urdf in PRESETS:
+        return urdf_text(urdf_path(name_or_urdf))
+    if isinstance(name_or_urdf, str) and not is_urdf_text(name_or_urdf):
+        raise ValueError(f"{arg}={reprlib.repr(name_or_urdf)} is neither a preset nor URDF text; allowed: "
+                         f"{', '.join(PRESETS)}, the URDF's text or bytes, or a pathlib.Path of a URDF file")
+    return urdf_text(name_or_urdf)
 
 
 @dataclass(frozen=True)
@@ -128,27 +118,20 @@ class _Model:
     end_pose: torch.Tensor       # (4, 4): the end link's frame in body n-1's frame
 
 
-def _build(robot: URDF, end_link: str, payload_link: str | None) -> _Model:
-    links = sorted(robot.link_map)
-    if end_link not in robot.link_map:
-        raise ValueError(f"end link {end_link!r} is not a link of the URDF; links: {links}")
+def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) -> _Model:
+    path = _path_to(robot, source, end_link)             # joints root -> end_link, the URDF one tree
     payload_link = end_link if payload_link is None else payload_link
     if payload_link not in robot.link_map:
-        raise ValueError(f"payload link {payload_link!r} is not a link of the URDF; links: {links}")
-    root = robot.get_root()
-    path = [end_link]                                    # links, end -> root
-    while path[-1] != root:
-        path.append(robot.parent_map[path[-1]][1])
-    path.reverse()
+        raise ValueError(f"payload link {payload_link!r} is not a link of the URDF; links: {sorted(robot.link_map)}")
+    root = path[0].parent if path else end_link
 
     # Walk the chain: body index and pose in its body frame of every chain link.
     eye = torch.eye(4, dtype=torch.float64)
     where = {root: (-1, eye)}                            # link -> (body, pose in body frame)
     names, prismatic, placement, axis, lower, upper = [], [], [], [], [], []
-    for parent, child in zip(path, path[1:]):
-        jname = robot.parent_map[child][0]
-        joint = robot.joint_map[jname]
-        body, pose = where[parent]
+    for joint in path:
+        jname, child = joint.name, joint.child
+        body, pose = where[joint.parent]
         if joint.type == "fixed":
             where[child] = (body, pose @ _pose(joint.origin))
             continue
@@ -496,32 +479,23 @@ class Arm:
 
 
 # ----------------------------------------------------------------------------- loading
-def load_arm(name_or_urdf: str | Path, end_link: str | None = None, gravity: float | None = None,
+def load_arm(name_or_urdf: str | bytes | os.PathLike, end_link: str | None = None, gravity: float | None = None,
              dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu",
              payload_link: str | None = None) -> Arm:
-    """Dynamics of a preset ("scara", "ur5", "panda") or of a URDF (file path or XML text).
+    """Dynamics of a preset ("scara", "ur5", "panda") or of a URDF: a file (a `pathlib.Path`), its
+    text (a str: never taken for a file name) or its bytes, as `urdf_source` reads them.
 
     end_link: the chain's last link (required for a URDF; a preset picks its own).
     gravity: m/s^2 along -z of the root frame (or a (3,) vector); None is the preset's
     (9.8 for the SCARA) or 9.81. payload_link: where the payload sits, default end_link.
     dtype, device: where the constants are first cached (inputs of any other are served too).
     """
-    key = str(name_or_urdf)
-    if key in PRESETS:
-        fname, ends, g = PRESETS[key]
-        path = Path(str(files("rbfn.robots") / fname))
-        if not path.is_file():
-            raise ValueError(f"preset {key!r} needs {fname} in rbfn/robots, which is missing")
-        robot = _read_urdf(path)
-        if end_link is None:
-            end_link = next((e for e in ends if e in robot.link_map), ends[0])
-        gravity = g if gravity is None else gravity
-    else:
-        looks_like_file = not key.lstrip().startswith("<")
-        if looks_like_file and not Path(key).is_file():
-            raise ValueError(f"{key!r} is neither a preset ({', '.join(PRESETS)}) nor a URDF file")
-        if end_link is None:
-            raise ValueError("end_link is required for a URDF")
-        robot = _read_urdf(name_or_urdf)
-        gravity = 9.81 if gravity is None else gravity
-    return Arm(_build(robot, end_link, payload_link), gravity, end_link, dtype, device)
+    text, source = urdf_source(name_or_urdf)
+    robot = parse_urdf(text, source, inertials=True)
+    ends, g = PRESETS[name_or_urdf] if isinstance(name_or_urdf, str) and name_or_urdf in PRESETS else ((), 9.81)
+    if end_link is None:
+        if not ends:
+            raise ValueError(f"end_link=None is allowed for a preset only; allowed for {source}: one of its links")
+        end_link = next((e for e in ends if e in robot.link_map), ends[0])
+    gravity = g if gravity is None else gravity
+    return Arm(_build(robot, source, end_link, payload_link), gravity, end_link, dtype, device)

@@ -12,9 +12,11 @@ without limits. Supported joint types: revolute, continuous, prismatic, fixed.
 
 A URDF is read from a file (a `pathlib.Path`: a regular file of at most MAX_URDF_BYTES,
 decoded by its byte-order mark or XML declaration) or given as its text (a str, never taken
-for a file name) or bytes. lxml parses it without loading a DTD, external entities or anything
-from the network, with libxml2's limits on entity expansion (a "billion laughs" document is
-refused); meshes and other referenced files (`package://...`) are never opened.
+for a file name) or bytes (`urdf_text`). `urdf_tree` is the one place that parses URDF text, for
+the kinematics here (`parse_urdf`), the dynamics of `rbfn.robots.dynamics` and MuJoCo's models in
+`rbfn.robots.mjcf`: lxml without loading a DTD, external entities or anything from the network,
+with libxml2's limits on entity expansion (a "billion laughs" document is refused); meshes and
+other referenced files (`package://...`) are never opened.
 """
 from __future__ import annotations
 
@@ -33,8 +35,8 @@ from lxml import etree
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 from pytorch_kinematics.urdf_parser_py.xml_reflection.core import Path as XmlPath
 
-__all__ = ["MAX_URDF_BYTES", "forward_kinematics", "forward_kinematics_pose", "joint_limits", "load_serial_chain",
-           "read_urdf", "urdf_path"]
+__all__ = ["MAX_URDF_BYTES", "forward_kinematics", "forward_kinematics_pose", "is_urdf_text", "joint_limits",
+           "load_serial_chain", "parse_urdf", "read_urdf", "urdf_path", "urdf_text", "urdf_tree"]
 
 MAX_URDF_BYTES = 16 * 2**20
 """Largest URDF read, in bytes (a file, bytes) or characters (text): 16 MiB, 80 times the largest
@@ -47,17 +49,22 @@ _BOMS = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (code
 # The encoding named by an XML declaration (group 2).
 _DECLARED = re.compile(r"""<\?xml[^>]*?\sencoding\s*=\s*(["'])([A-Za-z][\w.:-]*)\1""")
 
+_BLANK = "\ufeff \t\r\n"      # what may precede the first "<" of URDF text: a byte-order mark, whitespace
+# What a file that is not a regular one is, for messages.
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
 _JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic",
                 "fixed": "fixed"}
 
 
 def urdf_path(name: str) -> Path:
-    """Path of a URDF shipped with rbfn.robots: "scara", "ur5" or "panda"."""
-    path = Path(str(files("rbfn.robots") / f"{name}.urdf"))
-    if not path.is_file():
-        shipped = sorted(p.stem for p in path.parent.glob("*.urdf"))
-        raise ValueError(f"no URDF named {name!r} in rbfn.robots; shipped: {shipped}")
-    return path
+    """Path of a URDF shipped with rbfn.robots: "scara", "ur5" or "panda" (a name, never a path)."""
+    folder = Path(str(files("rbfn.robots")))
+    shipped = sorted(p.stem for p in folder.glob("*.urdf"))
+    if name not in shipped:
+        raise ValueError(f"name={name!r} is not a URDF shipped with rbfn.robots; allowed: {shipped}")
+    return folder / f"{name}.urdf"
 
 
 def _matrix(origin) -> list[list[float]]:
@@ -106,13 +113,19 @@ def _decode(data: bytes, source: str) -> str:
 def read_urdf(path: str | os.PathLike) -> str:
     """Text of the URDF file at `path`, decoded as `_decode` says.
 
-    Only a regular file of at most MAX_URDF_BYTES is read (a FIFO or device is refused before any
-    read: opening does not block); FileNotFoundError if there is none at `path`.
+    Only a regular file of at most MAX_URDF_BYTES is read: a directory, FIFO or device is refused
+    by what it is (ValueError) before any read (opening does not block); FileNotFoundError if
+    there is nothing at `path`.
     """
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise ValueError(f"{path} is not a regular file; a URDF is read only from a regular file")
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such file; allowed: a regular file") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = next((name for test, name in _KINDS if test(mode)), "not a regular file")
+            raise ValueError(f"{path} is {kind}, not a regular file; allowed: a regular file")
         with open(fd, "rb", closefd=False) as f:
             data = f.read(MAX_URDF_BYTES + 1)
     finally:
@@ -120,19 +133,41 @@ def read_urdf(path: str | os.PathLike) -> str:
     return _decode(data, str(path))
 
 
-def _parse(text: str, source: str) -> URDF:
-    """The parsed URDF of `text`; ValueError naming `source` when it is no URDF.
+def is_urdf_text(urdf: str) -> bool:
+    """Whether a str is (meant as) URDF text: its first character past a byte-order mark and
+    whitespace is "<". Anything else is not, whatever file it might name."""
+    return urdf.lstrip(_BLANK).startswith("<")
+
+
+def urdf_text(urdf: str | bytes | os.PathLike, source: str | None = None) -> tuple[str, str]:
+    """(text, source) of a URDF file (a `pathlib.Path` or other path object, read by `read_urdf`),
+    the URDF's text (a str: never taken for a file name) or its bytes (decoded by their BOM or XML
+    declaration). `source` names the URDF in messages (default: the file, "URDF text" or "URDF
+    bytes")."""
+    if isinstance(urdf, os.PathLike):
+        return read_urdf(urdf), source or str(urdf)
+    if isinstance(urdf, bytes):
+        return _decode(urdf, source or "URDF bytes"), source or "URDF bytes"
+    if isinstance(urdf, str):
+        return urdf, source or "URDF text"
+    raise TypeError(f"urdf={reprlib.repr(urdf)} is a {type(urdf).__name__}; allowed: a pathlib.Path, "
+                    "the URDF's text (str) or its bytes")
+
+
+def urdf_tree(text: str, source: str, inertials: bool = False) -> etree._Element:
+    """The <robot> element of URDF `text`, pruned to what kinematics and dynamics use; ValueError
+    naming `source` when it is no URDF document.
 
     Parsed as UTF-8 whatever the XML declaration says (a str has no encoding), without a leading
     byte-order mark or whitespace; comments and processing instructions are dropped, and so is all
-    but the <joint> elements and the <link> elements' names (geometry, materials, inertials,
-    transmissions: whatever pytorch-kinematics' parser would trip over in them, kinematics does not
-    use). The parser is lxml's default made explicit: internal entities only, no DTD, no network,
-    no huge trees.
+    but the <joint> elements, the <link> elements' names and, with `inertials`, their <inertial>
+    (geometry and its mesh files, materials, transmissions: whatever pytorch-kinematics' parser
+    would trip over or MuJoCo would open). The parser is lxml's default made explicit: internal
+    entities only, no DTD, no network, no huge trees.
     """
     if len(text) > MAX_URDF_BYTES:
         raise _too_large(len(text), source)
-    text = text.lstrip("\ufeff \t\r\n")
+    text = text.lstrip(_BLANK)
     if not text.startswith("<"):
         raise ValueError(f"{source}: {reprlib.repr(text)} is not URDF text; allowed: XML whose root element "
                          "is <robot> (a string is never read as a file name: pass a pathlib.Path for a file)")
@@ -140,15 +175,27 @@ def _parse(text: str, source: str) -> URDF:
                              huge_tree=False, remove_comments=True, remove_pis=True)
     try:
         root = etree.fromstring(text.encode("utf-8"), parser)
-        if etree.QName(root).localname != "robot":
-            raise ValueError(f"the root element is <{root.tag}>; a URDF's is <robot>")
-        for child in list(root):             # kinematics needs the joints and the links' names only
-            if child.tag == "link":
-                del child[:]
-            elif child.tag != "joint":
-                root.remove(child)
+    except etree.XMLSyntaxError as e:
+        raise ValueError(f"{source}: malformed URDF: {' '.join(str(e).split())}") from e
+    if etree.QName(root).localname != "robot":
+        raise ValueError(f"{source}: malformed URDF: the root element is <{root.tag}>; a URDF's is <robot>")
+    for child in list(root):
+        if child.tag == "link":
+            for part in list(child):
+                if not (inertials and part.tag == "inertial"):
+                    child.remove(part)
+        elif child.tag != "joint":
+            root.remove(child)
+    return root
+
+
+def parse_urdf(text: str, source: str, inertials: bool = False) -> URDF:
+    """The URDF of `text` (joints, links and, with `inertials`, their inertials), pruned and parsed
+    as `urdf_tree` says; ValueError naming `source` when it is no URDF."""
+    root = urdf_tree(text, source, inertials)
+    try:
         robot = URDF.from_xml(root, XmlPath(URDF.XML_REFL.tag, tree=etree.ElementTree(root)))
-    except Exception as e:  # lxml's XMLSyntaxError, the parser's ParseError, AssertionError
+    except Exception as e:  # the parser's ParseError, AssertionError, ...
         msg = " ".join(str(e).split()) or type(e).__name__
         raise ValueError(f"{source}: malformed URDF: {msg}") from e
     if robot is None or not robot.links:
@@ -219,24 +266,14 @@ def load_serial_chain(urdf: str | bytes | os.PathLike, end_link: str, dtype: tor
                       device: str | torch.device = "cpu", source: str | None = None) -> pk.SerialChain:
     """Serial chain from the URDF's root link to `end_link`, frames named after the links.
 
-    `urdf` is a file (a `pathlib.Path` or other path object, read by `read_urdf`), the URDF's text
-    (a str: never taken for a file name) or its bytes (decoded by their BOM or XML declaration).
-    `source` names the URDF in messages (default: the file, or "URDF text"). Offsets are exact to
+    `urdf` and `source` are as `urdf_text` takes them: a file (a `pathlib.Path`), the URDF's text
+    (a str: never taken for a file name) or its bytes; `source` names it in messages. Offsets are exact to
     the URDF's numbers in float64 (rounded once to `dtype`). Raises ValueError (naming `source`)
     for a malformed URDF, an unknown `end_link`, a URDF that is not one tree, or a floating/planar
     joint on the path.
     """
-    if isinstance(urdf, os.PathLike):
-        source, text = source or str(urdf), read_urdf(urdf)
-    elif isinstance(urdf, bytes):
-        source = source or "URDF bytes"
-        text = _decode(urdf, source)
-    elif isinstance(urdf, str):
-        source, text = source or "URDF text", urdf
-    else:
-        raise TypeError(f"urdf={reprlib.repr(urdf)} is a {type(urdf).__name__}; allowed: a pathlib.Path, "
-                        "the URDF's text (str) or its bytes")
-    robot = _parse(text, source)
+    text, source = urdf_text(urdf, source)
+    robot = parse_urdf(text, source)
     path = _path_to(robot, source, end_link)
     root_name = path[0].parent if path else end_link
     root = pk.Frame(root_name, link=pk.Link(root_name), joint=pk.Joint(dtype=dtype))

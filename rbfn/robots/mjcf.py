@@ -7,20 +7,26 @@ point mass on the quill, the prismatic joint positive downward (axis -z), so MuJ
 C(q, qd) qd and G(q) are those of `rbfn.robots.scara`; `mujoco.MjModel.from_xml_string(scara_mjcf())`
 compiles it.
 
-URDF arms (`arm_model`, needs `mujoco`): MuJoCo reads the URDF itself, with visual geometry
-discarded and `fusestatic` off, so that bodies joined by fixed joints stay bodies (their inertia
-lumped exactly as `rbfn.robots.dynamics` lumps it, and the payload link still there to carry the
-payload as a point mass at its origin). The root link is welded to the world, as in
-`rbfn.robots.dynamics`; gravity along -z.
+URDF arms (`arm_model`, needs `mujoco`): the URDF is read and parsed as the dynamics reads it
+(`rbfn.robots.dynamics.urdf_source`: a file only from a `pathlib.Path`; `kinematics.urdf_tree`:
+its joints and its links' inertials, no geometry, so that MuJoCo opens no mesh file and finds no
+contact), then MuJoCo compiles it with `fusestatic` off, so that bodies joined by fixed joints
+stay bodies (their inertia lumped exactly as `rbfn.robots.dynamics` lumps it, and the payload
+link still there to carry the payload as a point mass at its origin). The root link is welded
+to the world, as in `rbfn.robots.dynamics`; gravity along -z.
 
 Both: friction viscous as joint damping, Coulomb as MuJoCo's `frictionloss` (a dry-friction
 constraint, not sign(qd) itself); torques through one motor of gear 1 per joint.
 """
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Sequence
+import os
+from collections.abc import Sequence
 
+from lxml import etree
+
+from .dynamics import urdf_source
+from .kinematics import urdf_tree
 from .scara import ScaraParams
 
 __all__ = ["scara_mjcf", "arm_model"]
@@ -64,19 +70,6 @@ def scara_mjcf(p: ScaraParams = ScaraParams(), payload: float = 0.0, viscous: fl
 """
 
 
-def _urdf_text(urdf: str | Path) -> str:
-    """URDF text of a packaged robot's name ("ur5"), a file path, or the text itself."""
-    text = str(urdf)
-    if text.lstrip().startswith("<"):
-        return text
-    path = Path(text)
-    if not path.is_file():
-        path = Path(__file__).with_name(f"{text}.urdf")
-        if not path.is_file():
-            raise ValueError(f"{text!r} is neither a packaged robot nor a URDF file")
-    return path.read_text()
-
-
 def _per_joint(value: float | Sequence[float], n: int, key: str) -> list[float]:
     values = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
     if len(values) != n:
@@ -84,20 +77,19 @@ def _per_joint(value: float | Sequence[float], n: int, key: str) -> list[float]:
     return values
 
 
-def arm_model(urdf: str | Path, payload: float = 0.0, payload_link: str | None = None,
+def arm_model(urdf: str | bytes | os.PathLike, payload: float = 0.0, payload_link: str | None = None,
               viscous: float | Sequence[float] = 0.0, coulomb: float | Sequence[float] = 0.0,
               dt: float = 1e-3, integrator: str = "RK4", gravity: float | None = None):
-    """`mujoco.MjModel` of a URDF arm (packaged name, path or text) with `payload` kg at the origin
-    of `payload_link` (a body of the URDF; None: no payload), per-joint viscous damping
-    (N m s/rad) and Coulomb friction loss (N m), a motor per joint, timestep dt s, `integrator`
-    (RK4, Euler, implicitfast, ...), gravity m/s^2 along -z (None: the model's 9.81)."""
+    """`mujoco.MjModel` of a URDF arm (a preset's name, a `pathlib.Path`, the URDF's text or bytes:
+    a str is never taken for a file name) with `payload` kg at the origin of `payload_link` (a
+    body of the URDF; None: no payload), per-joint viscous damping (N m s/rad) and Coulomb
+    friction loss (N m), a motor per joint, timestep dt s, `integrator` (RK4, Euler,
+    implicitfast, ...), gravity m/s^2 along -z (None: the model's 9.81)."""
+    root = urdf_tree(*urdf_source(urdf, "urdf"), inertials=True)
     import mujoco
 
-    text = _urdf_text(urdf)
-    head = text.find(">", text.find("<robot")) + 1
-    text = (text[:head] + '<mujoco><compiler discardvisual="true" fusestatic="false"/></mujoco>'
-            + text[head:])
-    spec = mujoco.MjSpec.from_string(text)
+    etree.SubElement(etree.SubElement(root, "mujoco"), "compiler", fusestatic="false")
+    spec = mujoco.MjSpec.from_string(etree.tostring(root, encoding="unicode"))
     spec.option.timestep = dt
     spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}")
     if gravity is not None:

@@ -136,11 +136,13 @@ def _check_box(robot: Robot, where: str) -> None:
 
 def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
     """The robot of `cfg` (the packaged URDF of `cfg.name` when `cfg.urdf` is empty), its box
-    checked against the URDF's joint limits."""
+    checked against the URDF's joint limits. A robot.urdf that is missing (FileNotFoundError) or
+    no regular file (ValueError: a directory, FIFO or device, named as such) is refused unread."""
     path = Path(cfg.urdf) if cfg.urdf else urdf_path(cfg.name)
-    if not path.is_file():
-        raise FileNotFoundError(f"robot.urdf={cfg.urdf!r}: no such file ({path.resolve()})")
-    text = read_urdf(path)
+    try:
+        text = read_urdf(path)
+    except (FileNotFoundError, ValueError) as e:
+        raise type(e)(f"robot.urdf={cfg.urdf!r}: {e}") from None
     chain = load_serial_chain(text, cfg.end_link, torch.float64, device, source=str(path))
     robot = Robot(chain, text, cfg.end_link, torch.tensor(cfg.joint_low, dtype=torch.float64),
                   torch.tensor(cfg.joint_high, dtype=torch.float64), str(cfg.target), dict(cfg.locked), cfg.name)

@@ -156,8 +156,10 @@ def test_shipped_urdfs_load():
         assert len(chain.get_joint_parameter_names()) == n
         low, high = joint_limits(chain)
         assert bool(torch.isfinite(low).all() and (low < high).all())
-    with pytest.raises(ValueError, match="no URDF named 'kuka'"):
-        urdf_path("kuka")
+    for name in ("kuka", "../robots/ur5", str(urdf_path("ur5"))[:-5]):
+        with pytest.raises(ValueError, match=f"name='{name}' is not a URDF shipped with rbfn.robots; allowed: "
+                                             r"\['panda', 'scara', 'ur5'\]"):
+            urdf_path(name)
 
 
 # --- UR5 and Panda against Pinocchio on example-robot-data's descriptions ---------------------
@@ -345,9 +347,9 @@ def test_a_string_is_text_and_a_path_a_regular_file(tmp_path):
     with pytest.raises(ValueError, match=r"URDF bytes: the URDF has 16777218 bytes or characters or more; allowed: at "
                                          r"most MAX_URDF_BYTES = 16777216"):
         load_serial_chain(b"<" * (MAX_URDF_BYTES + 2), "a")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match=f"{tmp_path / 'none.urdf'}: no such file; allowed: a regular file"):
         load_serial_chain(tmp_path / "none.urdf", "a")
-    with pytest.raises(ValueError, match=f"{tmp_path} is not a regular file; a URDF is read only from a regular file"):
+    with pytest.raises(ValueError, match=f"{tmp_path} is a directory, not a regular file; allowed: a regular file"):
         load_serial_chain(tmp_path, "a")
     big = tmp_path / "big.urdf"
     big.write_bytes(b"<robot name='t'><link name='a'/></robot>" + b" " * MAX_URDF_BYTES)
@@ -363,7 +365,25 @@ def test_devices_and_fifos_are_not_read(tmp_path, target):
         os.mkfifo(target)
     out = run_guarded(f"from pathlib import Path\nfrom rbfn.robots import load_serial_chain\n"
                       f"load_serial_chain(Path({target!r}), 'a')")
-    assert f"ValueError: {target} is not a regular file; a URDF is read only from a regular file" in out, out
+    kind = "a FIFO" if target.endswith("arm.urdf") else "a character device"
+    assert f"ValueError: {target} is {kind}, not a regular file; allowed: a regular file" in out, out
+
+
+@pytest.mark.parametrize("target", ["/dev/zero", "fifo", "directory", "missing"])
+def test_load_robot_says_what_the_urdf_path_is(tmp_path, target):
+    # robot.urdf names no regular file: the message says what is there, the file never read.
+    path = {"/dev/zero": "/dev/zero", "fifo": str(tmp_path / "arm.urdf"), "directory": str(tmp_path),
+            "missing": str(tmp_path / "none.urdf")}[target]
+    what = {"/dev/zero": "ValueError: /dev/zero is a character device, not a regular file",
+            "fifo": f"ValueError: {path} is a FIFO, not a regular file",
+            "directory": f"ValueError: {path} is a directory, not a regular file",
+            "missing": f"FileNotFoundError: {path}: no such file"}[target]
+    if target == "fifo":
+        os.mkfifo(path)
+    out = run_guarded("from rbfn.config import RobotConfig\nfrom rbfn.robots.robot import load_robot\n"
+                      f"load_robot(RobotConfig(name='t', urdf={path!r}, end_link='a'))")
+    error, message = what.split(": ", 1)
+    assert f"{error}: robot.urdf={path!r}: {message}; allowed: a regular file" in out, out
 
 
 def test_load_robot_records_the_decoded_text(tmp_path):

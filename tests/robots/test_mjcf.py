@@ -52,3 +52,29 @@ def test_mujoco_compiles_the_ur5_urdf_to_the_same_dynamics(payload):
         assert np.allclose(m, m_ref[i].numpy(), rtol=1e-10, atol=1e-12)
         assert np.allclose(data.qfrc_bias, b_ref[i].numpy(), rtol=1e-10, atol=1e-10)
         assert np.allclose(data.qfrc_passive, -2.0 * qd[i].numpy())      # viscous damping 2
+
+
+@pytest.mark.parametrize("name", ["erd_ur3", "erd_ur5", "erd_ur10", "erd_kinova", "erd_xarm7", "erd_z1", "erd_so100",
+                                  "erd_so101"])
+def test_mujoco_compiles_example_robot_data_arms_to_the_same_dynamics(name):
+    """example-robot-data's serial arms (every joint on the chain) from their files: MuJoCo gets their
+    joints and inertials only (no mesh file opened) and gives rbfn.robots.dynamics' M and bias."""
+    from rbfn.robots.dynamics import load_arm
+    from rbfn.robots.mjcf import arm_model
+    from tests.robots.test_urdf_dynamics import ERD, _erd_urdf, _states
+
+    rel, end = ERD[name]
+    path = _erd_urdf(rel)
+    arm = load_arm(path, end)
+    model = arm_model(path, payload=1.5, payload_link=end)
+    data = mujoco.MjData(model)
+    assert [model.joint(i).name for i in range(model.njnt)] == arm.joint_names
+    q, qd = _states(arm, 10, seed=2)
+    m_ref, b_ref = arm.dynamics(q, qd, 1.5)
+    for i in range(10):
+        data.qpos[:], data.qvel[:] = q[i].numpy(), qd[i].numpy()
+        mujoco.mj_forward(model, data)
+        m = np.zeros((arm.n, arm.n))
+        mujoco.mj_fullM(model, data, m)
+        assert np.allclose(m, m_ref[i].numpy(), rtol=1e-10, atol=1e-12)
+        assert np.allclose(data.qfrc_bias, b_ref[i].numpy(), rtol=1e-10, atol=1e-10)

@@ -1,8 +1,10 @@
 """URDF dynamics (rbfn.robots.dynamics): the SCARA's closed forms, Pinocchio, and properties.
 
 Pinocchio (an independent C++ implementation) checks M, C qd, G, C and RNEA on
-example-robot-data's UR5 and Panda (fingers locked at zero), on the repository's UR5 and Panda
-presets when present, and on a test arm with everything the loader has to lump: fixed links
+example-robot-data's serial arms (UR3/5/10, Panda, Kinova j2s6s200, xArm7, Z1, SO-100, SO-101; joints
+beyond the end link locked at zero) and on chains of the robots whose visual textures or
+transmissions pytorch-kinematics' URDF parser refuses (iCub, PR2, Romeo), on the repository's UR5
+and Panda presets, and on a test arm with everything the loader has to lump: fixed links
 along the chain, off-chain bodies, fixed bodies and a finger joint beyond the end link, rotated
 origins, unaligned and unnormalised axes, a prismatic and a continuous joint. The property tests
 need no Pinocchio: M symmetric positive definite, dM/dt - 2C skew, C the Christoffel matrix of M
@@ -12,6 +14,8 @@ simulator's forms of the same terms (batch-last `arm_terms`, scalar `arm_scalar`
 from __future__ import annotations
 
 import importlib.metadata
+import os
+import reprlib
 from pathlib import Path
 
 import pytest
@@ -20,10 +24,11 @@ import torch
 from rbfn.robots import scara
 from rbfn.robots.arm_scalar import ArmScalarTerms
 from rbfn.robots.arm_terms import ArmTerms
-from rbfn.robots.dynamics import PRESETS, load_arm
+from rbfn.robots.dynamics import load_arm
+from rbfn.robots.kinematics import read_urdf, urdf_path
+from tests.guarded import run_guarded
 
 torch.set_num_threads(1)
-ROBOTS = Path(scara.__file__).parent
 
 # Off-diagonal inertias, rotated inertial frames, a fixed link mid-chain, an off-chain camera,
 # a prismatic and a continuous joint, unaligned axes, and beyond the end link (flange) a fixed
@@ -100,19 +105,34 @@ def _erd_urdf(rel: str) -> Path:
     pytest.skip(f"example-robot-data has no {rel}")
 
 
+# example-robot-data's serial arms and chains of its humanoids: test name -> (file under robots/, end link).
+_PANDA, _KINOVA = "panda_description/urdf/panda.urdf", "kinova_description/robots/kinova.urdf"
+ERD = {"erd_ur3": ("ur_description/urdf/ur3_robot.urdf", "ee_link"),
+       "erd_ur5": ("ur_description/urdf/ur5_robot.urdf", "ee_link"),
+       "erd_ur10": ("ur_description/urdf/ur10_robot.urdf", "ee_link"),
+       "erd_panda": (_PANDA, "panda_hand"),
+       "erd_panda_link8": (_PANDA, "panda_link8"),
+       "erd_panda_finger": (_PANDA, "panda_leftfinger"),                   # 8 joints: a finger's prismatic one
+       "erd_kinova": (_KINOVA, "j2s6s200_end_effector"),
+       "erd_kinova_finger_tip": (_KINOVA, "j2s6s200_link_finger_tip_1"),
+       "erd_xarm7": ("xarm_description/urdf/xarm7.urdf", "link_eef"),
+       "erd_z1": ("z1_description/urdf/z1.urdf", "gripperMover"),
+       "erd_so100": ("so_arm_description/urdf/so100.urdf", "jaw"),
+       "erd_so101": ("so_arm_description/urdf/so101.urdf", "moving_jaw_so101_v1_link"),
+       # pytorch-kinematics' URDF parser refuses their visual textures (iCub, Romeo) or transmissions (PR2)
+       "erd_icub": ("icub_description/robots/icub.urdf", "r_hand"),
+       "erd_pr2": ("pr2_description/urdf/pr2.urdf", "r_gripper_palm_link"),
+       "erd_romeo": ("romeo_description/urdf/romeo_laas_small.urdf", "RArm_effector")}
+
+
 def _source(name: str) -> tuple[str, str]:
     """(URDF text, end link) of a test robot name."""
     if name == "test_arm":
         return TEST_URDF, TEST_END
-    if name.startswith("erd_"):
-        rel, end = {"erd_ur5": ("ur_description/urdf/ur5_robot.urdf", "ee_link"),
-                    "erd_panda": ("panda_description/urdf/panda.urdf", "panda_hand")}[name]
-        return _erd_urdf(rel).read_text(), end
-    path = ROBOTS / PRESETS[name][0]
-    if not path.is_file():
-        pytest.skip(f"{path.name} is not in rbfn/robots yet")
-    arm = load_arm(name)
-    return path.read_text(), arm.end_link
+    if name in ERD:
+        rel, end = ERD[name]
+        return read_urdf(_erd_urdf(rel)), end
+    return read_urdf(urdf_path(name)), load_arm(name).end_link
 
 
 def _arm(name: str, **kw):
@@ -183,7 +203,7 @@ def _pinocchio(name: str, arm, payload: float):
 
 
 @pytest.mark.parametrize("payload", [0.0, 2.5])
-@pytest.mark.parametrize("name", ["erd_ur5", "erd_panda", "test_arm", "ur5", "panda"])
+@pytest.mark.parametrize("name", [*ERD, "test_arm", "ur5", "panda"])
 def test_matches_pinocchio(name, payload):
     pytest.importorskip("pinocchio")
     import numpy as np
@@ -382,7 +402,7 @@ def test_lumping_does_not_depend_on_the_end_link_past_the_last_joint():
 
 def test_loader_errors():
     text, _ = _source("test_arm")
-    with pytest.raises(ValueError, match="end link 'nope' is not a link.*'flange'"):
+    with pytest.raises(ValueError, match="URDF text: end_link 'nope' is not a link.*'flange'"):
         load_arm(text, "nope")
     with pytest.raises(ValueError, match="payload link 'ghost' is not a link"):
         load_arm(text, TEST_END, payload_link="ghost")
@@ -393,14 +413,78 @@ def test_loader_errors():
     # An unsupported joint off the chain is held at zero like any other.
     load_arm(text.replace('"finger_a_joint" type="prismatic"', '"finger_a_joint" type="floating"'),
              TEST_END)
-    with pytest.raises(ValueError, match="end_link is required"):
+    with pytest.raises(ValueError, match="end_link=None is allowed for a preset only; allowed for URDF text: one"):
         load_arm(text)
-    with pytest.raises(ValueError, match="neither a preset"):
+    with pytest.raises(ValueError, match=r"name_or_urdf='no_such_robot' is neither a preset nor URDF text; allowed: "
+                                         r"scara, ur5, panda, the URDF's text or bytes, or a pathlib\.Path"):
         load_arm("no_such_robot")
-    for name, (fname, _, _) in PRESETS.items():
-        if not (ROBOTS / fname).is_file():
-            with pytest.raises(ValueError, match=f"preset '{name}' needs {fname}"):
-                load_arm(name)
+    with pytest.raises(TypeError, match=r"urdf=42 is a int; allowed: a pathlib\.Path"):
+        load_arm(42, TEST_END)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "file"])
+def test_a_string_naming_a_file_is_refused_unopened(tmp_path, kind):
+    """A str is a preset's name or URDF text, never a file name, for the dynamics and for MuJoCo
+    (a FIFO would block an open, so the loaders run in a child process with a deadline)."""
+    path = tmp_path / "arm.urdf"
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.write_text(TEST_URDF)
+    out = run_guarded("from rbfn.robots.dynamics import load_arm\nfrom rbfn.robots.mjcf import arm_model\n"
+                      f"for load in (lambda: load_arm({str(path)!r}, 'flange'), lambda: arm_model({str(path)!r})):\n"
+                      "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n")
+    for arg in ("name_or_urdf", "urdf"):
+        refused = f"ValueError: {arg}={reprlib.repr(str(path))} is neither a preset nor URDF text; allowed: scara"
+        assert refused in out, out
+
+
+def test_a_fifo_path_is_refused_by_what_it_is(tmp_path):
+    fifo = tmp_path / "arm.urdf"
+    os.mkfifo(fifo)
+    out = run_guarded("from pathlib import Path\nfrom rbfn.config import ControlConfig, RobotConfig\n"
+                      "from rbfn.control import control_robot\nfrom rbfn.robots.dynamics import load_arm\n"
+                      f"robot = RobotConfig(name='t', urdf={str(fifo)!r}, end_link='flange', trajectory='sinusoid')\n"
+                      f"for load in (lambda: load_arm(Path({str(fifo)!r}), 'flange'),\n"
+                      "             lambda: control_robot(robot, ControlConfig())):\n"
+                      "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n")
+    is_fifo = f"{fifo} is a FIFO, not a regular file; allowed: a regular file"
+    assert f"ValueError: {is_fifo}" in out, out
+    assert f"ValueError: robot.urdf='{fifo}' (robot.name='t', robot.end_link='flange'): {is_fifo}" in out, out
+
+
+def test_the_control_path_loads_what_the_kinematics_loads():
+    """robot.urdf names a file whose visual textures pytorch-kinematics' URDF parser refuses (the
+    iCub): the closed loop's arm is its chain, as the kinematics reads it."""
+    from rbfn.config import ControlConfig, RobotConfig
+    from rbfn.control import control_robot
+    from rbfn.robots import joint_limits, load_serial_chain
+
+    rel, end = ERD["erd_icub"]
+    path = _erd_urdf(rel)
+    chain = load_serial_chain(path, end)
+    low, high = joint_limits(chain)
+    robot = RobotConfig(name="icub", urdf=str(path), end_link=end, joint_low=(0.75 * low + 0.25 * high).tolist(),
+                        joint_high=(0.25 * low + 0.75 * high).tolist(), trajectory="sinusoid")
+    setup = control_robot(robot, ControlConfig())
+    assert setup.joint_names == chain.get_joint_parameter_names() and setup.n == 10
+    q, _ = _states(load_arm(path, end), 4, seed=18)
+    assert torch.equal(setup.plant.arm.mass_matrix(q), load_arm(path, end).mass_matrix(q))
+
+
+def test_a_declared_encoding_is_decoded(tmp_path):
+    """A latin-1 URDF (declared ISO-8859-1, a link named flangé) gives the same arm from its file,
+    its bytes and its decoded text (whose declaration still says ISO-8859-1)."""
+    text = TEST_URDF.replace('encoding="utf-8"', 'encoding="ISO-8859-1"').replace('"flange"', '"flangé"')
+    path = tmp_path / "arm.urdf"
+    path.write_bytes(text.encode("latin-1"))
+    ref = load_arm(TEST_URDF, TEST_END)
+    q, qd = _states(ref, 5, seed=17)
+    for urdf in (path, text.encode("latin-1"), text):
+        arm = load_arm(urdf, "flangé")
+        assert arm.end_link == "flangé" and arm.joint_names == ref.joint_names
+        assert torch.equal(arm.mass_matrix(q, 1.0), ref.mass_matrix(q, 1.0))
+        assert torch.equal(arm.bias(q, qd, 1.0), ref.bias(q, qd, 1.0))
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

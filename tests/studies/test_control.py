@@ -162,7 +162,7 @@ def test_evaluate_ur5_end_to_end(tmp_path):
     ("gains.K=inf", "gains.K=inf is not allowed: must be finite"),
     ("gains.observer_gain=nan", "gains.observer_gain=nan is not allowed: must be finite"),
     ("control.payload_link=ghost", "control.payload_link='ghost': payload link 'ghost' is not a link"),
-    ("robot.end_link=nowhere", "robot.end_link='nowhere'.*end link 'nowhere' is not a link"),
+    ("robot.end_link=nowhere", "robot.end_link='nowhere'.*end_link 'nowhere' is not a link"),
 ])
 def test_ur5_bad_settings_stop_before_any_work(tmp_path, override, match):
     import evaluate
