@@ -15,8 +15,12 @@ more, and the device is the CPU); each process then runs one torch thread (unles
 says otherwise).
 Every setting is checked before any part starts. Writes metrics.json (`ik`, `online`, `control`,
 `control_info`, `evaluate_seconds`: each part's wall seconds), workspace_error_map.png,
-online_task_error.png, control_<controller>.png, TensorBoard events and evaluate.log into the
-Hydra run directory.
+online_task_error.png, control_<controller>.png, TensorBoard events, evaluate.log and .hydra/ into
+the Hydra run directory, which must be new or empty: a directory holding files (a training run's,
+another evaluation's) is refused, never written over. The default directory is named after the
+clock: a second evaluation started in the same second takes DIR_1 (rbfn.studies.rundir). A refused
+evaluation writes nothing and leaves no directory behind. SIGTERM or SIGHUP stop it, its forked
+parts included, after their cleanup, with exit status 128 + the signal's number (rbfn.studies.stop).
 """
 from __future__ import annotations
 
@@ -30,7 +34,6 @@ from typing import Optional
 
 import hydra
 import torch
-from hydra.core.hydra_config import HydraConfig
 from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
@@ -41,7 +44,8 @@ from rbfn.studies.beside import Beside, can_fork
 from rbfn.studies.control import check_control, evaluate_control
 from rbfn.studies.ik import evaluate_ik
 from rbfn.studies.online import check_online, evaluate_online
-from rbfn.studies.rundir import write_json
+from rbfn.studies.rundir import RunDir, hydra_run_dir, hydra_run_files, write_json, write_text
+from rbfn.studies.stop import job, stop_on_signals
 
 register_configs()
 log = logging.getLogger("evaluate")
@@ -56,10 +60,7 @@ def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
         return path
     root = Path(to_absolute_path(cfg.outputs_dir))
     found = sorted(root.glob("**/checkpoint.pt"), key=lambda p: p.stat().st_mtime)
-    if not found:
-        return None
-    log.info("evaluating the newest checkpoint: %s", found[-1])
-    return found[-1]
+    return found[-1] if found else None
 
 
 @contextmanager
@@ -104,17 +105,38 @@ def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> 
     return metrics, seconds
 
 
-def run(cfg: EvalConfig, out_dir: Path) -> dict:
-    """Evaluate every enabled part into `out_dir`; return metrics.json's content."""
+def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
+    """Every setting checked before any work: (the checkpoint's path, its dict), both None when
+    no part needs one or none was found."""
     validate_evaluate(cfg)
     if cfg.control.enabled:
         check_control(cfg.control, cfg.robot)      # the robot's URDF, joints and payload link, before any work
-    needs_ckpt = cfg.ik or cfg.online.enabled
-    path = find_checkpoint(cfg) if needs_ckpt else None
+    path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
     ckpt = read_checkpoint(path) if path is not None else None      # a bad file stops before any work
     if ckpt is not None and cfg.online.enabled:
         check_online(cfg.online, ckpt["robot"])     # the path and perturbation suit the checkpoint's robot
-    if needs_ckpt and ckpt is None:
+    return path, ckpt
+
+
+def run(cfg: EvalConfig, out_dir: Path, run_files: dict[str, str] | None = None) -> dict:
+    """Evaluate every enabled part into `out_dir`, a new or empty directory held for the run
+    (rbfn.studies.rundir); return metrics.json's content. Nothing is written before every check
+    passed; `run_files` (relative path -> text, e.g. the composed config) are written first then."""
+    path, ckpt = check(cfg)
+    with RunDir(out_dir, own=True):
+        for rel, text in (run_files or {}).items():
+            write_text(out_dir / rel, text)
+        metrics = evaluate_parts(cfg, path, ckpt, out_dir)
+        write_json(out_dir / "metrics.json", metrics)
+        log.info("-> %s", out_dir)
+    return metrics
+
+
+def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_dir: Path) -> dict:
+    """Every enabled part of a checked config (`check`): the content of metrics.json."""
+    if path is not None and not cfg.checkpoint:
+        log.info("evaluating the newest checkpoint: %s", path)
+    if (cfg.ik or cfg.online.enabled) and ckpt is None:
         log.info("no checkpoint.pt under %s (run `python train.py` or pass checkpoint=PATH): skipping the IK "
                  "and online parts", Path(to_absolute_path(cfg.outputs_dir)))
     if cfg.num_threads:
@@ -143,18 +165,18 @@ def run(cfg: EvalConfig, out_dir: Path) -> dict:
         if cfg.control.enabled:
             metrics.update(control)
     metrics["evaluate_seconds"] = seconds
-    write_json(out_dir / "metrics.json", metrics)
-    log.info("-> %s", out_dir)
     return metrics
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(dcfg: DictConfig) -> None:
-    run(OmegaConf.to_object(dcfg), Path(HydraConfig.get().runtime.output_dir))
+    with job(), hydra_run_dir(own=True) as out_dir:
+        run(OmegaConf.to_object(dcfg), out_dir, hydra_run_files(dcfg, out_dir))
 
 
 if __name__ == "__main__":
     # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
     # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
     atexit.register(gc.freeze)
+    stop_on_signals()
     main()

@@ -6,8 +6,11 @@
 
 Writes checkpoint.pt, ik.onnx, ik.pt2, metrics.json, TensorBoard events and train.log into the
 Hydra run directory. Running again in a directory holding an interrupted run's last.pt continues
-it; a directory another process is using, or a finished run with another config, is refused and
-left exactly as it was.
+it (name it: hydra.run.dir=DIR), ending with the result an uninterrupted run has; a directory
+another process is using, or a finished run with another config, is refused and left exactly as it
+was. The default directory is named after the clock: a second run started in the same second takes
+DIR_1 (rbfn.studies.rundir). SIGTERM or SIGHUP stop the run, its multirun's workers included, after
+their cleanup, with exit status 128 + the signal's number (rbfn.studies.stop).
 """
 from __future__ import annotations
 
@@ -29,7 +32,8 @@ from rbfn.pipeline import train_ik
 from rbfn.resume import DifferentRun, StateFile
 from rbfn.robots.robot import load_robot
 from rbfn.studies.ik import training_metrics, write_training
-from rbfn.studies.rundir import RunDir, RunDirInUse, write_json, write_text
+from rbfn.studies.rundir import RunDir, RunDirInUse, hydra_run_dir, hydra_run_files, write_json, write_text
+from rbfn.studies.stop import job, stop_on_signals
 
 register_configs()
 log = logging.getLogger("train")
@@ -80,31 +84,22 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     return metrics
 
 
-def hydra_run_files(dcfg: DictConfig) -> dict[str, str]:
-    """What Hydra would write to RUN_DIR/.hydra (conf sets hydra.output_subdir=null, so the run
-    writes them itself, after its checks: a refused run leaves the directory untouched)."""
-    hc = HydraConfig.get()
-    return {".hydra/config.yaml": OmegaConf.to_yaml(dcfg),
-            ".hydra/hydra.yaml": OmegaConf.to_yaml(OmegaConf.create({"hydra": OmegaConf.to_container(hc)})),
-            ".hydra/overrides.yaml": OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task)))}
-
-
 @hydra.main(version_base="1.3", config_path="conf", config_name="train")
 def main(dcfg: DictConfig) -> float:
     cfg: TrainConfig = OmegaConf.to_object(dcfg)
     hc = HydraConfig.get()
-    out_dir = Path(hc.runtime.output_dir)
-    try:
-        metrics = run(cfg, out_dir, hydra_run_files(dcfg))
-    except Exception as e:
-        # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json
-        # for `python -m rbfn.summarize` (never into a directory another process is using).
-        # A refused job (directory in use, or another config's run there) writes nothing.
-        if hc.mode == RunMode.MULTIRUN and not isinstance(e, (RunDirInUse, DifferentRun)):
-            log.error("job failed: %s: %s", type(e).__name__, e)
-            write_json(out_dir / "failed.json", {"error": type(e).__name__, "message": str(e),
-                                                 "overrides": list(hc.overrides.task)})
-        raise
+    with job(), hydra_run_dir() as out_dir:
+        try:
+            metrics = run(cfg, out_dir, hydra_run_files(dcfg, out_dir))
+        except Exception as e:
+            # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json
+            # for `python -m rbfn.summarize` (never into a directory another process is using).
+            # A refused job (directory in use, or another config's run there) writes nothing.
+            if hc.mode == RunMode.MULTIRUN and not isinstance(e, (RunDirInUse, DifferentRun)):
+                log.error("job failed: %s: %s", type(e).__name__, e)
+                write_json(out_dir / "failed.json", {"error": type(e).__name__, "message": str(e),
+                                                     "overrides": list(hc.overrides.task)})
+            raise
     return metrics["val_E"]  # the validation objective, for sweepers
 
 
@@ -112,4 +107,5 @@ if __name__ == "__main__":
     # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
     # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
     atexit.register(gc.freeze)
+    stop_on_signals()
     main()

@@ -58,6 +58,11 @@ def _umask() -> int:
 def atomic_write_bytes(path: Path, write) -> None:
     """Call write(file) on a temporary file beside `path`, then rename it over `path`.
 
+    Where the system allows (Linux's O_TMPFILE), the temporary file has no name while it is being
+    written and gets one (NAME.xxxxxxxx.tmp) only once complete, for the rename: a process killed
+    in the middle of a write, even by SIGKILL, leaves nothing behind. Elsewhere it is named so from
+    the start. Either is removed on any exception, a signal turned into one included.
+
     The file gets the permissions a plain open() would give it: those of the file it replaces,
     else 0o666 minus the umask (mkstemp's 0o600 would hide outputs from the user's group).
     """
@@ -67,16 +72,32 @@ def atomic_write_bytes(path: Path, write) -> None:
         mode = path.stat().st_mode & 0o777
     except FileNotFoundError:
         mode = 0o666 & ~_umask()
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    tmp = None
+    try:
+        fd = os.open(path.parent, os.O_TMPFILE | os.O_WRONLY, 0o600) if os.path.isdir("/proc/self/fd") else -1
+    except (AttributeError, OSError):       # no O_TMPFILE on this system or file system
+        fd = -1
+    if fd < 0:
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    unnamed = tmp is None
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, mode)
+            os.fchmod(f.fileno(), mode)
+            while unnamed:                  # complete: link it in under a fresh temporary name
+                tmp = path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp")
+                try:
+                    # linkat(AT_SYMLINK_FOLLOW), which a dir fd selects (the absolute path ignores it)
+                    os.link(f"/proc/self/fd/{f.fileno()}", tmp, src_dir_fd=f.fileno())
+                    unnamed = False
+                except FileExistsError:
+                    tmp = None
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
         raise
 
 

@@ -172,7 +172,8 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     else:
         lf = state.last_fit
         centers, widths = lf["centers"].to(dev), lf["widths"].to(dev)
-        fit = RidgeFit(lf["weights"].to(dev), torch.tensor(lf["ridge"]), torch.tensor(lf["val_mse"]))
+        fit = RidgeFit(lf["weights"].to(dev), torch.tensor(lf["ridge"], dtype=torch.float64),
+                       torch.tensor(lf["val_mse"], dtype=torch.float64))     # the floats saved, exactly
 
     history: list[float] = []
     if cfg.centers.refine.enabled:       # centres, widths and input scales (rbfn.refine)

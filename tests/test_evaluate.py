@@ -8,10 +8,11 @@ import torch
 
 import evaluate
 import train
-from rbfn.config import OnlineConfig, GainsConfig
 from rbfn.checkpoint import read_checkpoint
+from rbfn.config import GainsConfig, OnlineConfig
 from rbfn.studies.beside import can_fork
 from rbfn.studies.online import evaluate_online
+from rbfn.studies.rundir import RunDirInUse
 
 from .conftest import compose_config
 
@@ -136,3 +137,12 @@ def test_command_line_runs_the_control_part_alone(tmp_path):
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert list(m) == ["control", "control_info", "evaluate_seconds"] and list(m["control"]) == ["smc"]
     assert "Closed loop" in (tmp_path / "evaluate.log").read_text()
+    assert "ik: false" in (tmp_path / ".hydra" / "config.yaml").read_text()      # written by evaluate.py
+
+
+def test_a_directory_holding_files_is_refused_before_any_work(ckpt, tmp_path):
+    (tmp_path / "metrics.json").write_text("{}")
+    with pytest.raises(RunDirInUse, match="holds files already"):
+        evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "n_test=300", "online.enabled=false",
+                                    "control.enabled=false"), tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]

@@ -1,5 +1,5 @@
 """Hydra multiruns end to end: the joblib launcher, a failed job among others, the summary table,
-the Optuna search preset and TensorBoard's HParams view.
+a multirun stopped by SIGTERM, the Optuna search preset and TensorBoard's HParams view.
 
 Each test runs `python train.py -m ...` as a user would, in a subprocess, with small data sets.
 """
@@ -69,6 +69,20 @@ def test_a_failed_job_does_not_stop_the_others_and_is_summarized(tmp_path):
     assert "3 jobs: 2 completed, 1 failed, 0 unfinished" in out
     assert [line.split("|")[1].strip() for line in out.splitlines() if line.startswith(("| 10 |", "| 20 |"))] \
         == ["10", "20"]
+
+
+def test_sigterm_to_a_joblib_multirun_stops_its_workers(tmp_path):
+    """SIGTERM to the multirun's process, while both workers train: every worker ends within
+    seconds, the exit status is 143, no temporary file is left and no job's file changes after."""
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    from .studies.test_stop import start, stop_and_check
+
+    sweep = tmp_path / "sweep"
+    proc = start(["train.py", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "centers=aco",
+                  "centers.aco.iterations=1000000", "rbfn.num_centers=10,12", *FAST, f"hydra.sweep.dir={sweep}"],
+                 tmp_path / "out.log")
+    # Both jobs are in their colonies once each has saved a snapshot.
+    stop_and_check(proc, tmp_path / "out.log", sweep, lambda: all((sweep / j / "last.pt").exists() for j in "01"))
 
 
 def test_slurm_launcher_composes_on_the_command_line():

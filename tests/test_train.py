@@ -10,9 +10,10 @@ import torch
 import train
 from rbfn import load_model
 from rbfn.robots import forward_kinematics
-from rbfn.studies.rundir import RunDir, RunDirInUse
+from rbfn.studies.rundir import RunDirInUse
 
 from .conftest import ROOT, compose_config
+from .studies.test_rundir_lock import held_elsewhere
 
 SMALL = ["data.n_train=400", "data.n_val=200", "data.n_test=300", "rbfn.num_centers=12",
          "rbfn.growth.start=6", "centers.aco.iterations=5", "centers.refine.steps=20",
@@ -73,9 +74,8 @@ def test_finished_run_is_left_alone_and_another_config_is_refused(trained):
 
 
 def test_a_run_directory_in_use_is_refused(tmp_path):
-    with RunDir(tmp_path):
-        with pytest.raises(RunDirInUse, match="in use by another process"):
-            train.run(compose_config("train", *SMALL), tmp_path)
+    with held_elsewhere(tmp_path), pytest.raises(RunDirInUse, match="in use by another process"):
+        train.run(compose_config("train", *SMALL), tmp_path)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -7,7 +7,8 @@ it is used where it is safe: a POSIX `fork`, more than one usable core, and CPU 
 cannot be used across a fork). Elsewhere the part runs when its result is asked for, in this
 process. The child runs with one torch thread (the parent's thread pool does not survive a fork)
 and inherits the logging handlers, so its log lines reach the same console and log file; only
-its result (or its exception) is pickled back.
+its result (or its exception) is pickled back. The child ends with its parent, and SIGTERM or
+SIGHUP stop it after its cleanup (rbfn.studies.stop); a caller that fails or is stopped stops it.
 """
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ from collections.abc import Callable
 from typing import Any
 
 import torch
+
+from .stop import Stopped, stop_on_signals
 
 __all__ = ["can_fork", "Beside", "ChildTraceback"]
 
@@ -33,10 +36,13 @@ class ChildTraceback(Exception):
 
 
 def _in_child(fn: Callable, args: tuple, conn) -> None:
+    stop_on_signals()
     torch.set_num_threads(1)
     try:
         out = (True, fn(*args), "")
-    except BaseException as e:  # noqa: BLE001 - every failure goes back to the parent
+    except Stopped:
+        raise                   # the child exits with 128 + the signal's number
+    except BaseException as e:  # noqa: BLE001 - every other failure goes back to the parent
         out = (False, e, traceback.format_exc())
     try:
         conn.send(out)
@@ -64,26 +70,32 @@ class Beside:
         """fn's return value; its exception re-raised here (caused by the child's traceback)."""
         if self._proc is None:
             return self._fn(*self._args)
+        received = False
         try:
             ok, value, tb = self._conn.recv()
+            received = True
         except EOFError:
             self._proc.join()
             raise RuntimeError(f"the forked part {getattr(self._fn, '__name__', self._fn)} ended without a "
                                f"result (exit code {self._proc.exitcode})") from None
         finally:
-            self._stop(wait=True)
+            self._stop(wait=received)       # interrupted (stopped) here: no waiting for the child
         if not ok:
             raise value from ChildTraceback(tb)
         return value
 
     def _stop(self, wait: bool) -> None:
-        """End the child: let it exit for up to 5 s if `wait`, then terminate it."""
+        """End the child: let it exit for up to 5 s if `wait`, else terminate it (SIGTERM: it cleans
+        up and exits) and kill it if it has not ended 5 s later."""
         if self._proc is None:
             return
         if wait:
             self._proc.join(timeout=5.0)
         if self._proc.is_alive():
             self._proc.terminate()
+            self._proc.join(timeout=5.0)
+        if self._proc.is_alive():
+            self._proc.kill()
         self._proc.join()
         self._conn.close()
         self._proc = self._conn = None

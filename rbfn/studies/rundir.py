@@ -1,54 +1,168 @@
-"""A run directory's own bookkeeping: one process at a time, and files written whole.
+"""A run directory's own bookkeeping: one run at a time, and files written whole.
 
 `RunDir` holds an exclusive lock on the directory (flock on the directory itself, so no file is
 added) for as long as a run uses it; a second process given the same directory stops with a
 clear message instead of silently sharing or overwriting it. Locks are advisory and local:
 processes on other hosts sharing the directory over NFS are not excluded.
+
+A directory Hydra named after the clock (`${now:...}` in hydra.run.dir, as both entry points'
+defaults are) belongs to one run: where another process holds it, or it holds any file already
+(two runs started in the same second), the run takes NAME_1, NAME_2, ... instead, each made with
+mkdir (which fails where another process made it first). A multirun's job directories are its
+sweep's and are never moved (a requeued SLURM job resumes in its own). An entry point removes its
+run directory again when it leaves it empty (a refused or failed run leaves no empty directory),
+and writes .hydra/ itself, after its checks (`hydra_run_files`).
 """
 from __future__ import annotations
 
 import fcntl
 import io
 import json
+import logging
 import os
 import struct
+from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import ClassVar
 
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import OmegaConf
 from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..checkpoint import atomic_write_bytes
 
-__all__ = ["RunDir", "RunDirInUse", "write_json", "write_text", "write_figure"]
+__all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "write_figure", "write_json", "write_text"]
 
 
 class RunDirInUse(RuntimeError):
-    """Another process holds the run directory."""
+    """The run directory belongs to another run: another process holds it, or (for a run that needs
+    a directory of its own) it holds files already."""
+
+
+def _lock(path: Path) -> int | None:
+    """A descriptor holding the exclusive lock on directory `path`; None where another process holds
+    it or it is gone (removed by its last holder between our open and our lock)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        st, held = os.stat(path), os.fstat(fd)
+        if (st.st_dev, st.st_ino) == (held.st_dev, held.st_ino):
+            return fd
+    except (BlockingIOError, FileNotFoundError):
+        pass
+    os.close(fd)
+    return None
+
+
+def _is_empty(path: Path) -> bool:
+    with os.scandir(path) as entries:
+        return next(entries, None) is None
 
 
 class RunDir:
-    """Context manager: the exclusive lock on run directory `path` (created if missing)."""
+    """Context manager: this process's exclusive lock on run directory `path` (created if missing).
 
-    def __init__(self, path: str | Path) -> None:
+    `fresh`: `path` was named after the clock; one that another process holds or that holds any file
+    is passed over for PATH_1, PATH_2, ... (`.path` is then the directory used). Otherwise a
+    directory another process holds is refused (RunDirInUse), and with `own` one holding any file
+    too. `tidy`: the directory is removed on exit if it is empty. Re-entrant within a process: a
+    directory this process holds already is entered without another lock or check.
+    """
+
+    _held: ClassVar[dict[str, int]] = {}    # real path -> descriptor holding its lock, in this process
+
+    def __init__(self, path: str | Path, fresh: bool = False, own: bool = False, tidy: bool = False) -> None:
         self.path = Path(path)
+        self._fresh, self._own, self._tidy = fresh, own, tidy
         self._fd: int | None = None
 
     def __enter__(self) -> "RunDir":
-        self.path.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDONLY)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise RunDirInUse(f"run directory {self.path} is in use by another process; wait for it to "
-                              "finish, or give this run another hydra.run.dir") from None
-        self._fd = fd
+        if os.path.realpath(self.path) in RunDir._held:
+            return self                 # the caller holds it (the entry point around its library call)
+        self.path, self._fd = self._take_fresh() if self._fresh else self._take(self.path)
+        RunDir._held[os.path.realpath(self.path)] = self._fd
         return self
 
+    def _take(self, path: Path) -> tuple[Path, int]:
+        while True:
+            path.mkdir(parents=True, exist_ok=True)
+            fd = _lock(path)
+            if fd is not None:
+                break
+            if path.is_dir():
+                raise RunDirInUse(f"run directory {path} is in use by another process; wait for it to "
+                                  "finish, or give this run another hydra.run.dir")
+        held = sorted(os.listdir(path)) if self._own else []
+        if held:
+            os.close(fd)
+            raise RunDirInUse(f"hydra.run.dir={path} holds files already ({', '.join(held[:4])}"
+                              f"{', ...' if len(held) > 4 else ''}), which this run would write over; give it a "
+                              "new or empty hydra.run.dir")
+        return path, fd
+
+    def _take_fresh(self) -> tuple[Path, int]:
+        self.path.mkdir(parents=True, exist_ok=True)
+        fd = _lock(self.path)
+        if fd is not None and _is_empty(self.path):
+            return self.path, fd
+        if fd is not None:
+            os.close(fd)
+        for n in range(1, 10_000):
+            path = self.path.with_name(f"{self.path.name}_{n}")
+            try:
+                path.mkdir()
+            except FileExistsError:
+                continue
+            fd = _lock(path)
+            if fd is not None:
+                return path, fd
+        raise RunDirInUse(f"run directory {self.path} and its numbered siblings are all taken; "
+                          "give this run another hydra.run.dir")
+
     def __exit__(self, *exc) -> None:
-        if self._fd is not None:
-            fcntl.flock(self._fd, fcntl.LOCK_UN)
-            os.close(self._fd)
-            self._fd = None
+        if self._fd is None:
+            return
+        if self._tidy:
+            with suppress(OSError):     # removed by someone else meanwhile: nothing to tidy
+                if _is_empty(self.path):
+                    self.path.rmdir()   # still under the lock: nobody else is starting in it
+        del RunDir._held[os.path.realpath(self.path)]
+        fcntl.flock(self._fd, fcntl.LOCK_UN)
+        os.close(self._fd)
+        self._fd = None
+
+
+@contextmanager
+def hydra_run_dir(own: bool = False):
+    """The run directory of the Hydra job running now, held (`RunDir`; `own` as there), and tidied:
+    yields the directory used, which differs from Hydra's where the clock-named one was taken. The
+    job's log file (conf: hydra.job_logging.handlers.file.delay=true, so not opened yet) follows it."""
+    hc = HydraConfig.get()
+    named = Path(hc.runtime.output_dir)
+    fresh = hc.mode == RunMode.RUN and "${now:" in str(OmegaConf.to_container(hc.run)["dir"])
+    with RunDir(named, fresh=fresh, own=own, tidy=True) as run_dir:
+        if run_dir.path != named:
+            for handler in logging.getLogger().handlers:
+                if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == named:
+                    handler.close()
+                    handler.baseFilename = str(run_dir.path / Path(handler.baseFilename).name)
+        yield run_dir.path
+
+
+def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:
+    """What Hydra would write to RUN_DIR/.hydra (conf sets hydra.output_subdir=null, so the run
+    writes them itself, after its checks: a refused run leaves the directory untouched), with the
+    directory actually used as hydra.runtime.output_dir."""
+    hc = HydraConfig.get()
+    hydra = OmegaConf.to_container(hc)
+    hydra["runtime"]["output_dir"] = str(out_dir)
+    return {".hydra/config.yaml": OmegaConf.to_yaml(dcfg),
+            ".hydra/hydra.yaml": OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra})),
+            ".hydra/overrides.yaml": OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task)))}
 
 
 def write_json(path: Path, obj) -> None:
