@@ -4,10 +4,12 @@ The state holds the growth steps already completed (their (M, E) and the last st
 centres, widths and weights), the step in progress (its M, the generator's state when it
 started, and the colony's latest snapshot), the generator's state between steps, and, once
 the run finished, its metrics. Written sealed and atomically, at most every `every` seconds
-while a colony runs and at once at each step's end.
+while a colony runs and at once at each step's end. A directory holding another configuration's
+state, or another command's metrics.json (evaluate.py's), is refused before anything is written.
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -19,7 +21,8 @@ __all__ = ["TrainState", "StateFile", "DifferentRun"]
 
 
 class DifferentRun(ValueError):
-    """The run directory holds another configuration's run (refused; the directory is left as it was)."""
+    """The run directory holds another configuration's run, or another command's results (refused;
+    the directory is left as it was)."""
 
 KIND = TRAIN_STATE_KIND
 FORMAT_VERSION = 1
@@ -38,6 +41,17 @@ class TrainState:
     elapsed: float = 0.0                                # s spent training, over every process so far
 
 
+def _foreign_metrics(run_dir: Path) -> bool:
+    """Whether `run_dir` holds a metrics.json that no training run wrote (evaluate.py's, say)."""
+    path = run_dir / "metrics.json"
+    if not path.exists():
+        return False
+    try:
+        return "train_seconds" not in json.loads(path.read_text())
+    except (OSError, ValueError, TypeError):
+        return True
+
+
 def _comparable(cfg: dict) -> dict:
     return {k: v for k, v in cfg.items() if k not in _FREE_KEYS}
 
@@ -53,6 +67,9 @@ class StateFile:
     def load(self, config: dict) -> TrainState:
         """The saved state if there is one for this config, else a fresh state."""
         if not self.path.exists():
+            if _foreign_metrics(self.path.parent):
+                raise DifferentRun(f"{self.path.parent / 'metrics.json'} is not a training run's (evaluate.py's, "
+                                   "say), and training would write over it; give train.py another hydra.run.dir")
             return TrainState(config=config)
         # Re-running training reads the same file again, so the remedy for a bad one is deleting it.
         restart = f"Delete {self.path} to start the run over (its completed steps are lost)."

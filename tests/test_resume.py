@@ -142,6 +142,20 @@ def test_a_rerun_after_any_interruption_ends_as_an_uninterrupted_run(reference, 
     _assert_same_outcome(tmp_path, reference(extra))
 
 
+def test_a_run_interrupted_again_and_again_ends_as_an_uninterrupted_run(reference, tmp_path, monkeypatch):
+    """Each rerun interrupted at a later point than the one before (resuming, then stopped again)."""
+    for how, target, when in [("writing", "last.pt", 1), ("before", "rbfn.pipeline.select", 1),
+                              ("after", "rbfn.pipeline.fit_weights", 1), ("after", "rbfn.pipeline.refine", 1),
+                              ("after", "rbfn.studies.ik.write_json", 1)]:
+        with monkeypatch.context() as mp:
+            _stop(mp, how, target, when)
+            with pytest.raises(Stopped):
+                train.run(compose_config("train", *POINT_RUN), tmp_path, RUN_FILES)
+    train.run(compose_config("train", *POINT_RUN), tmp_path, RUN_FILES)
+    _assert_same_outcome(tmp_path, reference([]))
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
 class Interrupted(Exception):
     pass
 
@@ -160,20 +174,22 @@ def _interrupt_at(num_centers: int, iteration: int):
     return Interrupting
 
 
-@pytest.mark.parametrize("centers", ["aco", "aco_paper"])
-@pytest.mark.parametrize("m", [6, 12])
-def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch, centers, m):
+# (centres, M, colony iteration): mid-colony, and the colony's last snapshot (it had ended, its
+# growth step not yet saved).
+@pytest.mark.parametrize("centers,m,k", [("aco", 6, 4), ("aco", 12, 4), ("aco_paper", 6, 4), ("aco_paper", 12, 4),
+                                         ("aco", 12, 12)])
+def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch, centers, m, k):
     cfg = compose_config("train", *OVERRIDES, f"centers={centers}")
     reference = train.run(cfg, tmp_path / "ref")
 
     run_dir = tmp_path / "interrupted"
     with monkeypatch.context() as mp:
-        mp.setattr(train, "StateFile", _interrupt_at(m, 4))
+        mp.setattr(train, "StateFile", _interrupt_at(m, k))
         with pytest.raises(Interrupted):
             train.run(compose_config("train", *OVERRIDES, f"centers={centers}"), run_dir)
     state = load_sealed(run_dir / "last.pt")["state"]
     assert state["finished"] is None and not (run_dir / "checkpoint.pt").exists()
-    assert state["current"]["num_centers"] == m and state["current"]["colony"]["iteration"] == 4
+    assert state["current"]["num_centers"] == m and state["current"]["colony"]["iteration"] == k
     assert [d["num_centers"] for d in state["done"]] == ([6] if m == 12 else [])
 
     resumed = train.run(compose_config("train", *OVERRIDES, f"centers={centers}"), run_dir)

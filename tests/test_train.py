@@ -79,6 +79,14 @@ def test_a_run_directory_in_use_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_another_commands_results_are_refused(tmp_path):
+    (tmp_path / "metrics.json").write_text('{"ik": {}, "evaluate_seconds": {"ik": 1.0}}')     # evaluate.py's
+    before = _snapshot(tmp_path)
+    with pytest.raises(ValueError, match="metrics.json is not a training run's"):
+        train.run(compose_config("train", *SMALL), tmp_path, {".hydra/overrides.yaml": "- seed=0\n"})
+    assert _snapshot(tmp_path) == before
+
+
 @pytest.mark.slow
 def test_refused_rerun_on_the_command_line_leaves_the_directory_as_it_was(tmp_path):
     args = [sys.executable, "train.py", *SMALL, "rbfn.growth.start=0", "centers=kmeans", "export=false",
