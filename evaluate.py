@@ -111,8 +111,15 @@ def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
     validate_evaluate(cfg)
     if cfg.control.enabled:
         check_control(cfg.control, cfg.robot)      # the robot's URDF, joints and payload link, before any work
+    if not (cfg.ik or cfg.online.enabled or cfg.control.enabled):
+        raise ValueError("nothing to evaluate: ik, online.enabled and control.enabled are all false; enable a part")
     path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
     ckpt = read_checkpoint(path) if path is not None else None      # a bad file stops before any work
+    if ckpt is None and not cfg.control.enabled:
+        root = Path(to_absolute_path(cfg.outputs_dir))
+        why = "no such directory" if not root.is_dir() else "no checkpoint.pt below it"
+        raise ValueError(f"nothing to evaluate: outputs_dir={cfg.outputs_dir!r} ({root}): {why}, and "
+                         "control.enabled=false; train first, pass checkpoint=PATH, or enable the control part")
     if ckpt is not None and cfg.online.enabled:
         check_online(cfg.online, ckpt["robot"])     # the path and perturbation suit the checkpoint's robot
     return path, ckpt
@@ -136,9 +143,12 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
     """Every enabled part of a checked config (`check`): the content of metrics.json."""
     if path is not None and not cfg.checkpoint:
         log.info("evaluating the newest checkpoint: %s", path)
-    if (cfg.ik or cfg.online.enabled) and ckpt is None:
-        log.info("no checkpoint.pt under %s (run `python train.py` or pass checkpoint=PATH): skipping the IK "
-                 "and online parts", Path(to_absolute_path(cfg.outputs_dir)))
+    robots, skipped = evaluated_robots(cfg, ckpt)
+    for part, why in skipped.items():
+        log.info("%s part skipped: %s", part, why)
+    if len(set(robots.values())) > 1:
+        log.warning("the parts evaluate different robots: %s (the IK and online parts run on the checkpoint's "
+                    "robot, the control part on robot=%s)", robots, cfg.robot.name)
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     metrics: dict = {}
@@ -165,7 +175,25 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
         if cfg.control.enabled:
             metrics.update(control)
     metrics["evaluate_seconds"] = seconds
+    metrics["robots"], metrics["skipped"] = robots, skipped
     return metrics
+
+
+def evaluated_robots(cfg: EvalConfig, ckpt: dict | None) -> tuple[dict[str, str], dict[str, str]]:
+    """(the robot each part that runs evaluates, as "name (end link, n joints)"; each enabled part
+    that does not run, and why): metrics.json's `robots` and `skipped`."""
+    robots, skipped = {}, {}
+    if ckpt is not None:
+        r = ckpt["robot"]
+        label = f"{r.get('name') or 'unnamed'} ({r['end_link']}, {len(r['joint_low'])} joints)"
+        robots.update({part: label for part, on in (("ik", cfg.ik), ("online", cfg.online.enabled)) if on})
+    else:
+        why = f"no checkpoint.pt under outputs_dir={cfg.outputs_dir!r} (train first, or pass checkpoint=PATH)"
+        skipped.update({part: why for part, on in (("ik", cfg.ik), ("online", cfg.online.enabled)) if on})
+    if cfg.control.enabled:
+        r = cfg.robot
+        robots["control"] = f"{r.name} ({r.end_link}, {len(r.joint_low)} joints)"
+    return robots, skipped
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")

@@ -135,7 +135,8 @@ def test_command_line_runs_the_control_part_alone(tmp_path):
                         f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
-    assert list(m) == ["control", "control_info", "evaluate_seconds"] and list(m["control"]) == ["smc"]
+    assert list(m) == ["control", "control_info", "evaluate_seconds", "robots", "skipped"]
+    assert list(m["control"]) == ["smc"] and m["robots"] == {"control": "scara (quill, 3 joints)"} and m["skipped"] == {}
     assert "Closed loop" in (tmp_path / "evaluate.log").read_text()
     assert "ik: false" in (tmp_path / ".hydra" / "config.yaml").read_text()      # written by evaluate.py
 
@@ -146,3 +147,35 @@ def test_a_directory_holding_files_is_refused_before_any_work(ckpt, tmp_path):
         evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "n_test=300", "online.enabled=false",
                                     "control.enabled=false"), tmp_path)
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
+
+
+def test_nothing_to_evaluate_is_an_error_naming_why(tmp_path):
+    missing = tmp_path / "typo"
+    with pytest.raises(ValueError, match=r"nothing to evaluate: outputs_dir=.*typo.*no such directory.*control"):
+        evaluate.run(compose_config("evaluate", f"outputs_dir={missing}", "control.enabled=false"), tmp_path / "a")
+    with pytest.raises(ValueError, match="nothing to evaluate: ik, online.enabled and control.enabled are all false"):
+        evaluate.run(compose_config("evaluate", "ik=false", "online.enabled=false", "control.enabled=false"),
+                     tmp_path / "b")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_metrics_name_the_robot_of_every_part_and_what_was_skipped(panda_ckpt, tmp_path, caplog):
+    from rbfn.checkpoint import save_sealed
+
+    save_sealed(tmp_path / "panda.pt", panda_ckpt)
+    m = evaluate.run(compose_config("evaluate", f"checkpoint={tmp_path / 'panda.pt'}", "n_test=200",
+                                    "online.enabled=false", "control.duration=1.2", "control.payload_on=0.3",
+                                    "control.payload_off=0.9", "control.controllers=[smc]", "parallel=false"),
+                     tmp_path / "run")
+    assert m["robots"]["ik"].startswith("panda (") and m["robots"]["control"] == "scara (quill, 3 joints)"
+    assert m["skipped"] == {}
+    assert "the parts evaluate different robots" in caplog.text
+
+
+def test_metrics_json_is_strict_json_with_undefined_values_named(tmp_path):
+    from rbfn.studies.rundir import write_json
+
+    write_json(tmp_path / "m.json", {"a": 1.0, "b": float("nan"), "c": {"d": [1.0, float("inf")]}})
+    m = json.loads((tmp_path / "m.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
+    assert m["a"] == 1.0 and m["b"] is None and m["c"]["d"] == [1.0, None]
+    assert set(m["undefined"]) == {"b", "c.d[1]"} and "nan is not a number JSON can hold" in m["undefined"]["b"]

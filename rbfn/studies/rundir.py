@@ -19,6 +19,7 @@ import fcntl
 import io
 import json
 import logging
+import math
 import os
 import struct
 from contextlib import contextmanager, suppress
@@ -32,7 +33,7 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..checkpoint import atomic_write_bytes
 
-__all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "write_figure", "write_json", "write_text"]
+__all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "write_figure", "strict_json", "write_json", "write_text"]
 
 
 class RunDirInUse(RuntimeError):
@@ -165,9 +166,32 @@ def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:
             ".hydra/overrides.yaml": OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task)))}
 
 
+def strict_json(obj) -> dict | list | float | int | str | bool | None:
+    """`obj` with every non-finite float (NaN, inf) replaced by null, so that any JSON parser reads
+    it; for a dict, the replaced values are named under "undefined" (dotted key -> why)."""
+    undefined: dict[str, str] = {}
+
+    def clean(v, key: str):
+        if isinstance(v, float) and not math.isfinite(v):
+            undefined[key] = (f"{v} is not a number JSON can hold: the value is undefined here (a statistic of "
+                              "non-finite outputs or of a diverged run)")
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x, f"{key}.{k}" if key else str(k)) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x, f"{key}[{i}]") for i, x in enumerate(v)]
+        return v
+
+    out = clean(obj, "")
+    if undefined and isinstance(out, dict):
+        out["undefined"] = {**out.get("undefined", {}), **undefined}
+    return out
+
+
 def write_json(path: Path, obj) -> None:
-    """`obj` as indented JSON at `path`, written atomically."""
-    text = json.dumps(obj, indent=2).encode()
+    """`obj` as indented, strict JSON at `path` (non-finite numbers as null, see `strict_json`),
+    written atomically."""
+    text = json.dumps(strict_json(obj), indent=2, allow_nan=False).encode()
     atomic_write_bytes(Path(path), lambda f: f.write(text))
 
 
