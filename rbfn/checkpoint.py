@@ -12,15 +12,14 @@ from __future__ import annotations
 import hashlib
 import io
 import math
-import os
 import pickle
 import re
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from .files import atomic_write_bytes
 from .layer import MIN_WIDTH, RBFNetwork
 from .robots.robot import robot_from_record
 from .targets import TargetFeatures
@@ -39,66 +38,6 @@ _UNBOUNDED = {"in_low": -math.inf, "out_low": -math.inf, "in_high": math.inf, "o
               "cover_radius": math.inf}
 _ADVICE = "Re-run training or restore the file from a copy."
 
-
-
-def _umask() -> int:
-    """The process umask, read without changing it where the OS allows."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write_bytes(path: Path, write) -> None:
-    """Call write(file) on a temporary file beside `path`, then rename it over `path`.
-
-    Where the system allows (Linux's O_TMPFILE), the temporary file has no name while it is being
-    written and gets one (NAME.xxxxxxxx.tmp) only once complete, for the rename: a process killed
-    in the middle of a write, even by SIGKILL, leaves nothing behind. Elsewhere it is named so from
-    the start. Either is removed on any exception, a signal turned into one included.
-
-    The file gets the permissions a plain open() would give it: those of the file it replaces,
-    else 0o666 minus the umask (mkstemp's 0o600 would hide outputs from the user's group).
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        mode = path.stat().st_mode & 0o777
-    except FileNotFoundError:
-        mode = 0o666 & ~_umask()
-    tmp = None
-    try:
-        fd = os.open(path.parent, os.O_TMPFILE | os.O_WRONLY, 0o600) if os.path.isdir("/proc/self/fd") else -1
-    except (AttributeError, OSError):       # no O_TMPFILE on this system or file system
-        fd = -1
-    if fd < 0:
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    unnamed = tmp is None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-            os.fchmod(f.fileno(), mode)
-            while unnamed:                  # complete: link it in under a fresh temporary name
-                tmp = path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp")
-                try:
-                    # linkat(AT_SYMLINK_FOLLOW), which a dir fd selects (the absolute path ignores it)
-                    os.link(f"/proc/self/fd/{f.fileno()}", tmp, src_dir_fd=f.fileno())
-                    unnamed = False
-                except FileExistsError:
-                    tmp = None
-        os.replace(tmp, path)
-    except BaseException:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 _SEAL = b"aco-rbfn-sha256:"

@@ -34,7 +34,7 @@ from torch import nn
 
 from .checkpoint import load_model
 from .layer import RBFNetwork, cover_foldable
-from .summarize import unwritable, write_files
+from .files import unwritable, write_files
 
 __all__ = ["DeployedIK", "export_all", "export_onnx", "export_pt2", "main", "onnx_bytes", "pt2_bytes"]
 

@@ -29,14 +29,14 @@ import difflib
 import io
 import json
 import math
-import os
 import re
-import tempfile
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Job", "compare", "find_jobs", "load_jobs", "main", "summarize", "unwritable", "write_files"]
+from .files import unwritable, write_files
+
+__all__ = ["Job", "compare", "find_jobs", "load_jobs", "main", "summarize"]
 
 DEFAULT_METRICS = ("test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max",
                    "test_pos_err_mm_median_float32", "select_seconds", "train_seconds")
@@ -332,60 +332,6 @@ def plot_against_m(swept, rows, metric: str) -> bytes | None:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120)
     return buf.getvalue()
-
-
-def _write_protected(path: Path) -> bool:
-    """No write bit in the mode (which says "keep this" even to root, who may write anything), or no
-    write permission for this process."""
-    return not path.stat().st_mode & 0o222 or not os.access(path, os.W_OK)
-
-
-def unwritable(paths, force: bool = False) -> str:
-    """Why the files `paths` cannot or must not be written ('' when they may): a folder on the way
-    is a file or one this process cannot write into, a path is a directory, or (unless `force`) an
-    existing file or its folder is write-protected."""
-    for path in map(Path, paths):
-        folder = path.parent
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
-        if not folder.is_dir():
-            return f"{folder} is not a directory"
-        protected = f"{folder} is a write-protected directory (mode {folder.stat().st_mode & 0o777:#o})"
-        if not os.access(folder, os.W_OK | os.X_OK):
-            return f"{protected}: this process cannot write into it"
-        if not force and _write_protected(folder):
-            return f"{protected}; not writing into it (--force does)"
-        if path.is_dir():
-            return f"{path} is a directory"
-        if path.exists() and not force and _write_protected(path):
-            return (f"{path} is write-protected (mode {path.stat().st_mode & 0o777:#o}); not replacing it "
-                    "(--force replaces it)")
-    return ""
-
-
-def write_files(files: dict[Path, bytes]) -> None:
-    """Write every file of `files` or none: each goes to a temporary file beside it and, once all are
-    written, each is renamed over its target (an existing target's mode is kept, a new file gets
-    0o666 less the umask). On an error no target has changed and no temporary file is left."""
-    from .checkpoint import _umask
-
-    temps: list[str] = []
-    try:
-        for path, data in files.items():
-            path.parent.mkdir(parents=True, exist_ok=True)
-            mode = path.stat().st_mode & 0o777 if path.is_file() else 0o666 & ~_umask()
-            fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-            temps.append(tmp)
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.chmod(tmp, mode)
-        for tmp, path in zip(temps, files):
-            os.replace(tmp, path)
-    finally:
-        for tmp in temps:
-            Path(tmp).unlink(missing_ok=True)
 
 
 def _did_you_mean(word: str, known) -> str:

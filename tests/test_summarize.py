@@ -258,7 +258,7 @@ def test_an_output_that_cannot_be_written_is_an_error_and_writes_nothing(tmp_pat
 
 def test_files_are_written_all_or_none(tmp_path, monkeypatch):
     """A failure while writing the second file (here: the disk fills up) replaces neither."""
-    from rbfn.summarize import write_files
+    from rbfn.files import write_files
 
     (tmp_path / "a").write_text("old a")
     calls = []

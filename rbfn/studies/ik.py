@@ -6,7 +6,6 @@ import logging
 import math
 from pathlib import Path
 
-import torch
 
 from ..checkpoint import model_from_checkpoint, save_checkpoint
 from ..config import SELECTORS, EvalConfig, TrainConfig, plain

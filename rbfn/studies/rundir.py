@@ -31,7 +31,7 @@ from hydra.types import RunMode
 from omegaconf import OmegaConf
 from tensorboard.compat.proto.summary_pb2 import Summary
 
-from ..checkpoint import atomic_write_bytes
+from ..files import atomic_write_bytes
 
 __all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "write_figure", "strict_json", "write_json", "write_text"]
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import train
-from rbfn.checkpoint import atomic_write_bytes
+from rbfn.files import atomic_write_bytes
 from rbfn.studies.beside import Beside, can_fork
 from rbfn.studies.stop import stop_on_signals
 

@@ -1,0 +1,128 @@
+"""Files written whole: one file (`atomic_write_bytes`), several all or none (`write_files`), and
+whether a set of paths may be written (`unwritable`).
+
+A file is written under a temporary name beside its target and renamed over it once complete, so a
+reader never sees half a file and an interrupted write leaves the old file as it was. Where the
+system allows (Linux's O_TMPFILE), the temporary file has no name while it is being written and gets
+one (NAME.xxxxxxxx.tmp) only once complete, for the rename: a process killed in the middle of a
+write, even by SIGKILL, leaves nothing behind. Elsewhere it is named so from the start. Either is
+removed on any exception, a signal turned into one included (rbfn.studies.stop).
+
+Written files get the permissions a plain open() would give them: those of the file they replace,
+else 0o666 minus the umask (mkstemp's 0o600 would hide outputs from the user's group).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import BinaryIO
+
+__all__ = ["atomic_write_bytes", "unwritable", "write_files"]
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where the OS allows."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _complete_temp(path: Path, write: Callable[[BinaryIO], object]) -> Path:
+    """write(file) into a temporary file beside `path`; its name once complete (flushed to disk,
+    with the mode `path` has or a new file would get). Nothing is left behind on an error."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        mode = path.stat().st_mode & 0o777
+    except FileNotFoundError:
+        mode = 0o666 & ~_umask()
+    tmp = None
+    try:
+        fd = os.open(path.parent, os.O_TMPFILE | os.O_WRONLY, 0o600) if os.path.isdir("/proc/self/fd") else -1
+    except (AttributeError, OSError):       # no O_TMPFILE on this system or file system
+        fd = -1
+    if fd < 0:
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    unnamed = tmp is None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+            os.fchmod(f.fileno(), mode)
+            while unnamed:                  # complete: link it in under a fresh temporary name
+                tmp = str(path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp"))
+                try:
+                    # linkat(AT_SYMLINK_FOLLOW), which a dir fd selects (the absolute path ignores it)
+                    os.link(f"/proc/self/fd/{f.fileno()}", tmp, src_dir_fd=f.fileno())
+                    unnamed = False
+                except FileExistsError:
+                    tmp = None
+    except BaseException:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        raise
+    return Path(tmp)
+
+
+def atomic_write_bytes(path: str | Path, write: Callable[[BinaryIO], object]) -> None:
+    """Call write(file) on a temporary file beside `path`, then rename it over `path`."""
+    path = Path(path)
+    tmp = _complete_temp(path, write)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_files(files: dict[Path, bytes]) -> None:
+    """Write every file of `files` (path -> content) or none: each is written to a temporary file
+    beside it and, once all are complete, each is renamed over its target. On an error before the
+    renames no target has changed; no temporary file is left in any case."""
+    temps: list[Path] = []
+    try:
+        for path, data in files.items():
+            temps.append(_complete_temp(Path(path), lambda f, data=data: f.write(data)))
+        for tmp, path in zip(temps, files):
+            os.replace(tmp, path)
+    finally:
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
+
+
+def _write_protected(path: Path) -> bool:
+    """No write bit in the mode (which says "keep this" even to root, who may write anything), or no
+    write permission for this process."""
+    return not path.stat().st_mode & 0o222 or not os.access(path, os.W_OK)
+
+
+def unwritable(paths: Iterable[str | Path], force: bool = False) -> str:
+    """Why the files `paths` cannot or must not be written ('' when they may): a folder on the way
+    is a file or one this process cannot write into, a path is a directory, or (unless `force`) an
+    existing file or its folder is write-protected."""
+    for path in map(Path, paths):
+        folder = path.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            return f"{folder} is not a directory"
+        protected = f"{folder} is a write-protected directory (mode {folder.stat().st_mode & 0o777:#o})"
+        if not os.access(folder, os.W_OK | os.X_OK):
+            return f"{protected}: this process cannot write into it"
+        if not force and _write_protected(folder):
+            return f"{protected}; not writing into it (--force does)"
+        if path.is_dir():
+            return f"{path} is a directory"
+        if path.exists() and not force and _write_protected(path):
+            return (f"{path} is write-protected (mode {path.stat().st_mode & 0o777:#o}); not replacing it "
+                    "(--force replaces it)")
+    return ""
