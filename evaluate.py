@@ -34,6 +34,8 @@ from typing import Optional
 
 import hydra
 import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
@@ -41,6 +43,7 @@ from torch.utils.tensorboard import SummaryWriter
 from rbfn.checkpoint import read_checkpoint
 from rbfn.config import EvalConfig, register_configs, validate_evaluate
 from rbfn.studies.beside import Beside, can_fork
+from rbfn.studies.cli import one_line_errors
 from rbfn.studies.control import check_control, evaluate_control
 from rbfn.studies.ik import evaluate_ik
 from rbfn.studies.online import check_online, evaluate_online
@@ -55,7 +58,7 @@ def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
     """`cfg.checkpoint`, or the newest checkpoint.pt under `cfg.outputs_dir` (None when there is none)."""
     if cfg.checkpoint:
         path = Path(to_absolute_path(cfg.checkpoint))
-        if not path.is_file():
+        if not path.exists():
             raise FileNotFoundError(f"checkpoint={cfg.checkpoint}: no such file ({path})")
         return path
     root = Path(to_absolute_path(cfg.outputs_dir))
@@ -198,7 +201,7 @@ def evaluated_robots(cfg: EvalConfig, ckpt: dict | None) -> tuple[dict[str, str]
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(dcfg: DictConfig) -> None:
-    with job(), hydra_run_dir(own=True) as out_dir:
+    with one_line_errors(HydraConfig.get().mode == RunMode.RUN), job(), hydra_run_dir(own=True) as out_dir:
         run(OmegaConf.to_object(dcfg), out_dir, hydra_run_files(dcfg, out_dir))
 
 

@@ -31,6 +31,7 @@ from rbfn.data import check_finite, make_dataset
 from rbfn.pipeline import train_ik
 from rbfn.resume import DifferentRun, StateFile
 from rbfn.robots.robot import load_robot
+from rbfn.studies.cli import one_line_errors
 from rbfn.studies.ik import training_metrics, write_training
 from rbfn.studies.rundir import RunDir, RunDirInUse, hydra_run_dir, hydra_run_files, write_json, write_text
 from rbfn.studies.stop import job, stop_on_signals
@@ -88,7 +89,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
 def main(dcfg: DictConfig) -> float:
     cfg: TrainConfig = OmegaConf.to_object(dcfg)
     hc = HydraConfig.get()
-    with job(), hydra_run_dir() as out_dir:
+    with one_line_errors(hc.mode == RunMode.RUN), job(), hydra_run_dir() as out_dir:
         try:
             metrics = run(cfg, out_dir, hydra_run_files(dcfg, out_dir))
         except Exception as e:

@@ -84,6 +84,10 @@ class RunDir:
     def __enter__(self) -> "RunDir":
         if os.path.realpath(self.path) in RunDir._held:
             return self                 # the caller holds it (the entry point around its library call)
+        for up in (self.path, *self.path.parents):
+            if up.exists() and not up.is_dir():
+                raise RunDirInUse(f"hydra.run.dir={self.path}: {up} is a file, not a directory; give this run "
+                                  "another hydra.run.dir")
         self.path, self._fd = self._take_fresh() if self._fresh else self._take(self.path)
         RunDir._held[os.path.realpath(self.path)] = self._fd
         return self
