@@ -169,8 +169,10 @@ def urdf_tree(text: str, source: str, inertials: bool = False) -> etree._Element
         raise _too_large(len(text), source)
     text = text.lstrip(_BLANK)
     if not text.startswith("<"):
+        from_file = os.path.isfile(str(source))        # the text was read from that file
+        hint = "" if from_file else " (a string is never read as a file name: pass a pathlib.Path for a file)"
         raise ValueError(f"{source}: {reprlib.repr(text)} is not URDF text; allowed: XML whose root element "
-                         "is <robot> (a string is never read as a file name: pass a pathlib.Path for a file)")
+                         f"is <robot>{hint}")
     parser = etree.XMLParser(encoding="utf-8", resolve_entities="internal", load_dtd=False, no_network=True,
                              huge_tree=False, remove_comments=True, remove_pis=True)
     try:
