@@ -52,7 +52,7 @@ class DeployedIK(nn.Module):
         self.net.traced_cover_fold = cover_foldable(self.net.widths, self.net.cover_radius)
 
     def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net._solve_rows(self.net._inputs(positions))
+        return self.net.solve_rows(positions)
 
 
 def _example(net: RBFNetwork) -> torch.Tensor:

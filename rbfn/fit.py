@@ -211,11 +211,3 @@ def ridge_solve(a: torch.Tensor, y: torch.Tensor, ridge: float | torch.Tensor) -
     eye = torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
     return torch.linalg.solve(gram + torch.as_tensor(ridge, dtype=gram.dtype) * scale * eye,
                               a.transpose(-1, -2) @ y)
-
-
-def lms_weights(a_train: torch.Tensor, y_train: torch.Tensor, alpha0: float, epochs: int,
-                generator: torch.Generator) -> torch.Tensor:
-    """The paper's solver: normalised LMS from zero weights (see rbfn.lms)."""
-    from .lms import lms_fit
-
-    return lms_fit(a_train, y_train, alpha0=alpha0, epochs=epochs, generator=generator)

@@ -381,6 +381,12 @@ class RBFNetwork(nn.Module):
         """(outputs (B, out), in-workspace mask (B,)) for inputs x (B, d)."""
         return self._blocks(self._solve_rows, self._inputs(x))
 
+    def solve_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`solve` for inputs x (B, d) in one piece: the exported graph's path (`rbfn.export`).
+        No blocks (one graph for any B), and the inputs' data checks only in eager mode (shape
+        and dtype are checked always)."""
+        return self._solve_rows(self._inputs(x))
+
     def _solve_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """`solve` on rows (B, d) in one piece, the exponents computed once for the features and
         the mask (no blocks, no checks): the exported graph's path."""

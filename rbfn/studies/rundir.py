@@ -214,7 +214,10 @@ def write_figure(fig, path: Path, dpi: int = 110, writer=None, tag: str = "") ->
     atomic_write_bytes(Path(path), lambda f: f.write(data))
     if writer is not None:
         # The encoded PNG goes into the summary as it is (SummaryWriter.add_image would decode and
-        # re-encode it: a quarter of a figure's cost). Width and height from its IHDR chunk.
+        # re-encode it: a quarter of a figure's cost), through the writer's public `file_writer`
+        # (None once the writer is closed). Width and height from the PNG's IHDR chunk.
+        if writer.file_writer is None:
+            raise ValueError(f"write_figure: the SummaryWriter for {tag!r} is closed")
         width, height = struct.unpack(">II", data[16:24])
         image = Summary.Image(height=height, width=width, colorspace=4, encoded_image_string=data)   # RGBA
-        writer._get_file_writer().add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]))
+        writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]))
