@@ -22,6 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import torch
+# torch (2.13) has no public pytree module: torch.export.pytree is this same module under another
+# name, not a documented API. The package's call spec is serialised in this module's format.
+import torch.utils._pytree as pytree
 
 __all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk"]
 
@@ -89,7 +92,7 @@ def chunk_key(plant, controller, dt: float, integrator: str, chunk: int, example
     """The cache key of a `make_chunk` function: its plant, controller (not its features or
     initial weights, which are inputs), time step, integrator, length, and the example
     arguments' structure, shapes, dtypes and devices (not their values)."""
-    leaves, spec = torch.utils._pytree.tree_flatten(example)
+    leaves, spec = pytree.tree_flatten(example)
     shapes = [(tuple(t.shape), t.dtype, t.device) if isinstance(t, torch.Tensor) else t for t in leaves]
     return fingerprint(plant, controller, dt, integrator, chunk, shapes, str(spec), skip=("features", "w0"))
 
@@ -145,11 +148,11 @@ def _load(path: Path) -> Callable:
     package built here for this device."""
     try:
         loader = torch._C._aoti.AOTIModelPackageLoader(str(path), "model", False, 1, -1)
-        out_spec = torch.utils._pytree.treespec_loads(loader.get_call_spec()[1])
+        out_spec = pytree.treespec_loads(loader.get_call_spec()[1])
     except (AttributeError, TypeError, RuntimeError):
         return torch._inductor.aoti_load_package(str(path))
 
     def run(*args):
-        flat = [x for x in torch.utils._pytree.tree_leaves(args) if isinstance(x, torch.Tensor)]
-        return torch.utils._pytree.tree_unflatten(loader.boxed_run(flat), out_spec)
+        flat = [x for x in pytree.tree_leaves(args) if isinstance(x, torch.Tensor)]
+        return pytree.tree_unflatten(loader.boxed_run(flat), out_spec)
     return run

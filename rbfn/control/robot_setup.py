@@ -78,7 +78,7 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = 
         n, names, prismatic, arm = 3, ["joint1", "joint2", "joint3"], [False, False, True], None
     else:
         arm = _load(robot, cfg, urdf_text)
-        n, names, prismatic = arm.n, arm.joint_names, arm._model.prismatic.tolist()
+        n, names, prismatic = arm.n, arm.joint_names, arm.prismatic
     scale = _scale(cfg, robot, arm, n)
     home, amplitude = _sinusoid(robot, names)
     if robot.trajectory == Trajectory.paper and n != 3:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
+import torch.utils._pytree as pytree   # no public pytree module in torch 2.13 (see rbfn.control.aot)
 
 from ..config import Integrator
 from .aot import aot_chunk, chunk_key
@@ -174,7 +175,7 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
     # into ordinary tensors; the final state is copied out of inference mode. The state enters as
     # inference tensors, so that every chunk a compiled step sees is of one kind (no recompiling).
     with torch.inference_mode():
-        q, qd, state = torch.utils._pytree.tree_map(torch.clone, (q, qd, state))
+        q, qd, state = pytree.tree_map(torch.clone, (q, qd, state))
         while k0 < n:
             m = min(chunk, n - k0)
             fn = run if m == chunk else make_chunk(plant, controller, dt, scenario.integrator, m)

@@ -57,11 +57,6 @@ def _sum(*xs):
     return out
 
 
-def _scalar(x):
-    """A tensor's plain float (constants fold while tracing)."""
-    return float(x)
-
-
 # ----------------------------------------------------------------------------- vectors
 def _v_add(a, b):
     return tuple(_add(x, y) for x, y in zip(a, b))

@@ -108,7 +108,7 @@ class ArmTerms:
     def _consts(self, dtype: torch.dtype, device: torch.device) -> dict:
         key = (dtype, device)
         if key not in self._cache:
-            md, n = self.arm._model, self.n
+            md, n = self.arm.model, self.n
             # Body frame i turned by Q_i (z column = joint axis): R'_i = R'_{i-1} R0'_i Rz(q_i) with
             # R0'_i = Q_{i-1}^T R0_i Q_i, t0'_i = Q_{i-1}^T t0_i; body constants seen from the turned frame.
             qs = [_frame_to(a) for a in md.axis]

@@ -284,6 +284,16 @@ class Arm:
     def __repr__(self) -> str:
         return f"Arm(n={self.n}, joints={self.joint_names}, end_link={self.end_link!r})"
 
+    @property
+    def model(self) -> _Model:
+        """The lumped chain's constants, float64 (shared, read-only: the arm's dynamics use them)."""
+        return self._model
+
+    @property
+    def prismatic(self) -> list[bool]:
+        """Per joint (n): True where the joint is prismatic (m), False where revolute (rad)."""
+        return self._model.prismatic.tolist()
+
     def joint_limits(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(lower, upper) (n,) float64 in rad or m; -inf, inf for continuous joints."""
         return self._model.lower.clone(), self._model.upper.clone()

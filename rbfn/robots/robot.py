@@ -75,10 +75,6 @@ class Robot:
         names = self.chain.get_joint_parameter_names()
         return [names[i] for i in self.free]
 
-    @property
-    def target_dim(self) -> int:
-        return 7 if self.target == Target.pose else 3
-
     def full_joints(self, q: torch.Tensor) -> torch.Tensor:
         """Every chain joint (B, n_chain) from the free joints q (B, n), locked ones filled in."""
         out = self._full.to(dtype=q.dtype, device=q.device).expand(q.shape[0], -1).clone()
