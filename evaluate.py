@@ -30,7 +30,6 @@ import logging
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Optional
 
 import hydra
 import torch
@@ -54,7 +53,7 @@ register_configs()
 log = logging.getLogger("evaluate")
 
 
-def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
+def find_checkpoint(cfg: EvalConfig) -> Path | None:
     """`cfg.checkpoint`, or the newest checkpoint.pt under `cfg.outputs_dir` (None when there is none)."""
     if cfg.checkpoint:
         path = Path(to_absolute_path(cfg.checkpoint))
@@ -67,7 +66,7 @@ def find_checkpoint(cfg: EvalConfig) -> Optional[Path]:
 
 
 @contextmanager
-def _torch_threads(n: Optional[int]):
+def _torch_threads(n: int | None):
     """torch's intra-op threads set to `n` inside the block and restored after it (None: unchanged)."""
     before = torch.get_num_threads()
     if n is not None:

@@ -8,9 +8,10 @@ Writes checkpoint.pt, ik.onnx, ik.pt2, metrics.json, TensorBoard events and trai
 Hydra run directory. Running again in a directory holding an interrupted run's last.pt continues
 it (name it: hydra.run.dir=DIR), ending with the result an uninterrupted run has; a directory
 another process is using, a finished run with another config, or another command's metrics.json
-(evaluate.py's) is refused and left exactly as it was. The default directory is named after the clock: a second run started in the same second takes
-DIR_1 (rbfn.studies.rundir). SIGTERM or SIGHUP stop the run, its multirun's workers included, after
-their cleanup, with exit status 128 + the signal's number (rbfn.studies.stop).
+(evaluate.py's) is refused and left exactly as it was. The default directory is named after the
+clock: a second run started in the same second takes DIR_1 (rbfn.studies.rundir). SIGTERM or
+SIGHUP stop the run, its multirun's workers included, after their cleanup, with exit status
+128 + the signal's number (rbfn.studies.stop).
 """
 from __future__ import annotations
 

@@ -118,7 +118,7 @@ def run_suite(sizes: dict, device: str = "cpu", threads: int = 1, out: Path | No
         t0 = time.perf_counter()
         try:
             res["sections"][name] = fn(sizes[name])
-        except Exception:                         # report it, keep measuring the other sections
+        except Exception:  # noqa: BLE001 - report it, keep measuring the other sections
             res["errors"][name] = traceback.format_exc()[-3000:]
             print(res["errors"][name], file=sys.stderr)
         res["partial"].pop(name, None)
@@ -208,7 +208,7 @@ def profiles(res: dict, sizes: dict, device: str, net=None) -> dict:
         obj = select_time.selection_objective(10000, device)
         for name in select_time.COLONIES:
             out[f"{name}, N = 10000, M = 40, 3 iterations"] = profile_table(
-                lambda: select_time.time_aco(obj, name, 40, 3, device), device)
+                lambda: select_time.time_aco(obj, name, 40, 3, device), device)  # noqa: B023 - called now
     if missed & {"sim_mujoco", "sim_4m"}:
         run = simulator.closed_loop(8192, 0.02, device)
         run()

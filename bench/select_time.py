@@ -15,6 +15,7 @@ OpenMP, BLAS) on `--threads` threads (set here, and reported in every row), and 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import statistics
 import time
@@ -68,7 +69,7 @@ def time_aco(objective: FitObjective, name: str, m: int, iterations: int, device
     select(aco_config(name, iterations), objective, m, 0, 2.0, on_state=on_state)
     sync(device)
     total = time.perf_counter() - t0
-    iters = [b - a for a, b in zip(stamps, stamps[1:])]
+    iters = [b - a for a, b in itertools.pairwise(stamps)]
     per_iter = statistics.median(iters) if iters else (stamps[0] - t0 if stamps else total)
     setup = (stamps[0] - t0 - per_iter) if stamps else total
     return {"seconds": total, "setup_s": max(setup, 0.0), "per_iter_s": per_iter, "iterations": len(stamps)}

@@ -28,14 +28,13 @@ import shutil
 import subprocess
 import sys
 import time
-
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from rbfn.config import ControlConfig, RobotConfig
-from rbfn.control import Scenario, ScaraPlant, control_robot, make_controller, paper_trajectory, simulate
+from rbfn.control import ScaraPlant, Scenario, control_robot, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Gains
 from rbfn.robots import scara
 
@@ -338,7 +337,8 @@ def _arm_main(a) -> None:
     print(f"{'B':>6s} {'steps':>6s} {'ours':>12s} {'MuJoCo':>12s} {'ratio':>7s}")
     for r in ours:
         m = mj.get(r["B"])
-        mr = f"{m['env_steps_per_s']:12.0f} {r['env_steps_per_s'] / m['env_steps_per_s']:7.2f}" if m else f"{'-':>12s} {'-':>7s}"
+        mr = (f"{m['env_steps_per_s']:12.0f} {r['env_steps_per_s'] / m['env_steps_per_s']:7.2f}" if m
+              else f"{'-':>12s} {'-':>7s}")
         print(f"{r['B']:6d} {r['steps']:6d} {r['env_steps_per_s']:12.0f} {mr}")
     if a.json:
         Path(a.json).write_text(json.dumps({"ours": ours, "mujoco": theirs}, indent=1))

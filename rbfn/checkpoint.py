@@ -24,8 +24,8 @@ from .layer import MIN_WIDTH, RBFNetwork
 from .robots.robot import robot_from_record
 from .targets import TargetFeatures
 
-__all__ = ["FORMAT_VERSION", "KIND", "MIN_WIDTH", "load_model", "load_sealed", "model_from_checkpoint", "read_checkpoint",
-           "save_checkpoint", "save_sealed"]
+__all__ = ["FORMAT_VERSION", "KIND", "MIN_WIDTH", "load_model", "load_sealed", "model_from_checkpoint",
+           "read_checkpoint", "save_checkpoint", "save_sealed"]
 
 FORMAT_VERSION = 1
 KIND = "rbfn-ik"
@@ -135,7 +135,7 @@ def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVIC
     data = unseal(path.read_bytes(), path, what, advice)
     try:
         return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-    except Exception as e:  # truncated or corrupted archives raise various errors
+    except Exception as e:  # noqa: BLE001 - truncated or corrupted archives raise various errors
         text = str(e)
         if isinstance(e, pickle.UnpicklingError) and ("Weights only" in text or "WeightsUnpickler" in text):
             name = _refused_global(text)

@@ -15,8 +15,8 @@ from enum import Enum
 from typing import Any, Optional
 
 __all__ = [
-    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "RefineLoss", "Solver", "InputScaling",
-    "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
+    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "RefineLoss", "Solver",
+    "InputScaling", "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
     "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS", "validate_robot",
     "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
     "RBFNConfig", "TrainConfig", "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig",
@@ -137,7 +137,8 @@ class RefineConfig:
     batch: int = 256                   # minibatch: rows per Adam step
     batch_lr: float = 0.003            # minibatch: first Adam step size, decayed to 0 on a cosine
     loss: RefineLoss = RefineLoss.task  # type: ignore[valid-type]  # minibatch: task error (m; rotation x robot.rotation_scale) | joint error
-    huber: float = 0.005               # minibatch: pseudo-Huber threshold on a row's error norm (m for task); 0: squared
+    huber: float = 0.005               # minibatch: pseudo-Huber threshold on a row's error norm (m for task);
+                                       # 0: squared
     learn_input_scale: bool = True
     min_ridge: float = 1e-11           # floor on the relative ridge inside the loss (conditioning)
 
@@ -248,7 +249,8 @@ class ControlConfig:
     joint_scale: list[float] = field(default_factory=list)   # per joint; empty: derived (see above)
     dtype: Dtype = Dtype.float64               # type: ignore[valid-type]
     compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
-    aot: bool = False                  # the step compiled ahead of time, cached on disk (minutes once per configuration)
+    aot: bool = False                  # the step compiled ahead of time, cached on disk (minutes once per
+                                       # configuration)
     figure_payload: Optional[float] = None   # kg, the case drawn in the figures; null: half the rated payload
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
@@ -291,8 +293,10 @@ class EvalConfig:
     n_test: int = 10000
     seed: Optional[int] = None         # null: the checkpoint's training seed; the test stream is derived
     device: str = "cpu"
-    num_threads: int = 0               # torch threads; 0: torch's default, or one per process while the parts run side by side
-    parallel: bool = True              # checkpoint parts, half the control figures in forked processes (fork, CPU, >= 2 cores)
+    num_threads: int = 0               # torch threads; 0: torch's default, or one per process while the parts
+                                       # run side by side
+    parallel: bool = True              # checkpoint parts, half the control figures in forked processes
+                                       # (fork, CPU, >= 2 cores)
     robot: RobotConfig = field(default_factory=RobotConfig)   # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
@@ -374,7 +378,7 @@ def validate_train(cfg: TrainConfig) -> None:
 
 def _train_fits(cfg: TrainConfig) -> None:
     """The training set and the least-squares design matrix (float64) fit in memory."""
-    from .memory import FLOAT64, check_fits      # a runtime fact, not a schema one
+    from .memory import FLOAT64, check_fits  # a runtime fact, not a schema one
 
     d, n_q = cfg.data, len(cfg.robot.joint_low)
     pose = cfg.robot.target == Target.pose

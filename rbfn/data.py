@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 from typing import TYPE_CHECKING
 
 import torch
@@ -33,7 +32,7 @@ class Split:
     x: torch.Tensor
     q: torch.Tensor
 
-    def to(self, **kw) -> "Split":
+    def to(self, **kw) -> Split:
         return Split(self.x.to(**kw), self.q.to(**kw))
 
 
@@ -50,7 +49,7 @@ def sample_joints(low: torch.Tensor, high: torch.Tensor, n: int, generator: torc
     return low + u * (high - low)
 
 
-def make_split(robot: "Robot", n: int, seed: int) -> Split:
+def make_split(robot: Robot, n: int, seed: int) -> Split:
     """n (target, joints) pairs from joints sampled in the robot's box with `seed` (float64, on the
     chain's device)."""
     g = torch.Generator().manual_seed(seed)
@@ -58,12 +57,12 @@ def make_split(robot: "Robot", n: int, seed: int) -> Split:
     return Split(robot.targets(q).to(torch.float64), q)
 
 
-def make_dataset(robot: "Robot", sizes: tuple[int, int, int], seed: int) -> Dataset:
+def make_dataset(robot: Robot, sizes: tuple[int, int, int], seed: int) -> Dataset:
     """Train/val/test splits of (target, joints) pairs, each from its own seeded stream."""
     return Dataset(*(make_split(robot, n, stream(seed, k)) for k, n in zip(TRAIN_VAL_TEST, sizes)))
 
 
-def evaluation_split(robot: "Robot", n: int, seed: int) -> Split:
+def evaluation_split(robot: Robot, n: int, seed: int) -> Split:
     """A fresh evaluation set for `seed`, from a stream no training run of any seed draws."""
     return make_split(robot, n, stream(seed, EVALUATION))
 

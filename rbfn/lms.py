@@ -86,7 +86,7 @@ def _finite(a: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 
 def make_learner(name: str, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0,
-                 forgetting: float = 0.999) -> "NLMS | RLS":
+                 forgetting: float = 0.999) -> NLMS | RLS:
     """The online learner `name` (nlms | rls) starting from weights (B, P, out)."""
     if name == "nlms":
         return NLMS(weights, alpha0, decay)

@@ -56,7 +56,7 @@ class FitObjective:
         self._tail_val_abs = self._tail_val.abs()
         self._y_val_t = y_val.T.contiguous()
 
-    def subset(self, rows: int, seed: int) -> "FitObjective":
+    def subset(self, rows: int, seed: int) -> FitObjective:
         """The same objective on at most `rows` training and `rows` validation rows, drawn without
         replacement by a generator seeded with `seed` (itself where both sets are that small)."""
         n, n_v = self.z_train.shape[0], self.z_val.shape[0]

@@ -78,7 +78,7 @@ def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torc
     return fit
 
 
-def task_jacobians(cfg: TrainConfig, robot: "Robot", data: Dataset) -> tuple[torch.Tensor, torch.Tensor]:
+def task_jacobians(cfg: TrainConfig, robot: Robot, data: Dataset) -> tuple[torch.Tensor, torch.Tensor]:
     """Task Jacobians (N, r, n) at the training and validation joints, the rotation rows times
     `robot.rotation_scale` (m), as the task loss weighs them."""
     jacs = robot.jacobian(data.train.q), robot.jacobian(data.val.q)
@@ -87,7 +87,7 @@ def task_jacobians(cfg: TrainConfig, robot: "Robot", data: Dataset) -> tuple[tor
     return jacs
 
 
-def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: "Robot | None") -> bool:
+def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot | None) -> bool:
     """Whether mini-batch refinement at M = num_centers (`features` inputs d) takes the task loss;
     refuses one that cannot, before any work."""
     r = cfg.centers.refine
@@ -106,7 +106,7 @@ def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: "Robo
 
 
 def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
-             state: TrainState | None = None, robot: "Robot | None" = None) -> TrainResult:
+             state: TrainState | None = None, robot: Robot | None = None) -> TrainResult:
     """Train the IK network of `cfg` on `data` (targets (N, 3 or 7) -> joints (N, n)).
 
     With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and

@@ -161,7 +161,8 @@ class _GaussianProduct(torch.autograd.Function):
         return grad_z, grad_c, grad_s, grad_w
 
 
-def gaussian_product(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+def gaussian_product(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
+                     weights: torch.Tensor) -> torch.Tensor:
     """phi(z) @ weights (B, out): Gaussians of z (B, d) about centres (M, d) with widths (M,),
     times weights (M, out); differentiable in all four at the cost of a few products."""
     return _GaussianProduct.apply(z, centers, widths, weights)
@@ -193,7 +194,7 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
     trained weights every `eval_every` epochs and at the end, the best iterate kept. Returned
     tensors have the inputs' dtype."""
     out_dtype = z_train.dtype
-    z_tr, y_tr, z_v, y_v = (t.to(dtype) for t in (z_train, y_train, z_val, y_val))
+    z_tr, y_tr, z_v, _y_v = (t.to(dtype) for t in (z_train, y_train, z_val, y_val))
     j_tr = None if jacobians is None else jacobians[0].to(dtype)
     m = centers.shape[0]
     c = centers.detach().to(dtype).clone().requires_grad_(True)

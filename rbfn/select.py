@@ -220,9 +220,9 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
 
     x = (log scale s, exponent b): widths = e^s * w0_med * (w0 / w0_med)^(1 + b), w0 the seed's
     validation-tuned per-centre widths (median w0_med; its scale from a grid 2x apart), clamped
-    to max_width; s in [log 1/4, log 4], b in [-1, 1]. x = 0 is the seed itself, so the result is never worse than it on the
-    objective. At large M * d the full search (M * (d + 1) coordinates, one fit per ant costing
-    O(N P^2)) cannot move in the few ants it can afford; these two quantities (how wide, and how
+    to max_width; s in [log 1/4, log 4], b in [-1, 1]. x = 0 is the seed itself, so the result is
+    never worse than it on the objective. At large M * d the full search (M * (d + 1) coordinates,
+    one fit per ant costing O(N P^2)) cannot move in the few ants it can afford; these two quantities (how wide, and how
     much the width follows the local centre spacing) are what the seed's coarse grid scale leaves
     open. The archive and ants shrink to 3 and the iterations to the budget `REDUCED_FLOPS`.
     """

@@ -307,7 +307,7 @@ def plot_against_m(swept, rows, metric: str) -> bytes | None:
     when `rbfn.num_centers` is not swept or no group has a positive number of centres and `metric`."""
     if "rbfn.num_centers" not in swept:
         return None
-    from matplotlib.figure import Figure       # object API: no pyplot, no backend switch
+    from matplotlib.figure import Figure  # object API: no pyplot, no backend switch
 
     i_m = swept.index("rbfn.num_centers")
     lines: dict[tuple, list] = defaultdict(list)

@@ -75,7 +75,7 @@ def test_truncated_file(ckpt):
     path, _ = ckpt
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(ValueError, match="not a readable checkpoint .truncated or corrupted"):
+    with pytest.raises(ValueError, match=r"not a readable checkpoint .truncated or corrupted"):
         read_checkpoint(path)
 
 
@@ -86,7 +86,7 @@ def test_flipped_byte(ckpt):
     path.write_bytes(bytes(data))
     # Wherever the byte is, reading fails clearly: the zip or pickle structure breaks, or a
     # payload byte changes and the checksum no longer matches.
-    with pytest.raises(ValueError, match="not a readable checkpoint|is corrupted"):
+    with pytest.raises(ValueError, match=r"not a readable checkpoint|is corrupted"):
         read_checkpoint(path)
 
 
@@ -96,7 +96,7 @@ def test_flipped_byte_anywhere(ckpt, where):
     data = bytearray(path.read_bytes())
     data[min(int(len(data) * where), len(data) - 1)] ^= 0x01
     path.write_bytes(bytes(data))
-    with pytest.raises(ValueError, match="not a readable checkpoint|is corrupted"):
+    with pytest.raises(ValueError, match=r"not a readable checkpoint|is corrupted"):
         read_checkpoint(path)
 
 
@@ -165,7 +165,7 @@ def test_flipped_byte_in_the_seal_region_is_damage_not_a_foreign_file(ckpt):
         data = bytearray(good)
         data[-back] ^= 0x01
         path.write_bytes(bytes(data))
-        with pytest.raises(ValueError, match="not a readable checkpoint .truncated or corrupted|is corrupted"):
+        with pytest.raises(ValueError, match=r"not a readable checkpoint .truncated or corrupted|is corrupted"):
             read_checkpoint(path)
 
 
@@ -195,7 +195,7 @@ def test_sealed_file_with_objects_is_refused_without_suggesting_unsafe_load(tmp_
 def test_training_state_is_not_a_checkpoint(tmp_path):
     StateFile(tmp_path).save(TrainState(config={"seed": 0}))
     for read in (read_checkpoint, load_model):
-        with pytest.raises(ValueError, match="last.pt is a training state .*not a checkpoint.*checkpoint.pt"):
+        with pytest.raises(ValueError, match=r"last.pt is a training state .*not a checkpoint.*checkpoint.pt"):
             read(tmp_path / "last.pt")
 
 
@@ -240,7 +240,7 @@ def test_corrupted_training_state_says_delete_it(tmp_path):
     states.save(TrainState(config={"seed": 0}))
     data = states.path.read_bytes()
     states.path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(ValueError, match="not a readable training state .truncated or corrupted") as e:
+    with pytest.raises(ValueError, match=r"not a readable training state .truncated or corrupted") as e:
         StateFile(tmp_path).load({"seed": 0})
     assert f"Delete {states.path}" in str(e.value) and "Re-run training" not in str(e.value)
 
@@ -248,7 +248,7 @@ def test_corrupted_training_state_says_delete_it(tmp_path):
 def test_load_sealed_advice(tmp_path):
     path = tmp_path / "x.pt"
     path.write_bytes(b"")
-    with pytest.raises(ValueError, match="x.pt is not a readable thing .*: it is empty. Do this.$"):
+    with pytest.raises(ValueError, match=r"x.pt is not a readable thing .*: it is empty. Do this.$"):
         load_sealed(path, what="thing", advice="Do this.")
 
 

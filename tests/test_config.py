@@ -95,7 +95,7 @@ def test_bad_evaluate_values(field, value, match):
 def test_nan_in_data_is_named():
     x = torch.zeros(5, 3)
     x[2, 1] = float("nan")
-    with pytest.raises(ValueError, match="train positions contains non-finite values .first at row 2"):
+    with pytest.raises(ValueError, match=r"train positions contains non-finite values .first at row 2"):
         check_finite("train positions", x)
 
 
@@ -109,7 +109,7 @@ def test_nan_in_training_data_stops_run_before_any_write(tmp_path, monkeypatch):
 
     monkeypatch.setattr(train, "make_dataset", poisoned)
     cfg = _cfg("data.n_train=50", "data.n_val=20", "data.n_test=20", "rbfn.num_centers=5", "progress=false")
-    with pytest.raises(ValueError, match="train positions contains non-finite values .first at row 7"):
+    with pytest.raises(ValueError, match=r"train positions contains non-finite values .first at row 7"):
         train.run(cfg, tmp_path / "run")
     assert list((tmp_path / "run").iterdir()) == []
 
@@ -117,7 +117,7 @@ def test_nan_in_training_data_stops_run_before_any_write(tmp_path, monkeypatch):
 def test_joint_range_outside_urdf_limits():
     from rbfn.robots.robot import load_robot
 
-    with pytest.raises(ValueError, match="joint2 .* leaves the URDF limits"):
+    with pytest.raises(ValueError, match=r"joint2 .* leaves the URDF limits"):
         load_robot(_cfg("robot.joint_high=[2.0,3.0,1.5]").robot)
 
 

@@ -5,7 +5,7 @@ from rbfn.data import EVALUATION, TRAIN_VAL_TEST, evaluation_split, make_dataset
 
 
 def test_evaluation_streams_never_coincide_with_training_streams():
-    seeds = list(range(0, 50)) + [4242, 2**32 - 1]
+    seeds = [*list(range(0, 50)), 4242, 2 ** 32 - 1]
     training = {stream(s, k) for s in seeds for k in TRAIN_VAL_TEST}
     assert not training & {stream(s, EVALUATION) for s in seeds}
 

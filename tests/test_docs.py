@@ -106,7 +106,7 @@ def _commands():
                 except ValueError:
                     continue
                 argv: list[str] = []
-                for tok in tokens + ["&&"]:
+                for tok in [*tokens, "&&"]:
                     if tok in ("&&", "||", ";", "|") or tok.endswith(";"):
                         if tok.endswith(";") and tok != ";":
                             argv.append(tok[:-1])

@@ -153,7 +153,7 @@ def test_nothing_to_evaluate_is_an_error_naming_why(tmp_path):
     missing = tmp_path / "typo"
     with pytest.raises(ValueError, match=r"nothing to evaluate: outputs_dir=.*typo.*no such directory.*control"):
         evaluate.run(compose_config("evaluate", f"outputs_dir={missing}", "control.enabled=false"), tmp_path / "a")
-    with pytest.raises(ValueError, match="nothing to evaluate: ik, online.enabled and control.enabled are all false"):
+    with pytest.raises(ValueError, match=r"nothing to evaluate: ik, online.enabled and control.enabled are all false"):
         evaluate.run(compose_config("evaluate", "ik=false", "online.enabled=false", "control.enabled=false"),
                      tmp_path / "b")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

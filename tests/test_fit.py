@@ -1,4 +1,5 @@
 import math
+
 import pytest
 import torch
 
@@ -25,7 +26,7 @@ def test_least_squares_exact_on_representable_problem():
 
 
 def test_ridge_fit_batched_over_ants_matches_single():
-    z, c, w, true = _problem(1)
+    z, c, w, _true = _problem(1)
     cs = torch.stack([c, c + 0.1, c - 0.2])
     ws = w.expand(3, -1)
     y = torch.sin(3 * z)
@@ -36,7 +37,7 @@ def test_ridge_fit_batched_over_ants_matches_single():
 
 
 def test_ridge_solve_matches_ridge_fit_weights():
-    z, c, w, true = _problem(2)
+    z, c, w, _true = _problem(2)
     a = design_matrix(z, c, w)
     y = torch.cos(2 * z)
     fit = ridge_fit(a, y, a, y, ridges=(1e-6,))
@@ -110,7 +111,7 @@ def test_float32_fit_is_stable_under_any_op_order(small_data):
 def test_rounding_constraint_batched_over_ants():
     from rbfn.fit import rounding_scale
 
-    z, c, w, true = _problem(3, n=500, m=16)
+    z, c, w, _true = _problem(3, n=500, m=16)
     cs = torch.stack([c, c * 0.9, c + 0.05])
     ws = torch.stack([w * 2.5, w * 3.0, w])
     y = torch.sin(3 * z)
@@ -136,7 +137,7 @@ def test_relative_rounding_bound_follows_the_fit_error():
     from rbfn.fit import rounding_scale, rounding_tolerance
     from rbfn.objectives import FitObjective
 
-    z, c, w, true = _problem(3, n=500, m=16)
+    z, c, w, _true = _problem(3, n=500, m=16)
     y = torch.sin(3 * z)
     a_tr, a_val = design_matrix(z[:350], c, w * 2.5), design_matrix(z[350:], c, w * 2.5)
     absolute = ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7)
@@ -155,7 +156,7 @@ def test_relative_rounding_bound_follows_the_fit_error():
 
 
 def test_no_stable_ridge_keeps_the_most_stable():
-    z, c, w, true = _problem(4)
+    z, c, w, _true = _problem(4)
     a = design_matrix(z, c, w * 3)
     y = torch.sin(3 * z)
     fit = ridge_fit(a[:300], y[:300], a[300:], y[300:], ridges=(1e-12, 1e-8, 1e-4), eval_dtype=torch.float32,

@@ -86,7 +86,7 @@ def test_bad_inputs_name_the_shape_and_type():
         net.solve(torch.zeros(3))
     with pytest.raises(ValueError, match=r"got shape \(2, 4, 3\)"):
         net.in_workspace(torch.zeros(2, 4, 3))
-    with pytest.raises(TypeError, match="torch.Tensor or numpy.ndarray.*got list"):
+    with pytest.raises(TypeError, match=r"torch.Tensor or numpy.ndarray.*got list"):
         net([[0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match=r"outputs y must be \(4, 2\)"):
         net.in_workspace(torch.zeros(4, 3), torch.zeros(4, 3))
@@ -205,7 +205,7 @@ def test_matrix_product_exponents_match_broadcast_distances():
         net32 = copy.deepcopy(net).float()
         y32, mask32 = net32.solve(x.float())
         assert y32.dtype == torch.float32 and (y32.double() - y_ref).abs().max() < 1e-5
-        y32_ref, mask32_ref = _reference(net32, x.float())
+        _y32_ref, mask32_ref = _reference(net32, x.float())
         assert (mask32 != mask32_ref).sum() <= 2             # rounding at the cover radius only
         assert (mask32 != mask_ref).sum() <= 2
 

@@ -51,9 +51,9 @@ def test_nan_pair_is_rejected_without_corrupting_weights(cls):
 
 def test_bad_settings():
     w = torch.zeros(1, 2, 1)
-    with pytest.raises(ValueError, match="alpha0=2.5"):
+    with pytest.raises(ValueError, match=r"alpha0=2.5"):
         NLMS(w, alpha0=2.5)
-    with pytest.raises(ValueError, match="forgetting=1.5"):
+    with pytest.raises(ValueError, match=r"forgetting=1.5"):
         RLS(w, forgetting=1.5)
     with pytest.raises(ValueError, match="unknown learner 'adam'"):
         make_learner("adam", w)

@@ -45,7 +45,7 @@ def test_rounding_scale_near_the_tolerance_is_judged_in_float64():
         obj = FitObjective(z[:500], y[:500], z[500:], y[500:], eval_dtype=torch.float32, round_tol=tol)
         exact = []
         blocks = obj._val_blocks
-        obj._val_blocks = lambda *a, **kw: exact.append(kw.get("exact", False)) or blocks(*a, **kw)
+        obj._val_blocks = lambda *a, **kw: exact.append(kw.get("exact", False)) or blocks(*a, **kw)  # noqa: B023 - this obj's
         ref = _reference(z, y, c, w, eval_dtype=torch.float32, round_tol=tol)
         assert torch.allclose(obj(c, w), ref.val_mse, rtol=1e-6, atol=0)
         assert any(exact)                                     # the float64 rescoring ran

@@ -136,7 +136,7 @@ def test_requeued_job_resumes_from_last_pt_to_the_uninterrupted_result(cluster, 
         def colony_iteration():
             try:
                 state = load_sealed(job / "last.pt")["state"]
-            except Exception:            # not written yet
+            except Exception:  # noqa: BLE001 - not written yet, or half written
                 return None
             it = ((state.get("current") or {}).get("colony") or {}).get("iteration", 0)
             return it if it >= REQUEUE_AFTER else None

@@ -46,7 +46,7 @@ def test_pose_network_takes_poses_and_ignores_the_quaternion_sign(ur5_run):
         net(x[:, :3])
     bad = x.clone()
     bad[3, 3:] *= 1.5
-    with pytest.raises(ValueError, match="unit length.*row 3"):
+    with pytest.raises(ValueError, match=r"unit length.*row 3"):
         net(bad)
 
 
@@ -111,7 +111,7 @@ def test_solve_checks_its_arguments(panda_ckpt, kwargs, message):
     x = robot.targets(0.5 * (robot.low + robot.high)[None])
     with pytest.raises(ValueError, match=message):
         solver.solve(x, **kwargs)
-    with pytest.raises(ValueError, match="poses must be finite|non-finite"):
+    with pytest.raises(ValueError, match=r"poses must be finite|non-finite"):
         solver.solve(torch.full_like(x, float("nan")))
 
 

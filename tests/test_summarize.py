@@ -43,7 +43,7 @@ def test_compare_pairs_jobs_by_seed(tmp_path, capsys):
             n += 1
     swept, rows = compare(load_jobs(tmp_path), "centers", "aco", "kmeans", ("test_pos_err_mm_median",))
     assert swept == []                                      # M is not swept here
-    ((g, pairs, stats),) = rows
+    ((_g, pairs, stats),) = rows
     diff, std, ratio, wins = stats["test_pos_err_mm_median"]
     assert (pairs, diff, wins) == (2, -0.25, 1)             # (1 - 2 + 3 - 2.5) / 2; seed 0 only
     assert abs(std - 0.75 * 2 ** 0.5) < 1e-12 and abs(ratio - (0.5 + 1.2) / 2) < 1e-12

@@ -3,6 +3,7 @@ a multirun stopped by SIGTERM, the Optuna search preset and TensorBoard's HParam
 
 Each test runs `python train.py -m ...` as a user would, in a subprocess, with small data sets.
 """
+import contextlib
 import json
 import socket
 import subprocess
@@ -141,10 +142,8 @@ def test_tensorboard_serves_scalars_and_one_hparams_session_per_job(joblib_sweep
         runs, deadline = [], time.monotonic() + 90
         while sorted(runs) != sorted(metrics) and time.monotonic() < deadline:
             assert tb.poll() is None, f"tensorboard exited: {tb.stderr.read()[-2000:]}"
-            try:
+            with contextlib.suppress(OSError):
                 runs = _get(f"{url}/data/runs")
-            except OSError:
-                pass
             time.sleep(0.5)
         assert sorted(runs) == sorted(metrics), runs
 

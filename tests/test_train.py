@@ -82,7 +82,7 @@ def test_a_run_directory_in_use_is_refused(tmp_path):
 def test_another_commands_results_are_refused(tmp_path):
     (tmp_path / "metrics.json").write_text('{"ik": {}, "evaluate_seconds": {"ik": 1.0}}')     # evaluate.py's
     before = _snapshot(tmp_path)
-    with pytest.raises(ValueError, match="metrics.json is not a training run's"):
+    with pytest.raises(ValueError, match=r"metrics.json is not a training run's"):
         train.run(compose_config("train", *SMALL), tmp_path, {".hydra/overrides.yaml": "- seed=0\n"})
     assert _snapshot(tmp_path) == before
 
@@ -94,7 +94,7 @@ def test_refused_rerun_on_the_command_line_leaves_the_directory_as_it_was(tmp_pa
     first = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert first.returncode == 0, first.stderr[-3000:]
     before = _snapshot(tmp_path)
-    second = subprocess.run(args + ["seed=3"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    second = subprocess.run([*args, "seed=3"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert second.returncode != 0 and "different configuration" in second.stderr
     assert _snapshot(tmp_path) == before
     assert "seed=3" not in (tmp_path / ".hydra" / "overrides.yaml").read_text()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
@@ -57,7 +58,7 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
     robot: the robot (default: the SCARA); setup: an already checked `control_robot(robot, cfg)`."""
     setup = setup or control_robot(robot or RobotConfig(), cfg, params)
     dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
-    kw = {"dtype": dtype, "device": device}
+    kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
     ref = tuple(r.to(**kw) for r in setup.trajectory(sc.times(torch.float64)))

@@ -95,11 +95,11 @@ class SlidingMode(Controller):
         super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
         self._observed = self._own = None      # per-environment masks of a `batched` one (set by init_state)
-        self.members: list[tuple["SlidingMode", int]] = []
+        self.members: list[tuple[SlidingMode, int]] = []
         self.member_columns: list[int] = []  # a batched one's feature columns per member
 
     @classmethod
-    def batched(cls, parts: list["SlidingMode"], sizes: list[int]) -> "SlidingMode":
+    def batched(cls, parts: list[SlidingMode], sizes: list[int]) -> SlidingMode:
         """Sliding-mode controllers that share gains, time step, model and joint scale as one
         controller of sum(sizes) environments (part i drives the i-th block of sizes[i]): one model
         evaluation per period for all of them. Its features are the parts' side by side (T, sum M_i);

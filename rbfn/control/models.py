@@ -41,7 +41,7 @@ class NominalModel:
             self._gravity[key] = torch.tensor([0.0, 0.0, self.g3], dtype=q.dtype, device=q.device)
         return self._gravity[key]
 
-    def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ScaraAt":
+    def at(self, q: torch.Tensor, qd: torch.Tensor) -> _ScaraAt:
         return _ScaraAt(self, q, qd)
 
 
@@ -90,7 +90,7 @@ class ArmModel:
         """The batch-last terms eagerly; their scalar form while torch.compile traces (it fuses)."""
         return self.scalar_terms if torch.compiler.is_compiling() else self.terms
 
-    def at(self, q: torch.Tensor, qd: torch.Tensor) -> "_ArmAt":
+    def at(self, q: torch.Tensor, qd: torch.Tensor) -> _ArmAt:
         return _ArmAt(self, q, qd)
 
 

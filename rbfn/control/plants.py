@@ -18,12 +18,13 @@ Both give `coefficients(payload)` (what a step needs of the payload schedule, ea
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, cast
 
 import torch
 
 from ..config import Friction
-from ..robots.arm_scalar import ArmScalarTerms
+from ..robots.arm_scalar import ArmScalarTerms, ScalarConfig
 from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import Arm
 from ..robots.scara import ScaraParams, inertia_params, m_solve_parts, m_times, minus_c_qd
@@ -87,6 +88,10 @@ class Plant:
         if isinstance(self.dist, (int, float)):
             return self.dist * s
         return self._per_joint(self.dist, t) * s.unsqueeze(-1)
+
+    if TYPE_CHECKING:
+        def coefficients(self, payload: torch.Tensor) -> tuple[torch.Tensor, ...]:
+            """What a step needs of the payload schedule (kg, (T, B)), each (T, B); a subclass's."""
 
     def accel(self, q, qd, r, co) -> torch.Tensor:
         """Joint accelerations (B, n) under r = tau - tau_d (B, n), the torque less the disturbance."""
@@ -178,7 +183,7 @@ class ArmPlant(Plant):
         if self.gravity:
             r = r - cfg.gravity()
         if self.fused_solve and torch.compiler.is_compiling():
-            return cfg.solve(r)
+            return cast(ScalarConfig, cfg).solve(r)          # the scalar form while tracing
         # cholesky_ex: a matrix that is not positive definite (never, for a physical arm) gives
         # non-finite accelerations, which the simulator reports, without a per-call error check.
         chol = torch.linalg.cholesky_ex(cfg.mass_matrix())[0]

@@ -16,8 +16,9 @@ from __future__ import annotations
 import functools
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Any
 
 import torch
 from pytorch_kinematics import transforms as tf
@@ -127,7 +128,8 @@ class OnlineRobot:
     controller: Controller               # smc_obs on the robot's nominal model
     x_d: torch.Tensor                    # (T, d) desired targets along the path
     q_nominal: torch.Tensor              # (T, n_free) the nominal model's exact IK along the path
-    measure: Callable                    # chain joints (..., 2S, n) -> (rotations (..., 2S, 3, 3) | None, positions (..., 2S, 3))
+    measure: Callable                    # chain joints (..., 2S, n) -> (rotations (..., 2S, 3, 3) | None,
+                                         # positions (..., 2S, 3))
     free: list[int]                      # the chain indices of the network's joints
     held: torch.Tensor                   # (n,) chain joint values (the locked joints' are used)
     target: str                          # position | pose
@@ -245,7 +247,7 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     offsets (S, n), the real robot's exact IK of the configured row q_real (T, n_free) or None,
     and the number of rejected (non-finite) pairs.
     """
-    kw = {"dtype": torch.float64, "device": device}
+    kw: dict[str, Any] = {"dtype": torch.float64, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, "rk4", 0.0, cfg.duration, 0.0)
     sc.validate()
     n = sc.steps
@@ -260,7 +262,8 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     del a_path, da
     w0 = net.output_weights().to(**kw)
     learner = make_learner(cfg.learner, w0.expand(b, *w0.shape), cfg.alpha0, cfg.decay, cfg.forgetting)
-    frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)])
+    frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device),
+                        torch.ones(n_s, dtype=torch.bool, device=device)])
     plant, ctrl = rob.plant, rob.controller
     vel = torch.zeros(nj, **kw)                                       # locked joints: held, at rest
     q = rob.full(torch.einsum("p,bpj->bj", path[0, 0], learner.w))

@@ -103,7 +103,8 @@ def _decode(data: bytes, source: str) -> str:
         text = data.decode(encoding)
     except (LookupError, UnicodeDecodeError) as e:
         raise ValueError(f"{source}: cannot decode the URDF as {encoding!r} ({e}); allowed: an encoding "
-                         f"Python knows, named by a byte-order mark or the XML declaration (UTF-8 without either)") from None
+                         f"Python knows, named by a byte-order mark or the XML declaration "
+                         f"(UTF-8 without either)") from None
     declared = _DECLARED.match(text)
     if declared and declared.group(2).upper() != "UTF-8":
         text = text[:declared.start(2)] + "UTF-8" + text[declared.end(2):]

@@ -9,6 +9,8 @@ transform (rad, or m for a prismatic joint). On the SCARA, links 1 and 2 are l1 
 """
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
 from .dynamics import Arm
@@ -29,7 +31,7 @@ class PerturbedChain:
 
     def __init__(self, arm: Arm, link_error: torch.Tensor, offset: torch.Tensor) -> None:
         placement, axis, prismatic, end = arm.frames()
-        kw = {"dtype": link_error.dtype, "device": link_error.device}
+        kw: dict[str, Any] = {"dtype": link_error.dtype, "device": link_error.device}
         n, r = arm.n, link_error.shape[0]
         if link_error.ndim != 2 or link_error.shape[1] > n:
             raise ValueError(f"link errors of shape {tuple(link_error.shape)}: need (R, L) with L <= {n}, "

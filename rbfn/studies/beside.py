@@ -46,7 +46,7 @@ def _in_child(fn: Callable, args: tuple, conn) -> None:
         out = (False, e, traceback.format_exc())
     try:
         conn.send(out)
-    except Exception as e:      # an unpicklable result or exception
+    except Exception as e:  # noqa: BLE001 - an unpicklable result or exception
         conn.send((False, RuntimeError(f"the forked part's outcome could not be sent back: {e!r}"),
                    out[2] or traceback.format_exc()))
     conn.close()
@@ -100,7 +100,7 @@ class Beside:
         self._conn.close()
         self._proc = self._conn = None
 
-    def __enter__(self) -> "Beside":
+    def __enter__(self) -> Beside:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -6,7 +6,6 @@ import logging
 import math
 from pathlib import Path
 
-
 from ..checkpoint import model_from_checkpoint, save_checkpoint
 from ..config import SELECTORS, EvalConfig, TrainConfig, plain
 from ..data import Dataset, evaluation_split
@@ -115,6 +114,7 @@ def ik_table(title: str, m: dict) -> str:
     for name, key, mul, unit in rows:
         if key in m:
             lines.append(f"{name:24s} {m[key] * mul:12.4g} {m[key + '_float32'] * mul:12.4g} {unit}")
-    lines.append(f"polished ({m['test_polish_iterations']} steps): {100 * m['test_polished_success_rate']:.2f} % within "
+    lines.append(f"polished ({m['test_polish_iterations']} steps): "
+                 f"{100 * m['test_polished_success_rate']:.2f} % within "
                  f"0.1 mm / 0.1 deg, median position error {m['test_polished_pos_err_mm_median']:.3g} mm")
     return "\n".join(lines)

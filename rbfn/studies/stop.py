@@ -27,7 +27,7 @@ import signal
 import sys
 import threading
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 __all__ = ["Stopped", "job", "stop_on_signals"]
 
@@ -80,10 +80,8 @@ def _stop_children(signum: int) -> None:
         return
     children = [p for p in pids if _running_child(p) and not _ignores(p, signum)]
     for pid in children:
-        try:
+        with suppress(ProcessLookupError):
             os.kill(pid, signum)
-        except ProcessLookupError:
-            pass
     deadline = time.monotonic() + CHILDREN_SECONDS
     while any(map(_running_child, children)) and time.monotonic() < deadline:
         time.sleep(0.02)

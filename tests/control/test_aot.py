@@ -4,7 +4,7 @@ import shutil
 import pytest
 import torch
 
-from rbfn.control import Scenario, ScaraPlant, make_controller, paper_trajectory, simulate
+from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.aot import fingerprint
 from rbfn.control.controllers import Gains, Stacked
 

@@ -6,8 +6,18 @@ import pytest
 import torch
 
 from rbfn.config import ControlConfig, RobotConfig
-from rbfn.control import (ArmModel, ArmPlant, Scenario, ScaraPlant, SimulationDiverged, control_robot,
-                          make_controller, paper_trajectory, simulate, sinusoid_trajectory)
+from rbfn.control import (
+    ArmModel,
+    ArmPlant,
+    ScaraPlant,
+    Scenario,
+    SimulationDiverged,
+    control_robot,
+    make_controller,
+    paper_trajectory,
+    simulate,
+    sinusoid_trajectory,
+)
 from rbfn.control.controllers import Gains, NominalModel
 from rbfn.control.robot_setup import payload_cases
 from rbfn.robots.dynamics import load_arm

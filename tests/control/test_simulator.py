@@ -1,10 +1,9 @@
 import pytest
 import torch
 
-from rbfn.control import Scenario, ScaraPlant, SimulationDiverged, make_controller, paper_trajectory, simulate
+from rbfn.control import ScaraPlant, Scenario, SimulationDiverged, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Gains, NominalModel, Stacked
-from rbfn.robots.scara import m_solve, m_times
-from rbfn.robots.scara import coriolis, gravity, mass_matrix, mass_matrix_dot
+from rbfn.robots.scara import coriolis, gravity, m_solve, m_times, mass_matrix, mass_matrix_dot
 
 
 def _states(b, seed, dtype=torch.float64):

@@ -9,8 +9,7 @@ import torch
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
 from rbfn.robots import load_serial_chain
-from rbfn.robots.scara import (END_LINK, URDF_PATH, ScaraParams, coriolis, gravity, mass_matrix,
-                               mass_matrix_dot)
+from rbfn.robots.scara import END_LINK, URDF_PATH, ScaraParams, coriolis, gravity, mass_matrix, mass_matrix_dot
 
 G = 9.8
 LINKS = ("link1", "link2", "quill")
@@ -83,7 +82,7 @@ def test_coriolis_matches_christoffel_symbols():
     q, qd = _states(6, 1)
     for payload in (0.0, 10.0):
         for qi, qdi in zip(q, qd):
-            dm = torch.autograd.functional.jacobian(lambda x: mass_matrix(x[None], payload)[0], qi)
+            dm = torch.autograd.functional.jacobian(lambda x: mass_matrix(x[None], payload)[0], qi)  # noqa: B023 - used here
             # c_ijk = 1/2 (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i); C_ij = sum_k c_ijk qd_k
             chris = 0.5 * (dm + dm.transpose(1, 2) - dm.permute(2, 0, 1))
             ref = chris @ qdi
@@ -99,7 +98,7 @@ def test_gravity_is_the_gradient_of_potential_energy(urdf_model):
                 mats = _frames(chain, qq)
                 v = 0.0
                 for n in LINKS:
-                    mass = inertials[n][0] + (payload if n == "quill" else 0.0)
+                    mass = inertials[n][0] + (payload if n == "quill" else 0.0)  # noqa: B023 - used at once
                     v = v + mass * G * (mats[n][:3, :3] @ inertials[n][1] + mats[n][:3, 3])[2]
                 return v
             ref = torch.autograd.functional.jacobian(potential, qi)

@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from rbfn.robots import forward_kinematics, forward_kinematics_pose, joint_limits, load_serial_chain, scara, urdf_path
 from rbfn.robots.kinematics import MAX_URDF_BYTES, read_urdf
@@ -334,7 +333,7 @@ def test_entities_stay_inside_the_document(tmp_path):
     assert load_serial_chain(internal, "b").get_joint_parameter_names() == ["j1"]
     lol = "<!DOCTYPE robot [<!ENTITY a0 'ha'>" + "".join(
         f"<!ENTITY a{i} '{('&a' + str(i - 1) + ';') * 10}'>" for i in range(1, 10)) + "]><robot name='&a9;'/>"
-    with pytest.raises(ValueError, match="malformed URDF: .*(amplification|loop|entit)"):
+    with pytest.raises(ValueError, match=r"malformed URDF: .*(amplification|loop|entit)"):
         load_serial_chain(lol, "a")
 
 

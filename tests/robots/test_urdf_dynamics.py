@@ -402,7 +402,7 @@ def test_lumping_does_not_depend_on_the_end_link_past_the_last_joint():
 
 def test_loader_errors():
     text, _ = _source("test_arm")
-    with pytest.raises(ValueError, match="URDF text: end_link 'nope' is not a link.*'flange'"):
+    with pytest.raises(ValueError, match=r"URDF text: end_link 'nope' is not a link.*'flange'"):
         load_arm(text, "nope")
     with pytest.raises(ValueError, match="payload link 'ghost' is not a link"):
         load_arm(text, TEST_END, payload_link="ghost")

@@ -37,18 +37,15 @@ def test_forked_part_equals_the_same_part_run_here():
 
 @pytest.mark.skipif(not can_fork("cpu"), reason="this machine does not fork, or has one core")
 def test_errors_reach_the_caller_and_a_failing_caller_stops_the_part(tmp_path):
-    with pytest.raises(ValueError, match="bad part") as err:
-        with Beside(_fail, "bad part") as b:
-            b.result()
+    with pytest.raises(ValueError, match="bad part") as err, Beside(_fail, "bad part") as b:
+        b.result()
     assert isinstance(err.value.__cause__, ChildTraceback) and "_fail" in str(err.value.__cause__)
-    with pytest.raises(RuntimeError, match="ended without a result"):
-        with Beside(os._exit, 3) as b:
-            b.result()
+    with pytest.raises(RuntimeError, match="ended without a result"), Beside(os._exit, 3) as b:
+        b.result()
     flag = tmp_path / "finished"
     t0 = time.perf_counter()
-    with pytest.raises(RuntimeError, match="caller failed"):
-        with Beside(_sleep, str(flag)):
-            raise RuntimeError("caller failed")
+    with pytest.raises(RuntimeError, match="caller failed"), Beside(_sleep, str(flag)):
+        raise RuntimeError("caller failed")
     assert time.perf_counter() - t0 < 4.0 and not flag.exists()
 
 

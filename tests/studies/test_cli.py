@@ -31,7 +31,7 @@ def test_a_run_directory_below_a_file_is_named(tmp_path):
     from rbfn.studies.rundir import RunDir, RunDirInUse
 
     (tmp_path / "afile").write_text("keep")
-    with pytest.raises(RunDirInUse, match=r"hydra.run.dir=.*afile/run: .*afile is a file, not a directory"):
-        with RunDir(tmp_path / "afile" / "run"):
-            pass
+    with (pytest.raises(RunDirInUse, match=r"hydra.run.dir=.*afile/run: .*afile is a file, not a directory"),
+          RunDir(tmp_path / "afile" / "run")):
+        pass
     assert (tmp_path / "afile").read_text() == "keep"
