@@ -172,18 +172,19 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
         fallback = torch.where(bound == bound.amin(-1, keepdim=True), mse, torch.inf)
         return torch.where(stable.any(-1, keepdim=True), torch.where(stable, mse, torch.inf), fallback).argmin(-1)
 
-    def take(t: torch.Tensor | None, i: torch.Tensor) -> torch.Tensor | None:
-        return None if t is None else t.gather(-1, i.unsqueeze(-1)).squeeze(-1)
+    def take(t: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
+        return t.gather(-1, i.unsqueeze(-1)).squeeze(-1)
 
     grid = torch.as_tensor(ridges, dtype=gram.dtype, device=gram.device).expand(*scale.shape[:-1], -1)
     weights, mse, bound = candidates(grid)
     tol = rounding_tolerance(mse, rhs.shape[-1], round_tol, round_rel)               # (..., 1)
     best = choose(mse, bound)
-    ridge, best_mse, best_bound = take(grid, best), take(mse, best), take(bound, best)
+    ridge, best_mse = take(grid, best), take(mse, best)
+    best_bound = None if bound is None else take(bound, best)
     best_w = weights.gather(-3, best[..., None, None, None].expand(*best.shape, 1, *weights.shape[-2:]))
     best_w = best_w.squeeze(-3)
     del weights
-    if bound is not None and len(ridges) > 1:
+    if bound is not None and best_bound is not None and len(ridges) > 1:
         # The constraint binds where the next smaller grid ridge fits better but is unstable:
         # try ridges between the two (log-spaced) and keep the best stable one, if better than
         # the grid's (already scored).
@@ -194,6 +195,7 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
             steps = torch.arange(1, 4, dtype=gram.dtype, device=gram.device) / 4
             fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)   # (..., 3)
             w2, mse2, bound2 = candidates(fine)
+            assert bound2 is not None                 # candidates give bounds where the grid's did
             b2 = choose(mse2, bound2)
             use = binds & (take(bound2, b2) <= tol[..., 0]) & (take(mse2, b2) <= best_mse)
             ridge = torch.where(use, take(fine, b2), ridge)

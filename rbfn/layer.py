@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -136,6 +136,16 @@ class RBFNetwork(nn.Module):
     # Whether traced graphs (torch.compile, torch.export, ONNX) fold the cover test into the
     # exponents: set by the exporters from the eager check (`cover_foldable`), which a graph cannot take.
     traced_cover_fold: bool = False
+    # Buffers (registered in __init__), for type checkers.
+    offset: torch.Tensor
+    scale: torch.Tensor
+    centers: torch.Tensor
+    widths: torch.Tensor
+    in_low: torch.Tensor
+    in_high: torch.Tensor
+    out_low: torch.Tensor
+    out_high: torch.Tensor
+    cover_radius: torch.Tensor
 
     def __init__(self, centers: torch.Tensor, widths: torch.Tensor, out_features: int,
                  offset: torch.Tensor | None = None, scale: torch.Tensor | None = None,
@@ -158,7 +168,7 @@ class RBFNetwork(nn.Module):
             raise ValueError(f"widths must be >= {MIN_WIDTH:g} (scaled units), got min {widths.min().item():.3g}")
         if isinstance(out_features, bool) or not isinstance(out_features, int) or out_features < 1:
             raise ValueError(f"out_features={out_features!r} must be a positive integer")
-        kw = {"dtype": centers.dtype, "device": centers.device}
+        kw: dict[str, Any] = {"dtype": centers.dtype, "device": centers.device}
         self.register_buffer("offset", torch.zeros(d, **kw) if offset is None else offset.to(**kw))
         self.register_buffer("scale", torch.ones(d, **kw) if scale is None else scale.to(**kw))
         self.register_buffer("centers", centers.clone())

@@ -11,10 +11,10 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import torch
-import torch.utils._pytree as pytree   # no public pytree module in torch 2.13 (see rbfn.control.aot)
+import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (see rbfn.control.aot)
 
 from ..config import Integrator
 from .aot import aot_chunk, chunk_key
@@ -145,7 +145,8 @@ def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
-    b, kw = q0.shape[0], {"dtype": q0.dtype, "device": q0.device}
+    b = q0.shape[0]
+    kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
     dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3) or (n, 3, joints)
     h = controller.features.to(**kw) if controller.features is not None else None
     alpha = controller.alphas(torch.arange(n, **kw) * dt)
