@@ -112,6 +112,7 @@ def onnx_bytes(net: RBFNetwork, block_rows: int | None = None) -> bytes:
         prog = torch.onnx.export(DeployedIK(net).eval(), (_example(net),), dynamo=True, external_data=False,
                                  input_names=["positions"], output_names=["joints", "in_workspace"],
                                  dynamic_shapes={"positions": {0: batch}}, verbose=False)
+    assert prog is not None                 # dynamo=True: always an ONNXProgram
     model = _in_row_blocks(prog.model_proto, block_rows or net.rows_per_block)
     onnx.checker.check_model(model)
     return model.SerializeToString()

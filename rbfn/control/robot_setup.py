@@ -12,6 +12,7 @@ from __future__ import annotations
 import reprlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -85,8 +86,10 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = 
         raise ValueError(f"robot.trajectory={str(robot.trajectory)!r} is the SCARA's 3-joint path; the chain to "
                          f"{robot.end_link!r} has {n} joints: use robot.trajectory=sinusoid")
     per = (lambda v: v) if scale is None else (lambda v: [v * s for s in scale])
-    kw = dict(viscous=per(cfg.viscous), coulomb=per(cfg.coulomb), friction=str(cfg.friction),
+    kw: dict[str, Any] = dict(viscous=per(cfg.viscous), coulomb=per(cfg.coulomb), friction=str(cfg.friction),
               disturbance=per(cfg.disturbance), disturbance_freq=cfg.disturbance_freq)
+    plant: Plant
+    model: NominalModel | ArmModel
     if arm is None:
         plant, model = ScaraPlant(params, **kw), NominalModel(params)
     else:

@@ -13,6 +13,8 @@ rotation 9 (row-major), a spatial vector a pair of 3-vectors (angular or moment;
 """
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
 from .arm_terms import ArmTerms
@@ -173,7 +175,9 @@ class ScalarConfig:
                 ci, si = torch.cos(qs[i]), torch.sin(qs[i])
                 r = tuple(e for a in range(3) for e in (_add(_mul(x[a][0], ci), _mul(x[a][1], si)),
                                                         _sub(_mul(x[a][1], ci), _mul(x[a][0], si)), x[a][2]))
-            rots.append(r), pos.append(p), axes.append(z)
+            rots.append(r)
+            pos.append(p)
+            axes.append(z)
         last = pos[-1]
         pos = [_v_sub(pi, last) for pi in pos]                          # about the last body's origin
         self.s = [((0.0, 0.0, 0.0), z) if t.prismatic[i] else (z, _cross(pos[i], z)) for i, z in enumerate(axes)]
@@ -271,7 +275,7 @@ class ScalarConfig:
         solves, written out in scalars so that they fuse with the rest of the step."""
         m, n = self._mass(), self.n
         low = [[None] * n for _ in range(n)]
-        inv = [None] * n                                                # 1 / L_jj
+        inv: list[Any] = [None] * n                                     # 1 / L_jj
         for j in range(n):
             d = _sub(m[j][j], _sum(*(_mul(low[j][k], low[j][k]) for k in range(j))))
             inv[j] = torch.rsqrt(d) if isinstance(d, torch.Tensor) else d ** -0.5

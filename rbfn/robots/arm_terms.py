@@ -19,6 +19,8 @@ Motion and force vectors are pairs (angular or moment (n, 3, B), linear or force
 """
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
 from .dynamics import Arm, Payload
@@ -120,7 +122,7 @@ class ArmTerms:
             inertia = qt.transpose(1, 2) @ md.inertia @ qt
             pbody = md.payload_body
             pp = qs[pbody].T @ md.payload_pos if pbody >= 0 else md.payload_pos
-            c = {"cols": torch.cat([rot0, t0.unsqueeze(-1)], -1),        # (n, 3, 4): [R0' | t0']
+            c: dict[str, Any] = {"cols": torch.cat([rot0, t0.unsqueeze(-1)], -1),        # (n, 3, 4): [R0' | t0']
                  "mass": md.mass, "first": first, "inertia": inertia, "payload_pos": pp,
                  "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - torch.outer(pp, pp),
                  "g0": -self.arm.gravity_vector}
@@ -174,7 +176,9 @@ class Config:
             else:
                 ci, si = cos[i], sin[i]
                 rot = torch.stack([torch.addcmul(x0 * ci, x1, si), torch.addcmul(x1 * ci, x0, si, value=-1), z], 1)
-            rots.append(rot), poss.append(p), axes.append(z)
+            rots.append(rot)
+            poss.append(p)
+            axes.append(z)
             r_prev, p_prev = rot, p
         rot, z = torch.stack(rots), torch.stack(axes)                     # (n, 3, 3, B), (n, 3, B)
         pos = torch.stack(poss)
@@ -202,14 +206,15 @@ class Config:
         pdot = (pos * (self.h + hb)).sum(1)                               # (n, B)
         j.diagonal(dim1=1, dim2=2).add_(pdot.unsqueeze(-1))
         self.j = j                                                        # (n, 3, 3, B)
-        self._composite = self._m = None
+        self._composite: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+        self._m: torch.Tensor | None = None
 
     # ------------------------------------------------------------------ pieces
     def apply(self, v: Pair) -> Pair:
         """I_k v_k for motion vectors v of every body."""
         return _apply(self.m, self.h, self.j, v)
 
-    def composite(self):
+    def composite(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(m^c, h^c, J^c): the inertias of the bodies k >= i, about the reference point."""
         if self._composite is None:
             self._composite = (_suffix_sum(self.m), _suffix_sum(self.h), _suffix_sum(self.j))
@@ -286,7 +291,7 @@ class Motion:
         s = cfg.s
         self.v = (_prefix_sum(s[0] * self.qdt), _prefix_sum(s[1] * self.qdt))
         self.sd = _cross_motion(self.v, s)
-        self._iv = None
+        self._iv: Pair | None = None
 
     @property
     def iv(self) -> Pair:

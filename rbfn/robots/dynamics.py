@@ -46,6 +46,7 @@ import math
 import os
 import reprlib
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
@@ -317,7 +318,7 @@ class Arm:
             rot0, p0 = md.placement[:, :3, :3], md.placement[:, :3, 3]
             axis0 = _matvec(rot0, a)
             pp = md.payload_pos
-            c = {"rot0": rot0, "p0": p0, "axis0": axis0, "rot0_skew": rot0 @ skew,
+            c: dict[str, Any] = {"rot0": rot0, "p0": p0, "axis0": axis0, "rot0_skew": rot0 @ skew,
                  "rot0_aa": _outer(axis0, a), "mass": md.mass, "first": md.first_moment,
                  "inertia": md.inertia, "payload_pos": pp,
                  "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - _outer(pp, pp),
@@ -348,8 +349,9 @@ class Arm:
         inertias about a distant point suffer.
         """
         batch = q.shape[0]
-        rots, pos, axes = [], [], []
-        rot_prev = pos_prev = None
+        rots, origins, axes = [], [], []
+        rot_prev: Any = None
+        pos_prev: Any = None
         for i, prismatic in enumerate(c["prismatic"]):
             if rot_prev is None:
                 rot_j, p_j = c["rot0"][i].expand(batch, 3, 3), c["p0"][i].expand(batch, 3)
@@ -364,9 +366,11 @@ class Arm:
                 cq, sq = torch.cos(qi).unsqueeze(-1), torch.sin(qi).unsqueeze(-1)
                 local = cq * c["rot0"][i] + sq * c["rot0_skew"][i] + (1 - cq) * c["rot0_aa"][i]
                 rot, p = (local if rot_prev is None else rot_prev @ local), p_j
-            rots.append(rot), pos.append(p), axes.append(z)
+            rots.append(rot)
+            origins.append(p)
+            axes.append(z)
             rot_prev, pos_prev = rot, p
-        rot, pos, z = torch.stack(rots, 1), torch.stack(pos, 1), torch.stack(axes, 1)
+        rot, pos, z = torch.stack(rots, 1), torch.stack(origins, 1), torch.stack(axes, 1)
         if centred:
             pos = pos - pos[:, -1:]
         rev = c["revolute"]                                    # (n, 1): 1 revolute, 0 prismatic

@@ -24,7 +24,7 @@ import os
 import struct
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar, cast
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
@@ -148,7 +148,7 @@ def hydra_run_dir(own: bool = False):
     job's log file (conf: hydra.job_logging.handlers.file.delay=true, so not opened yet) follows it."""
     hc = HydraConfig.get()
     named = Path(hc.runtime.output_dir)
-    fresh = hc.mode == RunMode.RUN and "${now:" in str(OmegaConf.to_container(hc.run)["dir"])
+    fresh = hc.mode == RunMode.RUN and "${now:" in str(cast(dict, OmegaConf.to_container(hc.run))["dir"])
     with RunDir(named, fresh=fresh, own=own, tidy=True) as run_dir:
         if run_dir.path != named:
             for handler in logging.getLogger().handlers:
@@ -163,7 +163,7 @@ def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:
     writes them itself, after its checks: a refused run leaves the directory untouched), with the
     directory actually used as hydra.runtime.output_dir."""
     hc = HydraConfig.get()
-    hydra = OmegaConf.to_container(hc)
+    hydra = cast(dict[str, Any], OmegaConf.to_container(hc))
     hydra["runtime"]["output_dir"] = str(out_dir)
     return {".hydra/config.yaml": OmegaConf.to_yaml(dcfg),
             ".hydra/hydra.yaml": OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra})),
