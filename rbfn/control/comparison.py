@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import torch
 
@@ -61,7 +61,8 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
-    ref = tuple(r.to(**kw) for r in setup.trajectory(sc.times(torch.float64)))
+    ref = cast("tuple[torch.Tensor, torch.Tensor, torch.Tensor]",
+               tuple(r.to(**kw) for r in setup.trajectory(sc.times(torch.float64))))
     plant, model, scale = setup.plant, setup.model, setup.joint_scale(**kw)
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n

@@ -26,6 +26,8 @@ reference and the state; its own state (observer, weights) is a tensor per envir
 """
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 
 from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
@@ -94,7 +96,9 @@ class SlidingMode(Controller):
                  w0: torch.Tensor | None = None, joint_scale: torch.Tensor | None = None) -> None:
         super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
-        self._observed = self._own = None      # per-environment masks of a `batched` one (set by init_state)
+        # per-environment masks of a `batched` one (set by init_state)
+        self._observed: torch.Tensor | None = None
+        self._own: torch.Tensor | None = None
         self.members: list[tuple[SlidingMode, int]] = []
         self.member_columns: list[int] = []  # a batched one's feature columns per member
 
@@ -210,7 +214,8 @@ class Stacked(Controller):
                 runs[-1].append((c, size))
             else:
                 runs.append([(c, size)])
-        self.units = [r[0][0] if len(r) == 1 else SlidingMode.batched([c for c, _ in r], [s for _, s in r])
+        self.units = [r[0][0] if len(r) == 1
+                      else SlidingMode.batched([cast(SlidingMode, c) for c, _ in r], [s for _, s in r])
                       for r in runs]
         self.unit_sizes = [sum(s for _, s in r) for r in runs]
         feats = [c.features for c in self.units if c.features is not None]

@@ -51,7 +51,7 @@ class _ScaraAt:
     def __init__(self, model: NominalModel, q: torch.Tensor, qd: torch.Tensor) -> None:
         self.model, self.q, self.qd = model, q, qd
         self.s2, self.c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
-        self._entries = None
+        self._entries: tuple | None = None
 
     def m_times(self, v: torch.Tensor) -> torch.Tensor:
         if self._entries is None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 import torch
 import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (see rbfn.control.aot)
@@ -117,10 +117,25 @@ def make_chunk(plant: Plant, controller: "Controller", dt: float, integrator: st
     return run
 
 
+@overload
+def simulate(plant: Plant, controller: Controller, scenario: Scenario,
+             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             payload: torch.Tensor, record: Literal[True] = ..., compile: bool = ..., chunk: int = ...,
+             aot: bool = ...) -> Rollout: ...
+@overload
+def simulate(plant: Plant, controller: Controller, scenario: Scenario,
+             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             payload: torch.Tensor, record: Literal[False], compile: bool = ..., chunk: int = ...,
+             aot: bool = ...) -> tuple[torch.Tensor, torch.Tensor]: ...
+@overload
+def simulate(plant: Plant, controller: Controller, scenario: Scenario,
+             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             payload: torch.Tensor, record: bool = ..., compile: bool = ..., chunk: int = ...,
+             aot: bool = ...) -> Rollout | tuple[torch.Tensor, torch.Tensor]: ...
 def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
              ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0,
-             aot: bool = False) -> Rollout | tuple:
+             aot: bool = False) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
     """Run the closed loop from (q0, qd0) (B, n) along ref = (q_d, qd_d, qdd_d), each (steps + 1, n)
     on the scenario's time grid; payload (B,) kg applies inside the window.
 
