@@ -35,28 +35,99 @@ class Choice(str, Enum):
         return format(self.value, spec)
 
 
-def _choice(name: str, values: tuple[str, ...]) -> type[Choice]:
-    # Member names equal their values, so Hydra overrides use the plain words ("global" too).
-    return Choice(name, [(v, v) for v in values])  # type: ignore[return-value]
+# Named options as classes. Member names equal their values, so Hydra overrides use the plain
+# words ("global" too).
+class Method(Choice):
+    aco = "aco"
+    kmeans = "kmeans"
+    random = "random"
+    ols = "ols"
 
 
-Method = _choice("Method", ("aco", "kmeans", "random", "ols"))
-Colony = _choice("Colony", ("acor", "ant_system"))
-Objective = _choice("Objective", ("fit", "cluster"))
-WidthRule = _choice("WidthRule", ("paper", "global", "per_center"))
-WidthSearch = _choice("WidthSearch", ("per_center", "scale", "none"))
-RefineMode = _choice("RefineMode", ("auto", "full", "minibatch"))   # auto: full where N P^2 <= 2e9
-RefineLoss = _choice("RefineLoss", ("task", "joint"))      # minibatch: error J(q) dq, or dq itself
-Solver = _choice("Solver", ("lstsq", "lms"))
-InputScaling = _choice("InputScaling", ("metres", "standard"))
-Integrator = _choice("Integrator", ("rk4", "euler"))           # euler: semi-implicit
-Friction = _choice("Friction", ("sign", "smooth"))             # smooth: tanh(qd / 0.01)
-Dtype = _choice("Dtype", ("float64", "float32"))
-Robust = _choice("Robust", ("sign", "sat"))
-PathName = _choice("PathName", ("paper", "circle", "figure8", "sinusoid"))
-Learner = _choice("Learner", ("nlms", "rls"))
-Target = _choice("Target", ("position", "pose"))              # IK input: (B, 3) m or (B, 7) m + quaternion
-Trajectory = _choice("Trajectory", ("paper", "sinusoid"))     # the desired joint path of the closed loop
+class Colony(Choice):
+    acor = "acor"
+    ant_system = "ant_system"
+
+
+class Objective(Choice):
+    fit = "fit"
+    cluster = "cluster"
+
+
+class WidthRule(Choice):
+    paper = "paper"
+    vars()["global"] = "global"        # a keyword, so set through the class namespace
+    per_center = "per_center"
+
+
+class WidthSearch(Choice):
+    per_center = "per_center"
+    scale = "scale"
+    none = "none"
+
+
+class RefineMode(Choice):
+    auto = "auto"              # full where N P^2 <= 2e9
+    full = "full"
+    minibatch = "minibatch"
+
+
+class RefineLoss(Choice):      # minibatch: the error J(q) dq, or dq itself
+    task = "task"
+    joint = "joint"
+
+
+class Solver(Choice):
+    lstsq = "lstsq"
+    lms = "lms"
+
+
+class InputScaling(Choice):
+    metres = "metres"
+    standard = "standard"
+
+
+class Integrator(Choice):
+    rk4 = "rk4"
+    euler = "euler"            # semi-implicit
+
+
+class Friction(Choice):
+    sign = "sign"
+    smooth = "smooth"          # tanh(qd / 0.01)
+
+
+class Dtype(Choice):
+    float64 = "float64"
+    float32 = "float32"
+
+
+class Robust(Choice):
+    sign = "sign"
+    sat = "sat"
+
+
+class PathName(Choice):
+    paper = "paper"
+    circle = "circle"
+    figure8 = "figure8"
+    sinusoid = "sinusoid"
+
+
+class Learner(Choice):
+    nlms = "nlms"
+    rls = "rls"
+
+
+class Target(Choice):          # IK input
+    position = "position"      # (B, 3) m
+    pose = "pose"              # (B, 7) m + quaternion
+
+
+class Trajectory(Choice):      # the desired joint path of the closed loop
+    paper = "paper"
+    sinusoid = "sinusoid"
+
 
 # Presets of the `centers` group (conf/centers/NAME.yaml); a label, recorded with every run.
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
@@ -88,13 +159,13 @@ class RobotConfig:
     name: str = "scara"                # the preset's label; with `urdf` empty, its packaged URDF
     urdf: str = ""                     # a URDF file; empty: the packaged URDF of `name`
     end_link: str = "quill"
-    target: Target = Target.position           # type: ignore[valid-type]  # position (B, 3) | pose (B, 7)
+    target: Target = Target.position           # position (B, 3) | pose (B, 7)
     joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])   # the IK branch's box
     joint_high: list[float] = field(default_factory=lambda: [2.0, 2.0, 1.5])
     locked: dict[str, float] = field(default_factory=dict)   # joint name -> held value (redundant arms)
     rotation_scale: float = 0.3        # m per unit of the rotation features (pose targets)
     gravity: Optional[float] = None    # m/s^2 along -z of the root; null: 9.8 for the scara, else 9.81
-    trajectory: Trajectory = Trajectory.paper  # type: ignore[valid-type]  # closed loop's desired joints
+    trajectory: Trajectory = Trajectory.paper  # closed loop's desired joints
     home: list[float] = field(default_factory=list)   # sinusoid centre per joint; empty: the box centre
     amplitude: float = 0.1             # sinusoid amplitude, a fraction of each joint's half range
     rated_payload: float = 20.0        # kg: control payload cases default to 0, half and all of it
@@ -109,15 +180,15 @@ class DataConfig:
 
 @dataclass
 class ACOConfig:
-    colony: Colony = Colony.acor               # type: ignore[valid-type]
-    objective: Objective = Objective.fit       # type: ignore[valid-type]
+    colony: Colony = Colony.acor
+    objective: Objective = Objective.fit
     iterations: int = 100              # NC_max
     ants: int = 20                     # ants per iteration
     archive_size: int = 20             # ACO_R archive k
     q: float = 0.2                     # ACO_R rank locality
     xi: float = 0.85                   # ACO_R spread
     init_spread: float = 0.3           # ACO_R seed perturbation, in nearest-centre distances
-    search_widths: WidthSearch = WidthSearch.per_center  # type: ignore[valid-type]  # ACO_R also searches widths
+    search_widths: WidthSearch = WidthSearch.per_center  # ACO_R also searches widths
     rho: float = 0.9                   # Ant System evaporation
     Q: float = 100.0                   # Ant System deposit
     alpha: float = 1.0                 # Ant System pheromone exponent
@@ -130,13 +201,13 @@ class ACOConfig:
 @dataclass
 class RefineConfig:
     enabled: bool = False
-    mode: RefineMode = RefineMode.auto  # type: ignore[valid-type]  # full (weights solved in the loss) | minibatch
+    mode: RefineMode = RefineMode.auto  # full (weights solved in the loss) | minibatch
     steps: int = 300                   # full: Adam steps on the whole training set
     lr: float = 0.01                   # full: Adam step size
     epochs: int = 300                  # minibatch: passes over the training set
     batch: int = 256                   # minibatch: rows per Adam step
     batch_lr: float = 0.003            # minibatch: first Adam step size, decayed to 0 on a cosine
-    loss: RefineLoss = RefineLoss.task  # type: ignore[valid-type]  # minibatch: task error (m; rotation x robot.rotation_scale) | joint error
+    loss: RefineLoss = RefineLoss.task  # minibatch: task error (m; rotation x robot.rotation_scale) | joint error
     huber: float = 0.005               # minibatch: pseudo-Huber threshold on a row's error norm (m for task);
                                        # 0: squared
     learn_input_scale: bool = True
@@ -146,8 +217,8 @@ class RefineConfig:
 @dataclass
 class CentersConfig:
     name: str = "aco"                  # the preset's label, one of SELECTORS
-    method: Method = Method.aco                # type: ignore[valid-type]
-    width_rule: WidthRule = WidthRule.per_center  # type: ignore[valid-type]
+    method: Method = Method.aco
+    width_rule: WidthRule = WidthRule.per_center
     width_scale: Optional[float] = None  # fixed scale of the rule's width; null: chosen on validation
     kmeans_restarts: int = 10
     aco: ACOConfig = field(default_factory=ACOConfig)
@@ -164,9 +235,9 @@ class GrowthConfig:
 @dataclass
 class RBFNConfig:
     num_centers: int = 40
-    input_scaling: InputScaling = InputScaling.metres  # type: ignore[valid-type]
+    input_scaling: InputScaling = InputScaling.metres
     tail: bool = True                  # linear tail A z + b beside the Gaussians
-    solver: Solver = Solver.lstsq              # type: ignore[valid-type]
+    solver: Solver = Solver.lstsq
     lms_alpha0: float = 0.5
     lms_epochs: int = 50
     max_width: float = 2.0             # cap on widths, scaled units (float32 conditioning)
@@ -199,7 +270,7 @@ class GainsConfig:
     K: float = 50.0                # N m s / rad (N s / m): s feedback
     Lambda: float = 20.0           # 1/s: sliding-surface slope
     epsilon: float = 0.05          # N m (N): robust term amplitude
-    robust: Robust = Robust.sat    # type: ignore[valid-type]  # sign | sat
+    robust: Robust = Robust.sat    # sign | sat
     boundary: float = 0.01         # rad/s (m/s): saturation boundary layer width of sat(s / boundary)
     observer_gain: float = 1000.0  # 1/s: momentum-observer bandwidth
     gamma: float = 500.0           # adaptation rate Gamma of dW/dt = Gamma h s^T (alpha = gamma dt)
@@ -238,16 +309,16 @@ class ControlConfig:
     payload_link: str = ""             # the link whose origin carries the payload; empty: robot.end_link
     duration: float = 10.0
     dt: float = 1e-3
-    integrator: Integrator = Integrator.rk4    # type: ignore[valid-type]
+    integrator: Integrator = Integrator.rk4
     payload_on: float = 1.0
     payload_off: float = 4.0
-    friction: Friction = Friction.sign         # type: ignore[valid-type]
+    friction: Friction = Friction.sign
     viscous: float = 12.0              # N m s/rad (N s/m) per unit joint scale
     coulomb: float = 0.2               # N m (N) per unit joint scale
     disturbance: float = 5.0           # N m (N) per unit joint scale
     disturbance_freq: float = 2.0      # rad/s
     joint_scale: list[float] = field(default_factory=list)   # per joint; empty: derived (see above)
-    dtype: Dtype = Dtype.float64               # type: ignore[valid-type]
+    dtype: Dtype = Dtype.float64
     compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
     aot: bool = False                  # the step compiled ahead of time, cached on disk (minutes once per
                                        # configuration)
@@ -271,12 +342,12 @@ class OnlineConfig:
     enabled: bool = True
     duration: float = 20.0             # s
     dt: float = 1e-3                   # s
-    path: Optional[PathName] = None    # type: ignore[valid-type]  # null: paper (SCARA), sinusoid (URDF arms)
+    path: Optional[PathName] = None    # null: paper (SCARA), sinusoid (URDF arms)
     amplitude: float = 0.25            # sinusoid path: per joint amplitude / half the trained box range
     link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])    # relative, links 1, 2, ...
     offset_error: list[float] = field(default_factory=lambda: [0.02, 0.0, 0.0])  # joints 1, 2, ... (rad or m)
     sizes: list[float] = field(default_factory=lambda: [0.0, 0.01, 0.03, 0.05])  # link-1 errors
-    learner: Learner = Learner.nlms            # type: ignore[valid-type]
+    learner: Learner = Learner.nlms
     alpha0: float = 0.5                # NLMS step alpha(0)
     decay: float = 0.0                 # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
     forgetting: float = 0.9995         # RLS forgetting factor

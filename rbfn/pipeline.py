@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import torch
 
@@ -68,6 +68,7 @@ def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torc
         fit.val_mse = (a_val @ fit.weights - q_val).square().sum(-1).mean()
     elif refined is not None and refined.weights is not None:
         trained = refined.weights
+        assert refined.val_loss is not None   # mini-batch refinement gives it with the weights
         pred = (a_val32 @ trained.to(a_val32.dtype)).to(q_val.dtype)
         mse = (pred - q_val).square().sum(-1).mean()
         rounding = rounding_scale(a_val, trained, torch.float32).amax()
@@ -129,7 +130,9 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
     z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
     check_max_width(z_tr, cfg.rbfn.max_width, cfg.rbfn.num_centers)
-    jacobians = task_jacobians(cfg, robot, data) if _uses_task_loss(cfg, data, z_tr.shape[1], robot) else None
+    # _uses_task_loss refuses robot=None where the task loss is asked for
+    uses_task = _uses_task_loss(cfg, data, z_tr.shape[1], robot)
+    jacobians = task_jacobians(cfg, cast("Robot", robot), data) if uses_task else None
     objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32,
                              round_rel=cfg.rbfn.round_rel)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -145,6 +148,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
             state.current = {"num_centers": m, "gen_start": gen.get_state(), "colony": None}
 
         def on_state(colony_state: dict) -> None:
+            assert state.current is not None      # the growth step's state, set above
             state.current["colony"] = colony_state
             save(force=False)
 
@@ -171,6 +175,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
         curve += more
     else:
         lf = state.last_fit
+        assert lf is not None                   # saved with the finished growth
         centers, widths = lf["centers"].to(dev), lf["widths"].to(dev)
         fit = RidgeFit(lf["weights"].to(dev), torch.tensor(lf["ridge"], dtype=torch.float64),
                        torch.tensor(lf["val_mse"], dtype=torch.float64))     # the floats saved, exactly

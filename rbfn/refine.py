@@ -223,7 +223,7 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
         with torch.no_grad():
             return val_loss(torch.cat([predict(zb) for zb in z_v.split(4096)]))
 
-    def snapshot() -> tuple[torch.Tensor, ...]:
+    def snapshot() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         return c.detach().clone(), log_w.detach().clone(), log_s.detach().clone(), w_out.detach().clone()
 
     best = (val_error(), *snapshot())

@@ -33,6 +33,7 @@ import re
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn, cast
 
 from .files import unwritable, write_files
 
@@ -172,7 +173,7 @@ def find_jobs(sweep_dir: Path) -> list[Job]:
 
 def load_jobs(sweep_dir: Path) -> list[tuple[dict[str, str], dict]]:
     """(overrides, metrics) for every completed job under `sweep_dir` (one holding a metrics.json)."""
-    jobs = [(j.overrides, j.metrics) for j in find_jobs(sweep_dir) if j.status == "completed"]
+    jobs = [(j.overrides, cast(dict, j.metrics)) for j in find_jobs(sweep_dir) if j.status == "completed"]
     if not jobs:
         raise FileNotFoundError(f"no metrics.json under {sweep_dir}")
     return jobs
@@ -218,7 +219,7 @@ def _mean_std(vals: list[float]) -> tuple[float, float]:
     return mean, std
 
 
-def compare(jobs, key: str, a: str, b: str, metrics=DEFAULT_METRICS, ignore=("seed",)):
+def compare(jobs, key: str, a: str, b: str, metrics=DEFAULT_METRICS, ignore=("seed",)) -> tuple[list[str], list]:
     """Paired comparison of `key`=a against `key`=b, pairing jobs whose other overrides all agree.
 
     Returns (group keys, rows): each row = (group values, n pairs, {metric: (mean diff, std diff,
@@ -343,10 +344,10 @@ def _metrics(p: argparse.ArgumentParser, asked: list[str] | None, jobs: list[Job
     """The metrics to summarize: those asked for (each a number in some job, else a usage error
     naming the numbers the jobs hold), or the default ones that some job holds."""
     if asked is None:
-        held = {k for j in jobs for k in j.metrics}
+        held = {k for j in jobs for k in cast(dict, j.metrics)}   # completed jobs: metrics read
         return [k for k in DEFAULT_METRICS if k in held] if jobs else list(DEFAULT_METRICS)
     asked = list(dict.fromkeys(asked))
-    numeric = sorted({k for j in jobs for k, v in j.metrics.items() if _is_number(v)})
+    numeric = sorted({k for j in jobs for k, v in cast(dict, j.metrics).items() if _is_number(v)})
     unknown = [k for k in asked if k not in numeric]
     if jobs and unknown:
         names = ", ".join(repr(k) + _did_you_mean(repr(k), map(repr, numeric)) for k in unknown)
@@ -377,7 +378,7 @@ def _compare_pair(p: argparse.ArgumentParser, spec: str, jobs) -> tuple[str, str
     return key, *pair
 
 
-def _fail(p: argparse.ArgumentParser, message: str, status: int = 2):
+def _fail(p: argparse.ArgumentParser, message: str, status: int = 2) -> NoReturn:
     """A one-line error in argparse's manner (without the usage), and exit."""
     p.exit(status, f"{p.prog}: error: {' '.join(message.split())}\n")
 
@@ -411,9 +412,9 @@ def main(argv: list[str] | None = None) -> None:
                  ".hydra/overrides.yaml, last.pt or log file)")
     metrics = _metrics(p, a.metrics, [j for j in found if j.status == "completed"])
     for j in found:
-        if j.status == "completed" and _bad_metric(j.metrics, metrics):
-            j.status, j.error = "malformed", _bad_metric(j.metrics, metrics)
-    jobs = [(j.overrides, j.metrics) for j in found if j.status == "completed"]
+        if j.status == "completed" and _bad_metric(cast(dict, j.metrics), metrics):
+            j.status, j.error = "malformed", _bad_metric(cast(dict, j.metrics), metrics)
+    jobs = [(j.overrides, cast(dict, j.metrics)) for j in found if j.status == "completed"]
     swept, rows = summarize(jobs, metrics) if jobs else ([], [])
     md = to_markdown(swept, rows, metrics) if jobs else "No completed job.\n"
     for spec in a.compare:

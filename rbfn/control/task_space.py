@@ -18,7 +18,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, cast
 
 import torch
 from pytorch_kinematics import transforms as tf
@@ -34,7 +34,7 @@ from ..robots.scara import END_LINK, ScaraParams, fk, ik
 from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
 from .robot_setup import control_robot
-from .simulator import Plant, ScaraPlant, Scenario, make_chunk, stage_disturbances
+from .simulator import ArmPlant, Plant, ScaraPlant, Scenario, make_chunk, stage_disturbances
 from .trajectory import paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
@@ -54,8 +54,8 @@ class RealRobot:
 
     def fk(self, q: torch.Tensor) -> torch.Tensor:
         """Measured positions (..., B, 3) of joints q (..., B, 3)."""
-        p = replace(self.params, l1=self.params.l1 * (1 + self.link_error[:, 0]),
-                    l2=self.params.l2 * (1 + self.link_error[:, 1]))
+        p = replace(self.params, l1=self.params.l1 * (1 + self.link_error[:, 0]),   # type: ignore[arg-type]
+                    l2=self.params.l2 * (1 + self.link_error[:, 1]))    # type: ignore[arg-type]  # (B,) links
         return fk(q + self.offset, p)
 
 
@@ -154,6 +154,7 @@ class OnlineRobot:
         """The network's inputs (..., d) of measured poses."""
         if self.target != Target.pose:
             return pos
+        assert rot is not None                # poses have rotations
         return torch.cat([pos, unit_quaternions(rot)], -1)
 
     def errors(self, rot: torch.Tensor | None, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -162,6 +163,7 @@ class OnlineRobot:
         e_pos = (pos - self.x_d[:, None, :3]).norm(dim=-1) * 1000.0
         if self.target != Target.pose:
             return e_pos, None
+        assert rot is not None                # poses have rotations
         r_d = tf.quaternion_to_matrix(self.x_d[:, 3:])[:, None].expand_as(rot)
         return e_pos, rotation_error_deg(rot.reshape(-1, 3, 3), r_d.reshape(-1, 3, 3)).view(e_pos.shape)
 
@@ -213,7 +215,7 @@ def _arm(record: dict, cfg: OnlineConfig, gains: GainsConfig, t: torch.Tensor, s
                         trajectory=Trajectory.sinusoid)
     # URDF dynamics of the entry's text; friction, disturbance scaled per joint
     setup = control_robot(robot, ControlConfig(), urdf_text=record["urdf"])
-    arm = setup.plant.arm
+    arm = cast(ArmPlant, setup.plant).arm                          # a URDF arm's plant
     trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
     link, offset = perturbation_sizes(cfg, sizes, arm.n, arm.n, **kw)
     q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)   # (T, n_free)
@@ -280,8 +282,8 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
         while k < n:
             m = min(cfg.update_every, n - k)
             sl = slice(k, k + m)
-            refs = (path[:, None, sl] @ learner.w).transpose(1, 2)      # (3, m, B, n_free): q_d, qd_d, qdd_d
-            refs = [rob.full(refs[0]), rob.full(refs[1], vel), rob.full(refs[2], vel)]
+            stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)      # (3, m, B, n_free): q_d, qd_d, qdd_d
+            refs = [rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel)]
             args = (q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
             if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
                 run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, args), args, log.info)

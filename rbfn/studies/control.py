@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import Any
 
 from torch.utils.tensorboard import SummaryWriter
 
@@ -31,7 +32,8 @@ def evaluate_control(cfg: ControlConfig, gains: GainsConfig, device: str, writer
     setup = check_control(cfg, robot)
     res = compare_controllers(cfg, gains, device, setup=setup)
     metrics = {name: run.metrics for name, run in res.runs.items()}
-    gain_record = {k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()}
+    gain_record: dict[str, Any] = {k: (str(v) if not isinstance(v, (int, float)) else v)
+                                   for k, v in vars(gains).items()}
     gain_record["joint_scale"] = setup.scale or [1.0] * setup.n      # the torque gains' factor per joint
     info = {"gains": gain_record,
             "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
@@ -68,6 +70,7 @@ def _figures(res: ControlComparison, names: list[str], cfg: ControlConfig, gains
 
 def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsConfig, writer, out_dir: Path) -> None:
     """control_<name>.png: the case whose payload is closest to the figure payload."""
+    assert res.robot is not None              # compare_controllers records it
     target = res.robot.figure_payload
     i = min(range(len(res.payloads)), key=lambda i: abs(res.payloads[i] - target))
     roll = res.runs[name].rollout
