@@ -30,6 +30,7 @@ import logging
 import time
 from contextlib import contextmanager
 from pathlib import Path
+from typing import cast
 
 import hydra
 import torch
@@ -201,7 +202,7 @@ def evaluated_robots(cfg: EvalConfig, ckpt: dict | None) -> tuple[dict[str, str]
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(dcfg: DictConfig) -> None:
     with one_line_errors(HydraConfig.get().mode == RunMode.RUN), job(), hydra_run_dir(own=True) as out_dir:
-        run(OmegaConf.to_object(dcfg), out_dir, hydra_run_files(dcfg, out_dir))
+        run(cast(EvalConfig, OmegaConf.to_object(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
 
 
 if __name__ == "__main__":

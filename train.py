@@ -19,6 +19,7 @@ import atexit
 import gc
 import logging
 from pathlib import Path
+from typing import cast
 
 import hydra
 import torch
@@ -88,7 +89,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="train")
 def main(dcfg: DictConfig) -> float:
-    cfg: TrainConfig = OmegaConf.to_object(dcfg)
+    cfg = cast(TrainConfig, OmegaConf.to_object(dcfg))
     hc = HydraConfig.get()
     with one_line_errors(hc.mode == RunMode.RUN), job(), hydra_run_dir() as out_dir:
         try:

@@ -17,7 +17,7 @@ import os
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, cast
 
 __all__ = ["atomic_write_bytes", "unwritable", "write_files"]
 
@@ -70,7 +70,7 @@ def _complete_temp(path: Path, write: Callable[[BinaryIO], object]) -> Path:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
         raise
-    return Path(tmp)
+    return Path(cast(str, tmp))             # named by now
 
 
 def atomic_write_bytes(path: str | Path, write: Callable[[BinaryIO], object]) -> None:
@@ -91,7 +91,7 @@ def write_files(files: dict[Path, bytes]) -> None:
     temps: list[Path] = []
     try:
         for path, data in files.items():
-            temps.append(_complete_temp(Path(path), lambda f, data=data: f.write(data)))
+            temps.append(_complete_temp(Path(path), lambda f, data=data: f.write(data)))  # type: ignore[misc]
         for tmp, path in zip(temps, files):
             os.replace(tmp, path)
     finally:

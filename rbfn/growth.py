@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TypeVar
+from typing import TypeVar, cast
 
 __all__ = ["growth_schedule", "grow"]
 
@@ -35,4 +35,4 @@ def grow(fit_at: Callable[[int], tuple[T, float]], schedule: list[int], goal: fl
             on_step(m, err)
         if err <= goal:
             break
-    return result, curve
+    return cast(T, result), curve           # a schedule has at least one M

@@ -43,7 +43,7 @@ class NLMS:
             e = (y - a @ self.w) * ok[..., None]
             n = ok.sum(-1).clamp_min(1)[:, None, None]
         else:                                  # every pair finite (the usual case): no masks
-            e, n = y - a @ self.w, a.shape[1]
+            e, n = y - a @ self.w, a.shape[1]  # type: ignore[assignment]   # n: an int here
         norm = a.square().sum(-1, keepdim=True) + self.eps
         self.w = self.w + self.alpha(t) * (a / norm).transpose(1, 2) @ e / n
         self.rejected += rejected

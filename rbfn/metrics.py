@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 import torch
 
 if TYPE_CHECKING:
+    from .layer import RBFNetwork
     from .robots.robot import Robot
 
 __all__ = ["ik_metrics", "ik_metrics_both", "error_summary"]
@@ -23,7 +24,7 @@ def error_summary(pos_mm: torch.Tensor, rot_deg: torch.Tensor | None) -> dict[st
 
 
 @torch.no_grad()
-def ik_metrics(model: torch.nn.Module, robot: Robot, x: torch.Tensor, q: torch.Tensor,
+def ik_metrics(model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor,
                dtype: torch.dtype = torch.float64) -> tuple[dict[str, float], torch.Tensor, torch.Tensor]:
     """Errors of a copy of `model` evaluated in `dtype` on targets x (N, 3 or 7) with true joints q (N, n).
 
@@ -44,7 +45,7 @@ def ik_metrics(model: torch.nn.Module, robot: Robot, x: torch.Tensor, q: torch.T
     return out, pos, inside
 
 
-def ik_metrics_both(model: torch.nn.Module, robot: Robot, x: torch.Tensor, q: torch.Tensor,
+def ik_metrics_both(model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor,
                     prefix: str = "test_") -> tuple[dict[str, float], torch.Tensor, torch.Tensor]:
     """`ik_metrics` in float64 (keys `prefix + name`) and float32 (`prefix + name + "_float32"`),
     with the float64 position errors (N,) mm and flags (N,)."""

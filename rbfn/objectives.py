@@ -7,6 +7,7 @@ their nearest chosen centre (the k-means objective searched globally; no targets
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 import torch
 
@@ -166,7 +167,8 @@ class FitObjective:
         w_t = weights.transpose(-1, -2).reshape(k, lo, p)                         # (K, L * out, P)
         sse = w_t.new_zeros(k, n_l, n_out)
         bound = w_t.new_zeros(k, lo)
-        bounds, w2, err = self.eval_dtype is not None, None, None
+        bounds, w2 = self.eval_dtype is not None, None
+        err: Any = None                                       # (K, L, out, block), made by the first block
         for r0, a in val():
             b = a.shape[-1]
             if w2 is None:
@@ -186,7 +188,7 @@ class FitObjective:
         mse = sse.sum(-1) / self.z_val.shape[0]
         if not bounds:
             return mse, None
-        return mse, bound.view(k, n_l, n_out).amax(-1) * (torch.finfo(self.eval_dtype).eps / 2)
+        return mse, bound.view(k, n_l, n_out).amax(-1) * (torch.finfo(cast(torch.dtype, self.eval_dtype)).eps / 2)
 
 
 def _exponent_rows(z: torch.Tensor) -> torch.Tensor:

@@ -30,6 +30,8 @@ def quaternion_columns(quat: torch.Tensor) -> torch.Tensor:
 class TargetFeatures(nn.Module):
     """Targets (B, 3) -> features (B, 3) (identity), or (B, 7) -> (B, 9) for pose targets."""
 
+    rotation_scale: torch.Tensor      # a buffer, registered for pose targets only
+
     def __init__(self, pose: bool = False, rotation_scale: float = 0.3, dtype: torch.dtype = torch.float64,
                  device: str | torch.device = "cpu") -> None:
         super().__init__()

@@ -28,6 +28,7 @@ import reprlib
 import stat
 from importlib.resources import files
 from pathlib import Path
+from typing import Any
 
 import pytorch_kinematics as pk
 import torch
@@ -215,7 +216,7 @@ def _path_to(robot: URDF, source: str, end_link: str) -> list:
     dup = sorted({n for n in links if links.count(n) > 1})
     if dup:
         raise ValueError(f"{source}: links defined more than once: {dup}")
-    parent_joint: dict[str, object] = {}
+    parent_joint: dict[str, Any] = {}
     for j in robot.joints:
         for end in (j.parent, j.child):
             if end not in robot.link_map:

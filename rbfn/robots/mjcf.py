@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from typing import cast
 
 from lxml import etree
 
@@ -73,7 +74,8 @@ def scara_mjcf(p: ScaraParams = ScaraParams(), payload: float = 0.0, viscous: fl
 def _per_joint(value: float | Sequence[float], n: int, key: str) -> list[float]:
     values = [float(value)] * n if isinstance(value, (int, float)) else [float(v) for v in value]
     if len(values) != n:
-        raise ValueError(f"{key}={list(value)} needs one value per joint ({n}) or a single number")
+        raise ValueError(f"{key}={list(cast(Sequence[float], value))} needs one value per joint ({n}) "
+                         "or a single number")
     return values
 
 

@@ -57,6 +57,8 @@ class Beside:
 
     Use as a context manager: leaving it before `result()` (on an error) stops the child."""
 
+    _conn: Any                        # the receiving end of the pipe while a child runs, else None
+
     def __init__(self, fn: Callable, *args, fork: bool = True) -> None:
         self._fn, self._args, self._proc, self._conn = fn, args, None, None
         if fork:

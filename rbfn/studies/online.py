@@ -70,9 +70,9 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
             for name, err in (("adapted", r["err_adapt"]), ("no_adapt", r["err_frozen"]),
                               ("analytic_nominal", r["err_analytic"])):
                 writer.add_scalar(f"online/task_err_mm/{name}", float(err[k, i]), step)
-        for k, v in out.items():
+        for key, v in out.items():
             if isinstance(v, float):
-                writer.add_scalar(f"online/{k}", v)
+                writer.add_scalar(f"online/{key}", v)
     if out_dir is not None:
         fig = online_figure(t.cpu().numpy(), r["err_adapt"][:, i].cpu().numpy(), r["err_frozen"][:, i].cpu().numpy(),
                             r["err_analytic"][:, i].cpu().numpy(), r["t_update"].cpu().numpy(),

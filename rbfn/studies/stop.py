@@ -28,6 +28,7 @@ import sys
 import threading
 import time
 from contextlib import contextmanager, suppress
+from typing import cast
 
 __all__ = ["Stopped", "job", "stop_on_signals"]
 
@@ -128,7 +129,7 @@ def stop_on_signals() -> None:
             signal.signal(s, _on_signal)
     parent = multiprocessing.parent_process()
     if parent is not None:
-        _die_with_parent(parent.pid)
+        _die_with_parent(cast(int, parent.pid))      # a started process's pid
 
 
 @contextmanager
