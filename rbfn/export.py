@@ -33,8 +33,8 @@ from onnx import helper, numpy_helper
 from torch import nn
 
 from .checkpoint import load_model
-from .layer import RBFNetwork, cover_foldable
 from .files import unwritable, write_files
+from .layer import RBFNetwork, cover_foldable
 
 __all__ = ["DeployedIK", "export_all", "export_onnx", "export_pt2", "main", "onnx_bytes", "pt2_bytes"]
 
@@ -152,7 +152,10 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
     whole = copy("all_rows", {y.name: f"all_{y.name}" for y in outputs}, [])
 
     width = x.type.tensor_type.shape.dim[1].dim_value
-    ints = lambda name, values: numpy_helper.from_array(np.array(values, dtype=np.int64), name)
+
+    def ints(name: str, values: list[int]):
+        return numpy_helper.from_array(np.array(values, dtype=np.int64), name)
+
     consts = [ints("rows", [rows]), ints("one", [1]), ints("zero", [0]), ints("block_shape_end", [width])]
     node = helper.make_node
     scan = [  # blocks = ceil(B / rows) of ceil(B / blocks) rows each: fewer than `blocks` rows of padding

@@ -9,6 +9,7 @@ stably in it: see `ridge_fit` and `rounding_scale`.
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import torch
@@ -97,7 +98,8 @@ def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor,
     the deployed module computes it) the validation MSE is measured in that dtype and only stable
     ridges compete: the fit's rounding scale (`rounding_scale`) must be <= `round_tol` (output
     units), or `round_rel` times the best candidate's validation RMS error per output where that
-    is larger (`rounding_tolerance`), on every validation row and output. Small ridges give large weights that cancel, and
+    is larger (`rounding_tolerance`), on every validation row and output. Small ridges give large weights that
+    cancel, and
     the deployed output then depends on the order of operations (ONNX runtime vs torch, distance
     formula, summation order) by far more than the dtype's precision; choosing on the measured
     error alone would reward the op order that happened to be measured. Where the constraint
@@ -188,7 +190,7 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
         # The constraint binds where the next smaller grid ridge fits better but is unstable:
         # try ridges between the two (log-spaced) and keep the best stable one, if better than
         # the grid's (already scored).
-        ordered = all(a < b for a, b in zip(ridges, ridges[1:]))
+        ordered = all(a < b for a, b in itertools.pairwise(ridges))
         lower = take(grid, (best - 1).clamp(min=0))
         binds = (best > 0) & (take(mse, (best - 1).clamp(min=0)) < best_mse) & (best_bound <= tol[..., 0])
         if ordered and bool(binds.any()):

@@ -18,7 +18,8 @@ differ from float64 by at most 9e-6 (rad, m), against 3e-6 by broadcasting, and 
 error is unchanged (0.856 mm); `solve`, its cover test folded, 1.0e-5 on another trained network
 (9.3e-6 by `forward`), with the same flags as float64. `design` (the online learner's rows) takes
 the same product; `features` keeps the broadcast distances. (Fitting builds its design matrices
-with `rbfn.fit.design_matrix`, by broadcasting, in float64.) Eager calls process rows in blocks of about `block_elements` exponents, which stay in
+with `rbfn.fit.design_matrix`, by broadcasting, in float64.) Eager calls process rows in blocks of
+about `block_elements` exponents, which stay in
 cache; traced and exported graphs are one piece with a dynamic batch dimension.
 
 The output weights as one matrix: net(x) = net.design(x) @ net.output_weights(), the design
@@ -290,14 +291,14 @@ class RBFNetwork(nn.Module):
         cols = [e.gaussians(a)]
         if self.tail is not None:
             cols.append(v[:, :-1] + e.centroid)
-        return torch.cat(cols + [v[:, -1:]], -1)                  # v's last column is the ones
+        return torch.cat([*cols, v[:, -1:]], -1)                  # v's last column is the ones
 
     def output_weights(self) -> torch.Tensor:
         """Output weights W (P, out) ordered as `design`'s columns (a detached copy)."""
         parts = [self.head.weight.T]
         if self.tail is not None:
             parts.append(self.tail.weight.T)
-        return torch.cat(parts + [self.head.bias[None]], 0).detach().clone()
+        return torch.cat([*parts, self.head.bias[None]], 0).detach().clone()
 
     @torch.no_grad()
     def set_output_weights(self, w: torch.Tensor) -> None:
@@ -306,7 +307,8 @@ class RBFNetwork(nn.Module):
         if not isinstance(w, torch.Tensor):
             raise TypeError(f"output weights must be a torch.Tensor ({p}, {out}), got {type(w).__name__}")
         if tuple(w.shape) != (p, out):
-            rows = f"{m} Gaussians + {self.centers.shape[1]} tail + bias" if self.tail is not None else f"{m} Gaussians + bias"
+            tail = f" + {self.centers.shape[1]} tail" if self.tail is not None else ""
+            rows = f"{m} Gaussians{tail} + bias"
             raise ValueError(f"output weights must be ({p}, {out}) (rows: {rows}), got shape {tuple(w.shape)}")
         if not w.is_floating_point() or not bool(torch.isfinite(w).all()):
             raise ValueError(f"output weights must be finite floating-point numbers, got dtype {w.dtype} with "

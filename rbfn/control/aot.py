@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import torch
+
 # torch (2.13) has no public pytree module: torch.export.pytree is this same module under another
 # name, not a documented API. The package's call spec is serialised in this module's format.
 import torch.utils._pytree as pytree

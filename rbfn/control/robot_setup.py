@@ -59,7 +59,8 @@ class ControlRobot:
         """Desired joints, velocities and accelerations (T, n) at times t (T,) s."""
         if self.trajectory_kind == Trajectory.paper:
             return paper_trajectory(t)
-        return sinusoid_trajectory(t, torch.tensor(self.home, dtype=t.dtype), torch.tensor(self.amplitude, dtype=t.dtype))
+        home, amplitude = (torch.tensor(v, dtype=t.dtype) for v in (self.home, self.amplitude))
+        return sinusoid_trajectory(t, home, amplitude)
 
 
 def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]:

@@ -56,7 +56,8 @@ class Scenario:
         if not (math.isfinite(self.duration) and self.duration >= self.dt):
             raise ValueError(f"duration={self.duration} must be finite and >= dt={self.dt}")
         if self.integrator not in tuple(Integrator):
-            raise ValueError(f"integrator={self.integrator!r} is not allowed; choose one of {[str(i) for i in Integrator]}")
+            raise ValueError(f"integrator={self.integrator!r} is not allowed; choose one of "
+                             f"{[str(i) for i in Integrator]}")
         if not 0 <= self.payload_on < self.payload_off <= self.duration:
             raise ValueError(f"payload window [{self.payload_on}, {self.payload_off}] s must satisfy "
                              f"0 <= payload_on < payload_off <= duration={self.duration}")
@@ -97,7 +98,7 @@ def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
     return torch.stack([d[0:-1:2], d[1::2], d[2::2]], 1)
 
 
-def make_chunk(plant: Plant, controller: "Controller", dt: float, integrator: str, n: int):
+def make_chunk(plant: Plant, controller: Controller, dt: float, integrator: str, n: int):
     """`n` closed-loop periods as one pure tensor function (what torch.compile fuses):
     (q, qd, state, q_d, qd_d, qdd_d, h, alpha, dist, co) -> (q, qd, state, qs, qds, taus),
     the step inputs stacked over the n periods (co: the plant's payload coefficients, each
@@ -132,7 +133,7 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
              ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = ..., compile: bool = ..., chunk: int = ...,
              aot: bool = ...) -> Rollout | tuple[torch.Tensor, torch.Tensor]: ...
-def simulate(plant: Plant, controller: "Controller", scenario: Scenario,
+def simulate(plant: Plant, controller: Controller, scenario: Scenario,
              ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0,
              aot: bool = False) -> Rollout | tuple[torch.Tensor, torch.Tensor]:

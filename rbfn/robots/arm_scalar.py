@@ -135,7 +135,10 @@ class ArmScalarTerms:
         self.terms = arm if isinstance(arm, ArmTerms) else ArmTerms(arm)
         self.n = self.terms.n
         c = self.terms._consts(torch.float64, torch.device("cpu"))
-        snap = lambda x: torch.where(x.abs() < 1e-14, 0.0, x).tolist()   # cos(pi/2) = 6e-17 is a zero
+
+        def snap(x: torch.Tensor) -> list:
+            return torch.where(x.abs() < 1e-14, 0.0, x).tolist()      # cos(pi/2) = 6e-17 is a zero
+
         self.cols = snap(c["cols"])                                      # (n, 3, 4)
         self.mass = c["mass"].tolist()
         self.first = snap(c["first"])
@@ -145,7 +148,7 @@ class ArmScalarTerms:
         self.g0 = tuple(float(v) for v in c["g0"])
         self.prismatic = c["prismatic"]
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> "ScalarConfig":
+    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> ScalarConfig:
         if q.dim() != 2 or q.shape[1] != self.n:
             raise ValueError(f"expected joint values (B, {self.n}), got {tuple(q.shape)}")
         return ScalarConfig(self, q, payload)
@@ -215,7 +218,7 @@ class ScalarConfig:
             self._composite = out
         return self._composite
 
-    def motion(self, qd: torch.Tensor) -> "ScalarMotion":
+    def motion(self, qd: torch.Tensor) -> ScalarMotion:
         return ScalarMotion(self, qd)
 
     def _rows(self, xs) -> torch.Tensor:
@@ -250,7 +253,7 @@ class ScalarConfig:
         g0 = self.t.g0
         return [_s_dot(self.s[i], (_cross(c[1], g0), _v_scale(g0, c[0]))) for i, c in enumerate(self.composite())]
 
-    def _coriolis_qd(self, mo: "ScalarMotion") -> list:
+    def _coriolis_qd(self, mo: ScalarMotion) -> list:
         acc, f = None, []
         for k in range(self.n):
             term = _s_scale(mo.sd[k], mo.qd[k])
@@ -291,13 +294,13 @@ class ScalarConfig:
             x[i] = _mul(_sub(y[i], _sum(*(_mul(low[k][i], x[k]) for k in range(i + 1, n)))), inv[i])
         return self._stack(x)
 
-    def coriolis_qd(self, qd: torch.Tensor, mo: "ScalarMotion | None" = None) -> torch.Tensor:
+    def coriolis_qd(self, qd: torch.Tensor, mo: ScalarMotion | None = None) -> torch.Tensor:
         return self._stack(self._coriolis_qd(mo or self.motion(qd)))
 
     def bias(self, qd: torch.Tensor) -> torch.Tensor:
         return self._stack([_add(a, b) for a, b in zip(self._coriolis_qd(self.motion(qd)), self._gravity())])
 
-    def coriolis_times(self, qd: torch.Tensor, y: torch.Tensor, mo: "ScalarMotion | None" = None) -> torch.Tensor:
+    def coriolis_times(self, qd: torch.Tensor, y: torch.Tensor, mo: ScalarMotion | None = None) -> torch.Tensor:
         mo = mo or self.motion(qd)
         ys = y.T.contiguous().unbind(0)
         u = w = None
@@ -314,7 +317,7 @@ class ScalarConfig:
             f.append(_s_add(_apply(body, w), half))
         return self._stack(self._project(f))
 
-    def coriolis_transpose_qd(self, qd: torch.Tensor, mo: "ScalarMotion | None" = None) -> torch.Tensor:
+    def coriolis_transpose_qd(self, qd: torch.Tensor, mo: ScalarMotion | None = None) -> torch.Tensor:
         mo = mo or self.motion(qd)
         out, acc = [None] * self.n, None
         for i in range(self.n - 1, -1, -1):

@@ -114,7 +114,7 @@ class ArmTerms:
             # Body frame i turned by Q_i (z column = joint axis): R'_i = R'_{i-1} R0'_i Rz(q_i) with
             # R0'_i = Q_{i-1}^T R0_i Q_i, t0'_i = Q_{i-1}^T t0_i; body constants seen from the turned frame.
             qs = [_frame_to(a) for a in md.axis]
-            prev = [torch.eye(3, dtype=torch.float64)] + qs[:-1]
+            prev = [torch.eye(3, dtype=torch.float64), *qs[:-1]]
             rot0 = torch.stack([p.T @ md.placement[i, :3, :3] @ qs[i] for i, p in enumerate(prev)])
             t0 = torch.stack([p.T @ md.placement[i, :3, 3] for i, p in enumerate(prev)])
             qt = torch.stack(qs)
@@ -142,7 +142,7 @@ class ArmTerms:
             self._cache[key] = c
         return self._cache[key]
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> "Config":
+    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> Config:
         """The arm at joints q (B, n) rad or m carrying `payload` kg (float or (B,)) at its payload link."""
         if q.dim() != 2 or q.shape[1] != self.n:
             raise ValueError(f"expected joint values (B, {self.n}), got {tuple(q.shape)}")
@@ -220,7 +220,7 @@ class Config:
             self._composite = (_suffix_sum(self.m), _suffix_sum(self.h), _suffix_sum(self.j))
         return self._composite
 
-    def motion(self, qd: torch.Tensor) -> "Motion":
+    def motion(self, qd: torch.Tensor) -> Motion:
         """Body velocities and axis rates for joint rates qd (B, n); pass it to the methods below
         to share them between calls at the same (q, qd)."""
         return Motion(self, qd)
@@ -253,7 +253,7 @@ class Config:
         g0 = self.c["g0"][:, None]
         return ((self.s[0] * _cross(hc, g0.expand_as(hc))).sum(1) + (self.s[1] * g0).sum(1) * mc).T
 
-    def coriolis_qd(self, qd: torch.Tensor, mo: "Motion | None" = None) -> torch.Tensor:
+    def coriolis_qd(self, qd: torch.Tensor, mo: Motion | None = None) -> torch.Tensor:
         """C(q, qd) qd (B, n) by RNEA with gravity off."""
         mo = mo or self.motion(qd)
         acc = (_prefix_sum(mo.sd[0] * mo.qdt), _prefix_sum(mo.sd[1] * mo.qdt))
@@ -265,7 +265,7 @@ class Config:
         """C(q, qd) qd + G(q) (B, n)."""
         return self.coriolis_qd(qd) + self.gravity()
 
-    def coriolis_times(self, qd: torch.Tensor, y: torch.Tensor, mo: "Motion | None" = None) -> torch.Tensor:
+    def coriolis_times(self, qd: torch.Tensor, y: torch.Tensor, mo: Motion | None = None) -> torch.Tensor:
         """C(q, qd) y (B, n) of the Christoffel C, for joint rates qd and any y (B, n)."""
         mo = mo or self.motion(qd)
         v, sd = mo.v, mo.sd
@@ -276,7 +276,7 @@ class Config:
         a, b = _cross_force(v, iu), _cross_force(u, mo.iv)
         return self._project((iw[0] + 0.5 * (a[0] - ivu[0] + b[0]), iw[1] + 0.5 * (a[1] - ivu[1] + b[1])))
 
-    def coriolis_transpose_qd(self, qd: torch.Tensor, mo: "Motion | None" = None) -> torch.Tensor:
+    def coriolis_transpose_qd(self, qd: torch.Tensor, mo: Motion | None = None) -> torch.Tensor:
         """C(q, qd)^T qd = dT/dq (B, n): dS_i/dt . sum_{k>=i} I_k v_k."""
         mo = mo or self.motion(qd)
         iv = mo.iv

@@ -33,7 +33,8 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..files import atomic_write_bytes
 
-__all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "write_figure", "strict_json", "write_json", "write_text"]
+__all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "strict_json", "write_figure", "write_json",
+           "write_text"]
 
 
 class RunDirInUse(RuntimeError):
@@ -81,7 +82,7 @@ class RunDir:
         self._fresh, self._own, self._tidy = fresh, own, tidy
         self._fd: int | None = None
 
-    def __enter__(self) -> "RunDir":
+    def __enter__(self) -> RunDir:
         if os.path.realpath(self.path) in RunDir._held:
             return self                 # the caller holds it (the entry point around its library call)
         for up in (self.path, *self.path.parents):
