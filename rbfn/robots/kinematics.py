@@ -190,7 +190,38 @@ def urdf_tree(text: str, source: str, inertials: bool = False) -> etree._Element
                     child.remove(part)
         elif child.tag != "joint":
             root.remove(child)
+    _check_numbers(root, source)
     return root
+
+
+# Numeric attributes of the elements `urdf_tree` keeps; lengths (m) beyond MAX_LENGTH are refused.
+_NUMBERS = ("xyz", "rpy", "lower", "upper", "effort", "velocity", "damping", "friction", "value",
+            "ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+MAX_LENGTH = 1e3
+
+
+def _check_numbers(root: etree._Element, source: str) -> None:
+    """ValueError naming the element and attribute of a non-finite number, a length beyond MAX_LENGTH
+    m or a negative mass (text that is no number is left to the parser's own message)."""
+    for el in root.iter():
+        for key in _NUMBERS:
+            text = el.get(key)
+            if text is None:
+                continue
+            try:
+                values = [float(v) for v in text.split()]
+            except ValueError:
+                continue
+            owner = el
+            while owner.tag not in ("joint", "link") and owner.getparent() is not None:
+                owner = owner.getparent()
+            where = f"<{el.tag} {key}=\"{text}\"> of {owner.tag} {owner.get('name')!r}"
+            if not all(math.isfinite(v) for v in values):
+                raise ValueError(f"{source}: {where}: allowed are finite numbers")
+            if el.tag == "origin" and key == "xyz" and max(map(abs, values), default=0.0) > MAX_LENGTH:
+                raise ValueError(f"{source}: {where}: allowed are offsets within {MAX_LENGTH:g} m")
+            if el.tag == "mass" and values and values[0] < 0:
+                raise ValueError(f"{source}: {where}: allowed is a mass >= 0 kg")
 
 
 def parse_urdf(text: str, source: str, inertials: bool = False) -> URDF:

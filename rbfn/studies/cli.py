@@ -1,7 +1,8 @@
 """What a user sees when an entry point (train.py, evaluate.py) refuses or fails: one line.
 
 A refused setting, file or directory (ValueError, OSError, a run directory in use, another
-config's run) is printed as one line, `error: <message>`, and the command exits with status 1;
+config's run) or a diverged closed loop (its message names the controller, case, step and state)
+is printed as one line, `error: <message>`, and the command exits with status 1;
 the traceback is shown with HYDRA_FULL_ERROR=1 (as Hydra's own errors are). Anything else (a bug)
 keeps its traceback. In a multirun every error is left to Hydra, which runs the other jobs and
 reports the first failure at the end.
@@ -12,12 +13,13 @@ import os
 import sys
 from contextlib import contextmanager
 
+from ..control.simulator import SimulationDiverged
 from ..resume import DifferentRun
 from .rundir import RunDirInUse
 
 __all__ = ["REFUSALS", "one_line_errors"]
 
-REFUSALS = (ValueError, OSError, RunDirInUse, DifferentRun)
+REFUSALS = (ValueError, OSError, RunDirInUse, DifferentRun, SimulationDiverged)
 
 
 @contextmanager

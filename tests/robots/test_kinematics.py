@@ -480,3 +480,28 @@ def test_example_robot_data_urdf_matches_pinocchio(rel):
         ref.append(data.oMf[model.getFrameId(end)].homogeneous.copy())
     pos, rot = _errors(pin, ours, np.stack(ref))
     assert pos < 1e-12 and rot < 1e-12, (rel, end, pos, rot)
+
+
+@pytest.mark.parametrize("old,new,message", [
+    ('<origin xyz="1.0 0 0"', '<origin xyz="nan 0 0"', r'<origin xyz="nan 0 0"> of joint \'joint2\': allowed are finite'),
+    ('<origin xyz="1.0 0 0"', '<origin xyz="0 -inf 0"', r"of joint 'joint2': allowed are finite numbers"),
+    ('<origin xyz="1.0 0 0"', '<origin xyz="1e300 0 0"', r"of joint 'joint2': allowed are offsets within 1000 m"),
+])
+def test_non_finite_or_absurd_urdf_numbers_are_named(old, new, message):
+    from rbfn.robots.kinematics import urdf_tree
+
+    text = urdf_path("scara").read_text()
+    assert old in text
+    with pytest.raises(ValueError, match=message):
+        urdf_tree(text.replace(old, new, 1), "scara.urdf")
+
+
+def test_inertial_numbers_are_checked_where_the_dynamics_read_them():
+    import re
+
+    from rbfn.robots.kinematics import urdf_tree
+
+    text = re.sub(r'<mass value="[^"]*"', '<mass value="-2"', urdf_path("scara").read_text(), count=1)
+    urdf_tree(text, "scara.urdf")                       # kinematics drop the inertials
+    with pytest.raises(ValueError, match=r"<mass value=\"-2\"> of link '\w+': allowed is a mass >= 0 kg"):
+        urdf_tree(text, "scara.urdf", inertials=True)
