@@ -460,6 +460,24 @@ def _train_fits(cfg: TrainConfig) -> None:
     check_fits(f"data.{key}", getattr(d, key), sum(parts.values()) * FLOAT64, cfg.device,
                f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
                f"design matrix of rbfn.num_centers={cfg.rbfn.num_centers}")
+    if cfg.centers.method == Method.aco:
+        _colony_fits(cfg.centers.aco, "centers.aco", cfg.rbfn.num_centers, 9 if pose else 3, cfg.device,
+                     pool=min(cfg.centers.aco.candidates, d.n_train))
+
+
+def _colony_fits(a: ACOConfig, key: str, m: int, d: int, device: str, pool: int) -> None:
+    """One colony iteration fits in memory: every ant's M centres (d) and widths, and for the Ant
+    System its choice probabilities over the `pool` candidates, at once. (With the fit objective
+    ACO_R's ants are bounded by its budget; the objective ranks ants in batches of bounded memory.)"""
+    from .memory import FLOAT64, check_fits
+
+    if a.colony == Colony.ant_system:
+        check_fits(f"{key}.ants", a.ants, a.ants * (pool + m * (d + 1)) * FLOAT64, device,
+                   f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and widths "
+                   "per ant, in float64")
+    elif a.objective != Objective.fit:     # (the fit objective's budget bounds ACO_R's ants)
+        check_fits(f"{key}.ants", a.ants, a.ants * m * (d + 1) * FLOAT64, device,
+                   f"one iteration's M = {m} centres and widths per ant, in float64")
 
 
 def validate_robot(r: RobotConfig) -> None:
@@ -542,6 +560,8 @@ def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
               f"one sample per {PILOT_STRIDE} periods, half of them for training)")
         _seed("control.network.seed", n.seed)
         _validate_aco(n.aco, "control.network.aco")
+        # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
+        _colony_fits(n.aco, "control.network.aco", n.num_centers, 2, "cpu", pool=min(n.aco.candidates, n_train))
 
 
 def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: int, device: str) -> None:

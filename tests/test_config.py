@@ -187,3 +187,10 @@ def test_the_memory_estimate_is_held_against_what_is_available(monkeypatch):
 def test_evaluation_sizes_that_cannot_fit_name_the_key(override, key):
     with pytest.raises(ValueError, match=rf"{re.escape(key)}=1.*needs at least .* more than this machine's"):
         validate_evaluate(compose_config("evaluate", override))
+
+
+def test_an_ant_system_colony_that_cannot_fit_names_its_ants():
+    with pytest.raises(ValueError, match=r"centers\.aco\.ants=100000000000 needs at least .* TiB .*300 candidates"):
+        validate_train(_cfg("centers=aco_paper", "data.n_train=300", "rbfn.num_centers=10",
+                            "centers.aco.ants=100000000000"))
+    validate_train(_cfg("centers=aco", "centers.aco.ants=100000000000"))   # ACO_R's ants are bounded by its budget
