@@ -37,6 +37,7 @@ _MODEL_ARGS = ("num_centers", "in_features", "out_features", "tail")
 _UNBOUNDED = {"in_low": -math.inf, "out_low": -math.inf, "in_high": math.inf, "out_high": math.inf,
               "cover_radius": math.inf}
 _ADVICE = "Re-run training or restore the file from a copy."
+MAX_SEALED_BYTES = 2 << 30       # read whole before unpickling: a larger file is refused before it is read
 
 
 
@@ -132,6 +133,10 @@ def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVIC
             kind = "a directory" if path.is_dir() else "not a regular file (a device, FIFO or socket)"
             raise ValueError(f"{path} is {kind}; a {what} is a file")
         raise FileNotFoundError(f"no {what} at {path}")
+    size = path.stat().st_size
+    if size > MAX_SEALED_BYTES:
+        raise ValueError(f"{path} holds {size / 2**30:.3g} GiB; a {what} aco-rbfn writes is at most "
+                         f"{MAX_SEALED_BYTES / 2**30:g} GiB (tens of MB at M = 2000), so this is not one. {advice}")
     data = unseal(path.read_bytes(), path, what, advice)
     try:
         return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)

@@ -416,3 +416,13 @@ def test_network_outputs_must_match_the_robot(tmp_path):
     with pytest.raises(ValueError, match=r"model_args out_features=2, target='position' do not fit the robot entry; "
                                          r"allowed: one output per free joint \(3\)"):
         read_checkpoint(path)
+
+
+def test_a_file_too_large_to_be_a_checkpoint_is_refused_before_it_is_read(tmp_path):
+    from rbfn.checkpoint import load_sealed
+
+    big = tmp_path / "big.pt"
+    with open(big, "wb") as f:          # sparse: no disk used
+        f.truncate(3 << 30)
+    with pytest.raises(ValueError, match=r"big.pt holds 3 GiB; a checkpoint aco-rbfn writes is at most 2 GiB"):
+        load_sealed(big)
