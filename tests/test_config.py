@@ -100,14 +100,16 @@ def test_nan_in_data_is_named():
 
 
 def test_nan_in_training_data_stops_run_before_any_write(tmp_path, monkeypatch):
-    real = train.make_dataset
+    import rbfn.studies.training
+
+    real = rbfn.studies.training.make_dataset
 
     def poisoned(*a, **k):
         d = real(*a, **k)
         d.train.x[7, 0] = float("nan")
         return d
 
-    monkeypatch.setattr(train, "make_dataset", poisoned)
+    monkeypatch.setattr(rbfn.studies.training, "make_dataset", poisoned)
     cfg = _cfg("data.n_train=50", "data.n_val=20", "data.n_test=20", "rbfn.num_centers=5", "progress=false")
     with pytest.raises(ValueError, match=r"train positions contains non-finite values .first at row 7"):
         train.run(cfg, tmp_path / "run")

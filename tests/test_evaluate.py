@@ -33,8 +33,10 @@ def ckpt(tmp_path_factory):
 
 def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
     threads, seen = torch.get_num_threads(), []
-    control = evaluate.evaluate_control
-    monkeypatch.setattr(evaluate, "evaluate_control",
+    import rbfn.studies.evaluation
+
+    control = rbfn.studies.evaluation.evaluate_control
+    monkeypatch.setattr(rbfn.studies.evaluation, "evaluate_control",
                         lambda *a, **kw: seen.append(torch.get_num_threads()) or control(*a, **kw))
     torch.set_num_threads(2)                 # the suite runs one thread; the default is more
     try:

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import torch
 
+import rbfn.studies.training
 import train
 from rbfn.checkpoint import load_sealed
 from rbfn.resume import StateFile
@@ -184,7 +185,7 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch, cente
 
     run_dir = tmp_path / "interrupted"
     with monkeypatch.context() as mp:
-        mp.setattr(train, "StateFile", _interrupt_at(m, k))
+        mp.setattr(rbfn.studies.training, "StateFile", _interrupt_at(m, k))
         with pytest.raises(Interrupted):
             train.run(compose_config("train", *OVERRIDES, f"centers={centers}"), run_dir)
     state = load_sealed(run_dir / "last.pt")["state"]

@@ -1,0 +1,66 @@
+"""Training one IK network into a run directory: train.py's procedure (rbfn.pipeline does the
+fitting), with the run directory's checks, resumable state and outputs around it."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+from torch.utils.tensorboard import SummaryWriter
+
+from ..config import TrainConfig, plain, validate_train
+from ..data import check_finite, make_dataset
+from ..pipeline import train_ik
+from ..resume import StateFile
+from ..robots.robot import load_robot
+from .ik import training_metrics, write_training
+from .rundir import RunDir, write_text
+
+__all__ = ["run"]
+
+log = logging.getLogger("train")
+
+
+def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None) -> dict:
+    """Train one IK network with `cfg` into `out_dir`; return its metrics.
+
+    Every check (config, robot, data, a run already in the directory) happens before anything is
+    written; `run_files` (relative path -> text, e.g. the composed config) are written after them.
+    """
+    validate_train(cfg)
+    with RunDir(out_dir):
+        states = StateFile(out_dir)
+        state = states.load(plain(cfg))       # refuses another config's run before any write
+        if state.finished is not None:
+            log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
+            return state.finished
+        if state.done or state.current:
+            log.info("resuming from %s: %d growth step(s) done", states.path, len(state.done))
+        if cfg.num_threads:
+            torch.set_num_threads(cfg.num_threads)
+        torch.manual_seed(cfg.seed)
+
+        # 1. Data: seeded joint samples in the branch's box, FK positions from the URDF.
+        robot = load_robot(cfg.robot, cfg.device)
+        data = make_dataset(robot, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test), cfg.seed)
+        for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
+            check_finite(f"{name} positions", split.x)
+            check_finite(f"{name} joints", split.q)
+        for rel, text in (run_files or {}).items():
+            write_text(out_dir / rel, text)
+
+        # 2-5. Centres and widths, weights, growth, refinement (rbfn.pipeline); 6. outputs.
+        writer = SummaryWriter(log_dir=str(out_dir))
+        try:
+            result = train_ik(cfg, data, states, state, robot)
+            metrics = training_metrics(cfg, result, robot, data)
+            write_training(out_dir, cfg, robot, result, metrics, writer)
+        finally:
+            writer.close()
+        state.finished = metrics
+        states.save(state)
+    log.info("M = %d, test position error median %.3f mm, p95 %.3f mm, max %.3f mm (float32 median %.3f mm); "
+             "selection %.1f s, total %.1f s -> %s", metrics["num_centers"], metrics["test_pos_err_mm_median"],
+             metrics["test_pos_err_mm_p95"], metrics["test_pos_err_mm_max"],
+             metrics["test_pos_err_mm_median_float32"], metrics["select_seconds"], metrics["train_seconds"], out_dir)
+    return metrics
