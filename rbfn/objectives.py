@@ -94,8 +94,10 @@ class FitObjective:
         k, m = centers.shape[:2]
         s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)                    # exponents in base 2
         coef = torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
-        cache = BLOCK_BYTES if coef.device.type == "cpu" else float("inf")
-        rows = min(self.block, max(MIN_ROWS, int(cache // (k * m * coef.element_size()))))
+        # Rows a block: as many as stay in cache on the CPU; on a GPU every row at once (`block`).
+        # (float("inf") // n is NaN in Python, which is why the GPU takes its own branch.)
+        fit = max(MIN_ROWS, BLOCK_BYTES // (k * m * coef.element_size()))
+        rows = min(self.block, fit) if coef.device.type == "cpu" else self.block
         gram, rhs = self._normal_equations(coef, rows)
         val = self._val_blocks(coef, rows)
         # The rounding scale is summed in the deployment dtype, within (2 P + 3) u of float64's sum:
