@@ -21,7 +21,7 @@ __all__ = [
     "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
     "RBFNConfig", "TrainConfig", "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig",
     "EvalConfig", "validate_train", "validate_evaluate", "validate_control", "validate_online",
-    "validate_device", "plain", "register_configs",
+    "validate_device", "finite", "plain", "register_configs",
 ]
 
 
@@ -380,7 +380,8 @@ def _need(ok: bool, key: str, value: Any, allowed: str) -> None:
         raise ValueError(f"{key}={value!r} is not allowed: {allowed}")
 
 
-def _finite(x: Any) -> bool:
+def finite(x: Any) -> bool:
+    """Whether `x` is a finite int or float (not a bool): the check every numeric setting passes."""
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
@@ -416,32 +417,32 @@ def validate_train(cfg: TrainConfig) -> None:
     _need(r.num_centers > 0, "rbfn.num_centers", r.num_centers, "must be > 0")
     _need(r.num_centers <= d.n_train, "rbfn.num_centers", r.num_centers,
           f"exceeds the training set size data.n_train={d.n_train}; use at most {d.n_train} centres")
-    _need(c.width_scale is None or (_finite(c.width_scale) and MIN_WIDTH_SCALE <= c.width_scale <= MAX_WIDTH_SCALE),
+    _need(c.width_scale is None or (finite(c.width_scale) and MIN_WIDTH_SCALE <= c.width_scale <= MAX_WIDTH_SCALE),
           "centers.width_scale", c.width_scale,
           f"must be null (chosen on validation) or in [{MIN_WIDTH_SCALE:g}, {MAX_WIDTH_SCALE:g}] times the width "
           f"rule's base: narrower Gaussians vanish between the centres, and the network returns its bias alone")
     _need(c.kmeans_restarts >= 1, "centers.kmeans_restarts", c.kmeans_restarts, "must be >= 1")
-    _need(_finite(r.max_width) and r.max_width > 0, "rbfn.max_width", r.max_width, "must be > 0")
-    _need(_finite(r.round_rel) and 0 <= r.round_rel < 1, "rbfn.round_rel", r.round_rel, "must be in [0, 1)")
+    _need(finite(r.max_width) and r.max_width > 0, "rbfn.max_width", r.max_width, "must be > 0")
+    _need(finite(r.round_rel) and 0 <= r.round_rel < 1, "rbfn.round_rel", r.round_rel, "must be in [0, 1)")
     if c.method == Method.ols or (c.method == Method.aco and a.colony == Colony.ant_system):
         _need(a.candidates >= r.num_centers, "centers.aco.candidates", a.candidates,
               f"must be >= rbfn.num_centers={r.num_centers}")
     _validate_aco(a, "centers.aco")
     rf = c.refine
     _need(rf.steps >= 0, "centers.refine.steps", rf.steps, "must be >= 0")
-    _need(_finite(rf.lr) and rf.lr > 0, "centers.refine.lr", rf.lr, "must be > 0")
+    _need(finite(rf.lr) and rf.lr > 0, "centers.refine.lr", rf.lr, "must be > 0")
     _need(rf.epochs >= 0, "centers.refine.epochs", rf.epochs, "must be >= 0")
     _need(rf.batch >= 1, "centers.refine.batch", rf.batch, "must be >= 1")
-    _need(_finite(rf.batch_lr) and rf.batch_lr > 0, "centers.refine.batch_lr", rf.batch_lr, "must be > 0")
-    _need(_finite(rf.huber) and rf.huber >= 0, "centers.refine.huber", rf.huber, "must be >= 0 (0: squared error)")
-    _need(_finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
+    _need(finite(rf.batch_lr) and rf.batch_lr > 0, "centers.refine.batch_lr", rf.batch_lr, "must be > 0")
+    _need(finite(rf.huber) and rf.huber >= 0, "centers.refine.huber", rf.huber, "must be >= 0 (0: squared error)")
+    _need(finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
     _need(0 < r.lms_alpha0 < 2, "rbfn.lms_alpha0", r.lms_alpha0, "must be in (0, 2)")
     _need(r.lms_epochs >= 1, "rbfn.lms_epochs", r.lms_epochs, "must be >= 1")
     validate_robot(cfg.robot)
     g = r.growth
     _need(g.start >= 0, "rbfn.growth.start", g.start, "must be >= 0 (0: no growth)")
-    _need(_finite(g.factor) and g.factor > 1.0, "rbfn.growth.factor", g.factor, "must be > 1")
-    _need(_finite(g.goal) and g.goal >= 0, "rbfn.growth.goal", g.goal, "must be >= 0")
+    _need(finite(g.factor) and g.factor > 1.0, "rbfn.growth.factor", g.factor, "must be > 1")
+    _need(finite(g.goal) and g.goal >= 0, "rbfn.growth.goal", g.goal, "must be >= 0")
     _seed("seed", cfg.seed)
     validate_device(cfg.device, cfg.num_threads)
     _train_fits(cfg)
@@ -486,33 +487,33 @@ def validate_robot(r: RobotConfig) -> None:
     _need(len(lo) == len(hi) and len(lo) > 0, "robot.joint_low", list(lo),
           f"robot.joint_low and robot.joint_high ({list(hi)}) need one value per joint each")
     for i, (l, h) in enumerate(zip(lo, hi)):
-        if not (_finite(l) and _finite(h) and l < h):
+        if not (finite(l) and finite(h) and l < h):
             raise ValueError(f"robot.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
                              f"[{l}, {h}] (robot.joint_low < robot.joint_high required)")
     _need(r.urdf != "" or r.name in ROBOT_PRESETS, "robot.name", r.name,
           f"with robot.urdf empty, choose a packaged robot: {list(ROBOT_PRESETS)} (or give robot.urdf=PATH)")
     for j, v in r.locked.items():
-        _need(_finite(v), f"robot.locked.{j}", v, "must be a finite joint value")
-    _need(_finite(r.rotation_scale) and r.rotation_scale > 0, "robot.rotation_scale", r.rotation_scale, "must be > 0 m")
-    _need(r.gravity is None or (_finite(r.gravity) and r.gravity >= 0), "robot.gravity", r.gravity,
+        _need(finite(v), f"robot.locked.{j}", v, "must be a finite joint value")
+    _need(finite(r.rotation_scale) and r.rotation_scale > 0, "robot.rotation_scale", r.rotation_scale, "must be > 0 m")
+    _need(r.gravity is None or (finite(r.gravity) and r.gravity >= 0), "robot.gravity", r.gravity,
           "must be >= 0 m/s^2 or null")
-    _need(len(r.home) in (0, len(lo)) and all(_finite(v) for v in r.home), "robot.home", list(r.home),
+    _need(len(r.home) in (0, len(lo)) and all(finite(v) for v in r.home), "robot.home", list(r.home),
           f"empty (the box centre) or one finite value per joint ({len(lo)})")
-    _need(_finite(r.amplitude) and 0 <= r.amplitude <= 1, "robot.amplitude", r.amplitude, "must be in [0, 1]")
-    _need(_finite(r.rated_payload) and r.rated_payload >= 0, "robot.rated_payload", r.rated_payload, "must be >= 0 kg")
+    _need(finite(r.amplitude) and 0 <= r.amplitude <= 1, "robot.amplitude", r.amplitude, "must be in [0, 1]")
+    _need(finite(r.rated_payload) and r.rated_payload >= 0, "robot.rated_payload", r.rated_payload, "must be >= 0 kg")
 
 
 def _validate_aco(a: ACOConfig, key: str) -> None:
     _need(a.iterations >= 0, f"{key}.iterations", a.iterations, "must be >= 0")
     _need(a.ants >= 1, f"{key}.ants", a.ants, "must be >= 1")
     _need(a.archive_size >= 2, f"{key}.archive_size", a.archive_size, "must be >= 2")
-    _need(_finite(a.q) and a.q > 0, f"{key}.q", a.q, "must be > 0")
-    _need(_finite(a.xi) and a.xi > 0, f"{key}.xi", a.xi, "must be > 0")
-    _need(_finite(a.init_spread) and a.init_spread >= 0, f"{key}.init_spread", a.init_spread, "must be >= 0")
-    _need(_finite(a.rho) and 0 < a.rho < 1, f"{key}.rho", a.rho, "must be in (0, 1)")
-    _need(_finite(a.Q) and a.Q > 0, f"{key}.Q", a.Q, "must be > 0")
-    _need(_finite(a.alpha) and a.alpha >= 0, f"{key}.alpha", a.alpha, "must be >= 0")
-    _need(_finite(a.beta) and a.beta >= 0, f"{key}.beta", a.beta, "must be >= 0")
+    _need(finite(a.q) and a.q > 0, f"{key}.q", a.q, "must be > 0")
+    _need(finite(a.xi) and a.xi > 0, f"{key}.xi", a.xi, "must be > 0")
+    _need(finite(a.init_spread) and a.init_spread >= 0, f"{key}.init_spread", a.init_spread, "must be >= 0")
+    _need(finite(a.rho) and 0 < a.rho < 1, f"{key}.rho", a.rho, "must be in (0, 1)")
+    _need(finite(a.Q) and a.Q > 0, f"{key}.Q", a.Q, "must be > 0")
+    _need(finite(a.alpha) and a.alpha >= 0, f"{key}.alpha", a.alpha, "must be >= 0")
+    _need(finite(a.beta) and a.beta >= 0, f"{key}.beta", a.beta, "must be >= 0")
     _need(a.candidates >= 1, f"{key}.candidates", a.candidates, "must be >= 1")
     _need(a.fit_rows >= 0, f"{key}.fit_rows", a.fit_rows, "must be >= 0 (0: every row)")
 
@@ -533,22 +534,22 @@ def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
         _need(getattr(gains, k) > 0, f"gains.{k}", getattr(gains, k), "must be > 0")
     for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd"):
         _need(getattr(gains, k) >= 0, f"gains.{k}", getattr(gains, k), "must be >= 0")
-    _need(_finite(c.dt) and c.dt > 0, "control.dt", c.dt, "must be a positive number of seconds")
-    _need(_finite(c.duration) and c.duration >= c.dt, "control.duration", c.duration,
+    _need(finite(c.dt) and c.dt > 0, "control.dt", c.dt, "must be a positive number of seconds")
+    _need(finite(c.duration) and c.duration >= c.dt, "control.duration", c.duration,
           f"must be finite and >= control.dt={c.dt}")
-    _need(_finite(c.payload_on) and _finite(c.payload_off) and 0 <= c.payload_on < c.payload_off <= c.duration,
+    _need(finite(c.payload_on) and finite(c.payload_off) and 0 <= c.payload_on < c.payload_off <= c.duration,
           "control.payload_on/payload_off", [c.payload_on, c.payload_off],
           f"need 0 <= payload_on < payload_off <= control.duration={c.duration}")
     _need(0.5 < c.duration, "control.duration", c.duration, "must exceed 0.5 s (errors are measured after 0.5 s)")
-    _need(all(_finite(p) and p >= 0 for p in c.payloads), "control.payloads",
+    _need(all(finite(p) and p >= 0 for p in c.payloads), "control.payloads",
           list(c.payloads), "a list of masses >= 0 kg (empty: 0, half and all of robot.rated_payload)")
     _need(len(set(c.payloads)) == len(c.payloads), "control.payloads", list(c.payloads),
           "each payload case may appear once (cases are keyed by mass)")
-    _need(c.figure_payload is None or _finite(c.figure_payload), "control.figure_payload", c.figure_payload,
+    _need(c.figure_payload is None or finite(c.figure_payload), "control.figure_payload", c.figure_payload,
           "must be a finite mass in kg or null")
     for k in ("viscous", "coulomb", "disturbance", "disturbance_freq"):
-        _need(_finite(getattr(c, k)) and getattr(c, k) >= 0, f"control.{k}", getattr(c, k), "must be finite and >= 0")
-    _need(all(_finite(v) and v > 0 for v in c.joint_scale), "control.joint_scale", list(c.joint_scale),
+        _need(finite(getattr(c, k)) and getattr(c, k) >= 0, f"control.{k}", getattr(c, k), "must be finite and >= 0")
+    _need(all(finite(v) and v > 0 for v in c.joint_scale), "control.joint_scale", list(c.joint_scale),
           "positive finite factors, one per joint (empty: derived from the robot)")
     n = c.network
     _need(n.num_centers >= 1, "control.network.num_centers", n.num_centers, "must be >= 1")
@@ -576,16 +577,16 @@ def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: 
 
 def validate_online(c: OnlineConfig) -> None:
     """Raise ValueError naming the first bad value of the online part (`online.*`)."""
-    _need(_finite(c.dt) and c.dt > 0, "online.dt", c.dt, "must be a positive number of seconds")
-    _need(_finite(c.duration) and c.duration >= 4.0, "online.duration", c.duration,
+    _need(finite(c.dt) and c.dt > 0, "online.dt", c.dt, "must be a positive number of seconds")
+    _need(finite(c.duration) and c.duration >= 4.0, "online.duration", c.duration,
           "must be >= 4 s (the metrics use the first and last 2 s)")
-    _need(len(c.link_error) > 0 and all(_finite(v) and v > -1 for v in c.link_error), "online.link_error",
+    _need(len(c.link_error) > 0 and all(finite(v) and v > -1 for v in c.link_error), "online.link_error",
           list(c.link_error), "relative errors > -1 of links 1, 2, ... (at least link 1)")
-    _need(all(_finite(v) for v in c.offset_error), "online.offset_error", list(c.offset_error),
+    _need(all(finite(v) for v in c.offset_error), "online.offset_error", list(c.offset_error),
           "finite joint offsets (rad or m) of joints 1, 2, ...")
-    _need(_finite(c.amplitude) and 0 < c.amplitude <= 0.5, "online.amplitude", c.amplitude,
+    _need(finite(c.amplitude) and 0 < c.amplitude <= 0.5, "online.amplitude", c.amplitude,
           "must be in (0, 0.5] (the sinusoid path's two terms then stay inside the trained box)")
-    _need(len(c.sizes) > 0 and all(_finite(s) for s in c.sizes), "online.sizes", list(c.sizes),
+    _need(len(c.sizes) > 0 and all(finite(s) for s in c.sizes), "online.sizes", list(c.sizes),
           "a non-empty list of link-1 errors")
     ref = c.link_error[0]
     _need(ref != 0 or all(s == 0 for s in c.sizes), "online.sizes", list(c.sizes),
@@ -593,7 +594,7 @@ def validate_online(c: OnlineConfig) -> None:
     _need(any(math.isclose(s, ref, rel_tol=1e-9, abs_tol=1e-12) for s in c.sizes), "online.sizes",
           list(c.sizes), f"must include online.link_error[0]={ref}, the configured perturbation")
     _need(0 <= c.alpha0 < 2, "online.alpha0", c.alpha0, "must be in [0, 2)")
-    _need(_finite(c.decay) and c.decay >= 0, "online.decay", c.decay, "must be >= 0")
+    _need(finite(c.decay) and c.decay >= 0, "online.decay", c.decay, "must be >= 0")
     _need(0 < c.forgetting <= 1, "online.forgetting", c.forgetting, "must be in (0, 1]")
     _need(c.update_every >= 1, "online.update_every", c.update_every, "must be >= 1")
 

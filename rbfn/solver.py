@@ -15,14 +15,13 @@ deployed exports hold the network alone.
 from __future__ import annotations
 
 import copy
-import math
 from pathlib import Path
 
 import torch
 from pytorch_kinematics import transforms as tf
 
 from .checkpoint import model_from_checkpoint, read_checkpoint
-from .config import Target, validate_device
+from .config import Target, finite, validate_device
 from .layer import RBFNetwork
 from .robots.robot import Robot, robot_from_record
 
@@ -39,8 +38,7 @@ def _count(name: str, v) -> int:
 
 
 def _positive(name: str, v, zero: bool = False) -> float:
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and (v >= 0 if zero else v > 0)
-    if not ok:
+    if not (finite(v) and (v >= 0 if zero else v > 0)):
         raise ValueError(f"{name}={v!r} is not allowed: use a finite number {'>= 0' if zero else '> 0'}")
     return float(v)
 

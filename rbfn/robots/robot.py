@@ -8,7 +8,6 @@ URDF's order along the chain; `locked` joints are held at their values.
 """
 from __future__ import annotations
 
-import math
 import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,7 +16,7 @@ import pytorch_kinematics as pk
 import torch
 from pytorch_kinematics import transforms as tf
 
-from ..config import RobotConfig, Target
+from ..config import RobotConfig, Target, finite
 from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, read_urdf, urdf_path
 
 __all__ = ["Robot", "load_robot", "robot_from_record", "pose_targets", "unit_quaternions", "rotation_error_deg"]
@@ -146,10 +145,6 @@ def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
     return robot
 
 
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _check_fields(record: dict) -> None:
     """ValueError naming the first field of a checkpoint's robot entry of the wrong type or range."""
     def need(ok: bool, key: str, allowed: str) -> None:
@@ -160,7 +155,7 @@ def _check_fields(record: dict) -> None:
     need(isinstance(record.get("end_link"), str), "end_link", "the name of a link of the URDF (a str)")
     for key in ("joint_low", "joint_high"):
         value = record.get(key)
-        need(isinstance(value, (list, tuple)) and all(_finite(v) for v in value), key,
+        need(isinstance(value, (list, tuple)) and all(finite(v) for v in value), key,
              "a list of finite numbers (rad or m), one per free joint")
     low, high = record["joint_low"], record["joint_high"]
     need(len(low) == len(high), "joint_high", f"as many entries as robot.joint_low ({len(low)})")
@@ -171,7 +166,7 @@ def _check_fields(record: dict) -> None:
          "a list of joint names (str)")
     need(record.get("target", "position") in list(Target), "target", f"one of {[str(t) for t in Target]}")
     locked = record.get("locked", {})
-    need(isinstance(locked, dict) and all(isinstance(k, str) and _finite(v) for k, v in locked.items()), "locked",
+    need(isinstance(locked, dict) and all(isinstance(k, str) and finite(v) for k, v in locked.items()), "locked",
          "a dict from joint name (str) to a finite held value (rad or m)")
     need(isinstance(record.get("name", ""), str), "name", "a label (str)")
 
