@@ -35,6 +35,7 @@ from torch import nn
 from .checkpoint import load_model
 from .files import unwritable, write_files
 from .layer import RBFNetwork, cover_foldable
+from .scripts import fail
 
 __all__ = ["DeployedIK", "export_all", "export_onnx", "export_pt2", "main", "onnx_bytes", "pt2_bytes"]
 
@@ -196,11 +197,6 @@ def export_all(net: RBFNetwork, out_dir: str | Path, stem: str = "ik") -> list[P
     return list(files)
 
 
-def _fail(p: argparse.ArgumentParser, message: str, status: int = 2):
-    """A one-line error in argparse's manner (without the usage), and exit."""
-    p.exit(status, f"{p.prog}: error: {' '.join(message.split())}\n")
-
-
 def _first_line(e: BaseException) -> str:
     text = str(e).strip()
     return f"{type(e).__name__}: {text.splitlines()[0]}" if text else type(e).__name__
@@ -222,25 +218,25 @@ def main(argv: list[str] | None = None) -> None:
                         "(replaced files keep their mode)")
     a = p.parse_args(argv)
     if not a.checkpoint.is_file():
-        _fail(p, f"CHECKPOINT {a.checkpoint}: " + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir()
+        fail(p, f"CHECKPOINT {a.checkpoint}: " + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir()
                                                    else "no such file"))
     out_dir = a.out_dir or a.checkpoint.parent
     where = (f"--out-dir {out_dir}" if a.out_dir
              else f"the output directory {out_dir} (the checkpoint's; --out-dir picks another)")
     problem = unwritable([out_dir / "ik.onnx", out_dir / "ik.pt2"], a.force)
     if problem:
-        _fail(p, f"{where}: {problem}")
+        fail(p, f"{where}: {problem}")
     try:
         net = load_model(a.checkpoint)
     except (OSError, ValueError) as e:
         message = str(e) if isinstance(e, ValueError) else _first_line(e)
-        _fail(p, f"CHECKPOINT: {message}" if str(a.checkpoint) in message else f"CHECKPOINT {a.checkpoint}: {message}")
+        fail(p, f"CHECKPOINT: {message}" if str(a.checkpoint) in message else f"CHECKPOINT {a.checkpoint}: {message}")
     except Exception as e:  # noqa: BLE001 (a checkpoint that passes its checks but does not build: a bug)
-        _fail(p, f"CHECKPOINT {a.checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
+        fail(p, f"CHECKPOINT {a.checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
     try:
         paths = export_all(net, out_dir)
     except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
-        _fail(p, f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
+        fail(p, f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
               status=1)
     for path in paths:
         print(f"wrote {path}")

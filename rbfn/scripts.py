@@ -1,4 +1,5 @@
-"""Console scripts for train.py and evaluate.py (aco-rbfn-train, aco-rbfn-evaluate).
+"""Console scripts for train.py and evaluate.py (aco-rbfn-train, aco-rbfn-evaluate), and the
+one-line error of the package's argparse tools (`fail`).
 
 The two Hydra applications live at the repository root beside conf/, which Hydra finds relative
 to the script (config_path="conf"). These entry points run that script as `python train.py`
@@ -9,11 +10,13 @@ anywhere else they refuse in one line.
 """
 from __future__ import annotations
 
+import argparse
 import runpy
 import sys
 from pathlib import Path
+from typing import NoReturn
 
-__all__ = ["train", "evaluate"]
+__all__ = ["evaluate", "fail", "train"]
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -38,3 +41,9 @@ def train() -> None:
 def evaluate() -> None:
     """`python evaluate.py ARGS` as the console script aco-rbfn-evaluate."""
     _run_script("evaluate")
+
+
+def fail(parser: argparse.ArgumentParser, message: str, status: int = 2) -> NoReturn:
+    """Exit with `status` after a one-line error in argparse's manner, `PROG: error: MESSAGE`
+    (without the usage; the message's whitespace folded to single spaces)."""
+    parser.exit(status, f"{parser.prog}: error: {' '.join(message.split())}\n")

@@ -33,9 +33,10 @@ import re
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn, cast
+from typing import cast
 
 from .files import unwritable, write_files
+from .scripts import fail
 
 __all__ = ["Job", "compare", "find_jobs", "load_jobs", "main", "summarize"]
 
@@ -351,7 +352,7 @@ def _metrics(p: argparse.ArgumentParser, asked: list[str] | None, jobs: list[Job
     unknown = [k for k in asked if k not in numeric]
     if jobs and unknown:
         names = ", ".join(repr(k) + _did_you_mean(repr(k), map(repr, numeric)) for k in unknown)
-        _fail(p, f"--metrics: no number named {names} in any job's metrics.json; the jobs' numeric metrics are: "
+        fail(p, f"--metrics: no number named {names} in any job's metrics.json; the jobs' numeric metrics are: "
                  f"{', '.join(numeric) or 'none'}")
     return asked
 
@@ -361,26 +362,21 @@ def _compare_pair(p: argparse.ArgumentParser, spec: str, jobs) -> tuple[str, str
     (which may hold commas); else a usage error naming the swept keys or KEY's values."""
     key, eq, values = spec.partition("=")
     if not key or not eq:
-        _fail(p, f"--compare {spec}: expected KEY=A,B")
+        fail(p, f"--compare {spec}: expected KEY=A,B")
     taken: dict[str, set] = defaultdict(set)
     for o, _ in jobs:
         for k, v in o.items():
             taken[k].add(v)
     swept = sorted(k for k in taken if len({o.get(k) for o, _ in jobs}) > 1)
     if key not in swept:
-        _fail(p, f"--compare {spec}: {key} is not a swept override{_did_you_mean(key, swept)}; swept: "
+        fail(p, f"--compare {spec}: {key} is not a swept override{_did_you_mean(key, swept)}; swept: "
                  f"{', '.join(swept) or 'none'}" + ("" if jobs else " (no completed job)"))
     pairs = [(values[:i], values[i + 1:]) for i, c in enumerate(values) if c == ","]
     pair = next((ab for ab in pairs if ab[0] != ab[1] and set(ab) <= taken[key]), None)
     if pair is None:
-        _fail(p, f"--compare {spec}: expected {key}=A,B with A and B two different values of {key}: "
+        fail(p, f"--compare {spec}: expected {key}=A,B with A and B two different values of {key}: "
                  f"{', '.join(sorted(taken[key], key=_order))}")
     return key, *pair
-
-
-def _fail(p: argparse.ArgumentParser, message: str, status: int = 2) -> NoReturn:
-    """A one-line error in argparse's manner (without the usage), and exit."""
-    p.exit(status, f"{p.prog}: error: {' '.join(message.split())}\n")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -405,10 +401,10 @@ def main(argv: list[str] | None = None) -> None:
                         "files keep their mode)")
     a = p.parse_args(argv)
     if not a.sweep_dir.is_dir():
-        _fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))
+        fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))
     found = find_jobs(a.sweep_dir)
     if not found:
-        _fail(p, f"SWEEP_DIR {a.sweep_dir}: no job directories under it (none holds a metrics.json, failed.json, "
+        fail(p, f"SWEEP_DIR {a.sweep_dir}: no job directories under it (none holds a metrics.json, failed.json, "
                  ".hydra/overrides.yaml, last.pt or log file)")
     metrics = _metrics(p, a.metrics, [j for j in found if j.status == "completed"])
     for j in found:
@@ -422,7 +418,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             md += "\n" + compare_to_markdown(key, x, y, *compare(jobs, key, x, y, metrics), metrics)
         except ValueError as e:
-            _fail(p, f"--compare {spec}: {e}")
+            fail(p, f"--compare {spec}: {e}")
     if len(jobs) < len(found):
         md += "\n" + failures_to_markdown(found, a.sweep_dir)
     prefix = a.out or a.sweep_dir / "summary"
@@ -433,11 +429,11 @@ def main(argv: list[str] | None = None) -> None:
     where = f"--out {a.out}" if a.out else f"SWEEP_DIR {a.sweep_dir} (the default output folder; --out picks another)"
     problem = unwritable(files, a.force)
     if problem:
-        _fail(p, f"{where}: {problem}")
+        fail(p, f"{where}: {problem}")
     try:
         write_files(files)
     except OSError as e:
-        _fail(p, f"{where}: cannot write the summary, nothing was replaced: {e}", status=1)
+        fail(p, f"{where}: cannot write the summary, nothing was replaced: {e}", status=1)
     counts = {s: sum(j.status == s for j in found) for s in ("completed", "failed", "unfinished", "malformed")}
     print(md)
     print(f"{len(found)} jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n or s != "malformed"))

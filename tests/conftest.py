@@ -60,3 +60,14 @@ def panda_ckpt(tmp_path_factory):
                              "data.n_train=1500", "data.n_val=500", "data.n_test=200", "progress=false",
                              "export=false", "num_threads=1"), out)
     return read_checkpoint(out / "checkpoint.pt")
+
+
+def error_line(capsys, main, prog: str, *argv, status: int = 2) -> str:
+    """The one stderr line of a command-line tool's refused `main(argv)`, `PROG: error: ...`, its
+    exit status checked."""
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    assert e.value.code == status
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"{prog}: error: "), err
+    return err

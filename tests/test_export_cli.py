@@ -10,6 +10,8 @@ from rbfn.checkpoint import save_checkpoint
 from rbfn.export import main
 from rbfn.layer import RBFNetwork
 
+from .conftest import error_line
+
 
 @pytest.fixture()
 def ckpt(tmp_path, scara_robot):
@@ -29,13 +31,7 @@ def fake_export(monkeypatch):
 
 
 def _error_line(capsys, *argv, status=2):
-    """The one stderr line of a refused `main(argv)` (with its exit status checked)."""
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    assert e.value.code == status
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("python -m rbfn.export: error: "), err
-    return err
+    return error_line(capsys, main, "python -m rbfn.export", *argv, status=status)
 
 
 def _files(folder):

@@ -5,6 +5,8 @@ import pytest
 
 from rbfn.summarize import compare, find_jobs, load_jobs, main, summarize
 
+from .conftest import error_line
+
 
 def _job(root, num, overrides, metrics):
     d = root / str(num)
@@ -123,13 +125,7 @@ def _outputs(root):
 
 
 def _error_line(capsys, *argv, status=2):
-    """The one stderr line of a refused `main(argv)` (with its exit status checked)."""
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    assert e.value.code == status
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("python -m rbfn.summarize: error: "), err
-    return err
+    return error_line(capsys, main, "python -m rbfn.summarize", *argv, status=status)
 
 
 @pytest.mark.parametrize("text, why", [
