@@ -235,7 +235,9 @@ class RBFNetwork(nn.Module):
             return x                      # data checks: eager only
         if self.inputs is not None and self.inputs.pose and not leading:
             self.inputs.check(x)          # unit quaternions, finite values
-        elif x.is_floating_point():
+        elif x.is_floating_point() and not bool(x.sum().isfinite()):
+            # A finite sum means every value is finite (NaN and inf propagate): one pass without a mask,
+            # 15 against 445 us at B = 1e5. Only a non-finite sum (or one that overflowed) looks at rows.
             bad = ~torch.isfinite(x).all(-1)
             if bool(bad.any()):
                 i = tuple(int(k) for k in bad.nonzero()[0])

@@ -286,6 +286,7 @@ def test_non_finite_inputs_are_refused_by_every_entry_point():
             call(bad)
     with pytest.raises(ValueError, match="finite"):
         net(torch.tensor([[float("inf"), 0.0, 0.0]]).numpy())
+    assert net(torch.tensor([[3e38, 3e38, 3e38]])).shape == (1, 2)      # finite, though their sum overflows
 
 
 def test_in_workspace_takes_outputs_of_another_float_dtype():
