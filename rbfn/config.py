@@ -2,9 +2,12 @@
 
 This module is the bottom layer of the package: it imports nothing from `rbfn`. train.py and
 evaluate.py register the schemas with Hydra's ConfigStore (`register_configs`), so a mistyped
-value or an unknown choice (an Enum field) fails when the config is composed, naming the options;
-`validate_train` / `validate_evaluate` then check ranges and combinations and raise ValueError
-naming the full key, the bad value and what is allowed, before any work starts.
+value or an unknown choice (an Enum field) fails when the config is composed, naming the options.
+Each schema's `check` method sits beside its fields and raises ValueError naming the full key, the
+bad value and what is allowed; `validate_train` / `validate_evaluate` run them once, before any
+work starts. Schemas follow the concerns: the robot; the data; the centres (one schema per colony,
+one per refinement mode); the network; and, for evaluation, the gains, the closed-loop scenario
+and the online part.
 """
 from __future__ import annotations
 
@@ -17,11 +20,11 @@ from typing import Any, Optional
 __all__ = [
     "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "RefineLoss", "Solver",
     "InputScaling", "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
-    "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS", "validate_robot",
-    "RobotConfig", "DataConfig", "ACOConfig", "RefineConfig", "CentersConfig", "GrowthConfig",
-    "RBFNConfig", "TrainConfig", "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig",
-    "EvalConfig", "validate_train", "validate_evaluate", "validate_control", "validate_online",
-    "validate_device", "finite", "plain", "register_configs",
+    "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS",
+    "RobotConfig", "DataConfig", "ACORConfig", "AntSystemConfig", "ACOConfig", "OLSConfig", "FullRefineConfig",
+    "MinibatchRefineConfig", "RefineConfig", "CentersConfig", "GrowthConfig", "RBFNConfig", "TrainConfig",
+    "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig", "EvalConfig", "validate_train",
+    "validate_evaluate", "validate_device", "finite", "plain", "register_configs",
 ]
 
 
@@ -150,7 +153,8 @@ PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10
 # ----------------------------------------------------------------------------------------- train
 @dataclass
 class RobotConfig:
-    """The robot (group `robot`: scara, ur5, panda; or any serial URDF with `urdf` and `end_link`).
+    """The robot (group `robot`: scara, ur5, panda; or any serial URDF with `urdf` and `end_link`):
+    its chain, the box of joints its IK answers in and the kind of target, and its physical facts.
 
     Joint values are in the URDF's units (rad, or m for prismatic joints), in the URDF's joint
     order along the chain root -> end link, `locked` joints excluded from the box and the IK output.
@@ -170,6 +174,30 @@ class RobotConfig:
     amplitude: float = 0.1             # sinusoid amplitude, a fraction of each joint's half range
     rated_payload: float = 20.0        # kg: control payload cases default to 0, half and all of it
 
+    def check(self, key: str = "robot") -> None:
+        """The URDF itself is checked when it is loaded."""
+        lo, hi = self.joint_low, self.joint_high
+        _need(len(lo) == len(hi) and len(lo) > 0, f"{key}.joint_low", list(lo),
+              f"{key}.joint_low and {key}.joint_high ({list(hi)}) need one value per joint each")
+        for i, (l, h) in enumerate(zip(lo, hi)):
+            if not (finite(l) and finite(h) and l < h):
+                raise ValueError(f"{key}.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
+                                 f"[{l}, {h}] ({key}.joint_low < {key}.joint_high required)")
+        _need(self.urdf != "" or self.name in ROBOT_PRESETS, f"{key}.name", self.name,
+              f"with {key}.urdf empty, choose a packaged robot: {list(ROBOT_PRESETS)} (or give {key}.urdf=PATH)")
+        for j, v in self.locked.items():
+            _need(finite(v), f"{key}.locked.{j}", v, "must be a finite joint value")
+        _need(finite(self.rotation_scale) and self.rotation_scale > 0, f"{key}.rotation_scale", self.rotation_scale,
+              "must be > 0 m")
+        _need(self.gravity is None or (finite(self.gravity) and self.gravity >= 0), f"{key}.gravity", self.gravity,
+              "must be >= 0 m/s^2 or null")
+        _need(len(self.home) in (0, len(lo)) and all(finite(v) for v in self.home), f"{key}.home", list(self.home),
+              f"empty (the box centre) or one finite value per joint ({len(lo)})")
+        _need(finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude,
+              "must be in [0, 1]")
+        _need(finite(self.rated_payload) and self.rated_payload >= 0, f"{key}.rated_payload", self.rated_payload,
+              "must be >= 0 kg")
+
 
 @dataclass
 class DataConfig:
@@ -177,41 +205,142 @@ class DataConfig:
     n_val: int = 1000
     n_test: int = 5000
 
+    def check(self, key: str = "data") -> None:
+        _need(self.n_train >= 2, f"{key}.n_train", self.n_train,
+              "must be >= 2 (widths come from distances between samples)")
+        for name in ("n_val", "n_test"):
+            _need(getattr(self, name) > 0, f"{key}.{name}", getattr(self, name), "must be > 0")
+
+
+@dataclass
+class ACORConfig:
+    """ACO_R (`colony: acor`), the continuous colony: a Gaussian-kernel archive of solutions."""
+
+    archive_size: int = 20             # archive k
+    q: float = 0.2                     # rank locality
+    xi: float = 0.85                   # spread
+    init_spread: float = 0.3           # seed perturbation, in nearest-centre distances
+    search_widths: WidthSearch = WidthSearch.per_center  # also search widths (per centre, one scale, none)
+
+    def check(self, key: str) -> None:
+        _need(self.archive_size >= 2, f"{key}.archive_size", self.archive_size, "must be >= 2")
+        _need(finite(self.q) and self.q > 0, f"{key}.q", self.q, "must be > 0")
+        _need(finite(self.xi) and self.xi > 0, f"{key}.xi", self.xi, "must be > 0")
+        _need(finite(self.init_spread) and self.init_spread >= 0, f"{key}.init_spread", self.init_spread,
+              "must be >= 0")
+
+
+@dataclass
+class AntSystemConfig:
+    """The paper's discrete Ant System (`colony: ant_system`): ants choose M of `candidates` points."""
+
+    rho: float = 0.9                   # evaporation
+    Q: float = 100.0                   # deposit
+    alpha: float = 1.0                 # pheromone exponent
+    beta: float = 0.0                  # heuristic exponent (visibility: local data density)
+    candidates: int = 500              # candidate pool: training inputs drawn at random
+
+    def check(self, key: str, num_centers: int) -> None:
+        _need(finite(self.rho) and 0 < self.rho < 1, f"{key}.rho", self.rho, "must be in (0, 1)")
+        _need(finite(self.Q) and self.Q > 0, f"{key}.Q", self.Q, "must be > 0")
+        _need(finite(self.alpha) and self.alpha >= 0, f"{key}.alpha", self.alpha, "must be >= 0")
+        _need(finite(self.beta) and self.beta >= 0, f"{key}.beta", self.beta, "must be >= 0")
+        _need(self.candidates >= num_centers, f"{key}.candidates", self.candidates,
+              f"must be >= the number of centres ({num_centers}): ants choose them among the candidates")
+
 
 @dataclass
 class ACOConfig:
+    """A colony (`centers.aco`, `control.network.aco`): what every colony shares, then one schema per
+    colony; only the chosen colony's settings are read."""
+
     colony: Colony = Colony.acor
     objective: Objective = Objective.fit
     iterations: int = 100              # NC_max
     ants: int = 20                     # ants per iteration
-    archive_size: int = 20             # ACO_R archive k
-    q: float = 0.2                     # ACO_R rank locality
-    xi: float = 0.85                   # ACO_R spread
-    init_spread: float = 0.3           # ACO_R seed perturbation, in nearest-centre distances
-    search_widths: WidthSearch = WidthSearch.per_center  # ACO_R also searches widths
-    rho: float = 0.9                   # Ant System evaporation
-    Q: float = 100.0                   # Ant System deposit
-    alpha: float = 1.0                 # Ant System pheromone exponent
-    beta: float = 0.0                  # Ant System heuristic exponent (visibility: local data density)
-    candidates: int = 500              # Ant System / OLS candidate pool
     fit_rows: int = 2048               # fit objective: the colony ranks ants on at most max(fit_rows, 50 P) training
                                        # and validation rows (a seeded subset; 0: every row); the final fit uses all
+    acor: ACORConfig = field(default_factory=ACORConfig)
+    ant_system: AntSystemConfig = field(default_factory=AntSystemConfig)
+
+    def check(self, key: str, num_centers: int) -> None:
+        _need(self.iterations >= 0, f"{key}.iterations", self.iterations, "must be >= 0")
+        _need(self.ants >= 1, f"{key}.ants", self.ants, "must be >= 1")
+        _need(self.fit_rows >= 0, f"{key}.fit_rows", self.fit_rows, "must be >= 0 (0: every row)")
+        self.acor.check(f"{key}.acor")
+        self.ant_system.check(f"{key}.ant_system", num_centers if self.colony == Colony.ant_system else 1)
+
+    def check_fits(self, key: str, m: int, d: int, device: str, pool: int) -> None:
+        """One colony iteration fits in memory: every ant's M centres (d) and widths, and for the Ant
+        System its choice probabilities over the `pool` candidates, at once. (With the fit objective
+        ACO_R's ants are bounded by its budget; the objective ranks ants in batches of bounded memory.)"""
+        from .memory import FLOAT64, check_fits
+
+        if self.colony == Colony.ant_system:
+            check_fits(f"{key}.ants", self.ants, self.ants * (pool + m * (d + 1)) * FLOAT64, device,
+                       f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and "
+                       "widths per ant, in float64")
+        elif self.objective != Objective.fit:     # (the fit objective's budget bounds ACO_R's ants)
+            check_fits(f"{key}.ants", self.ants, self.ants * m * (d + 1) * FLOAT64, device,
+                       f"one iteration's M = {m} centres and widths per ant, in float64")
+
+
+@dataclass
+class OLSConfig:
+    """Orthogonal least squares (`method: ols`): forward selection from `candidates` training inputs."""
+
+    candidates: int = 500
+
+    def check(self, key: str, num_centers: int) -> None:
+        _need(self.candidates >= num_centers, f"{key}.candidates", self.candidates,
+              f"must be >= the number of centres ({num_centers}): OLS chooses them among the candidates")
+
+
+@dataclass
+class FullRefineConfig:
+    """`mode: full`: Adam on the whole training set, the output weights solved inside the loss."""
+
+    steps: int = 300                   # Adam steps
+    lr: float = 0.01                   # Adam step size
+
+    def check(self, key: str) -> None:
+        _need(self.steps >= 0, f"{key}.steps", self.steps, "must be >= 0")
+        _need(finite(self.lr) and self.lr > 0, f"{key}.lr", self.lr, "must be > 0")
+
+
+@dataclass
+class MinibatchRefineConfig:
+    """`mode: minibatch`: Adam on mini-batches, the output weights trained too."""
+
+    epochs: int = 300                  # passes over the training set
+    batch: int = 256                   # rows per Adam step
+    lr: float = 0.003                  # first Adam step size, decayed to 0 on a cosine
+    loss: RefineLoss = RefineLoss.task  # task error (m; rotation x robot.rotation_scale) | joint error
+    huber: float = 0.005               # pseudo-Huber threshold on a row's error norm (m for task); 0: squared
+
+    def check(self, key: str) -> None:
+        _need(self.epochs >= 0, f"{key}.epochs", self.epochs, "must be >= 0")
+        _need(self.batch >= 1, f"{key}.batch", self.batch, "must be >= 1")
+        _need(finite(self.lr) and self.lr > 0, f"{key}.lr", self.lr, "must be > 0")
+        _need(finite(self.huber) and self.huber >= 0, f"{key}.huber", self.huber, "must be >= 0 (0: squared error)")
 
 
 @dataclass
 class RefineConfig:
+    """Gradient refinement of centres, widths and input scales after the selection; the `mode`
+    (auto: full where N P^2 <= 2e9) picks which of `full` and `minibatch` runs."""
+
     enabled: bool = False
-    mode: RefineMode = RefineMode.auto  # full (weights solved in the loss) | minibatch
-    steps: int = 300                   # full: Adam steps on the whole training set
-    lr: float = 0.01                   # full: Adam step size
-    epochs: int = 300                  # minibatch: passes over the training set
-    batch: int = 256                   # minibatch: rows per Adam step
-    batch_lr: float = 0.003            # minibatch: first Adam step size, decayed to 0 on a cosine
-    loss: RefineLoss = RefineLoss.task  # minibatch: task error (m; rotation x robot.rotation_scale) | joint error
-    huber: float = 0.005               # minibatch: pseudo-Huber threshold on a row's error norm (m for task);
-                                       # 0: squared
+    mode: RefineMode = RefineMode.auto
     learn_input_scale: bool = True
     min_ridge: float = 1e-11           # floor on the relative ridge inside the loss (conditioning)
+    full: FullRefineConfig = field(default_factory=FullRefineConfig)
+    minibatch: MinibatchRefineConfig = field(default_factory=MinibatchRefineConfig)
+
+    def check(self, key: str) -> None:
+        _need(finite(self.min_ridge) and self.min_ridge >= 0, f"{key}.min_ridge", self.min_ridge, "must be >= 0")
+        self.full.check(f"{key}.full")
+        self.minibatch.check(f"{key}.minibatch")
 
 
 @dataclass
@@ -222,7 +351,20 @@ class CentersConfig:
     width_scale: Optional[float] = None  # fixed scale of the rule's width; null: chosen on validation
     kmeans_restarts: int = 10
     aco: ACOConfig = field(default_factory=ACOConfig)
+    ols: OLSConfig = field(default_factory=OLSConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
+
+    def check(self, num_centers: int, key: str = "centers") -> None:
+        _need(self.name in SELECTORS, f"{key}.name", self.name, f"choose one of {list(SELECTORS)}")
+        _need(self.width_scale is None
+              or (finite(self.width_scale) and MIN_WIDTH_SCALE <= self.width_scale <= MAX_WIDTH_SCALE),
+              f"{key}.width_scale", self.width_scale,
+              f"must be null (chosen on validation) or in [{MIN_WIDTH_SCALE:g}, {MAX_WIDTH_SCALE:g}] times the width "
+              f"rule's base: narrower Gaussians vanish between the centres, and the network returns its bias alone")
+        _need(self.kmeans_restarts >= 1, f"{key}.kmeans_restarts", self.kmeans_restarts, "must be >= 1")
+        self.aco.check(f"{key}.aco", num_centers if self.method == Method.aco else 1)
+        self.ols.check(f"{key}.ols", num_centers if self.method == Method.ols else 1)
+        self.refine.check(f"{key}.refine")
 
 
 @dataclass
@@ -230,6 +372,11 @@ class GrowthConfig:
     start: int = 0                     # first M; 0 disables growth (fit at num_centers only)
     factor: float = 2.0                # next M = ceil(M * factor), capped at num_centers
     goal: float = 0.0                  # E goal: validation 1/2 mean ||y - d||^2 (rad^2, m^2)
+
+    def check(self, key: str = "rbfn.growth") -> None:
+        _need(self.start >= 0, f"{key}.start", self.start, "must be >= 0 (0: no growth)")
+        _need(finite(self.factor) and self.factor > 1.0, f"{key}.factor", self.factor, "must be > 1")
+        _need(finite(self.goal) and self.goal >= 0, f"{key}.goal", self.goal, "must be >= 0")
 
 
 @dataclass
@@ -246,6 +393,17 @@ class RBFNConfig:
     round_rel: float = 0.0
     growth: GrowthConfig = field(default_factory=GrowthConfig)
 
+    def check(self, n_train: int, key: str = "rbfn") -> None:
+        _need(self.num_centers > 0, f"{key}.num_centers", self.num_centers, "must be > 0")
+        _need(self.num_centers <= n_train, f"{key}.num_centers", self.num_centers,
+              f"exceeds the training set size data.n_train={n_train}; use at most {n_train} centres")
+        _need(finite(self.max_width) and self.max_width > 0, f"{key}.max_width", self.max_width, "must be > 0")
+        _need(finite(self.round_rel) and 0 <= self.round_rel < 1, f"{key}.round_rel", self.round_rel,
+              "must be in [0, 1)")
+        _need(0 < self.lms_alpha0 < 2, f"{key}.lms_alpha0", self.lms_alpha0, "must be in (0, 2)")
+        _need(self.lms_epochs >= 1, f"{key}.lms_epochs", self.lms_epochs, "must be >= 1")
+        self.growth.check(f"{key}.growth")
+
 
 @dataclass
 class TrainConfig:
@@ -258,6 +416,34 @@ class TrainConfig:
     num_threads: int = 0               # torch threads; 0 leaves torch's default
     progress: bool = True
     export: bool = True                # write ik.onnx and ik.pt2 next to checkpoint.pt
+
+    def check(self) -> None:
+        """Every value, then whether the run fits in memory."""
+        self.data.check()
+        self.rbfn.check(self.data.n_train)
+        self.centers.check(self.rbfn.num_centers)
+        self.robot.check()
+        _seed("seed", self.seed)
+        validate_device(self.device, self.num_threads)
+        self._check_fits()
+
+    def _check_fits(self) -> None:
+        """The training set and the least-squares design matrix (float64) fit in memory."""
+        from .memory import FLOAT64, check_fits  # a runtime fact, not a schema one
+
+        d, n_q = self.data, len(self.robot.joint_low)
+        pose = self.robot.target == Target.pose
+        row = (7 if pose else 3) + n_q                         # target and joints of one sample
+        p = self.rbfn.num_centers + (9 if pose else 3) + 1     # design columns: M Gaussians, the tail, a bias
+        parts = {"n_train": d.n_train * (row + p), "n_val": d.n_val * row, "n_test": d.n_test * row}
+        key = max(parts, key=lambda k: parts[k])
+        check_fits(f"data.{key}", getattr(d, key), sum(parts.values()) * FLOAT64, self.device,
+                   f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
+                   f"design matrix of rbfn.num_centers={self.rbfn.num_centers}")
+        if self.centers.method == Method.aco:
+            a = self.centers.aco
+            a.check_fits("centers.aco", self.rbfn.num_centers, 9 if pose else 3, self.device,
+                         pool=min(a.ant_system.candidates, d.n_train))
 
 
 # -------------------------------------------------------------------------------------- evaluate
@@ -279,6 +465,15 @@ class GainsConfig:
     pd_kp: float = 0.0             # PD gains; 0: K Lambda and K, the same feedback as smc's K s
     pd_kd: float = 0.0
 
+    def check(self, key: str = "gains") -> None:
+        for k, v in vars(self).items():
+            if isinstance(v, float):
+                _need(math.isfinite(v), f"{key}.{k}", v, "must be finite")
+        for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay"):
+            _need(getattr(self, k) > 0, f"{key}.{k}", getattr(self, k), "must be > 0")
+        for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd"):
+            _need(getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
+
 
 @dataclass
 class NetworkConfig:
@@ -289,6 +484,11 @@ class NetworkConfig:
     warm_start: bool = False           # start W at the ridge fit of the pilot run's residual torque
     seed: int = 0
     aco: ACOConfig = field(default_factory=ACOConfig)
+
+    def check(self, key: str = "control.network") -> None:
+        _need(self.num_centers >= 1, f"{key}.num_centers", self.num_centers, "must be >= 1")
+        _seed(f"{key}.seed", self.seed)
+        self.aco.check(f"{key}.aco", self.num_centers if self.aco.colony == Colony.ant_system else 1)
 
 
 @dataclass
@@ -325,6 +525,47 @@ class ControlConfig:
     figure_payload: Optional[float] = None   # kg, the case drawn in the figures; null: half the rated payload
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
+    def check(self, key: str = "control") -> None:
+        arbfn = [f"arbfn_{m}" for m in CONTROL_CENTER_METHODS]
+        for name in self.controllers:
+            _need(name in BASE_CONTROLLERS or name in arbfn, f"{key}.controllers", name,
+                  f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}")
+        _need(len(set(self.controllers)) == len(self.controllers), f"{key}.controllers", list(self.controllers),
+              "each controller may appear once")
+        _need(not (self.compile and self.aot), f"{key}.aot", self.aot, f"choose one of {key}.compile and {key}.aot")
+        _need(finite(self.dt) and self.dt > 0, f"{key}.dt", self.dt, "must be a positive number of seconds")
+        _need(finite(self.duration) and self.duration >= self.dt, f"{key}.duration", self.duration,
+              f"must be finite and >= {key}.dt={self.dt}")
+        _need(finite(self.payload_on) and finite(self.payload_off)
+              and 0 <= self.payload_on < self.payload_off <= self.duration,
+              f"{key}.payload_on/payload_off", [self.payload_on, self.payload_off],
+              f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}")
+        _need(0.5 < self.duration, f"{key}.duration", self.duration,
+              "must exceed 0.5 s (errors are measured after 0.5 s)")
+        _need(all(finite(p) and p >= 0 for p in self.payloads), f"{key}.payloads",
+              list(self.payloads), "a list of masses >= 0 kg (empty: 0, half and all of robot.rated_payload)")
+        _need(len(set(self.payloads)) == len(self.payloads), f"{key}.payloads", list(self.payloads),
+              "each payload case may appear once (cases are keyed by mass)")
+        _need(self.figure_payload is None or finite(self.figure_payload), f"{key}.figure_payload",
+              self.figure_payload, "must be a finite mass in kg or null")
+        for k in ("viscous", "coulomb", "disturbance", "disturbance_freq"):
+            _need(finite(getattr(self, k)) and getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k),
+                  "must be finite and >= 0")
+        _need(all(finite(v) and v > 0 for v in self.joint_scale), f"{key}.joint_scale", list(self.joint_scale),
+              "positive finite factors, one per joint (empty: derived from the robot)")
+        n = self.network
+        _need(n.num_centers >= 1, f"{key}.network.num_centers", n.num_centers, "must be >= 1")
+        if any(name.startswith("arbfn_") for name in self.controllers):
+            steps = int(round(self.duration / self.dt))
+            n_train = (steps // PILOT_STRIDE + 1) // 2      # even pilot samples train the network
+            _need(n.num_centers <= n_train, f"{key}.network.num_centers", n.num_centers,
+                  f"exceeds the pilot run's {n_train} training samples ({key}.duration={self.duration} s, "
+                  f"one sample per {PILOT_STRIDE} periods, half of them for training)")
+            n.check(f"{key}.network")
+            # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
+            n.aco.check_fits(f"{key}.network.aco", n.num_centers, 2, "cpu",
+                             pool=min(n.aco.ant_system.candidates, n_train))
+
 
 @dataclass
 class OnlineConfig:
@@ -355,6 +596,28 @@ class OnlineConfig:
     aot: bool = False                  # the closed-loop chunk compiled ahead of time, cached on disk (as control.aot)
     save_checkpoint: bool = True       # write checkpoint_online.pt (the configured perturbation's network)
 
+    def check(self, key: str = "online") -> None:
+        _need(finite(self.dt) and self.dt > 0, f"{key}.dt", self.dt, "must be a positive number of seconds")
+        _need(finite(self.duration) and self.duration >= 4.0, f"{key}.duration", self.duration,
+              "must be >= 4 s (the metrics use the first and last 2 s)")
+        _need(len(self.link_error) > 0 and all(finite(v) and v > -1 for v in self.link_error), f"{key}.link_error",
+              list(self.link_error), "relative errors > -1 of links 1, 2, ... (at least link 1)")
+        _need(all(finite(v) for v in self.offset_error), f"{key}.offset_error", list(self.offset_error),
+              "finite joint offsets (rad or m) of joints 1, 2, ...")
+        _need(finite(self.amplitude) and 0 < self.amplitude <= 0.5, f"{key}.amplitude", self.amplitude,
+              "must be in (0, 0.5] (the sinusoid path's two terms then stay inside the trained box)")
+        _need(len(self.sizes) > 0 and all(finite(s) for s in self.sizes), f"{key}.sizes", list(self.sizes),
+              "a non-empty list of link-1 errors")
+        ref = self.link_error[0]
+        _need(ref != 0 or all(s == 0 for s in self.sizes), f"{key}.sizes", list(self.sizes),
+              f"sizes scale the configured perturbation by its link-1 error, and {key}.link_error[0] is 0")
+        _need(any(math.isclose(s, ref, rel_tol=1e-9, abs_tol=1e-12) for s in self.sizes), f"{key}.sizes",
+              list(self.sizes), f"must include {key}.link_error[0]={ref}, the configured perturbation")
+        _need(0 <= self.alpha0 < 2, f"{key}.alpha0", self.alpha0, "must be in [0, 2)")
+        _need(finite(self.decay) and self.decay >= 0, f"{key}.decay", self.decay, "must be >= 0")
+        _need(0 < self.forgetting <= 1, f"{key}.forgetting", self.forgetting, "must be in (0, 1]")
+        _need(self.update_every >= 1, f"{key}.update_every", self.update_every, "must be >= 1")
+
 
 @dataclass
 class EvalConfig:
@@ -373,8 +636,47 @@ class EvalConfig:
     control: ControlConfig = field(default_factory=ControlConfig)
     online: OnlineConfig = field(default_factory=OnlineConfig)
 
+    def check(self) -> None:
+        """Every value of every enabled part, then whether the parts fit in memory."""
+        _need(self.n_test > 0, "n_test", self.n_test, "must be > 0")
+        if self.seed is not None:
+            _seed("seed", self.seed)
+        validate_device(self.device, self.num_threads)
+        self.robot.check()
+        if self.control.enabled:
+            self.control.check()
+            self.gains.check()
+        if self.online.enabled:
+            self.online.check()
+        self._check_fits()
+
+    def _check_fits(self) -> None:
+        """The test set, the recorded closed loops and the online runs fit in memory (lower bounds)."""
+        from .memory import FLOAT64, check_fits
+
+        if self.ik:    # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
+            check_fits("n_test", self.n_test, self.n_test * (7 + 7 + 16) * FLOAT64, self.device,
+                       "float64 test targets, joints and forward-kinematics poses")
+        n = len(self.robot.joint_low)
+        c = self.control
+        if c.enabled:   # q, qd and tau (n each) recorded every step, for each payload case at least
+            _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, self.device)
+        o = self.online
+        if o.enabled:   # joints and task position recorded every step, for each perturbation size
+            _trajectory_fits("online.duration", o.duration, o.dt, len(o.sizes), 3 + 3, self.device)
+
 
 # ------------------------------------------------------------------------------------ validation
+def validate_train(cfg: TrainConfig) -> None:
+    """Raise ValueError naming the first bad value of a training config (`TrainConfig.check`)."""
+    cfg.check()
+
+
+def validate_evaluate(cfg: EvalConfig) -> None:
+    """Raise ValueError naming the first bad value of an evaluation config (`EvalConfig.check`)."""
+    cfg.check()
+
+
 def _need(ok: bool, key: str, value: Any, allowed: str) -> None:
     if not ok:
         raise ValueError(f"{key}={value!r} is not allowed: {allowed}")
@@ -407,164 +709,6 @@ def _seed(key: str, seed: Any) -> None:
     _need(isinstance(seed, int) and 0 <= seed <= MAX_SEED, key, seed, f"use an integer in [0, {MAX_SEED}]")
 
 
-def validate_train(cfg: TrainConfig) -> None:
-    """Raise ValueError naming the first bad value of a training config."""
-    c, r, d, a = cfg.centers, cfg.rbfn, cfg.data, cfg.centers.aco
-    _need(c.name in SELECTORS, "centers.name", c.name, f"choose one of {list(SELECTORS)}")
-    _need(d.n_train >= 2, "data.n_train", d.n_train, "must be >= 2 (widths come from distances between samples)")
-    for name in ("n_val", "n_test"):
-        _need(getattr(d, name) > 0, f"data.{name}", getattr(d, name), "must be > 0")
-    _need(r.num_centers > 0, "rbfn.num_centers", r.num_centers, "must be > 0")
-    _need(r.num_centers <= d.n_train, "rbfn.num_centers", r.num_centers,
-          f"exceeds the training set size data.n_train={d.n_train}; use at most {d.n_train} centres")
-    _need(c.width_scale is None or (finite(c.width_scale) and MIN_WIDTH_SCALE <= c.width_scale <= MAX_WIDTH_SCALE),
-          "centers.width_scale", c.width_scale,
-          f"must be null (chosen on validation) or in [{MIN_WIDTH_SCALE:g}, {MAX_WIDTH_SCALE:g}] times the width "
-          f"rule's base: narrower Gaussians vanish between the centres, and the network returns its bias alone")
-    _need(c.kmeans_restarts >= 1, "centers.kmeans_restarts", c.kmeans_restarts, "must be >= 1")
-    _need(finite(r.max_width) and r.max_width > 0, "rbfn.max_width", r.max_width, "must be > 0")
-    _need(finite(r.round_rel) and 0 <= r.round_rel < 1, "rbfn.round_rel", r.round_rel, "must be in [0, 1)")
-    if c.method == Method.ols or (c.method == Method.aco and a.colony == Colony.ant_system):
-        _need(a.candidates >= r.num_centers, "centers.aco.candidates", a.candidates,
-              f"must be >= rbfn.num_centers={r.num_centers}")
-    _validate_aco(a, "centers.aco")
-    rf = c.refine
-    _need(rf.steps >= 0, "centers.refine.steps", rf.steps, "must be >= 0")
-    _need(finite(rf.lr) and rf.lr > 0, "centers.refine.lr", rf.lr, "must be > 0")
-    _need(rf.epochs >= 0, "centers.refine.epochs", rf.epochs, "must be >= 0")
-    _need(rf.batch >= 1, "centers.refine.batch", rf.batch, "must be >= 1")
-    _need(finite(rf.batch_lr) and rf.batch_lr > 0, "centers.refine.batch_lr", rf.batch_lr, "must be > 0")
-    _need(finite(rf.huber) and rf.huber >= 0, "centers.refine.huber", rf.huber, "must be >= 0 (0: squared error)")
-    _need(finite(rf.min_ridge) and rf.min_ridge >= 0, "centers.refine.min_ridge", rf.min_ridge, "must be >= 0")
-    _need(0 < r.lms_alpha0 < 2, "rbfn.lms_alpha0", r.lms_alpha0, "must be in (0, 2)")
-    _need(r.lms_epochs >= 1, "rbfn.lms_epochs", r.lms_epochs, "must be >= 1")
-    validate_robot(cfg.robot)
-    g = r.growth
-    _need(g.start >= 0, "rbfn.growth.start", g.start, "must be >= 0 (0: no growth)")
-    _need(finite(g.factor) and g.factor > 1.0, "rbfn.growth.factor", g.factor, "must be > 1")
-    _need(finite(g.goal) and g.goal >= 0, "rbfn.growth.goal", g.goal, "must be >= 0")
-    _seed("seed", cfg.seed)
-    validate_device(cfg.device, cfg.num_threads)
-    _train_fits(cfg)
-
-
-def _train_fits(cfg: TrainConfig) -> None:
-    """The training set and the least-squares design matrix (float64) fit in memory."""
-    from .memory import FLOAT64, check_fits  # a runtime fact, not a schema one
-
-    d, n_q = cfg.data, len(cfg.robot.joint_low)
-    pose = cfg.robot.target == Target.pose
-    row = (7 if pose else 3) + n_q                         # target and joints of one sample
-    p = cfg.rbfn.num_centers + (9 if pose else 3) + 1      # design columns: M Gaussians, the tail, a bias
-    parts = {"n_train": d.n_train * (row + p), "n_val": d.n_val * row, "n_test": d.n_test * row}
-    key = max(parts, key=lambda k: parts[k])
-    check_fits(f"data.{key}", getattr(d, key), sum(parts.values()) * FLOAT64, cfg.device,
-               f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
-               f"design matrix of rbfn.num_centers={cfg.rbfn.num_centers}")
-    if cfg.centers.method == Method.aco:
-        _colony_fits(cfg.centers.aco, "centers.aco", cfg.rbfn.num_centers, 9 if pose else 3, cfg.device,
-                     pool=min(cfg.centers.aco.candidates, d.n_train))
-
-
-def _colony_fits(a: ACOConfig, key: str, m: int, d: int, device: str, pool: int) -> None:
-    """One colony iteration fits in memory: every ant's M centres (d) and widths, and for the Ant
-    System its choice probabilities over the `pool` candidates, at once. (With the fit objective
-    ACO_R's ants are bounded by its budget; the objective ranks ants in batches of bounded memory.)"""
-    from .memory import FLOAT64, check_fits
-
-    if a.colony == Colony.ant_system:
-        check_fits(f"{key}.ants", a.ants, a.ants * (pool + m * (d + 1)) * FLOAT64, device,
-                   f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and widths "
-                   "per ant, in float64")
-    elif a.objective != Objective.fit:     # (the fit objective's budget bounds ACO_R's ants)
-        check_fits(f"{key}.ants", a.ants, a.ants * m * (d + 1) * FLOAT64, device,
-                   f"one iteration's M = {m} centres and widths per ant, in float64")
-
-
-def validate_robot(r: RobotConfig) -> None:
-    """Raise ValueError naming the first bad value of `robot.*` (the URDF itself is checked on load)."""
-    lo, hi = r.joint_low, r.joint_high
-    _need(len(lo) == len(hi) and len(lo) > 0, "robot.joint_low", list(lo),
-          f"robot.joint_low and robot.joint_high ({list(hi)}) need one value per joint each")
-    for i, (l, h) in enumerate(zip(lo, hi)):
-        if not (finite(l) and finite(h) and l < h):
-            raise ValueError(f"robot.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
-                             f"[{l}, {h}] (robot.joint_low < robot.joint_high required)")
-    _need(r.urdf != "" or r.name in ROBOT_PRESETS, "robot.name", r.name,
-          f"with robot.urdf empty, choose a packaged robot: {list(ROBOT_PRESETS)} (or give robot.urdf=PATH)")
-    for j, v in r.locked.items():
-        _need(finite(v), f"robot.locked.{j}", v, "must be a finite joint value")
-    _need(finite(r.rotation_scale) and r.rotation_scale > 0, "robot.rotation_scale", r.rotation_scale, "must be > 0 m")
-    _need(r.gravity is None or (finite(r.gravity) and r.gravity >= 0), "robot.gravity", r.gravity,
-          "must be >= 0 m/s^2 or null")
-    _need(len(r.home) in (0, len(lo)) and all(finite(v) for v in r.home), "robot.home", list(r.home),
-          f"empty (the box centre) or one finite value per joint ({len(lo)})")
-    _need(finite(r.amplitude) and 0 <= r.amplitude <= 1, "robot.amplitude", r.amplitude, "must be in [0, 1]")
-    _need(finite(r.rated_payload) and r.rated_payload >= 0, "robot.rated_payload", r.rated_payload, "must be >= 0 kg")
-
-
-def _validate_aco(a: ACOConfig, key: str) -> None:
-    _need(a.iterations >= 0, f"{key}.iterations", a.iterations, "must be >= 0")
-    _need(a.ants >= 1, f"{key}.ants", a.ants, "must be >= 1")
-    _need(a.archive_size >= 2, f"{key}.archive_size", a.archive_size, "must be >= 2")
-    _need(finite(a.q) and a.q > 0, f"{key}.q", a.q, "must be > 0")
-    _need(finite(a.xi) and a.xi > 0, f"{key}.xi", a.xi, "must be > 0")
-    _need(finite(a.init_spread) and a.init_spread >= 0, f"{key}.init_spread", a.init_spread, "must be >= 0")
-    _need(finite(a.rho) and 0 < a.rho < 1, f"{key}.rho", a.rho, "must be in (0, 1)")
-    _need(finite(a.Q) and a.Q > 0, f"{key}.Q", a.Q, "must be > 0")
-    _need(finite(a.alpha) and a.alpha >= 0, f"{key}.alpha", a.alpha, "must be >= 0")
-    _need(finite(a.beta) and a.beta >= 0, f"{key}.beta", a.beta, "must be >= 0")
-    _need(a.candidates >= 1, f"{key}.candidates", a.candidates, "must be >= 1")
-    _need(a.fit_rows >= 0, f"{key}.fit_rows", a.fit_rows, "must be >= 0 (0: every row)")
-
-
-def validate_control(c: ControlConfig, gains: GainsConfig) -> None:
-    """Raise ValueError naming the first bad value of the control part (`control.*`, `gains.*`)."""
-    arbfn = [f"arbfn_{m}" for m in CONTROL_CENTER_METHODS]
-    for name in c.controllers:
-        _need(name in BASE_CONTROLLERS or name in arbfn, "control.controllers", name,
-              f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}")
-    _need(len(set(c.controllers)) == len(c.controllers), "control.controllers", list(c.controllers),
-          "each controller may appear once")
-    _need(not (c.compile and c.aot), "control.aot", c.aot, "choose one of control.compile and control.aot")
-    for k, v in vars(gains).items():
-        if isinstance(v, float):
-            _need(math.isfinite(v), f"gains.{k}", v, "must be finite")
-    for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay"):
-        _need(getattr(gains, k) > 0, f"gains.{k}", getattr(gains, k), "must be > 0")
-    for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd"):
-        _need(getattr(gains, k) >= 0, f"gains.{k}", getattr(gains, k), "must be >= 0")
-    _need(finite(c.dt) and c.dt > 0, "control.dt", c.dt, "must be a positive number of seconds")
-    _need(finite(c.duration) and c.duration >= c.dt, "control.duration", c.duration,
-          f"must be finite and >= control.dt={c.dt}")
-    _need(finite(c.payload_on) and finite(c.payload_off) and 0 <= c.payload_on < c.payload_off <= c.duration,
-          "control.payload_on/payload_off", [c.payload_on, c.payload_off],
-          f"need 0 <= payload_on < payload_off <= control.duration={c.duration}")
-    _need(0.5 < c.duration, "control.duration", c.duration, "must exceed 0.5 s (errors are measured after 0.5 s)")
-    _need(all(finite(p) and p >= 0 for p in c.payloads), "control.payloads",
-          list(c.payloads), "a list of masses >= 0 kg (empty: 0, half and all of robot.rated_payload)")
-    _need(len(set(c.payloads)) == len(c.payloads), "control.payloads", list(c.payloads),
-          "each payload case may appear once (cases are keyed by mass)")
-    _need(c.figure_payload is None or finite(c.figure_payload), "control.figure_payload", c.figure_payload,
-          "must be a finite mass in kg or null")
-    for k in ("viscous", "coulomb", "disturbance", "disturbance_freq"):
-        _need(finite(getattr(c, k)) and getattr(c, k) >= 0, f"control.{k}", getattr(c, k), "must be finite and >= 0")
-    _need(all(finite(v) and v > 0 for v in c.joint_scale), "control.joint_scale", list(c.joint_scale),
-          "positive finite factors, one per joint (empty: derived from the robot)")
-    n = c.network
-    _need(n.num_centers >= 1, "control.network.num_centers", n.num_centers, "must be >= 1")
-    if any(name.startswith("arbfn_") for name in c.controllers):
-        steps = int(round(c.duration / c.dt))
-        n_train = (steps // PILOT_STRIDE + 1) // 2      # even pilot samples train the network
-        _need(n.num_centers <= n_train, "control.network.num_centers", n.num_centers,
-              f"exceeds the pilot run's {n_train} training samples (control.duration={c.duration} s, "
-              f"one sample per {PILOT_STRIDE} periods, half of them for training)")
-        _seed("control.network.seed", n.seed)
-        _validate_aco(n.aco, "control.network.aco")
-        # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
-        _colony_fits(n.aco, "control.network.aco", n.num_centers, 2, "cpu", pool=min(n.aco.candidates, n_train))
-
-
 def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: int, device: str) -> None:
     """A run of duration / dt steps recording `columns` float64 values per step for `batch`
     environments fits in memory."""
@@ -573,60 +717,6 @@ def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: 
     steps = duration / dt + 1
     check_fits(key, duration, steps * batch * columns * FLOAT64, device,
                f"{steps:.3g} steps of {dt:g} s, each recording {columns} float64 values for {batch} run(s)")
-
-
-def validate_online(c: OnlineConfig) -> None:
-    """Raise ValueError naming the first bad value of the online part (`online.*`)."""
-    _need(finite(c.dt) and c.dt > 0, "online.dt", c.dt, "must be a positive number of seconds")
-    _need(finite(c.duration) and c.duration >= 4.0, "online.duration", c.duration,
-          "must be >= 4 s (the metrics use the first and last 2 s)")
-    _need(len(c.link_error) > 0 and all(finite(v) and v > -1 for v in c.link_error), "online.link_error",
-          list(c.link_error), "relative errors > -1 of links 1, 2, ... (at least link 1)")
-    _need(all(finite(v) for v in c.offset_error), "online.offset_error", list(c.offset_error),
-          "finite joint offsets (rad or m) of joints 1, 2, ...")
-    _need(finite(c.amplitude) and 0 < c.amplitude <= 0.5, "online.amplitude", c.amplitude,
-          "must be in (0, 0.5] (the sinusoid path's two terms then stay inside the trained box)")
-    _need(len(c.sizes) > 0 and all(finite(s) for s in c.sizes), "online.sizes", list(c.sizes),
-          "a non-empty list of link-1 errors")
-    ref = c.link_error[0]
-    _need(ref != 0 or all(s == 0 for s in c.sizes), "online.sizes", list(c.sizes),
-          "sizes scale the configured perturbation by its link-1 error, and online.link_error[0] is 0")
-    _need(any(math.isclose(s, ref, rel_tol=1e-9, abs_tol=1e-12) for s in c.sizes), "online.sizes",
-          list(c.sizes), f"must include online.link_error[0]={ref}, the configured perturbation")
-    _need(0 <= c.alpha0 < 2, "online.alpha0", c.alpha0, "must be in [0, 2)")
-    _need(finite(c.decay) and c.decay >= 0, "online.decay", c.decay, "must be >= 0")
-    _need(0 < c.forgetting <= 1, "online.forgetting", c.forgetting, "must be in (0, 1]")
-    _need(c.update_every >= 1, "online.update_every", c.update_every, "must be >= 1")
-
-
-def validate_evaluate(cfg: EvalConfig) -> None:
-    """Raise ValueError naming the first bad value of an evaluation config (every part)."""
-    _need(cfg.n_test > 0, "n_test", cfg.n_test, "must be > 0")
-    if cfg.seed is not None:
-        _seed("seed", cfg.seed)
-    validate_device(cfg.device, cfg.num_threads)
-    validate_robot(cfg.robot)
-    if cfg.control.enabled:
-        validate_control(cfg.control, cfg.gains)
-    if cfg.online.enabled:
-        validate_online(cfg.online)
-    _evaluate_fits(cfg)
-
-
-def _evaluate_fits(cfg: EvalConfig) -> None:
-    """The test set, the recorded closed loops and the online runs fit in memory (lower bounds)."""
-    from .memory import FLOAT64, check_fits
-
-    if cfg.ik:    # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
-        check_fits("n_test", cfg.n_test, cfg.n_test * (7 + 7 + 16) * FLOAT64, cfg.device,
-                   "float64 test targets, joints and forward-kinematics poses")
-    n = len(cfg.robot.joint_low)
-    c = cfg.control
-    if c.enabled:   # q, qd and tau (n each) recorded every step, for each payload case at least
-        _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, cfg.device)
-    o = cfg.online
-    if o.enabled:   # joints and task position recorded every step, for each perturbation size
-        _trajectory_fits("online.duration", o.duration, o.dt, len(o.sizes), 3 + 3, cfg.device)
 
 
 def plain(cfg: Any) -> dict:

@@ -93,16 +93,16 @@ def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot
     refuses one that cannot, before any work."""
     r = cfg.centers.refine
     p = cfg.rbfn.num_centers + (features + 1 if cfg.rbfn.tail else 0)
-    if not (r.enabled and r.loss == RefineLoss.task and refine_mode(r, data.train.q.shape[0], p) == "minibatch"):
+    if not (r.enabled and r.minibatch.loss == RefineLoss.task and refine_mode(r, data.train.q.shape[0], p) == "minibatch"):
         return False
     if robot is None:
-        raise ValueError("centers.refine.loss=task needs the robot (train_ik(..., robot=ROBOT)) for its Jacobian")
+        raise ValueError("centers.refine.minibatch.loss=task needs the robot (train_ik(..., robot=ROBOT)) for its Jacobian")
     rows, joints = (6 if cfg.robot.target == Target.pose else 3), data.train.q.shape[1]
     if rows < joints:
-        raise ValueError(f"centers.refine.loss=task weighs joint errors by the task Jacobian, which has {rows} rows "
+        raise ValueError(f"centers.refine.minibatch.loss=task weighs joint errors by the task Jacobian, which has {rows} rows "
                          f"for robot.target={cfg.robot.target} and the robot has {joints} free joints "
                          f"({robot.joint_names}): errors in the joints it cannot see would go untrained. "
-                         "Use centers.refine.loss=joint, or hold joints with robot.locked")
+                         "Use centers.refine.minibatch.loss=joint, or hold joints with robot.locked")
     return True
 
 
@@ -113,7 +113,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
     the running colony's snapshots) and an interrupted run continues where it stopped, ending with
     exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
-    mini-batch refinement's task loss needs (`centers.refine.loss=task`).
+    mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`).
     """
     t_start = time.perf_counter()
     state = state or TrainState(config={})

@@ -69,7 +69,7 @@ def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_w
         centers = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
         widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
     elif cfg.method == "ols":
-        pool = _candidate_pool(z, cfg.aco.candidates, g)
+        pool = _candidate_pool(z, cfg.ols.candidates, g)
         base = paper_widths(pool[None])[0, 0] * (pool.shape[0] / m) ** 0.5      # d_max / sqrt(2M)
         grid = torch.as_tensor(SCALE_GRID, dtype=z.dtype, device=z.device)
         scales = grid if cfg.width_scale is None else grid.new_tensor([cfg.width_scale])
@@ -117,7 +117,7 @@ def visibility(z: torch.Tensor, pool: torch.Tensor, k: int = 10) -> torch.Tensor
 
 def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
     """The paper's colony: ants choose M of the candidate points; widths by the rule."""
-    pool = _candidate_pool(objective.z_train, cfg.aco.candidates, g)
+    pool = _candidate_pool(objective.z_train, cfg.aco.ant_system.candidates, g)
     scale = cfg.width_scale
     if cfg.width_rule != "paper" and scale is None:
         # Fix the width scale once, on a k-means solution, so ants compare centre sets only.
@@ -138,10 +138,10 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
         def obj(idx: torch.Tensor) -> torch.Tensor:
             return cluster_objective(objective.z_train, pool[idx.to(pool.device)])
 
-    a = cfg.aco
-    colony = AntSystem(ants=a.ants, iterations=a.iterations, rho=a.rho, Q=a.Q, alpha=a.alpha,
-                       beta=a.beta, progress=progress)
-    eta = visibility(objective.z_train, pool) if a.beta else None
+    a, s = cfg.aco, cfg.aco.ant_system
+    colony = AntSystem(ants=a.ants, iterations=a.iterations, rho=s.rho, Q=s.Q, alpha=s.alpha,
+                       beta=s.beta, progress=progress)
+    eta = visibility(objective.z_train, pool) if s.beta else None
     res = colony.minimize(obj, pool.shape[0], m, eta=eta, generator=g, state=resume, on_state=on_state)
     centers = pool[res.best.to(pool.device)]
     return centers, widths_of(centers[None])[0], res
@@ -160,26 +160,26 @@ REDUCED_FLOPS = 1e12
 
 def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
     """ACO_R over centre coordinates (bounded to the data's box) and widths (per-centre log
-    widths, one log scale of the seed widths, or none: `cfg.aco.search_widths`).
+    widths, one log scale of the seed widths, or none: `cfg.aco.acor.search_widths`).
 
     The archive is seeded with k-means centres and their validation-tuned widths, plus
     perturbations of them (so archive members share one centre ordering and the Gaussian
     sampling compares like with like).
     """
-    a = cfg.aco
+    a, r = cfg.aco, cfg.aco.acor
     z = objective.z_train
     d = z.shape[1]
     c0 = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
     ranked = colony_objective(objective, m, a.fit_rows, seed) if a.objective == "fit" else objective
-    full_cost = (a.archive_size + a.ants * a.iterations) * ranked.cost(m)
+    full_cost = (r.archive_size + a.ants * a.iterations) * ranked.cost(m)
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
         return _acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
     # Width coordinates: M log widths, one log scale of the seed widths, or none.
-    n_w = {"per_center": m, "scale": 1, "none": 0}[a.search_widths]
-    if a.search_widths == "per_center":
+    n_w = {"per_center": m, "scale": 1, "none": 0}[r.search_widths]
+    if r.search_widths == "per_center":
         w_lo, w_hi, w_seed = math.log(span * 1e-3), math.log(max_width), w0.log()
     else:
         w_lo, w_hi, w_seed = math.log(1 / 16), math.log(16), torch.zeros(n_w, dtype=z.dtype, device=z.device)
@@ -188,9 +188,9 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
 
     def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         c = x[:, : m * d].reshape(-1, m, d)
-        if a.search_widths == "per_center":
+        if r.search_widths == "per_center":
             w = x[:, m * d:].exp()
-        elif a.search_widths == "scale":
+        elif r.search_widths == "scale":
             w = (w0 * x[:, m * d:].exp()).clamp(max=max_width)
         else:
             w = w0.expand(x.shape[0], m)
@@ -204,11 +204,11 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
             return cluster_objective(z, unpack(x)[0])
 
     seed_vec = torch.cat([c0.reshape(-1), w_seed])
-    spread = torch.cat([(a.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
-                        torch.full((n_w,), a.init_spread, dtype=z.dtype, device=z.device)])
-    noise = torch.randn(a.archive_size - 1, seed_vec.shape[0], dtype=z.dtype, generator=g).to(z.device)
+    spread = torch.cat([(r.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
+                        torch.full((n_w,), r.init_spread, dtype=z.dtype, device=z.device)])
+    noise = torch.randn(r.archive_size - 1, seed_vec.shape[0], dtype=z.dtype, generator=g).to(z.device)
     init = torch.cat([seed_vec[None], seed_vec + spread * noise])
-    colony = ACOR(archive_size=a.archive_size, ants=a.ants, q=a.q, xi=a.xi, iterations=a.iterations,
+    colony = ACOR(archive_size=r.archive_size, ants=a.ants, q=r.q, xi=r.xi, iterations=a.iterations,
                   lower=lower, upper=upper, progress=progress)
     res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     c, w = unpack(res.best[None])
@@ -226,9 +226,9 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
     much the width follows the local centre spacing) are what the seed's coarse grid scale leaves
     open. The archive and ants shrink to 3 and the iterations to the budget `REDUCED_FLOPS`.
     """
-    a = cfg.aco
+    a, r = cfg.aco, cfg.aco.acor
     z = objective.z_train
-    k = min(a.archive_size, 3)
+    k = min(r.archive_size, 3)
     ants = min(a.ants, 3)
     evals = max(int(REDUCED_FLOPS / objective.cost(c0.shape[0])), k + ants)
     iterations = max(1, min(a.iterations, (evals - k) // ants))
@@ -245,7 +245,7 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
 
     noise = torch.randn(k - 1, 2, dtype=z.dtype, generator=g).to(z.device)
     init = torch.cat([torch.zeros(1, 2, dtype=z.dtype, device=z.device), 0.2 * noise])
-    colony = ACOR(archive_size=k, ants=ants, q=a.q, xi=a.xi, iterations=iterations,
+    colony = ACOR(archive_size=k, ants=ants, q=r.q, xi=r.xi, iterations=iterations,
                   lower=lower, upper=upper, progress=progress)
     res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     return c0, widths_of(res.best[None])[0], res

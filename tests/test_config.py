@@ -40,7 +40,7 @@ def test_unknown_selector_names_it():
     ("centers.width_rule=wide", "expected one of [paper, global, per_center]"),
     ("rbfn.solver=adam", "expected one of [lstsq, lms]"),
     ("centers.refine.mode=sgd", "expected one of [auto, full, minibatch]"),
-    ("centers.refine.loss=mse", "expected one of [task, joint]"),
+    ("centers.refine.minibatch.loss=mse", "expected one of [task, joint]"),
 ])
 def test_mistyped_value_fails_at_composition(override, options):
     with pytest.raises(Exception) as e:
@@ -56,14 +56,14 @@ def test_mistyped_value_fails_at_composition(override, options):
     ("centers.name=bogus", "centers.name='bogus'"),
     ("robot.joint_high=[2.0,0.3,1.5]", "joint 2"),
     ("robot.joint_high=[2.0,2.0]", "robot.joint_low"),
-    ("centers.aco.rho=1.5", "centers.aco.rho=1.5"),
-    ("centers.aco.q=0", "centers.aco.q=0"),
-    ("centers.aco.beta=-1", "centers.aco.beta=-1"),
-    ("centers.refine.lr=0", "centers.refine.lr=0"),
-    ("centers.refine.batch=0", "centers.refine.batch=0"),
-    ("centers.refine.batch_lr=-1", "centers.refine.batch_lr=-1"),
-    ("centers.refine.epochs=-1", "centers.refine.epochs=-1"),
-    ("centers.refine.huber=-0.1", "centers.refine.huber=-0.1"),
+    ("centers.aco.ant_system.rho=1.5", "centers.aco.ant_system.rho=1.5"),
+    ("centers.aco.acor.q=0", "centers.aco.acor.q=0"),
+    ("centers.aco.ant_system.beta=-1", "centers.aco.ant_system.beta=-1"),
+    ("centers.refine.full.lr=0", "centers.refine.full.lr=0"),
+    ("centers.refine.minibatch.batch=0", "centers.refine.minibatch.batch=0"),
+    ("centers.refine.minibatch.lr=-1", "centers.refine.minibatch.lr=-1"),
+    ("centers.refine.minibatch.epochs=-1", "centers.refine.minibatch.epochs=-1"),
+    ("centers.refine.minibatch.huber=-0.1", "centers.refine.minibatch.huber=-0.1"),
     ("centers.aco.fit_rows=-5", "centers.aco.fit_rows=-5"),
     ("rbfn.growth.factor=1.0", "rbfn.growth.factor=1.0"),
     ("device=tpu", "device='tpu'"),
@@ -129,7 +129,7 @@ def test_experiment_presets_compose(experiment):
     cfg = compose_config("train", f"experiment={experiment}", hydra=True)
     if experiment == "paper":
         assert cfg.centers.aco.colony == "ant_system" and cfg.centers.width_rule == "paper"
-        assert (cfg.centers.aco.rho, cfg.centers.aco.Q, cfg.centers.aco.iterations) == (0.9, 100.0, 100)
+        assert (cfg.centers.aco.ant_system.rho, cfg.centers.aco.ant_system.Q, cfg.centers.aco.iterations) == (0.9, 100.0, 100)
     else:
         assert cfg.hydra.sweeper.params["seed"] == "0,1,2,3,4"
 

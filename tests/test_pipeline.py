@@ -16,7 +16,7 @@ from rbfn.targets import TargetFeatures
 from .conftest import compose_config
 
 UR5_SMALL = ["robot=ur5", "centers=kmeans_refine", "rbfn.num_centers=40", "data.n_train=800", "data.n_val=300",
-             "data.n_test=200", "centers.refine.mode=minibatch", "centers.refine.epochs=4", "progress=false",
+             "data.n_test=200", "centers.refine.mode=minibatch", "centers.refine.minibatch.epochs=4", "progress=false",
              "export=false", "num_threads=1"]
 
 
@@ -90,7 +90,7 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
 
 def test_task_loss_is_refused_where_the_jacobian_misses_joints(tmp_path):
     cfg = compose_config("train", *UR5_SMALL, "robot.target=position")
-    with pytest.raises(ValueError, match=r"centers.refine.loss=task .* 3 rows .* 6 free joints"):
+    with pytest.raises(ValueError, match=r"centers.refine.minibatch.loss=task .* 3 rows .* 6 free joints"):
         train.run(cfg, tmp_path)
     assert not (tmp_path / "checkpoint.pt").exists()
 
@@ -99,6 +99,6 @@ def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
     m = train.run(compose_config("train", *UR5_SMALL), tmp_path)
     assert m["output_weights"] in ("trained", "ridge")
     assert (m["ridge"] is None) == (m["output_weights"] == "trained")
-    joint = train.run(compose_config("train", *UR5_SMALL, "centers.refine.loss=joint", "centers.refine.huber=0"),
+    joint = train.run(compose_config("train", *UR5_SMALL, "centers.refine.minibatch.loss=joint", "centers.refine.minibatch.huber=0"),
                       tmp_path / "joint")
     assert joint["test_pos_err_mm_median"] != m["test_pos_err_mm_median"]

@@ -29,12 +29,12 @@ from rbfn.studies.stop import Stopped
 from .conftest import ROOT, compose_config
 
 OVERRIDES = ["data.n_train=400", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=12",
-             "rbfn.growth.start=6", "centers.aco.iterations=12", "centers.refine.steps=20", "progress=false",
+             "rbfn.growth.start=6", "centers.aco.iterations=12", "centers.refine.full.steps=20", "progress=false",
              "num_threads=1", "export=false"]
 # Every step of training, small: two growth steps of a colony, refinement (and the exports where
 # a point concerns them: they take most of such a run's time).
 POINT_RUN = ["data.n_train=300", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=10", "rbfn.growth.start=5",
-             "centers.aco.iterations=5", "centers.refine.steps=10", "progress=false", "num_threads=1", "export=false"]
+             "centers.aco.iterations=5", "centers.refine.full.steps=10", "progress=false", "num_threads=1", "export=false"]
 RUN_FILES = {".hydra/config.yaml": "seed: 0\n"}
 
 

@@ -18,7 +18,8 @@ def objective(small_data):
                                            ("aco", "acor"), ("aco", "ant_system")])
 def test_every_method_returns_centres_and_positive_widths(objective, method, colony):
     cfg = CentersConfig(method=method)
-    cfg.aco.colony, cfg.aco.iterations, cfg.aco.candidates = colony, 5, 100
+    cfg.aco.colony, cfg.aco.iterations = colony, 5
+    cfg.aco.ant_system.candidates = cfg.ols.candidates = 100
     s = select(cfg, objective, 12, seed=0, max_width=2.0)
     assert s.centers.shape == (12, 3) and s.widths.shape == (12,)
     assert (s.widths > 0).all() and (s.widths <= 2.0).all()
@@ -52,7 +53,7 @@ def test_acor_best_is_the_objective_of_what_it_returns(objective):
 @pytest.mark.parametrize("search", ["per_center", "scale", "none"])
 def test_acor_width_search_options(objective, search):
     cfg = CentersConfig(method="aco")
-    cfg.aco.iterations, cfg.aco.search_widths = 5, search
+    cfg.aco.iterations, cfg.aco.acor.search_widths = 5, search
     s = select(cfg, objective, 10, seed=0, max_width=2.0)
     km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
     assert (s.widths > 0).all() and (s.widths <= 2.0).all()
@@ -70,7 +71,7 @@ def test_cluster_objective_is_kmeans_inertia():
 
 
 def test_ant_system_visibility_is_wired(objective):
-    """centers.aco.beta > 0 weighs candidates by the local data density and changes the choice."""
+    """centers.aco.ant_system.beta > 0 weighs candidates by the local data density and changes the choice."""
     from rbfn.select import visibility
 
     z = objective.z_train
@@ -78,7 +79,8 @@ def test_ant_system_visibility_is_wired(objective):
     assert eta.shape == (50,) and (eta > 0).all()
     def run(beta):
         cfg = CentersConfig(method="aco")
-        cfg.aco.colony, cfg.aco.iterations, cfg.aco.candidates, cfg.aco.beta = "ant_system", 3, 100, beta
+        cfg.aco.colony, cfg.aco.iterations = "ant_system", 3
+        cfg.aco.ant_system.candidates, cfg.aco.ant_system.beta = 100, beta
         return select(cfg, objective, 8, seed=0, max_width=2.0).centers
     assert not torch.equal(run(0.0), run(4.0))
 
@@ -129,7 +131,8 @@ def test_colony_ranks_ants_on_its_subset(objective, monkeypatch, colony):
 
     def run(fit_rows):
         cfg = CentersConfig(method="aco")
-        cfg.aco.colony, cfg.aco.iterations, cfg.aco.candidates, cfg.aco.fit_rows = colony, 3, 100, fit_rows
+        cfg.aco.colony, cfg.aco.iterations, cfg.aco.fit_rows = colony, 3, fit_rows
+        cfg.aco.ant_system.candidates = 100
         return select(cfg, objective, 6, seed=0, max_width=2.0)
 
     every, default = run(0), run(2048)

@@ -100,20 +100,20 @@ def test_hparams_search_preset_composes():
     sweeper = cfg.hydra.sweeper
     assert sweeper._target_.endswith("OptunaSweeper") and sweeper.direction == "minimize"
     assert sweeper.sampler._target_ == "optuna.samplers.TPESampler" and sweeper.sampler.seed == 0
-    assert set(sweeper.params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.q", "centers.aco.xi"}
+    assert set(sweeper.params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.acor.q", "centers.aco.acor.xi"}
     assert cfg.rbfn.growth.start == 0 and cfg.num_threads == 1
 
 
 def test_hparams_search_runs_two_trials_and_reports_the_best(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_optuna_sweeper")
     _python("train.py", "-m", "experiment=hparams_search", "hydra.sweeper.n_trials=2", "hydra.sweeper.n_jobs=1",
-            "centers.aco.iterations=3", "centers.refine.steps=5", *FAST, f"hydra.sweep.dir={tmp_path}")
+            "centers.aco.iterations=3", "centers.refine.full.steps=5", *FAST, f"hydra.sweep.dir={tmp_path}")
     from omegaconf import OmegaConf
 
     best = OmegaConf.load(tmp_path / "optimization_results.yaml")
     val_e = [json.loads((tmp_path / j / "metrics.json").read_text())["val_E"] for j in ("0", "1")]
     assert best.best_value == min(val_e)
-    assert set(best.best_params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.q", "centers.aco.xi"}
+    assert set(best.best_params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.acor.q", "centers.aco.acor.xi"}
 
 
 def _free_port() -> int:

@@ -16,8 +16,8 @@ from .conftest import ROOT, compose_config
 from .studies.test_rundir_lock import held_elsewhere
 
 SMALL = ["data.n_train=400", "data.n_val=200", "data.n_test=300", "rbfn.num_centers=12",
-         "rbfn.growth.start=6", "centers.aco.iterations=5", "centers.refine.steps=20",
-         "centers.aco.candidates=100", "progress=false"]
+         "rbfn.growth.start=6", "centers.aco.iterations=5", "centers.refine.full.steps=20",
+         "centers.aco.ant_system.candidates=100", "progress=false"]
 
 
 def _snapshot(d):

@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
-from rbfn.config import ACOConfig, ControlConfig, GainsConfig, NetworkConfig, Objective, validate_control
+from rbfn.config import ACOConfig, ACORConfig, ControlConfig, GainsConfig, NetworkConfig, Objective
 from rbfn.control import SimulationDiverged
 from rbfn.control.comparison import compare_controllers
 from rbfn.studies.control import evaluate_control
@@ -17,7 +17,7 @@ KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
 
 
 def _short(**kw):
-    net = NetworkConfig(num_centers=8, aco=ACOConfig(iterations=5, ants=6, archive_size=6))
+    net = NetworkConfig(num_centers=8, aco=ACOConfig(iterations=5, ants=6, acor=ACORConfig(archive_size=6)))
     base = dict(duration=1.2, payload_on=0.3, payload_off=0.9, payloads=[0.0, 10.0], network=net,
                 controllers=["pd", "ctc", "smc", "smc_obs", "arbfn_aco", "arbfn_kmeans"])
     base.update(kw)
@@ -59,7 +59,7 @@ def test_a_diverging_controller_is_named_with_its_case():
 
 
 def test_cluster_controller_does_not_change_the_shared_aco_config():
-    aco = ACOConfig(iterations=3, ants=4, archive_size=4)
+    aco = ACOConfig(iterations=3, ants=4, acor=ACORConfig(archive_size=4))
     cfg = _short(controllers=["arbfn_aco_cluster", "arbfn_aco"], payloads=[0.0],
                  network=NetworkConfig(num_centers=6, aco=aco))
     compare_controllers(cfg, GainsConfig())
@@ -79,7 +79,7 @@ def test_cluster_controller_does_not_change_the_shared_aco_config():
 ])
 def test_bad_control_config(change, match):
     with pytest.raises(ValueError, match=match):
-        validate_control(_short(**change), GainsConfig())
+        _short(**change).check()
 
 
 @pytest.mark.parametrize("field,value,match", [
@@ -89,7 +89,7 @@ def test_bad_control_config(change, match):
 ])
 def test_bad_gains(field, value, match):
     with pytest.raises(ValueError, match=match):
-        validate_control(_short(), replace(GainsConfig(), **{field: value}))
+        replace(GainsConfig(), **{field: value}).check()
 
 
 def test_bad_choice_fails_at_composition_naming_the_options():
@@ -103,7 +103,8 @@ def test_bad_choice_fails_at_composition_naming_the_options():
 def test_gains_group_composes(gains, k):
     cfg = compose_config("evaluate", f"gains={gains}")
     assert cfg.gains.K == k and cfg.gains.Lambda <= 20 and cfg.control.controllers[-2:] == ["arbfn_aco", "arbfn_kmeans"]
-    validate_control(cfg.control, cfg.gains)
+    cfg.control.check()
+    cfg.gains.check()
 
 
 def test_control_gains_preset_composes():
@@ -176,7 +177,8 @@ def test_ur5_bad_settings_stop_before_any_work(tmp_path, override, match):
 @pytest.mark.parametrize("gains", ["paper", "tuned"])
 def test_each_robot_has_its_paper_and_tuned_gains(robot, gains):
     cfg = compose_config("evaluate", f"robot={robot}", f"gains={gains}")
-    validate_control(cfg.control, cfg.gains)
+    cfg.control.check()
+    cfg.gains.check()
     paper = compose_config("evaluate", f"robot={robot}", "gains=paper").gains
     assert paper.K == 15.0 and paper.Lambda == 10.0 and str(paper.robust) == "sign"
     assert cfg.gains.Lambda <= 20
