@@ -196,3 +196,14 @@ def test_an_ant_system_colony_that_cannot_fit_names_its_ants():
         validate_train(_cfg("centers=aco_paper", "data.n_train=300", "rbfn.num_centers=10",
                             "centers.aco.ants=100000000000"))
     validate_train(_cfg("centers=aco", "centers.aco.ants=100000000000"))   # ACO_R's ants are bounded by its budget
+
+
+def test_the_centers_presets_are_the_files_of_the_group():
+    """SELECTORS (the labels TensorBoard's hparams domain lists) names exactly conf/centers/*.yaml,
+    and each preset's `name` is its file's."""
+    from .conftest import ROOT
+
+    files = sorted(p.stem for p in (ROOT / "conf" / "centers").glob("*.yaml"))
+    assert files == sorted(SELECTORS)
+    for name in files:
+        assert _cfg(f"centers={name}").centers.name == name
