@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import copy
 import io
 import logging
 import warnings
@@ -34,7 +33,7 @@ from torch import nn
 
 from .checkpoint import load_model
 from .files import unwritable, write_files
-from .layer import RBFNetwork, cover_foldable
+from .layer import RBFNetwork
 from .scripts import fail
 
 __all__ = ["DeployedIK", "export_all", "export_onnx", "export_pt2", "main", "onnx_bytes", "pt2_bytes"]
@@ -44,13 +43,14 @@ class DeployedIK(nn.Module):
     """The IK network in float32: positions (B, 3) in m -> (joints (B, 3), in_workspace (B,)).
 
     One graph for any B: the rows are not split into blocks as in the network's eager calls
-    (`export_onnx` wraps the graph in a loop over blocks).
+    (`export_onnx` wraps the graph in a loop over blocks). What it takes of the network is its
+    documented export interface: `RBFNetwork.for_export`, `solve_rows`, `rows_per_block`,
+    `in_features` and `target`.
     """
 
     def __init__(self, net: RBFNetwork) -> None:
         super().__init__()
-        self.net = copy.deepcopy(net).float().eval().requires_grad_(False)
-        self.net.traced_cover_fold = cover_foldable(self.net.widths, self.net.cover_radius)
+        self.net = net.for_export()
 
     def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.net.solve_rows(positions)

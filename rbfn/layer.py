@@ -1,33 +1,42 @@
 """The Gaussian RBF network as an nn.Module: scaling -> Gaussian features -> linear head.
 
-y(x) = W phi(z) + A z + b, z = (x - offset) / scale, phi_i(z) = exp(-||z - mu_i||^2 / (2 sigma_i^2)).
-Scaling, centres and widths are buffers (chosen, not trained); the head is an nn.Linear and the
-optional linear tail A z an nn.Linear without bias.
+    z = (x - offset) / scale                               scaled inputs (B, d)
+    h_i = exp(-|z - mu_i|^2 / (2 sigma_i^2))               Gaussian features (B, M): `gaussian_features`
+    y = W h + A z + b                                      outputs (B, out): `RBFNetwork.forward`
 
-Predictions (`forward`, `solve`, `in_workspace`: the IK path, and the exported graph's) take all
-Gaussian exponents in one matrix product: with u = z - (the centres' centroid) and v = [u, 1],
--||z - mu_i||^2 / (2 sigma_i^2) = [v, |v|^2] @ K_i, K from the centres and widths
-(`_expansion`; |v|^2 = |u|^2 + 1). `solve` also folds the workspace flag's cover test into that
-product: it adds s_i = r^2 / (2 sigma_i^2) to exponent i, so that "some centre lies within the
-cover radius r" reads max_i (exponent_i + s_i) >= 0, and scales head weight i by exp(-s_i), so the
-outputs are the same; one pass over the (B, M) exponents less (where every s_i <= MAX_COVER_SHIFT,
-so that nothing overflows float32; otherwise the squared distances are taken).
-About the centroid u and the centres stay O(1), so the expansion's cancellation
-costs float32 little: on the trained SCARA network (M = 80, 1e5 workspace positions) the joints
-differ from float64 by at most 9e-6 (rad, m), against 3e-6 by broadcasting, and the median FK
-error is unchanged (0.856 mm); `solve`, its cover test folded, 1.0e-5 on another trained network
-(9.3e-6 by `forward`), with the same flags as float64. `design` (the online learner's rows) takes
-the same product; `features` keeps the broadcast distances. (Fitting builds its design matrices
-with `rbfn.fit.design_matrix`, by broadcasting, in float64.) Eager calls process rows in blocks of
-about `block_elements` exponents, which stay in
-cache; traced and exported graphs are one piece with a dynamic batch dimension.
+Scaling, centres mu and widths sigma are buffers (chosen, not trained); the head (W, b) is an
+nn.Linear and the optional linear tail A z an nn.Linear without bias. The Gaussian is written once,
+here (`sq_distances`, `gaussian`, `gaussian_features`); fitting (`rbfn.fit.design_matrix`), the
+colony's objective (`rbfn.objectives`) and refinement (`rbfn.refine.gaussian_product`) call it or
+say why they compute it in another order, and are tested against it.
+
+`forward` shows the equation as written above (`fast = False`, the plain path) beside the path
+predictions take by default (`fast = True`), which computes the same numbers another way, for
+speed. The fast path (`forward`, `solve`, `in_workspace`, `design`: the IK path, and the exported
+graph's) takes all Gaussian exponents in one matrix product: with u = z - (the centres' centroid)
+and v = [u, 1], -||z - mu_i||^2 / (2 sigma_i^2) = [v, |v|^2] @ K_i, K from the centres and widths
+(`_expand`; |v|^2 = |u|^2 + 1), in base 2 in eager calls (exp2 is faster than exp on CPU). `solve`
+also folds the workspace flag's cover test into that product: it adds s_i = r^2 / (2 sigma_i^2)
+to exponent i, so that "some centre lies within the cover radius r" reads
+max_i (exponent_i + s_i) >= 0, and scales head weight i by exp(-s_i), so the outputs are the same;
+one pass over the (B, M) exponents less (where every s_i <= MAX_COVER_SHIFT, so that nothing
+overflows float32; otherwise the squared distances are taken). About the centroid u and the
+centres stay O(1), so the expansion's cancellation costs float32 little: on the trained SCARA
+network (M = 80, 1e5 workspace positions) the joints differ from float64 by at most 9e-6
+(rad, m), against 3e-6 by broadcasting (the plain path), and the median FK error is unchanged
+(0.856 mm); `solve`, its cover test folded, 1.0e-5 on another trained network (9.3e-6 by
+`forward`), with the same flags as float64. In float64 the two paths agree to about 1e-12 (tested).
+Eager calls of the fast path process rows in blocks of about `block_elements` exponents, which
+stay in cache; traced and exported graphs are one piece with a dynamic batch dimension.
+`features` takes the plain broadcast distances.
 
 The output weights as one matrix: net(x) = net.design(x) @ net.output_weights(), the design
 columns being the M Gaussians, then z (d) and a ones column with the tail, or a ones column
-without it (the order of rbfn.fit.design_matrix).
+without it (the order of rbfn.fit.design_matrix, which builds them in float64 for fitting).
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -38,7 +47,8 @@ from torch import nn
 
 from .targets import TargetFeatures
 
-__all__ = ["RBFNetwork", "gaussian_features", "assemble", "MIN_WIDTH"]
+__all__ = ["RBFNetwork", "gaussian", "gaussian_features", "sq_distances", "distance_rows", "assemble", "MIN_WIDTH",
+           "LOG2E"]
 
 MIN_WIDTH = 1e-12
 """Smallest Gaussian width sigma (scaled input units, those of z = (x - offset) / scale) a network
@@ -49,31 +59,50 @@ below, 1 / (2 sigma^2) overflows float32 and the network returns NaN). Training 
 the smallest width it gives is rbfn.widths' floor 1e-9 times the smallest scale tried, 0.25."""
 
 
-def gaussian_features(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    """Gaussian activations (..., N, M) of inputs z (..., N, d), centres (..., M, d), widths (..., M)."""
-    return _gaussians(_sq_distances(z, centers), widths)
+LOG2E = math.log2(math.e)
+"""log2(e): an exponent in base e times LOG2E is the same exponent in base 2, exp(t) = exp2(t LOG2E)
+(the fast forms here, in the colony's objective and in refinement take exp2, faster than exp on CPU)."""
 
 
-def _sq_distances(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
-    """Squared distances (..., N, M) by broadcasting (accurate in float32, exportable)."""
+# ------------------------------------------------------------------------------------ the Gaussian
+def sq_distances(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
+    """Squared distances |z - mu|^2 (..., N, M) of inputs z (..., N, d) to centres (..., M, d), by
+    broadcasting (accurate in float32, exportable)."""
     return (z.unsqueeze(-2) - centers.unsqueeze(-3)).square().sum(-1)
 
 
-def _gaussians(d2: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    return torch.exp(-d2 / (2.0 * widths.unsqueeze(-2).square()))
+def gaussian(d2: torch.Tensor, widths: torch.Tensor, inplace: bool = False) -> torch.Tensor:
+    """The Gaussian exp(-d2 / (2 sigma^2)) (..., N, M) of squared distances d2 (..., N, M) to
+    centres of widths sigma (..., M) (scaled units, those of z). With `inplace`, computed in d2's
+    storage (fitting's (N, M) float64 matrices: no temporaries of that size).
+
+    Written d2 / (-2 sigma^2): in IEEE arithmetic x / (-y) = -(x / y) exactly, so this is
+    bit for bit -d2 / (2 sigma^2)."""
+    two_var = widths.unsqueeze(-2).square() * -2.0                  # -2 sigma^2 (..., 1, M)
+    return d2.div_(two_var).exp_() if inplace else (d2 / two_var).exp_()
 
 
-def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
-    """Rows (B,) of x (B, k) with low <= x <= high (k,) throughout: the gaps [x - low, high - x] by
-    one matrix product, all >= 0 (fl(x - low) >= 0 exactly when x >= low; NaN fails). One product
-    instead of broadcast comparisons, which ONNX Runtime runs ~10x slower on (B, 3)."""
-    eye = torch.eye(x.shape[-1], dtype=x.dtype, device=x.device)
-    return torch.addmm(torch.cat([-low, high]), x, torch.cat([eye, -eye], 1)).amin(-1) >= 0
+def gaussian_features(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+    """Gaussian activations h (..., N, M) = exp(-|z - mu|^2 / (2 sigma^2)) of inputs z (..., N, d),
+    centres mu (..., M, d), widths sigma (..., M): the paper's features, the reference for every
+    faster form."""
+    return gaussian(sq_distances(z, centers), widths)
 
 
+def distance_rows(z: torch.Tensor) -> torch.Tensor:
+    """[z, |z|^2, 1] (N, d + 2) of inputs z (N, d): times a centre's column [-2 mu, 1, |mu|^2] it is
+    |z|^2 + |mu|^2 - 2 z.mu = |z - mu|^2, so every squared distance (scaled by any per-centre
+    factor: an exponent) is one matrix product. Exact enough in float64 (where the colony's
+    objective and refinement use it); cancellation costs float32 more than `sq_distances`."""
+    return torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1)
+
+
+# ------------------------------------------------------- the fast path: exponents by one product
 class _Expansion(NamedTuple):
     """Gaussian exponents of features x (B, d) as matrix products, in base 2 (eager) or e (traced):
-    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |v|^2] @ weight."""
+    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |v|^2] @ weight. The
+    fast path's form of `gaussian_features` (see the module docstring), tested against the plain
+    path; it keeps its own rounding order, which the trained metrics and the exports carry."""
 
     centroid: torch.Tensor     # (d,) the centres' mean, the origin of u
     in_weight: torch.Tensor    # (d, d + 1): [diag(1 / scale), 0]
@@ -92,7 +121,7 @@ MAX_COVER_SHIFT = 60.0     # largest cover shift s_i folded (natural units): e^6
 
 def cover_foldable(widths: torch.Tensor, cover_radius: torch.Tensor) -> bool:
     """Whether `solve` folds the cover test into the exponents: a finite cover radius with every
-    shift r^2 / (2 sigma_i^2) <= MAX_COVER_SHIFT (an eager check; exporters record it)."""
+    shift r^2 / (2 sigma_i^2) <= MAX_COVER_SHIFT (an eager check; `RBFNetwork.for_export` records it)."""
     r = float(cover_radius)
     return math.isfinite(r) and r * r * 0.5 / float(widths.min()) ** 2 <= MAX_COVER_SHIFT
 
@@ -103,7 +132,7 @@ def _expand(centers: torch.Tensor, widths: torch.Tensor, offset: torch.Tensor, s
     with `fold`, the cover radius (0-dim)."""
     centroid = centers.mean(0)
     mu = centers - centroid
-    log_e = math.log2(math.e) if base2 else 1.0
+    log_e = LOG2E if base2 else 1.0
     inv = log_e / widths.square()                                    # log_base(e) / sigma^2
     weight = torch.stack([*(mu.T * inv), 0.5 * (1.0 - mu.square().sum(-1)) * inv, -0.5 * inv])
     in_weight = torch.cat([torch.diag(1.0 / scale), torch.zeros_like(scale)[:, None]], 1)
@@ -118,6 +147,14 @@ def _expand(centers: torch.Tensor, widths: torch.Tensor, offset: torch.Tensor, s
                       torch.Tensor.exp2_ if base2 else torch.exp, cover_weight, head_scale)
 
 
+def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """Rows (B,) of x (B, k) with low <= x <= high (k,) throughout: the gaps [x - low, high - x] by
+    one matrix product, all >= 0 (fl(x - low) >= 0 exactly when x >= low; NaN fails). One product
+    instead of broadcast comparisons, which ONNX Runtime runs ~10x slower on (B, 3)."""
+    eye = torch.eye(x.shape[-1], dtype=x.dtype, device=x.device)
+    return torch.addmm(torch.cat([-low, high]), x, torch.cat([eye, -eye], 1)).amin(-1) >= 0
+
+
 class RBFNetwork(nn.Module):
     """Gaussian RBF network mapping inputs (B, d) to outputs (B, out); for IK, positions (B, 3) in m
     to joints (B, 3) (rad, rad, m).
@@ -130,12 +167,16 @@ class RBFNetwork(nn.Module):
     input was (`cover_radius`, scaled units), or whose prediction leaves the output range.
     """
 
+    # Which way `forward` computes: True, the Gaussians' exponents by one matrix product
+    # (`_expansion`) in row blocks; False, the plain equation, all rows at once (a reference: it
+    # holds (B, M, d) differences). `solve`, `in_workspace` and `design` take the fast path either way.
+    fast: bool = True
     # Rows per block in eager calls; None: about `block_elements` (rows, M) exponents a block
     # (2 MB in float32: fastest measured at M = 80 and M = 2000, twice as fast as 16384 rows at M = 2000).
     block_rows: int | None = None
     block_elements: int = 1 << 19
     # Whether traced graphs (torch.compile, torch.export, ONNX) fold the cover test into the
-    # exponents: set by the exporters from the eager check (`cover_foldable`), which a graph cannot take.
+    # exponents: set by `for_export` from the eager check (`cover_foldable`), which a graph cannot take.
     traced_cover_fold: bool = False
     # Buffers (registered in __init__), for type checkers.
     offset: torch.Tensor
@@ -362,8 +403,21 @@ class RBFNetwork(nn.Module):
         return torch.addmm(v @ linear, phi, w.T)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Outputs (B, out) for inputs x (B, d) (e.g. joints for positions in m)."""
-        return self._blocks(self._forward_rows, self._inputs(x))
+        """Outputs y (B, out) for inputs x (B, d) (e.g. joints for positions in m):
+        y = W h + A z + b, h_i = exp(-|z - mu_i|^2 / (2 sigma_i^2)), z = (x - offset) / scale.
+
+        The plain path (`fast = False`) is that equation. The fast path (default) computes the same
+        exponents as one matrix product in row blocks (`_forward_rows`; see the module docstring):
+        within 1e-12 of the plain path in float64, and in float32 both within 1e-5 (rad, m) of
+        float64 on networks fitted by the float32 rule (tested), with exp2 and no (B, M, d)
+        differences. Training, evaluation and the exports take the fast path."""
+        x = self._inputs(x)
+        if self.fast:
+            return self._blocks(self._forward_rows, x)
+        z = self._scaled(x)                                           # (B, d)
+        h = gaussian_features(z, self.centers, self.widths)           # (B, M)
+        y = self.head(h)                                              # W h + b (B, out)
+        return y if self.tail is None else y + self.tail(z)           # + A z
 
     def _forward_rows(self, x: torch.Tensor) -> torch.Tensor:
         """`forward` on rows (B, d) in one piece (no blocks, no checks): the exported graph's path."""
@@ -394,6 +448,14 @@ class RBFNetwork(nn.Module):
     def solve(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(outputs (B, out), in-workspace mask (B,)) for inputs x (B, d)."""
         return self._blocks(self._solve_rows, self._inputs(x))
+
+    def for_export(self) -> RBFNetwork:
+        """A frozen float32 copy in eval mode for the exporters (torch.export, ONNX: `rbfn.export`),
+        whose `solve_rows` is then the graph. The cover test's folding is decided here, by the
+        eager check (`cover_foldable`) that a traced graph cannot take."""
+        net = copy.deepcopy(self).float().eval().requires_grad_(False)
+        net.traced_cover_fold = cover_foldable(net.widths, net.cover_radius)
+        return net
 
     def solve_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """`solve` for inputs x (B, d) in one piece: the exported graph's path (`rbfn.export`).

@@ -3,7 +3,7 @@ import copy
 import pytest
 import torch
 
-from rbfn.layer import RBFNetwork, assemble, gaussian_features
+from rbfn.layer import RBFNetwork, assemble, gaussian, gaussian_features, sq_distances
 
 
 def test_shapes_and_scaling():
@@ -24,6 +24,18 @@ def test_gaussian_value():
     z = torch.tensor([[0.0, 0.0]])
     phi = gaussian_features(z, torch.tensor([[1.0, 0.0]]), torch.tensor([2.0]))
     assert torch.isclose(phi, torch.exp(torch.tensor(-1.0 / 8.0))).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_gaussian_is_the_equation_bit_for_bit_in_place_or_not(dtype):
+    """gaussian's d2 / (-2 sigma^2) is -d2 / (2 sigma^2) exactly, in place or not."""
+    g = torch.Generator().manual_seed(1)
+    z, c = torch.randn(2, 50, 3, generator=g, dtype=dtype), torch.randn(2, 20, 3, generator=g, dtype=dtype)
+    w = torch.rand(2, 20, generator=g, dtype=dtype) + 0.1
+    d2 = sq_distances(z, c)
+    want = torch.exp(-d2 / (2.0 * w.unsqueeze(-2).square()))
+    assert torch.equal(gaussian(d2, w), want) and torch.equal(gaussian_features(z, c, w), want)
+    assert torch.equal(gaussian(d2.clone(), w, inplace=True), want)
 
 
 def test_assemble_matches_design_matrix():
@@ -105,7 +117,7 @@ def test_rows_in_blocks_match_one_piece(monkeypatch):
     with torch.no_grad():
         ref = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
     calls = []
-    monkeypatch.setattr(layer, "_sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1))
+    monkeypatch.setattr(layer, "sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1))
     exponents = layer.RBFNetwork._exponents
     monkeypatch.setattr(layer.RBFNetwork, "_exponents",
                         lambda self, xb, **kw: calls.append(xb.shape[0]) or exponents(self, xb, **kw))
@@ -165,12 +177,21 @@ def test_assemble_without_tail_takes_design_matrix_weights():
     assert torch.allclose(assemble(c, w, with_bias, off, sc, tail=False)(x), net(x) + 1, atol=1e-12)
 
 
+def _plain(net, x):
+    """Outputs by the plain path: the equation as written in `forward`."""
+    net.fast = False
+    try:
+        return net(x)
+    finally:
+        del net.fast
+
+
 def _reference(net, x):
-    """Outputs and in-workspace mask by broadcast distances, as the network computed them before
-    its exponents became one matrix product (same dtype as the network)."""
+    """Outputs by the plain path and the in-workspace mask by broadcast distances (same dtype as
+    the network)."""
     z = (x - net.offset) / net.scale
     d2 = (z[:, None] - net.centers).square().sum(-1)
-    y = torch.exp(-d2 / (2 * net.widths.square())) @ net.head.weight.T + net.head.bias + z @ net.tail.weight.T
+    y = _plain(net, x)
     ok = ((x >= net.in_low) & (x <= net.in_high)).all(-1) & (d2.min(-1).values.sqrt() <= net.cover_radius)
     return y, ok & ((y >= net.out_low) & (y <= net.out_high)).all(-1)
 
@@ -208,6 +229,59 @@ def test_matrix_product_exponents_match_broadcast_distances():
         _y32_ref, mask32_ref = _reference(net32, x.float())
         assert (mask32 != mask32_ref).sum() <= 2             # rounding at the cover radius only
         assert (mask32 != mask_ref).sum() <= 2
+
+
+def _trained(tail=True, m=60, seed=5):
+    """A network fitted as training fits one (ridge least squares, the ridge chosen by the float32
+    rule) to a smooth map of 3 inputs, and inputs over its domain and beyond."""
+    from rbfn.fit import design_matrix, ridge_fit
+
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(1500, 3, generator=g, dtype=torch.float64) * torch.tensor([2.0, 1.7, 1.0]) + torch.tensor([0, 0.3, 0.5])
+    y = torch.stack([x[:, 0].sin() + x[:, 1].cos(), (x[:, 0] * x[:, 1]).cos(), -x[:, 2]], 1)
+    off, sc = x.mean(0), torch.ones(3, dtype=torch.float64)
+    c = (x[torch.randperm(1000, generator=g)[:m]] - off) / sc
+    w = torch.full((m,), 0.4, dtype=torch.float64)
+    z = (x - off) / sc
+    fit = ridge_fit(design_matrix(z[:1000], c, w, tail), y[:1000], design_matrix(z[1000:], c, w, tail), y[1000:],
+                    eval_dtype=torch.float32)
+    net = assemble(c, w, fit.weights, off, sc, tail=tail)
+    net.set_domain(x[:1000], y[:1000])
+    return net.eval(), x * 1.1 - 0.05
+
+
+@pytest.mark.parametrize("tail", [True, False])
+def test_plain_and_fast_paths_agree(tail):
+    """`forward`'s plain equation (fast = False) and its fast matrix-product path give the same
+    outputs, to 1e-12 in float64, and within 1e-5 of the float64 outputs in float32, on random
+    and on trained networks."""
+    g = torch.Generator().manual_seed(0)
+    nets = [(_net(tail, m=30, seed=s), torch.randn(400, 3, dtype=torch.float64, generator=g) * 2) for s in (0, 1)]
+    nets.append(_trained(tail))
+    if tail:
+        nets.append(_wide_net())
+    for net, x in nets:
+        with torch.no_grad():
+            fast, plain = net(x), _plain(net, x)
+            scale = 1 + fast.abs().max()
+            assert (fast - plain).abs().max() < 1e-12 * scale
+            net32 = copy.deepcopy(net).float()
+            assert (net32(x.float()).double() - plain).abs().max() < 1e-5 * scale
+            assert (_plain(net32, x.float()).double() - plain).abs().max() < 1e-5 * scale
+            net.block_rows = 64
+            assert torch.equal(net(x), fast) and torch.equal(_plain(net, x), plain)
+    assert RBFNetwork.fast and nets[0][0].fast                          # the default, restored
+
+
+def test_for_export_is_a_frozen_float32_copy_with_the_cover_fold_decided():
+    net, x = _wide_net()
+    exported = net.for_export()
+    assert exported is not net and exported.centers.dtype == torch.float32 and net.centers.dtype == torch.float64
+    assert not exported.training and not any(p.requires_grad for p in exported.parameters())
+    assert exported.traced_cover_fold and not net.traced_cover_fold
+    with torch.no_grad():
+        y, mask = exported.solve_rows(x.float())
+        assert (y.double() - net(x)).abs().max() < 1e-5 and torch.equal(mask, exported.solve(x.float())[1])
 
 
 def test_cover_test_folded_into_the_exponents_or_not_matches_the_reference():
