@@ -25,6 +25,21 @@ def test_least_squares_exact_on_representable_problem():
     assert torch.allclose(a @ fit.weights, y, atol=1e-6)
 
 
+@pytest.mark.parametrize("tail", [True, False])
+def test_design_matrix_is_the_layers_gaussians_then_tail_and_bias(tail):
+    """design_matrix's Gaussians (squared distances by one matmul) are rbfn.layer.gaussian_features
+    (broadcast distances) to 1e-12 in float64, batched over ants; then z and the ones column."""
+    from rbfn.layer import gaussian_features
+
+    z, c, w, _true = _problem(4)
+    cs, ws = torch.stack([c, c + 0.1]), torch.stack([w, w * 2])
+    a = design_matrix(z, cs, ws, tail)
+    assert a.shape == (2, 400, 12 + 3 * tail)
+    assert (a[..., :12] - gaussian_features(z, cs, ws)).abs().max() < 1e-12
+    if tail:
+        assert torch.equal(a[..., 12:14], z.expand(2, -1, -1)) and torch.equal(a[..., 14], torch.ones(2, 400).double())
+
+
 def test_ridge_fit_batched_over_ants_matches_single():
     z, c, w, _true = _problem(1)
     cs = torch.stack([c, c + 0.1, c - 0.2])
