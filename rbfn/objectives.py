@@ -6,16 +6,15 @@ their nearest chosen centre (the k-means objective searched globally; no targets
 """
 from __future__ import annotations
 
-import math
 from typing import Any, cast
 
 import torch
 
 from .fit import DEFAULT_RIDGES, ROUND_TOL, ridge_choose, rounding_tolerance
+from .layer import LOG2E, distance_rows
 
 __all__ = ["FitObjective", "cluster_objective"]
 
-LOG2E = 1.0 / math.log(2.0)
 # Bytes of one row block's Gaussians for all ants of a batch on CPU: about what stays in a core's
 # cache while the block is used (exponent, exp2, normal equations; fastest of 0.5-8 MiB here).
 BLOCK_BYTES = 2**21
@@ -92,8 +91,7 @@ class FitObjective:
     def _batch(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
         """Validation MSE (K,) of one batch of ants, centres (K, M, d), widths (K, M)."""
         k, m = centers.shape[:2]
-        s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)                    # exponents in base 2
-        coef = torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
+        coef = _exponent_coefficients(centers, widths)
         # Rows a block: as many as stay in cache on the CPU; on a GPU every row at once (`block`).
         # (float("inf") // n is NaN in Python, which is why the GPU takes its own branch.)
         fit = max(MIN_ROWS, BLOCK_BYTES // (k * m * coef.element_size()))
@@ -193,16 +191,27 @@ class FitObjective:
         return mse, bound.view(k, n_l, n_out).amax(-1) * (torch.finfo(cast(torch.dtype, self.eval_dtype)).eps / 2)
 
 
+# The colony's Gaussians are rbfn.layer.gaussian_features (within 1e-12 in float64, tested) in another
+# form, for speed: all ants' exponents of a row block as one product of the data's `distance_rows`
+# with the ants' coefficients (no (K, M, B, d) differences), in base 2 (exp2 is about twice as fast
+# as exp in float64 on CPU). Its own rounding order, kept: the colony's choices depend on its bits.
+
 def _exponent_rows(z: torch.Tensor) -> torch.Tensor:
-    """[z, |z|^2, 1]^T (d + 2, N): with an ant's [-2 c, 1, |c|^2] / (-2 s^2 ln 2) (M, d + 2),
-    their product is the Gaussians' exponent in base 2, -|z - c|^2 / (2 s^2 ln 2) (M, N), as
-    |z|^2 + |c|^2 - 2 z.c: exact enough in float64."""
-    return torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1).T.contiguous()
+    """`rbfn.layer.distance_rows` [z, |z|^2, 1] transposed, (d + 2, N), contiguous."""
+    return distance_rows(z).T.contiguous()
+
+
+def _exponent_coefficients(centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+    """[-2 mu, 1, |mu|^2] / (-2 sigma^2 ln 2) (K, M, d + 2) of ants' centres (K, M, d) and widths
+    (K, M): times `_exponent_rows` (d + 2, N), the Gaussians' exponents in base 2,
+    -|z - mu|^2 / (2 sigma^2 ln 2) (K, M, N)."""
+    s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)                    # -2 sigma^2 ln 2 (K, M, 1)
+    return torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
 
 
 def _gaussians(coef: torch.Tensor, rows: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
-    """Gaussians (K, M, B) of ants' exponent coefficients (K, M, d + 2) on rows (d + 2, B), in
-    base 2 (exp2 is about twice as fast as exp in float64 on CPU); into `out` where given, the
+    """Gaussians (K, M, B) of ants' exponent coefficients (K, M, d + 2) on rows (d + 2, B), by
+    exp2 of their product (clamped at 0, which rounding may pass); into `out` where given, the
     exponents computed in the coefficients' dtype and exponentiated in out's (as a deployed
     network of that dtype does; float32's exp2 from float64 exponents is ~2x faster again)."""
     if out is None:
