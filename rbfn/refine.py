@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import torch
 
 from .fit import design_matrix, ridge_solve
+from .layer import LOG2E, distance_rows
 
 __all__ = ["Refined", "refine", "refine_mode", "refine_full", "refine_minibatch", "row_loss", "gaussian_product",
            "FULL_ROWS_MAX"]
@@ -38,7 +39,6 @@ log = logging.getLogger(__name__)
 # Above this N * P^2 `refine` in mode auto takes mini-batches (one full step there costs about
 # a second or more on one core).
 FULL_ROWS_MAX = 2e9
-LOG2E = 1.0 / math.log(2.0)
 
 
 @dataclass
@@ -73,13 +73,14 @@ def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_
     """Refine by `refine_mode` of `cfg` (a `RefineConfig`). weights (P, out): the current fit's, the
     mini-batch start. jacobians: (J_train (N, r, out), J_val (Nv, r, out)), the task Jacobians
     at the rows' joints, rows weighted as the task error is measured; the mini-batch loss then
-    is the task error (`cfg.loss=task`), else the joint error."""
+    is the task error (`cfg.minibatch.loss=task`), else the joint error."""
     p = centers.shape[0] + (z_train.shape[1] + 1 if tail else 0)
     if refine_mode(cfg, z_train.shape[0], p) == "full":
-        return refine_full(z_train, y_train, z_val, y_val, centers, widths, ridge, cfg.steps, cfg.lr, tail,
+        return refine_full(z_train, y_train, z_val, y_val, centers, widths, ridge, cfg.full.steps, cfg.full.lr, tail,
                            cfg.learn_input_scale, max_width)
-    return refine_minibatch(z_train, y_train, z_val, y_val, centers, widths, weights, cfg.epochs, cfg.batch,
-                            cfg.batch_lr, tail, cfg.learn_input_scale, max_width, seed, huber=cfg.huber,
+    mb = cfg.minibatch
+    return refine_minibatch(z_train, y_train, z_val, y_val, centers, widths, weights, mb.epochs, mb.batch,
+                            mb.lr, tail, cfg.learn_input_scale, max_width, seed, huber=mb.huber,
                             jacobians=jacobians)
 
 
@@ -126,17 +127,21 @@ class _GaussianProduct(torch.autograd.Function):
     """phi(z) @ w (B, out) for Gaussians phi (B, M) = exp(-|z - c|^2 / (2 s^2)), with a backward
     that needs no (B, M) temporaries beyond phi and one product.
 
-    Autograd through `design_matrix` keeps about ten (B, M) intermediates and walks each in the
-    backward; here the exponent is one product of [z, |z|^2, 1] (B, d + 2) with per-centre
-    coefficients, and the gradients of c, s and z are products of h = (dL/dphi) * phi with
-    [z, |z|^2, 1] and [a, a c] (a = 1 / (2 s^2)). Every product is written with its long side
-    last: on a CPU the (M, out)-shaped ones (phi^T G) took 5-7x as long as their transposes.
+    The Gaussians are `rbfn.layer.gaussian_features` (within 1e-13 in float64, tested) in another
+    form, fused for speed: autograd through `design_matrix` keeps about ten (B, M) intermediates
+    and walks each in the backward; here the exponent is one product of `rbfn.layer.distance_rows`
+    [z, |z|^2, 1] (B, d + 2) with per-centre coefficients, in base 2 (exp2), and the gradients of
+    c, s and z are products of h = (dL/dphi) * phi with [z, |z|^2, 1] and [a, a c]
+    (a = 1 / (2 s^2)). Every product is written with its long side last: on a CPU the
+    (M, out)-shaped ones (phi^T G) took 5-7x as long as their transposes. Its coefficients keep
+    their own rounding order (not the colony's, `rbfn.objectives`): the refined networks depend on
+    its bits.
     """
 
     @staticmethod
     def forward(ctx, z: torch.Tensor, c: torch.Tensor, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         a = 0.5 / s.square()                                                       # (M,)
-        rows = torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1)       # (B, d + 2)
+        rows = distance_rows(z)                                                    # (B, d + 2)
         coef = torch.cat([2.0 * c, -torch.ones_like(a)[:, None], -c.square().sum(-1, keepdim=True)], 1)
         coef = coef * (a * LOG2E)[:, None]                                         # exponent in base 2
         phi = torch.exp2((rows @ coef.T).clamp_(max=0.0))                          # (B, M)
@@ -234,8 +239,8 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
             jac = None if j_tr is None else j_tr[rows]
             loss = row_loss(predict(z_tr[rows]) - y_tr[rows], jac, huber).mean()
             if not torch.isfinite(loss):
-                log.warning("mini-batch refinement diverged in epoch %d (loss %s); keeping the best iterate "
-                            "before it (a smaller centers.refine.batch_lr than %g avoids this)", epoch, loss.item(), lr)
+                log.warning("mini-batch refinement diverged in epoch %d (loss %s); keeping the best iterate before "
+                            "it (a smaller centers.refine.minibatch.lr than %g avoids this)", epoch, loss.item(), lr)
                 diverged = True
                 break
             opt.zero_grad()

@@ -6,6 +6,7 @@ import torch
 import rbfn.refine as rf
 from rbfn.config import RefineConfig, RefineMode
 from rbfn.fit import design_matrix, ridge_solve
+from rbfn.layer import gaussian_features
 
 
 def _problem(m: int = 15):
@@ -48,7 +49,7 @@ def test_minibatch_refinement_is_seeded_and_caps_widths():
 def test_minibatch_refinement_stops_where_it_diverges(caplog):
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
     r = rf.refine_minibatch(z_tr, y_tr, z_val, y_val, c, w, weights, epochs=5, batch=32, lr=1e30)
-    assert "diverged in epoch 1" in caplog.text and "batch_lr" in caplog.text
+    assert "diverged in epoch 1" in caplog.text and "centers.refine.minibatch.lr" in caplog.text
     assert r.history == [r.val_mse]                                # the start, the only finite iterate
     assert torch.allclose(r.centers, c, atol=1e-6) and torch.allclose(r.widths, w, rtol=1e-6)
 
@@ -71,18 +72,18 @@ def test_mode_picks_the_way(monkeypatch, mode, rows_max, full):
     assert calls == ["full" if full else "minibatch"]
 
 
-def test_gaussian_product_equals_the_design_matrix_and_its_gradients_are_exact():
+def test_gaussian_product_equals_the_layers_gaussians_and_its_gradients_are_exact():
     g = torch.Generator().manual_seed(1)
     z = torch.randn(30, 4, dtype=torch.float64, generator=g).requires_grad_(True)
     c = torch.randn(6, 4, dtype=torch.float64, generator=g).requires_grad_(True)
     s = (torch.rand(6, dtype=torch.float64, generator=g) + 0.5).requires_grad_(True)
     w = torch.randn(6, 3, dtype=torch.float64, generator=g).requires_grad_(True)
-    ref = design_matrix(z, c, s, tail=False) @ w
+    ref = gaussian_features(z, c, s) @ w
     assert torch.allclose(rf.gaussian_product(z, c, s, w), ref, atol=1e-13)
     assert torch.autograd.gradcheck(rf.gaussian_product, (z, c, s, w))
     # Without the input's gradient (fixed input scales) the others are unchanged.
     grads = torch.autograd.grad(rf.gaussian_product(z.detach(), c, s, w).sin().sum(), (c, s, w))
-    want = torch.autograd.grad((design_matrix(z.detach(), c, s, tail=False) @ w).sin().sum(), (c, s, w))
+    want = torch.autograd.grad((gaussian_features(z.detach(), c, s) @ w).sin().sum(), (c, s, w))
     assert all(torch.allclose(a, b, atol=1e-12) for a, b in zip(grads, want))
 
 
