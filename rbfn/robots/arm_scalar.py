@@ -8,6 +8,14 @@ streaming (n, 3, 3, B) tensors through memory. Constants are folded while tracin
 rotation costs nothing). Eagerly it is slow (thousands of small operations): the simulator uses
 it only while compiling (`torch.compiler.is_compiling()`), `arm_terms` otherwise.
 
+Why it is a form of its own: the eager simulator needs few, large tensor operations
+(`arm_terms`), a traced step needs scalars (this module), and code written either way is slow
+the other way. It is written by hand (not generated), reads the constants that `arm_terms`
+turns from `rbfn.robots.dynamics.Arm` (the payload's placement included), takes the spatial
+products from `rbfn.robots.spatial`, and is tested, eagerly, against `Arm`
+(tests/robots/test_dynamics_backends.py) and, compiled, against the eager step in the closed
+loop's tests.
+
 A 3-vector is a tuple of 3 scalars, a symmetric 3x3 matrix 6 (xx, yy, zz, xy, xz, yz), a
 rotation 9 (row-major), a spatial vector a pair of 3-vectors (angular or moment; linear or force).
 """
@@ -19,6 +27,7 @@ import torch
 
 from .arm_terms import ArmTerms
 from .dynamics import Arm, Payload
+from .spatial import Spatial
 
 __all__ = ["ArmScalarTerms", "ScalarConfig"]
 
@@ -94,14 +103,6 @@ def _sym_vec(j, w):
             _sum(_mul(xz, w[0]), _mul(yz, w[1]), _mul(zz, w[2])))
 
 
-def _cross_motion(v, m):
-    return _cross(v[0], m[0]), _v_add(_cross(v[0], m[1]), _cross(v[1], m[0]))
-
-
-def _cross_force(v, f):
-    return _v_add(_cross(v[0], f[0]), _cross(v[1], f[1])), _cross(v[0], f[1])
-
-
 def _s_add(a, b):
     return _v_add(a[0], b[0]), _v_add(a[1], b[1])
 
@@ -114,11 +115,14 @@ def _s_dot(a, b):
     return _add(_dot(a[0], b[0]), _dot(a[1], b[1]))
 
 
+# v x m, v x* f and I v (`rbfn.robots.spatial`) on pairs of 3-tuples; an inertia J is symmetric (6).
+_SPATIAL = Spatial(_cross, _v_add, _sym_vec, lambda m, v, c: _v_sub(_v_scale(v, m), c))
+_cross_motion, _cross_force = _SPATIAL.cross_motion, _SPATIAL.cross_force
+
+
 def _apply(body, v):
-    """Spatial inertia (m, h, J) times a motion vector v: (J w + h x v0, m v0 - h x w)."""
-    m, h, j = body
-    w, v0 = v
-    return _v_add(_sym_vec(j, w), _cross(h, v0)), _v_sub(_v_scale(v0, m), _cross(h, w))
+    """Spatial inertia body = (m, h, J) times a motion vector v."""
+    return _SPATIAL.inertia_times(*body, v)
 
 
 def _body_add(a, b):

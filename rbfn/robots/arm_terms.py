@@ -2,8 +2,10 @@
 
     M(q) qdd + C(q, qd) qd + G(q) = tau
 
-The same quantities as `rbfn.robots.dynamics.Arm` (its lumped constants; world axes, spatial
-vectors about the last body's origin; CRBA for M, RNEA for C qd + G), laid out with the
+The simulator's fast form of the specification `rbfn.robots.dynamics.Arm`, tested against it
+(tests/robots/test_dynamics_backends.py): the same quantities (its lumped constants and payload
+placement; world axes, spatial vectors about the last body's origin, their products from
+`rbfn.robots.spatial`; CRBA for M, RNEA for C qd + G), laid out with the
 environments last, (..., B): every tensor operation then works on long contiguous rows, and
 3x3 products are unrolled into a few multiply-adds of (n, 3, B) rows instead of batches of
 tiny matrix products. Each body frame is turned (a constant rotation folded into the URDF
@@ -19,11 +21,13 @@ Motion and force vectors are pairs (angular or moment (n, 3, B), linear or force
 """
 from __future__ import annotations
 
+import operator
 from typing import Any
 
 import torch
 
 from .dynamics import Arm, Payload
+from .spatial import Spatial
 
 __all__ = ["ArmTerms", "Config", "Motion"]
 
@@ -45,21 +49,17 @@ def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
                         torch.addcmul(a0 * b1, a1, b0, value=-1)], -2)
 
 
-def _cross_motion(v: Pair, m: Pair) -> Pair:
-    """v x m of spatial motion vectors."""
-    return _cross(v[0], m[0]), _cross(v[0], m[1]) + _cross(v[1], m[0])
-
-
-def _cross_force(v: Pair, f: Pair) -> Pair:
-    """v x* f of a motion vector v and a force vector f."""
-    return _cross(v[0], f[0]) + _cross(v[1], f[1]), _cross(v[0], f[1])
-
-
 def _matvec(a: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """a x for matrices (..., 3, 3, B) and vectors (..., 3, B), unrolled over the inner index."""
     out = a[..., 0, :] * x[..., 0:1, :]
     out = torch.addcmul(out, a[..., 1, :], x[..., 1:2, :])
     return torch.addcmul(out, a[..., 2, :], x[..., 2:3, :])
+
+
+# v x m, v x* f and I v (`rbfn.robots.spatial`) on pairs of (n, 3, B): masses m (n, 1 or B), first
+# moments h (n, 3, B), rotational inertias J (n, 3, 3, B); m v0 - c is one fused addcmul.
+_SPATIAL = Spatial(_cross, operator.add, _matvec, lambda m, v, c: torch.addcmul(-c, m.unsqueeze(1), v))
+_cross_motion, _cross_force, _apply = _SPATIAL.cross_motion, _SPATIAL.cross_force, _SPATIAL.inertia_times
 
 
 def _rotate_const(rot: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -124,7 +124,6 @@ class ArmTerms:
             pp = qs[pbody].T @ md.payload_pos if pbody >= 0 else md.payload_pos
             c: dict[str, Any] = {"cols": torch.cat([rot0, t0.unsqueeze(-1)], -1),        # (n, 3, 4): [R0' | t0']
                  "mass": md.mass, "first": first, "inertia": inertia, "payload_pos": pp,
-                 "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - torch.outer(pp, pp),
                  "g0": -self.arm.gravity_vector}
             c = {k: v.to(dtype=dtype, device=device) for k, v in c.items()}
             prismatic = md.prismatic.tolist()
@@ -187,7 +186,8 @@ class Config:
             self.s = (z * c["revolute_mask"], torch.where(c["prismatic_mask"], z, _cross(pos, z)))
         else:
             self.s = (z, _cross(pos, z))                                  # S_i (n, 3, B) x 2
-        # Body inertias about the reference point; the payload is a point mass on its body.
+        # Body inertias about the reference point; the payload is a point mass on its body, added
+        # in world axes (see `rbfn.robots.dynamics` on where the payload model is written).
         mass = c["mass"].unsqueeze(-1)                                    # (n, 1)
         hb = _rotate_const(rot, c["first"])                               # R h_b (n, 3, B)
         body = c["payload_body"]
@@ -298,13 +298,6 @@ class Motion:
         if self._iv is None:
             self._iv = self.cfg.apply(self.v)
         return self._iv
-
-
-def _apply(m: torch.Tensor, h: torch.Tensor, j: torch.Tensor, v: Pair) -> Pair:
-    """Spatial inertia (mass m (n, 1 or B), first moment h (n, 3, B), rotational inertia J
-    (n, 3, 3, B), about the reference point) times motion vectors v: (J w + h x v0, m v0 - h x w)."""
-    w, v0 = v
-    return _matvec(j, w) + _cross(h, v0), torch.addcmul(-_cross(h, w), m.unsqueeze(1), v0)
 
 
 def _sandwich(rot: torch.Tensor, inertia: torch.Tensor) -> torch.Tensor:

@@ -9,6 +9,21 @@ joints that are not on the chain (fingers, ...), which are held at zero. Links r
 the root carry no dynamics. A payload is a point mass (kg) at the origin of `end_link` (or of
 another link, `payload_link`).
 
+`Arm` is the specification of the dynamics: plain, batch-first (B, n), the reference that every
+other form is tested against (tests/robots/test_dynamics_backends.py: the simulator's forms, the
+SCARA's closed form, Pinocchio, MuJoCo). The simulator's fast form, `rbfn.robots.arm_terms`
+(batch-last), and its scalar form for torch.compile, `rbfn.robots.arm_scalar`, read the same
+lumped constants (`Arm.model`) and use the same products of spatial vectors
+(`rbfn.robots.spatial`).
+
+The payload is placed once, by `_build` (`_Model.payload_body`, `payload_pos`: the point in that
+body's frame), and every form reads it from there. Its inertia, (m, m r, m (r.r 1 - r r^T)) for
+the point r, is added where each form builds its body inertias: here in body axes, before the
+rotation to the root frame (`Arm._bodies`); in the simulator's forms in root axes, after it
+(`arm_terms.Config`, `arm_scalar.ScalarConfig._body`). The two orders round differently and the
+simulator's numbers are those of the latter, so another payload model (a rigid body instead of a
+point) is written in those three places; the backend test fails until they agree.
+
 Algorithms, all in root-frame axes with spatial vectors (angular; linear) referred to one point
 fixed in space, so that the inertias of bodies add without transforms and every recursion of the
 composite rigid body algorithm (CRBA) and of recursive Newton-Euler (RNEA) becomes a cumulative
@@ -52,6 +67,7 @@ import torch
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
 from .kinematics import _matrix, _path_to, is_urdf_text, parse_urdf, urdf_path, urdf_text
+from .spatial import SIX, cross, dot, matvec, outer
 
 __all__ = ["PRESETS", "Arm", "load_arm", "urdf_source"]
 
@@ -185,43 +201,7 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
                   torch.tensor(upper, dtype=torch.float64), where[end_link][1].clone())
 
 
-# ----------------------------------------------------------------------------- spatial algebra
-def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """a x b for 3-vectors (..., 3)."""
-    return torch.linalg.cross(a, b)
-
-
-def _cross_motion(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
-    """v x m for spatial motion vectors (..., 6) (angular; linear)."""
-    w, v0, mw, mv = v[..., :3], v[..., 3:], m[..., :3], m[..., 3:]
-    return torch.cat([_cross(w, mw), _cross(w, mv) + _cross(v0, mw)], -1)
-
-
-def _cross_force(v: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-    """v x* f for a spatial motion vector v and a force vector f (..., 6) (moment; force)."""
-    w, v0, n, f0 = v[..., :3], v[..., 3:], f[..., :3], f[..., 3:]
-    return torch.cat([_cross(w, n) + _cross(v0, f0), _cross(w, f0)], -1)
-
-
-def _matvec(a: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    return (a @ x.unsqueeze(-1)).squeeze(-1)
-
-
-def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    return (a * b).sum(-1, keepdim=True)
-
-
-def _outer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    return a.unsqueeze(-1) * b.unsqueeze(-2)
-
-
-def _apply(m, h, j, v: torch.Tensor) -> torch.Tensor:
-    """Spatial inertia (mass m (...), first moment h (..., 3), inertia J (..., 3, 3), all about
-    the origin) times a motion vector v (..., 6): (J w + h x v0; m v0 - h x w)."""
-    w, v0 = v[..., :3], v[..., 3:]
-    return torch.cat([_matvec(j, w) + _cross(h, v0), m.unsqueeze(-1) * v0 - _cross(h, w)], -1)
-
-
+# ----------------------------------------------------------------------------- chain sums
 def _rev_cumsum(x: torch.Tensor) -> torch.Tensor:
     """sum_{k >= i} x_k along the body dimension 1."""
     return x.flip(1).cumsum(1).flip(1)
@@ -237,32 +217,32 @@ class _Bodies:
 
     def __init__(self, rot, pos, mass, first, inertia, eye):
         self.rot, self.pos, self.ibar, self.eye = rot, pos, inertia, eye
-        self.hb = _matvec(rot, first)                       # h' (B, n, 3)
+        self.hb = matvec(rot, first)                       # h' (B, n, 3)
         self.m = mass.expand(rot.shape[:2])
         self.h = self.m.unsqueeze(-1) * pos + self.hb
         self._j = None
 
     def apply(self, v: torch.Tensor) -> torch.Tensor:
-        """I_k v_k (B, n, 6) for v (B, n, 6)."""
+        """I_k v_k (B, n, 6) for v (B, n, 6): `SIX.inertia_times` without forming J."""
         w, v0 = v[..., :3], v[..., 3:]
         p, h, hb, rot = self.pos, self.h, self.hb, self.rot
-        jw = (_matvec(rot, _matvec(self.ibar, _matvec(rot.transpose(-1, -2), w)))
-              + _dot(p, h + hb) * w - p * _dot(h, w) - hb * _dot(p, w))
-        return torch.cat([jw + _cross(h, v0), self.m.unsqueeze(-1) * v0 - _cross(h, w)], -1)
+        jw = (matvec(rot, matvec(self.ibar, matvec(rot.transpose(-1, -2), w)))
+              + dot(p, h + hb) * w - p * dot(h, w) - hb * dot(p, w))
+        return torch.cat([jw + cross(h, v0), self.m.unsqueeze(-1) * v0 - cross(h, w)], -1)
 
     def j(self) -> torch.Tensor:
         """J (B, n, 3, 3) kg m^2 about the reference point."""
         if self._j is None:
             p, h, hb, rot = self.pos, self.h, self.hb, self.rot
             self._j = (rot @ self.ibar @ rot.transpose(-1, -2)
-                       + _dot(p, h + hb).unsqueeze(-1) * self.eye
-                       - _outer(p, h) - _outer(hb, p))
+                       + dot(p, h + hb).unsqueeze(-1) * self.eye
+                       - outer(p, h) - outer(hb, p))
         return self._j
 
 
 # ----------------------------------------------------------------------------- the arm
 class Arm:
-    """Rigid-body dynamics of a serial chain; build it with `load_arm`.
+    """Rigid-body dynamics of a serial chain, the specification; build it with `load_arm`.
 
     Joint values q (B, n) are rad (revolute) or m (prismatic), qd in rad/s or m/s; M in kg m^2
     (kg on prismatic rows and columns), C qd, G and tau in N m or N. `payload` is kg, a float or
@@ -316,12 +296,12 @@ class Arm:
             skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
             skew = skew - skew.transpose(1, 2)
             rot0, p0 = md.placement[:, :3, :3], md.placement[:, :3, 3]
-            axis0 = _matvec(rot0, a)
+            axis0 = matvec(rot0, a)
             pp = md.payload_pos
             c: dict[str, Any] = {"rot0": rot0, "p0": p0, "axis0": axis0, "rot0_skew": rot0 @ skew,
-                 "rot0_aa": _outer(axis0, a), "mass": md.mass, "first": md.first_moment,
+                 "rot0_aa": outer(axis0, a), "mass": md.mass, "first": md.first_moment,
                  "inertia": md.inertia, "payload_pos": pp,
-                 "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - _outer(pp, pp),
+                 "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - outer(pp, pp),
                  "eye": torch.eye(3, dtype=torch.float64),
                  "revolute": (~md.prismatic).to(torch.float64).unsqueeze(-1),
                  "a_g": torch.cat([torch.zeros(3, dtype=torch.float64), -self.gravity_vector])}
@@ -358,7 +338,7 @@ class Arm:
                 z = c["axis0"][i].expand(batch, 3)
             else:
                 rot_j = rot_prev @ c["rot0"][i]
-                p_j, z = pos_prev + _matvec(rot_prev, c["p0"][i]), _matvec(rot_prev, c["axis0"][i])
+                p_j, z = pos_prev + matvec(rot_prev, c["p0"][i]), matvec(rot_prev, c["axis0"][i])
             qi = q[:, i, None]
             if prismatic:
                 rot, p = rot_j, p_j + z * qi
@@ -374,7 +354,7 @@ class Arm:
         if centred:
             pos = pos - pos[:, -1:]
         rev = c["revolute"]                                    # (n, 1): 1 revolute, 0 prismatic
-        s = torch.cat([z * rev, torch.where(rev > 0, _cross(pos, z), z)], -1)
+        s = torch.cat([z * rev, torch.where(rev > 0, cross(pos, z), z)], -1)
         return rot, pos, s
 
     def _bodies(self, q: torch.Tensor, payload: Payload, centred: bool = True):
@@ -393,17 +373,17 @@ class Arm:
         return c, s, _Bodies(rot, pos, mass, first, inertia, c["eye"])
 
     def _mass_matrix(self, c: dict, s: torch.Tensor, b: _Bodies) -> torch.Tensor:
-        f = _apply(_rev_cumsum(b.m), _rev_cumsum(b.h), _rev_cumsum(b.j()), s)    # I^c_j S_j
+        f = SIX.inertia_times(_rev_cumsum(b.m), _rev_cumsum(b.h), _rev_cumsum(b.j()), s)    # I^c_j S_j
         up = s @ f.transpose(1, 2)                                               # S_i . F_j
         return torch.where(c["upper"], up, up.transpose(1, 2))
 
     def _rnea(self, c: dict, s: torch.Tensor, b: _Bodies, qd: torch.Tensor,
               qdd: torch.Tensor | None) -> torch.Tensor:
         v = (s * qd.unsqueeze(-1)).cumsum(1)
-        acc = _cross_motion(v, s) * qd.unsqueeze(-1)
+        acc = SIX.cross_motion(v, s) * qd.unsqueeze(-1)
         if qdd is not None:
             acc = acc + s * qdd.unsqueeze(-1)
-        f = b.apply(c["a_g"] + acc.cumsum(1)) + _cross_force(v, b.apply(v))
+        f = b.apply(c["a_g"] + acc.cumsum(1)) + SIX.cross_force(v, b.apply(v))
         return (s * _rev_cumsum(f)).sum(-1)
 
     # ------------------------------------------------------------------ public quantities
@@ -437,7 +417,7 @@ class Arm:
         shape, (q,) = self._flat(q)
         c, s, b = self._bodies(q, payload)
         a = c["a_g"][3:].expand_as(b.h)
-        f = torch.cat([_cross(_rev_cumsum(b.h), a), _rev_cumsum(b.m).unsqueeze(-1) * a], -1)
+        f = torch.cat([cross(_rev_cumsum(b.h), a), _rev_cumsum(b.m).unsqueeze(-1) * a], -1)
         return (s * f).sum(-1).reshape(*shape, self.n)
 
     def _velocity_terms(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload):
@@ -445,19 +425,19 @@ class Arm:
         D = (dI^c/dt) S / 2, X = S x* (I v)^c."""
         c, s, b = self._bodies(q, payload)
         v = (s * qd.unsqueeze(-1)).cumsum(1)
-        sd = _cross_motion(v, s)
+        sd = SIX.cross_motion(v, s)
         w, v0 = v[..., :3], v[..., 3:]
         j, h = b.j(), b.h
         # d/dt of (h, J) of each body moving with spatial velocity v (m is constant):
         # dh/dt = w x h + m v0, dJ/dt = [w] J - J [w] + 2 (h.v0) 1 - v0 h^T - h v0^T.
         wj = torch.linalg.cross(w.unsqueeze(-1).expand_as(j), j, dim=-2)    # [w] J
-        jd = (wj + wj.transpose(-1, -2) + 2 * _dot(h, v0).unsqueeze(-1) * c["eye"]
-              - _outer(v0, h) - _outer(h, v0))
-        hd = _cross(w, h) + b.m.unsqueeze(-1) * v0
+        jd = (wj + wj.transpose(-1, -2) + 2 * dot(h, v0).unsqueeze(-1) * c["eye"]
+              - outer(v0, h) - outer(h, v0))
+        hd = cross(w, h) + b.m.unsqueeze(-1) * v0
         mc, hc, jc = _rev_cumsum(b.m), _rev_cumsum(h), _rev_cumsum(j)
-        f, e = _apply(mc, hc, jc, s), _apply(mc, hc, jc, sd)
-        d = 0.5 * _apply(torch.zeros_like(mc), _rev_cumsum(hd), _rev_cumsum(jd), s)
-        x = _cross_force(s, _rev_cumsum(b.apply(v)))
+        f, e = SIX.inertia_times(mc, hc, jc, s), SIX.inertia_times(mc, hc, jc, sd)
+        d = 0.5 * SIX.inertia_times(torch.zeros_like(mc), _rev_cumsum(hd), _rev_cumsum(jd), s)
+        x = SIX.cross_force(s, _rev_cumsum(b.apply(v)))
         return c, s, sd, f, e, d, x
 
     def coriolis(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:

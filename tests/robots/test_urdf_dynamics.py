@@ -1,15 +1,16 @@
-"""URDF dynamics (rbfn.robots.dynamics): the SCARA's closed forms, Pinocchio, and properties.
+"""URDF dynamics (rbfn.robots.dynamics): the loader on many URDFs, and properties.
 
 Pinocchio (an independent C++ implementation) checks M, C qd, G, C and RNEA on
 example-robot-data's serial arms (UR3/5/10, Panda, Kinova j2s6s200, xArm7, Z1, SO-100, SO-101; joints
 beyond the end link locked at zero) and on chains of the robots whose visual textures or
-transmissions pytorch-kinematics' URDF parser refuses (iCub, PR2, Romeo), on the repository's UR5
-and Panda presets, and on a test arm with everything the loader has to lump: fixed links
-along the chain, off-chain bodies, fixed bodies and a finger joint beyond the end link, rotated
-origins, unaligned and unnormalised axes, a prismatic and a continuous joint. The property tests
-need no Pinocchio: M symmetric positive definite, dM/dt - 2C skew, C the Christoffel matrix of M
-(by autograd), energy conserved with gravity off, G the gradient of the potential energy. The
-simulator's forms of the same terms (batch-last `arm_terms`, scalar `arm_scalar`) match `Arm`.
+transmissions pytorch-kinematics' URDF parser refuses (iCub, PR2, Romeo). The packaged robots and
+a test arm with everything the loader has to lump (fixed links along the chain, off-chain bodies,
+fixed bodies and a finger joint beyond the end link, rotated origins, unaligned and unnormalised
+axes, a prismatic and a continuous joint) are rows of tests/robots/test_dynamics_backends.py,
+which checks every form of the dynamics (the simulator's, the SCARA's closed form, Pinocchio,
+MuJoCo) against `Arm`. The property tests need no Pinocchio: M symmetric positive definite,
+dM/dt - 2C skew, C the Christoffel matrix of M (by autograd), energy conserved with gravity off,
+G the gradient of the potential energy.
 """
 from __future__ import annotations
 
@@ -21,8 +22,6 @@ from pathlib import Path
 import pytest
 import torch
 
-from rbfn.robots import scara
-from rbfn.robots.arm_scalar import ArmScalarTerms
 from rbfn.robots.arm_terms import ArmTerms
 from rbfn.robots.dynamics import load_arm
 from rbfn.robots.kinematics import read_urdf, urdf_path
@@ -157,29 +156,6 @@ def _rel(x: torch.Tensor, ref: torch.Tensor) -> float:
     return float((d / ref.reshape(len(ref), -1).norm(dim=1)).max())
 
 
-# ----------------------------------------------------------------------------- SCARA
-@pytest.mark.parametrize("payload", [0.0, 2.5, "batch"])
-def test_scara_matches_closed_form(payload):
-    arm = load_arm("scara")
-    assert arm.joint_names == ["joint1", "joint2", "joint3"] and arm.end_link == scara.END_LINK
-    assert arm.gravity_vector.tolist() == [0.0, 0.0, -9.8]
-    g = torch.Generator().manual_seed(0)
-    q = torch.rand(500, 3, generator=g, dtype=torch.float64) * torch.tensor([6.0, 5.0, 2.0]) \
-        - torch.tensor([3.0, 2.5, 0.0])
-    qd = torch.randn(500, 3, generator=g, dtype=torch.float64) * 2
-    if payload == "batch":
-        payload = torch.rand(500, generator=g, dtype=torch.float64) * 10
-    pairs = [(arm.mass_matrix(q, payload), scara.mass_matrix(q, payload)),
-             (arm.coriolis(q, qd, payload), scara.coriolis(q, qd, payload)),
-             (arm.gravity(q, payload), scara.gravity(q, payload)),
-             (arm.mass_matrix_dot(q, qd, payload), scara.mass_matrix_dot(q, qd, payload)),
-             (arm.bias(q, qd, payload), (scara.coriolis(q, qd, payload) @ qd.unsqueeze(-1))
-              .squeeze(-1) + scara.gravity(q, payload)),
-             (arm.kinetic_energy(q, qd, payload), scara.kinetic_energy(q, qd, payload))]
-    for ours, closed_form in pairs:
-        assert torch.allclose(ours, closed_form, atol=1e-10, rtol=0)
-
-
 # ----------------------------------------------------------------------------- Pinocchio
 def _pinocchio(name: str, arm, payload: float):
     """Pinocchio model and data of the same URDF, off-chain joints locked at zero, the payload
@@ -203,7 +179,7 @@ def _pinocchio(name: str, arm, payload: float):
 
 
 @pytest.mark.parametrize("payload", [0.0, 2.5])
-@pytest.mark.parametrize("name", [*ERD, "test_arm", "ur5", "panda"])
+@pytest.mark.parametrize("name", list(ERD))
 def test_matches_pinocchio(name, payload):
     pytest.importorskip("pinocchio")
     import numpy as np
@@ -237,46 +213,6 @@ def test_matches_pinocchio(name, payload):
 
 
 # ----------------------------------------------------------------------------- batch-last terms
-@pytest.mark.parametrize("batch", [7, 600])         # the narrow and the wide code paths
-@pytest.mark.parametrize("name", ["scara", "test_arm", "ur5", "panda"])
-def test_batch_last_terms_match_the_arm(name, batch):
-    """rbfn.robots.arm_terms (the simulator's hot path) gives Arm's M, C qd + G, G, C y, C^T qd and
-    M y, with a payload per state."""
-    arm = _arm(name)
-    terms = ArmTerms(arm)
-    q, qd = _states(arm, batch, seed=11)
-    y = torch.randn(batch, arm.n, generator=torch.Generator().manual_seed(12), dtype=torch.float64)
-    for payload in (0.0, torch.rand(batch, generator=torch.Generator().manual_seed(13), dtype=torch.float64) * 4):
-        cfg = terms.at(q, payload)
-        mo = cfg.motion(qd)
-        m, c = arm.mass_matrix(q, payload), arm.coriolis(q, qd, payload)
-        got = {"M": cfg.mass_matrix(), "bias": cfg.bias(qd), "G": cfg.gravity(),
-               "C y": cfg.coriolis_times(qd, y, mo), "C^T qd": cfg.coriolis_transpose_qd(qd, mo),
-               "M y": cfg.mass_times(y), "C qd": cfg.coriolis_qd(qd, mo)}
-        ref = {"M": m, "bias": arm.bias(q, qd, payload), "G": arm.gravity(q, payload),
-               "C y": (c @ y.unsqueeze(-1)).squeeze(-1), "C^T qd": (c.transpose(1, 2) @ qd.unsqueeze(-1)).squeeze(-1),
-               "M y": (m @ y.unsqueeze(-1)).squeeze(-1), "C qd": (c @ qd.unsqueeze(-1)).squeeze(-1)}
-        errors = {k: _rel(got[k], ref[k]) for k in got}
-        assert max(errors.values()) <= 1e-9, errors
-
-
-@pytest.mark.parametrize("name", ["scara", "test_arm", "ur5", "panda"])
-def test_scalar_terms_match_the_batch_last_terms(name):
-    """rbfn.robots.arm_scalar (what torch.compile traces) equals rbfn.robots.arm_terms."""
-    arm = _arm(name)
-    terms, scalar = ArmTerms(arm), ArmScalarTerms(arm)
-    q, qd = _states(arm, 5, seed=15)
-    y = torch.randn(5, arm.n, generator=torch.Generator().manual_seed(16), dtype=torch.float64)
-    for payload in (0.0, 1.5, torch.tensor([0.0, 1.0, 2.0, 3.0, 4.0], dtype=torch.float64)):
-        a, b = terms.at(q, payload), scalar.at(q, payload)
-        pairs = {"M": (a.mass_matrix(), b.mass_matrix()), "bias": (a.bias(qd), b.bias(qd)),
-                 "G": (a.gravity(), b.gravity()), "C y": (a.coriolis_times(qd, y), b.coriolis_times(qd, y)),
-                 "C^T qd": (a.coriolis_transpose_qd(qd), b.coriolis_transpose_qd(qd)),
-                 "M y": (a.mass_times(y), b.mass_times(y))}
-        errors = {k: float((x - r).abs().max()) for k, (x, r) in pairs.items()}
-        assert max(errors.values()) < 1e-11, errors
-
-
 def test_batch_last_terms_float32():
     arm = _arm("panda")
     q, qd = _states(arm, 64, seed=14)
