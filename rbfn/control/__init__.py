@@ -5,8 +5,8 @@ from .models import ArmModel, NominalModel
 from .plants import ArmPlant, ScaraPlant
 from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
-from .trajectory import paper_trajectory, sinusoid_trajectory
+from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
-__all__ = ["Gains", "make_controller", "NominalModel", "ArmModel", "ScaraPlant", "ArmPlant", "ControlRobot",
-           "control_robot", "Rollout", "Scenario", "SimulationDiverged", "control_metrics", "simulate",
+__all__ = ["Reference", "Gains", "make_controller", "NominalModel", "ArmModel", "ScaraPlant", "ArmPlant",
+           "ControlRobot", "control_robot", "Rollout", "Scenario", "SimulationDiverged", "control_metrics", "simulate",
            "paper_trajectory", "sinusoid_trajectory"]

@@ -27,7 +27,7 @@ import torch
 # name, not a documented API. The package's call spec is serialised in this module's format.
 import torch.utils._pytree as pytree
 
-__all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk"]
+__all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable"]
 
 _SOURCES = ("control", "robots")          # packages whose code the chunk runs
 
@@ -89,40 +89,44 @@ def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
     return h.hexdigest()[:32]
 
 
+def serializable(*types: type) -> None:
+    """Let a package's call spec hold these NamedTuples: pytree serialises a namedtuple's spec
+    only under a registered name (here its module and qualified name)."""
+    for cls in types:
+        if cls not in pytree.SUPPORTED_NODES:
+            pytree._register_namedtuple(cls, serialized_type_name=f"{cls.__module__}.{cls.__qualname__}")
+
+
 def chunk_key(plant, controller, dt: float, integrator: str, chunk: int, example: tuple) -> str:
     """The cache key of a `make_chunk` function: its plant, controller (not its features or
     initial weights, which are inputs), time step, integrator, length, and the example
-    arguments' structure, shapes, dtypes and devices (not their values)."""
+    arguments' (loop, periods) structure, shapes, dtypes and devices (not their values)."""
     leaves, spec = pytree.tree_flatten(example)
     shapes = [(tuple(t.shape), t.dtype, t.device) if isinstance(t, torch.Tensor) else t for t in leaves]
     return fingerprint(plant, controller, dt, integrator, chunk, shapes, str(spec), skip=("features", "w0"))
 
 
 class _Chunk(torch.nn.Module):
-    def __init__(self, run: Callable, with_features: bool) -> None:
+    def __init__(self, run: Callable) -> None:
         super().__init__()
-        self.run, self.with_features = run, with_features
+        self.run = run
 
-    def forward(self, *args):
-        if self.with_features:
-            return self.run(*args)
-        q, qd, state, q_d, v_d, a_d, alpha, dist, co = args
-        return self.run(q, qd, state, q_d, v_d, a_d, None, alpha, dist, co)
+    def forward(self, loop, periods):
+        return self.run(loop, periods)
 
 
 def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None] | None = None) -> Callable:
     """`run` (a `make_chunk` function) as the AOTInductor package cached under `key`, built from
-    the `example` arguments on a miss (minutes); returns a function with run's signature."""
+    the `example` arguments (loop, periods) on a miss (minutes); returns a function with run's
+    signature."""
     # torch's own pytree deprecation notice, raised when it pickles the program's input spec.
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
-    with_features = example[6] is not None
-    args = example if with_features else example[:6] + example[7:]
     path = cache_dir() / f"chunk-{key}.pt2"
     if not path.is_file():
         if log:
             log(f"compiling the closed-loop step ahead of time into {path} (minutes, once per configuration)")
         path.parent.mkdir(parents=True, exist_ok=True)
-        program = torch.export.export(_Chunk(run, with_features), args, strict=False)
+        program = torch.export.export(_Chunk(run), example, strict=False)
         fd, tmp = tempfile.mkstemp(suffix=".pt2", dir=path.parent)
         os.close(fd)
         try:
@@ -131,13 +135,7 @@ def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
-    compiled = _load(path)
-    if with_features:
-        return compiled
-
-    def call(q, qd, state, q_d, v_d, a_d, h, alpha, dist, co):
-        return compiled(q, qd, state, q_d, v_d, a_d, alpha, dist, co)
-    return call
+    return _load(path)
 
 
 def _load(path: Path) -> Callable:

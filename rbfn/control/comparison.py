@@ -10,16 +10,18 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any
 
 import torch
 
 from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, RobotConfig
 from ..robots.scara import ScaraParams
-from .controllers import Stacked, make_controller
+from .batch import Stacked
+from .controllers import make_controller
 from .network import control_network, desired_states, pilot_residuals
 from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
+from .trajectory import Reference
 
 __all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name"]
 
@@ -61,41 +63,41 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
-    ref = cast("tuple[torch.Tensor, torch.Tensor, torch.Tensor]",
-               tuple(r.to(**kw) for r in setup.trajectory(sc.times(torch.float64))))
+    ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)       # each (T, n)
     plant, model, scale = setup.plant, setup.model, setup.joint_scale(**kw)
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n
-    q0, qd0 = ref[0][:1].expand(b, n).clone(), ref[1][:1].expand(b, n).clone()
+    q0, qd0 = ref.q_d[:1].expand(b, n).clone(), ref.qd_d[:1].expand(b, n).clone()
     pilot = None
     controllers, select_seconds = [], {}
     for name in cfg.controllers:
         features = w0 = None
         if name.startswith("arbfn_"):
             if pilot is None:
-                pilot = pilot_residuals(plant, sc, ref, gains, model, PILOT_STRIDE, scale, compile=cfg.compile,
-                                        aot=cfg.aot)
+                pilot = pilot_residuals(plant, sc, ref, gains, model, stride=PILOT_STRIDE, joint_scale=scale,
+                                        compile=cfg.compile, aot=cfg.aot)
             net = control_network(name[len("arbfn_"):], pilot[0].double().cpu(), pilot[1].double().cpu(),
-                                  cfg.network.num_centers, cfg.network.seed, sc.dt * PILOT_STRIDE,
-                                  cfg.network.aco, cfg.network.warm_start)
+                                  m=cfg.network.num_centers, seed=cfg.network.seed, sample_dt=sc.dt * PILOT_STRIDE,
+                                  aco=cfg.network.aco, warm_start=cfg.network.warm_start)
             features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
-        controllers.append(make_controller(name, gains, sc.dt, model, features, w0, cfg.network.observer, scale))
+        controllers.append(make_controller(name, gains, sc.dt, model, features=features, w0=w0,
+                                           observer=cfg.network.observer, joint_scale=scale))
     k = len(controllers)
     ctrl = Stacked(controllers, [b] * k)
     t0 = time.perf_counter()
     try:
-        roll = simulate(plant, ctrl, sc, ref, q0.repeat(k, 1), qd0.repeat(k, 1), payload.repeat(k),
+        roll = simulate(plant, ctrl, sc, ref, q0=q0.repeat(k, 1), qd0=qd0.repeat(k, 1), payload=payload.repeat(k),
                         compile=cfg.compile, aot=cfg.aot)
     except SimulationDiverged as e:
         i, j = divmod(e.environment, b)
         raise SimulationDiverged(f"controller {cfg.controllers[i]}, payload {case_name(setup.payloads[j])}: {e}",
                                  e.environment) from None
     seconds = time.perf_counter() - t0
-    per_env = control_metrics(roll, ref[0], sc)
+    per_env = control_metrics(roll, ref.q_d, sc)
     runs: dict[str, ControlRun] = {}
     for i, name in enumerate(cfg.controllers):
         envs = slice(i * b, (i + 1) * b)
         part = Rollout(roll.t, roll.q[:, envs], roll.qd[:, envs], roll.tau[:, envs])
-        runs[name] = ControlRun({case_name(p): m for p, m in zip(setup.payloads, per_env[envs])}, part, seconds,
-                                select_seconds.get(name))
-    return ControlComparison(runs, ref[0], sc, list(setup.payloads), setup)
+        runs[name] = ControlRun(metrics={case_name(p): m for p, m in zip(setup.payloads, per_env[envs])},
+                                rollout=part, sim_seconds=seconds, select_seconds=select_seconds.get(name))
+    return ControlComparison(runs, q_des=ref.q_d, scenario=sc, payloads=list(setup.payloads), robot=setup)

@@ -21,28 +21,44 @@ heavy unknown payload the residual grows with the applied torque itself (it hold
 
 The torque gains K, epsilon, pd_kp, pd_kd and gamma act on joint j times `joint_scale[j]` (an
 (n,) tensor; None: 1 on every joint), so one set of gains serves joints whose inertias differ
-by orders of magnitude. Every controller is called once per control period with the step's
-reference and the state; its own state (observer, weights) is a tensor per environment.
+by orders of magnitude. Every controller is called once per control period with the period's
+Reference and its state (`SlidingState`: observer and weights, per environment). Running several
+controllers as one batch is `rbfn.control.batch`'s business, not the laws'.
 """
 from __future__ import annotations
 
-from typing import cast
+from typing import Any, NamedTuple
 
 import torch
 
 from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
 from .models import ArmModel, NominalModel
+from .trajectory import Reference
 
-__all__ = ["Gains", "NominalModel", "ArmModel", "Controller", "PD", "ComputedTorque", "SlidingMode",
-           "Stacked", "make_controller"]
+__all__ = ["Gains", "NominalModel", "ArmModel", "Reference", "Controller", "PD", "ComputedTorque", "SlidingMode",
+           "SlidingState", "make_controller"]
 
 Model = NominalModel | ArmModel
 
 
+class SlidingState(NamedTuple):
+    """A sliding-mode controller's state, each per environment: the observer's estimate d_hat
+    (B, n) of the torque the nominal model misses, its integral (B, n) of (tau_m + beta) dt, the
+    initial momentum p0 = M_hat(q0) qd0 (B, n), and the network's weights w (B, M, n) (None
+    without a network). N m (N), N m s (N s)."""
+
+    d_hat: torch.Tensor
+    integral: torch.Tensor
+    p0: torch.Tensor
+    w: torch.Tensor | None = None
+
+
 class Controller:
     """A pure function of tensors, so the whole closed-loop step can be compiled and batched:
-    `init_state(q0, qd0)` -> state tuple; `torque(ref, q, qd, state)` -> (tau (B, n), state),
-    where ref = (q_d, qd_d, qdd_d (n,), h (M,) or None, alpha (0-dim): the adaptation step).
+    `init_state(q0, qd0)` -> its state (a pytree of tensors; () for PD and computed torque);
+    `torque(ref, q, qd, state, h=, alpha=)` -> (tau (B, n), state), with ref this period's
+    Reference (each (n,) or (B, n)), h the features (M,) or None and alpha the adaptation step
+    (0-dim).
     """
 
     features: torch.Tensor | None = None
@@ -56,8 +72,12 @@ class Controller:
         """A torque gain on every joint: gain, or gain * joint_scale (n,)."""
         return gain if self.scale is None else gain * self.scale
 
-    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> Any:
         return ()
+
+    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: Any, *,
+               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, Any]:
+        raise NotImplementedError
 
     def alphas(self, t: torch.Tensor) -> torch.Tensor:
         """Adaptation step per control period alpha(t) = Gamma(t) dt at times t (s)."""
@@ -67,19 +87,19 @@ class Controller:
 class PD(Controller):
     """tau = Kp e + Kd de (no model)."""
 
-    def torque(self, ref, q, qd, state):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None):
         g = self.gains
         kp, kd = self._scaled(g.pd_kp or g.K * g.Lambda), self._scaled(g.pd_kd or g.K)
-        return kp * (ref[0] - q) + kd * (ref[1] - qd), state
+        return kp * (ref.q_d - q) + kd * (ref.qd_d - qd), state
 
 
 class ComputedTorque(Controller):
     """tau = M_hat (qdd_d + 2 Lambda de + Lambda^2 e) + C_hat qd + G_hat: critically damped at Lambda."""
 
-    def torque(self, ref, q, qd, state):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None):
         lam, at = self.gains.Lambda, self.model.at(q, qd)
-        e, de = ref[0] - q, ref[1] - qd
-        v = ref[2] + 2 * lam * de + lam * lam * e
+        e, de = ref.q_d - q, ref.qd_d - qd
+        v = ref.qdd_d + 2 * lam * de + lam * lam * e
         return at.m_times(v) + at.c_times(qd) + at.gravity(), state
 
 
@@ -88,7 +108,7 @@ class SlidingMode(Controller):
 
     features: (T, M) Gaussian activations of the desired state at every step (precomputed, the
     inputs being the desired trajectory); w0: (M, n) initial weights (zeros: learn from scratch).
-    State: (d_hat, observer integral, p0, W (B, M, n)).
+    State: a SlidingState. Several of them run as one batch through `rbfn.control.batch`.
     """
 
     def __init__(self, gains: Gains, dt: float, model: Model | None = None,
@@ -96,164 +116,55 @@ class SlidingMode(Controller):
                  w0: torch.Tensor | None = None, joint_scale: torch.Tensor | None = None) -> None:
         super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
-        # per-environment masks of a `batched` one (set by init_state)
-        self._observed: torch.Tensor | None = None
-        self._own: torch.Tensor | None = None
-        self.members: list[tuple[SlidingMode, int]] = []
-        self.member_columns: list[int] = []  # a batched one's feature columns per member
 
-    @classmethod
-    def batched(cls, parts: list[SlidingMode], sizes: list[int]) -> SlidingMode:
-        """Sliding-mode controllers that share gains, time step, model and joint scale as one
-        controller of sum(sizes) environments (part i drives the i-th block of sizes[i]): one model
-        evaluation per period for all of them. Its features are the parts' side by side (T, sum M_i);
-        an environment adds d_hat only if its part has the observer, and W^T h over its own
-        part's feature columns only (its W is zero elsewhere and stays so)."""
-        first = parts[0]
-        feats = [p.features for p in parts if p.features is not None]
-        out = cls(first.gains, first.dt, first.model, any(p.observer for p in parts),
-                  torch.cat(feats, -1) if feats else None, None, first.scale)
-        out.members = list(zip(parts, sizes))
-        # Public, so a compiled chunk's cache key (which leaves features out) sees the column split.
-        out.member_columns = [0 if p.features is None else p.features.shape[1] for p in parts]
-        return out
-
-    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> SlidingState:
         z = torch.zeros_like(q0)
         p0 = self.model.at(q0, qd0).m_times(qd0)
-        if self.members:
-            self._set_masks(q0)
         if self.features is None:
-            return z, z.clone(), p0
+            return SlidingState(z, z.clone(), p0)
         m, n = self.features.shape[1], q0.shape[1]
-        if not self.members:
-            w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
-            return z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone()
-        w = z.new_zeros(q0.shape[0], m, n)                    # each block's own columns hold its w0
-        for part, rows, cols in self._blocks():
-            if part.w0 is not None:
-                w[rows, cols] = part.w0.to(z)
-        return z, z.clone(), p0, w
+        w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
+        return SlidingState(z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone())
 
-    def _blocks(self):
-        """(part, its environments' rows, its feature columns) of a batched controller."""
-        r = c = 0
-        for (part, size), k in zip(self.members, self.member_columns):
-            yield part, slice(r, r + size), slice(c, c + k)
-            r, c = r + size, c + k
+    def observer_gain(self) -> float | torch.Tensor:
+        """K_o: one gain for every environment, or a batch's per environment (B, 1)."""
+        return self.gains.observer_gain
 
-    def _set_masks(self, like: torch.Tensor) -> None:
-        """A batched controller's (B, 1) observer mask (None: every part has it) and (B, M) mask of
-        each environment's own feature columns (None: one part's features span them all)."""
-        b = like.shape[0]
-        self._observed = self._own = None
-        if not all(p.observer for p, _ in self.members):
-            self._observed = torch.zeros(b, 1)
-        if self.features is not None:
-            self._own = torch.zeros(b, self.features.shape[1])
-        for part, rows, cols in self._blocks():
-            if self._observed is not None:
-                self._observed[rows] = float(part.observer)
-            if self._own is not None:
-                self._own[rows, cols] = 1.0
-        self._observed, self._own = (None if x is None else x.to(like) for x in (self._observed, self._own))
-
-    def torque(self, ref, q, qd, state):
+    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: SlidingState, *,
+               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, SlidingState]:
+        """tau (B, n) and the next state at joints q, velocities qd (B, n); h: this period's
+        features (M,), or per environment (B, M); alpha: its adaptation step (0-dim)."""
         g, dt = self.gains, self.dt
-        q_d, v_d, a_d, h, alpha = ref
-        e, de = q_d - q, v_d - qd
+        e, de = ref.q_d - q, ref.qd_d - qd
         s = torch.add(de, e, alpha=g.Lambda)        # x + alpha y in one operation: overhead-bound at small B
         at = self.model.at(q, qd)
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
-        tau = (at.m_times(torch.add(a_d, de, alpha=g.Lambda)) + at.c_times(torch.add(v_d, e, alpha=g.Lambda))
-               + at.gravity())
+        tau = (at.m_times(torch.add(ref.qdd_d, de, alpha=g.Lambda))
+               + at.c_times(torch.add(ref.qd_d, e, alpha=g.Lambda)) + at.gravity())
         if self.scale is None:
             tau = torch.add(torch.add(tau, s, alpha=g.K), robust, alpha=g.epsilon)
         else:
             tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
-        d_hat, integral, p0 = state[:3]
+        d_hat, integral, p0, w = state
         tau_m = tau                       # what the nominal model sees: no network, no observer
         if h is not None:
-            w = state[3]
-            if self._own is None:
-                tau = tau + torch.einsum("m,bmj->bj", h, w)
-            else:
-                h = h * self._own                 # (B, M): each environment's own columns
-                tau = tau + torch.einsum("bm,bmj->bj", h, w)
+            tau = tau + torch.einsum("m,bmj->bj" if h.dim() == 1 else "bm,bmj->bj", h, w)
         if self.observer:
             # Generalized momentum of the nominal model p = M_hat qd. With tau_m the torque the
             # nominal model sees (the network's share removed) and beta = dM_hat/dt qd - C_hat qd
             # - G_hat, d_hat = K_o (p0 + int (tau_m + beta - d_hat) dt - p) obeys
             # d(d_hat)/dt = K_o (miss - d_hat): it tracks what the model (nominal + network) misses.
-            d_hat = g.observer_gain * (integral + p0 - at.m_times(qd))
-            tau = tau + (d_hat if self._observed is None else d_hat * self._observed)
+            d_hat = self.observer_gain() * (integral + p0 - at.m_times(qd))
+            tau = tau + d_hat
             integral = torch.add(integral, tau_m + at.momentum_rate(), alpha=dt)
         if h is None:
-            return tau, (d_hat, integral, p0)
+            return tau, SlidingState(d_hat, integral, p0, w)
+        assert w is not None and alpha is not None              # a network has weights and a step
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
-        w = w + h[..., None] * step[:, None, :]          # h (M,) or, batched, (B, M)
+        w = w + h[..., None] * step[:, None, :]          # h (M,) or (B, M)
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
-        return tau, (d_hat, integral, p0, w)
-
-
-class Stacked(Controller):
-    """Several controllers as one batch, so that one simulation runs them all: controller i drives
-    the i-th block of `sizes[i]` environments. Consecutive sliding-mode controllers that share
-    gains, time step, model and joint scale run as one (`SlidingMode.batched`: the model is
-    evaluated once for all their environments). Its features are the parts' side by side
-    (T, sum M_i), its adaptation steps one column per unit (T, K), its state the units' states."""
-
-    def __init__(self, controllers: list[Controller], sizes: list[int]) -> None:
-        if len(controllers) != len(sizes) or not controllers:
-            raise ValueError(f"need one batch size per controller, got {len(sizes)} for {len(controllers)}")
-        self.parts, self.sizes = list(controllers), list(sizes)
-        runs: list[list[tuple[Controller, int]]] = []
-        for c, size in zip(self.parts, self.sizes):
-            if runs and _batchable(runs[-1][-1][0], c):
-                runs[-1].append((c, size))
-            else:
-                runs.append([(c, size)])
-        self.units = [r[0][0] if len(r) == 1
-                      else SlidingMode.batched([cast(SlidingMode, c) for c, _ in r], [s for _, s in r])
-                      for r in runs]
-        self.unit_sizes = [sum(s for _, s in r) for r in runs]
-        feats = [c.features for c in self.units if c.features is not None]
-        self.features = torch.cat(feats, -1) if feats else None
-        self.columns: list[slice | None] = []
-        start = 0
-        for c in self.units:
-            m = 0 if c.features is None else c.features.shape[-1]
-            self.columns.append(slice(start, start + m) if m else None)
-            start += m
-
-    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
-        return tuple(c.init_state(q, qd) for c, q, qd in
-                     zip(self.units, q0.split(self.unit_sizes), qd0.split(self.unit_sizes)))
-
-    def alphas(self, t: torch.Tensor) -> torch.Tensor:
-        return torch.stack([c.alphas(t) for c in self.units], -1)
-
-    def torque(self, ref, q, qd, state):
-        q_d, v_d, a_d, h, alpha = ref
-        taus, states = [], []
-        for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
-            cols = self.columns[i]
-            tau, st = c.torque((q_d, v_d, a_d, None if cols is None else h[cols], alpha[i]), qi, qdi, state[i])
-            taus.append(tau)
-            states.append(st)
-        return torch.cat(taus), tuple(states)
-
-
-def _batchable(a: Controller, b: Controller) -> bool:
-    """Whether sliding-mode controllers a and b can run as one: equal gains, time step, joint
-    scale and model (the same object, or the SCARA's with the same coefficients)."""
-    if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
-        return False
-    same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
-    same_model = a.model is b.model or (type(a.model) is type(b.model) is NominalModel
-                                        and vars(a.model) == vars(b.model))
-    return same_scale and same_model
+        return tau, SlidingState(d_hat, integral, p0, w)
 
 
 def make_controller(name: str, gains: Gains, dt: float, model: Model | None = None,

@@ -22,6 +22,7 @@ from ..objectives import FitObjective
 from ..select import choose_widths, select
 from .controllers import Gains, Model, make_controller
 from .simulator import Plant, Scenario, simulate
+from .trajectory import Reference
 
 __all__ = ["ControlNet", "desired_states", "pilot_residuals", "control_network"]
 PERIOD = 2 * math.pi          # s: every desired joint repeats with this period
@@ -45,21 +46,21 @@ class ControlNet:
         return gaussian_features(z, self.centers.to(x), self.widths.to(x))
 
 
-def desired_states(ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
+def desired_states(ref: Reference) -> torch.Tensor:
     """Network inputs (T, 2n): desired joints and velocities."""
-    return torch.cat([ref[0], ref[1]], -1)
+    return torch.cat([ref.q_d, ref.qd_d], -1)
 
 
-def pilot_residuals(plant: Plant, scenario: Scenario, ref, gains: Gains, model: Model,
+def pilot_residuals(plant: Plant, scenario: Scenario, ref: Reference, gains: Gains, model: Model,
                     stride: int = 10, joint_scale: torch.Tensor | None = None, compile: bool = False,
                     aot: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """(x (N, 2n), residual torque (N, n)) every `stride` steps of an `smc_obs` run without payload;
     the residual is what the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat).
     `compile`, `aot`: as `simulate`'s."""
-    q0, qd0 = ref[0][:1].clone(), ref[1][:1].clone()
+    q0, qd0 = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
     ctrl = make_controller("smc_obs", gains, scenario.dt, model, joint_scale=joint_scale)
-    roll = simulate(plant, ctrl, scenario, ref, q0, qd0, torch.zeros(1, dtype=q0.dtype, device=q0.device),
-                    compile=compile, aot=aot)
+    roll = simulate(plant, ctrl, scenario, ref, q0=q0, qd0=qd0,
+                    payload=torch.zeros(1, dtype=q0.dtype, device=q0.device), compile=compile, aot=aot)
     q, qd, tau = roll.q[:-1, 0], roll.qd[:-1, 0], roll.tau[:-1, 0]
     qdd = (roll.qd[1:, 0] - qd) / scenario.dt
     at = model.at(q, qd)

@@ -10,21 +10,21 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal, overload
+from typing import Any, Literal, NamedTuple, overload
 
 import torch
 import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (see rbfn.control.aot)
 
 from ..config import Integrator
-from .aot import aot_chunk, chunk_key
+from .aot import aot_chunk, chunk_key, serializable
+from .controllers import Controller, SlidingState
 from .plants import ArmPlant, Plant, ScaraPlant
+from .trajectory import Reference
 
-if TYPE_CHECKING:
-    from .controllers import Controller
-
-__all__ = ["Plant", "ScaraPlant", "ArmPlant", "Scenario", "Rollout", "SimulationDiverged", "simulate",
-           "control_metrics", "make_chunk", "stage_disturbances", "CHECK_EVERY"]
+__all__ = ["Plant", "ScaraPlant", "ArmPlant", "Reference", "Scenario", "Rollout", "SimulationDiverged", "Loop",
+           "Periods", "Recorded", "simulate", "control_metrics", "make_chunk", "stage_disturbances", "CHECK_EVERY"]
 
 log = logging.getLogger(__name__)
 CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a GPU)
@@ -98,47 +98,84 @@ def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
     return torch.stack([d[0:-1:2], d[1::2], d[2::2]], 1)
 
 
-def make_chunk(plant: Plant, controller: Controller, dt: float, integrator: str, n: int):
+class Loop(NamedTuple):
+    """The closed loop's state: joints q and velocities qd (B, n) (rad or m, per s) and the
+    controller's state."""
+
+    q: torch.Tensor
+    qd: torch.Tensor
+    controller: Any
+
+
+class Periods(NamedTuple):
+    """The inputs of consecutive control periods, stacked over the periods (first dimension m):
+    the reference (each (m, n), or per environment (m, B, n)), the features h (m, M) or None,
+    the adaptation steps alpha (m,) (a Stacked controller's: (m, K)), the disturbance torque at
+    each period's start, middle and end dist (m, 3) or (m, 3, n) (`stage_disturbances`), and the
+    plant's payload coefficients co (each (m, B))."""
+
+    ref: Reference
+    h: torch.Tensor | None
+    alpha: torch.Tensor
+    dist: torch.Tensor
+    co: tuple[torch.Tensor, ...]
+
+
+class Recorded(NamedTuple):
+    """What a chunk of m periods returns: the loop after them, and per period the joints q and
+    velocities qd at its start and the torque tau applied during it (m, B, n)."""
+
+    loop: Loop
+    q: torch.Tensor
+    qd: torch.Tensor
+    tau: torch.Tensor
+
+
+def make_chunk(plant: Plant, controller: Controller, dt: float, integrator: str, n: int
+               ) -> Callable[[Loop, Periods], Recorded]:
     """`n` closed-loop periods as one pure tensor function (what torch.compile fuses):
-    (q, qd, state, q_d, qd_d, qdd_d, h, alpha, dist, co) -> (q, qd, state, qs, qds, taus),
-    the step inputs stacked over the n periods (co: the plant's payload coefficients, each
-    (n, B)), the outputs' records (n, B, joints)."""
-    def run(q, qd, state, q_d, v_d, a_d, h, alpha, dist, co):
+    run(loop, periods) -> Recorded, `periods` holding n periods' inputs."""
+    def run(loop: Loop, periods: Periods) -> Recorded:
+        q, qd, state = loop
         qs, qds, taus = [], [], []
-        hs = h.unbind(0) if h is not None else (None,) * n
-        rows = zip(q_d.unbind(0), v_d.unbind(0), a_d.unbind(0), hs, alpha.unbind(0), dist.unbind(0),
-                   *(c.unbind(0) for c in co))
-        for q_di, v_di, a_di, h_i, alpha_i, dist_i, *co_i in rows:
+        hs = periods.h.unbind(0) if periods.h is not None else (None,) * n
+        rows = zip(*(r.unbind(0) for r in periods.ref), hs, periods.alpha.unbind(0), periods.dist.unbind(0),
+                   *(c.unbind(0) for c in periods.co))
+        for q_d, qd_d, qdd_d, h, alpha, dist, *co in rows:
             qs.append(q)
             qds.append(qd)
-            tau, state = controller.torque((q_di, v_di, a_di, h_i, alpha_i), q, qd, state)
-            q, qd = plant.step(q, qd, tau, dist_i, dt, co_i, integrator)
+            tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha)
+            q, qd = plant.step(q, qd, tau, dist, dt, co, integrator)
             taus.append(tau)
-        return q, qd, state, torch.stack(qs), torch.stack(qds), torch.stack(taus)
+        return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
     return run
+
+
+serializable(Reference, Loop, Periods, Recorded, SlidingState)    # in an AOT package's call spec
 
 
 @overload
 def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: Literal[True] = ..., compile: bool = ..., chunk: int = ...,
              aot: bool = ...) -> Rollout: ...
 @overload
 def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: Literal[False], compile: bool = ..., chunk: int = ...,
              aot: bool = ...) -> tuple[torch.Tensor, torch.Tensor]: ...
 @overload
 def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = ..., compile: bool = ..., chunk: int = ...,
              aot: bool = ...) -> Rollout | tuple[torch.Tensor, torch.Tensor]: ...
 def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: tuple[torch.Tensor, torch.Tensor, torch.Tensor], q0: torch.Tensor, qd0: torch.Tensor,
+             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
              payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0,
              aot: bool = False) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
-    """Run the closed loop from (q0, qd0) (B, n) along ref = (q_d, qd_d, qdd_d), each (steps + 1, n)
-    on the scenario's time grid; payload (B,) kg applies inside the window.
+    """Run the closed loop from (q0, qd0) (B, n) along the Reference `ref` (q_d, qd_d, qdd_d; a
+    plain 3-tuple is taken as one), each (steps + 1, n) on the scenario's time grid; payload (B,)
+    kg applies inside the window.
 
     Returns a Rollout, or with record=False only the final (q, qd). `chunk` periods run per call
     (default 100 eager; compiled, the plant's `compile_chunk`: 25 for the SCARA, 1 for a URDF arm,
@@ -151,11 +188,12 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
     """
     scenario.validate()
     n, dt = scenario.steps, scenario.dt
-    if ref[0].shape[0] < n + 1:
-        raise ValueError(f"the reference has {ref[0].shape[0]} samples; the scenario needs {n + 1}")
-    if q0.dim() != 2 or q0.shape[1] != plant.n or qd0.shape != q0.shape or ref[0].shape[-1] != plant.n:
+    ref = Reference(*ref)
+    if ref.q_d.shape[0] < n + 1:
+        raise ValueError(f"the reference has {ref.q_d.shape[0]} samples; the scenario needs {n + 1}")
+    if q0.dim() != 2 or q0.shape[1] != plant.n or qd0.shape != q0.shape or ref.q_d.shape[-1] != plant.n:
         raise ValueError(f"the plant has {plant.n} joints: q0, qd0 must be (B, {plant.n}) and the reference "
-                         f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref[0].shape)}")
+                         f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref.q_d.shape)}")
     if not (torch.isfinite(q0).all() and torch.isfinite(qd0).all()):
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
@@ -163,13 +201,13 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     b = q0.shape[0]
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
-    dist = stage_disturbances(plant, n, dt, **kw)                      # (n, 3) or (n, 3, joints)
-    h = controller.features.to(**kw) if controller.features is not None else None
-    alpha = controller.alphas(torch.arange(n, **kw) * dt)
-    q_d, v_d, a_d = (r.to(**kw) for r in ref)
     k = torch.arange(n, device=q0.device)
     inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(q0.dtype)
-    co = plant.coefficients(inside[:, None] * payload.to(**kw)[None, :])   # each (n, B)
+    periods = Periods(ref=ref.to(**kw),                      # every period's inputs, sliced per chunk below
+                      h=controller.features.to(**kw) if controller.features is not None else None,
+                      alpha=controller.alphas(torch.arange(n, **kw) * dt),
+                      dist=stage_disturbances(plant, n, dt, **kw),                # (n, 3) or (n, 3, joints)
+                      co=tuple(plant.coefficients(inside[:, None] * payload.to(**kw)[None, :])))   # each (n, B)
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
@@ -177,11 +215,9 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
     # models' joint vectors have: elementwise results keep it, each joint's component is a
     # contiguous row, and compiled loops vectorise over environments.
     q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
-    state = controller.init_state(q, qd)
+    loop = Loop(q, qd, controller.init_state(q, qd))
     if aot and n >= chunk:
-        sl = slice(0, chunk)
-        example = (q, qd, state, q_d[sl], v_d[sl], a_d[sl], None if h is None else h[sl], alpha[sl], dist[sl],
-                   tuple(c[sl] for c in co))
+        example = (loop, _rows(periods, slice(0, chunk)))
         key = chunk_key(plant, controller, dt, scenario.integrator, chunk, example)
         run = aot_chunk(run, key, example, log.info)
     if record:
@@ -192,24 +228,29 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
     # into ordinary tensors; the final state is copied out of inference mode. The state enters as
     # inference tensors, so that every chunk a compiled step sees is of one kind (no recompiling).
     with torch.inference_mode():
-        q, qd, state = pytree.tree_map(torch.clone, (q, qd, state))
+        loop = pytree.tree_map_only(torch.Tensor, torch.clone, loop)
         while k0 < n:
             m = min(chunk, n - k0)
             fn = run if m == chunk else make_chunk(plant, controller, dt, scenario.integrator, m)
             sl = slice(k0, k0 + m)
-            q, qd, state, rq, rqd, rtau = fn(q, qd, state, q_d[sl], v_d[sl], a_d[sl],
-                                             None if h is None else h[sl], alpha[sl], dist[sl],
-                                             tuple(c[sl] for c in co))
+            out = fn(loop, _rows(periods, sl))
+            loop = out.loop
             if record:
-                qs[sl], qds[sl], taus[sl] = rq, rqd, rtau
+                qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
             k0 += m
             if k0 - checked >= CHECK_EVERY or k0 == n:
-                _check(k0, k0 * dt, q, qd, rtau[-1])
+                _check(k0, k0 * dt, loop.q, loop.qd, out.tau[-1])
                 checked = k0
+    q, qd = loop.q, loop.qd
     if not record:
         return q.clone(), qd.clone()
     qs[n], qds[n], taus[n] = q, qd, taus[n - 1]
     return Rollout(scenario.times(q.dtype, q.device), qs, qds, taus)
+
+
+def _rows(periods: Periods, sl: slice) -> Periods:
+    """The periods `sl` of every input (views)."""
+    return pytree.tree_map_only(torch.Tensor, lambda x: x[sl], periods)
 
 
 def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> list[dict]:

@@ -34,13 +34,13 @@ from ..robots.scara import END_LINK, ScaraParams, fk, ik
 from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
 from .robot_setup import control_robot
-from .simulator import ArmPlant, Plant, ScaraPlant, Scenario, make_chunk, stage_disturbances
-from .trajectory import paper_trajectory, sinusoid_trajectory
+from .simulator import ArmPlant, Loop, Periods, Plant, ScaraPlant, Scenario, make_chunk, stage_disturbances
+from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "is_closed_form_scara", "run_online",
-           "perturbation_sizes", "path_name", "check_online", "box_path"]
+__all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "is_closed_form_scara", "OnlineRun",
+           "run_online", "perturbation_sizes", "path_name", "check_online", "box_path"]
 
 
 @dataclass
@@ -236,18 +236,34 @@ def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: lis
     return _arm(record, cfg, gains, t, sizes, **kw)
 
 
+@dataclass
+class OnlineRun:
+    """What `run_online` returns for S perturbation rows, on the control grid of T instants with U
+    weight updates; positions in mm, rotations in degrees, joints in rad (m for a prismatic one)."""
+
+    t: torch.Tensor                      # (T,) s
+    err_adapt: torch.Tensor              # (T, S) task-space position error of the adapted network
+    err_frozen: torch.Tensor             # (T, S) of the same network without adaptation
+    err_analytic: torch.Tensor           # (T, S) of the nominal model's exact IK
+    rot_adapt: torch.Tensor | None       # (T, S) rotation errors, for pose targets (else None)
+    rot_frozen: torch.Tensor | None
+    rot_analytic: torch.Tensor | None
+    q_adapt: torch.Tensor                # (T, S, n_free) the adapted rows' joints
+    x_d: torch.Tensor                    # (T, d) desired targets along the path
+    q_real: torch.Tensor | None          # (T, n_free) the real robot's exact IK of the configured row, or None
+    dw: torch.Tensor                     # (U, S) norms of the weight change W - W0
+    t_update: torch.Tensor               # (U,) s, the update times
+    weights: torch.Tensor                # (S, P, n_free) the adapted rows' final output weights
+    link_error: torch.Tensor             # (S, L) each row's link errors
+    offset_error: torch.Tensor           # (S, n) each row's joint offsets (rad or m)
+    rejected: int                        # pairs the learner rejected (non-finite)
+
+
 def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float],
-               device: str = "cpu") -> dict:
+               device: str = "cpu") -> OnlineRun:
     """Run adapted and frozen networks for every perturbation size in `sizes` (link-1 errors; see
     `perturbation_sizes`) and the nominal model's exact IK, on the robot of the checkpoint entry
-    `record`.
-
-    Returns, on the control grid: t (T,), err_adapt / err_frozen / err_analytic (T, S) task-space
-    position errors in mm, and rot_adapt / rot_frozen / rot_analytic (T, S) rotation errors in
-    degrees for pose targets (else None), q_adapt (T, S, n_free), dw (U, S) weight-change norms at
-    the update times t_update (U,), final weights (S, P, n_free), the rows' link errors (S, L) and
-    offsets (S, n), the real robot's exact IK of the configured row q_real (T, n_free) or None,
-    and the number of rejected (non-finite) pairs.
+    `record`; see OnlineRun for what comes back.
     """
     kw: dict[str, Any] = {"dtype": torch.float64, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, "rk4", 0.0, cfg.duration, 0.0)
@@ -270,9 +286,9 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     vel = torch.zeros(nj, **kw)                                       # locked joints: held, at rest
     q = rob.full(torch.einsum("p,bpj->bj", path[0, 0], learner.w))
     qd = rob.full(torch.einsum("p,bpj->bj", path[1, 0], learner.w), vel)
-    state = ctrl.init_state(q, qd)
+    loop = Loop(q, qd, ctrl.init_state(q, qd))
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
-    co = plant.coefficients(torch.zeros(cfg.update_every, b, **kw))     # no payload
+    co = tuple(plant.coefficients(torch.zeros(cfg.update_every, b, **kw)))     # no payload
     alpha = torch.zeros(cfg.update_every, **kw)
     run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
     qs = torch.empty(n + 1, b, nj, **kw)
@@ -283,16 +299,18 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
             m = min(cfg.update_every, n - k)
             sl = slice(k, k + m)
             stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)      # (3, m, B, n_free): q_d, qd_d, qdd_d
-            refs = [rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel)]
-            args = (q, qd, state, *refs, None, alpha[:m], dist[sl], tuple(c[:m] for c in co))
+            ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
+            periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], co=tuple(c[:m] for c in co))
             if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
-                run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, args), args, log.info)
+                run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods),
+                                log.info)
             fn = run if m == cfg.update_every else make_chunk(plant, ctrl, cfg.dt, "rk4", m)
-            q, qd, state, rq, _, _ = fn(*args)
+            out = fn(loop, periods)
+            loop, rq = out.loop, out.q
             qs[sl] = rq
             k += m
-            if not bool(torch.isfinite(q).all()):
-                raise RuntimeError(f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s): q = {q.tolist()}")
+            if not bool(torch.isfinite(loop.q).all()):
+                raise RuntimeError(f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s): q = {loop.q.tolist()}")
             # Pairs (x, q) of this segment; the frozen environments learn nothing.
             x = rob.targets(*rob.measure(rq))                                   # (m, B, d)
             a = net.design(x).transpose(0, 1)                                  # (B, m, P)
@@ -301,14 +319,15 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
             learner.update(a, y, k * cfg.dt)
             learner.w = torch.where(frozen[:, None, None], keep, learner.w)
             dw.append((learner.w - w0).flatten(1).norm(dim=-1)[:n_s])
-    qs[n] = q
+    qs[n] = loop.q
     pos, rot = rob.errors(*rob.measure(qs))                                      # (T, B)
     # The nominal model's exact IK on each real robot (a kinematic perturbation: the same joints).
     q_an = rob.full(rob.q_nominal)[:, None, :].expand(-1, b, nj)
-    pos_an, rot_an = (None if e is None else e[:, :n_s] for e in rob.errors(*rob.measure(q_an)))
-    return {"t": t, "err_adapt": pos[:, :n_s], "err_frozen": pos[:, n_s:], "err_analytic": pos_an,
-            "rot_adapt": None if rot is None else rot[:, :n_s], "rot_frozen": None if rot is None else rot[:, n_s:],
-            "rot_analytic": rot_an, "q_adapt": qs[:, :n_s, rob.free], "x_d": rob.x_d, "q_real": rob.q_real,
-            "dw": torch.stack(dw), "t_update": torch.arange(1, len(dw) + 1, **kw) * cfg.update_every * cfg.dt,
-            "weights": learner.w[:n_s], "link_error": rob.link_error, "offset_error": rob.offset_error,
-            "rejected": learner.rejected}
+    pos_an, rot_an = rob.errors(*rob.measure(q_an))
+    return OnlineRun(t=t, err_adapt=pos[:, :n_s], err_frozen=pos[:, n_s:], err_analytic=pos_an[:, :n_s],
+                     rot_adapt=None if rot is None else rot[:, :n_s], rot_frozen=None if rot is None else rot[:, n_s:],
+                     rot_analytic=None if rot_an is None else rot_an[:, :n_s], q_adapt=qs[:, :n_s, rob.free],
+                     x_d=rob.x_d, q_real=rob.q_real, dw=torch.stack(dw),
+                     t_update=torch.arange(1, len(dw) + 1, **kw) * cfg.update_every * cfg.dt,
+                     weights=learner.w[:n_s], link_error=rob.link_error, offset_error=rob.offset_error,
+                     rejected=learner.rejected)

@@ -77,7 +77,8 @@ def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsC
     fig = tracking_figure(roll.t.cpu().numpy(), roll.q[:, i].cpu().numpy(), res.q_des.cpu().numpy(),
                           roll.tau[:, i].cpu().numpy(),
                           f"{res.robot.name}: {name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, "
-                          f"Lambda = {gains.Lambda:g}", (cfg.payload_on, cfg.payload_off), res.robot.units)
+                          f"Lambda = {gains.Lambda:g}", window=(cfg.payload_on, cfg.payload_off),
+                          units=res.robot.units)
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
 

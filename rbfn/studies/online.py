@@ -33,33 +33,34 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
     weight change. With `out_dir`, writes online_task_error.png and checkpoint_online.pt."""
     net = model_from_checkpoint(ckpt)
     sizes = list(cfg.sizes)
-    r = run_online(net, ckpt["robot"], cfg, gains, sizes, device)
-    t = r["t"]
+    r = run_online(net, ckpt["robot"], cfg, gains, sizes, device=device)
+    t = r.t
     first, last = t <= 2.0, t >= cfg.duration - 2.0
     i = next(k for k, s in enumerate(sizes) if math.isclose(s, cfg.link_error[0], rel_tol=1e-9, abs_tol=1e-12))
-    adapt_first, adapt_last = _rms(r["err_adapt"], first), _rms(r["err_adapt"], last)
-    frozen, analytic = _rms(r["err_frozen"], last), _rms(r["err_analytic"], last)
+    adapt_first, adapt_last = _rms(r.err_adapt, first), _rms(r.err_adapt, last)
+    frozen, analytic = _rms(r.err_frozen, last), _rms(r.err_analytic, last)
     # Joint error against the real robot's exact IK (same branch), where it is known.
-    jerr = None if r["q_real"] is None else (r["q_adapt"][:, i] - r["q_real"]).norm(dim=-1)
+    jerr = None if r.q_real is None else (r.q_adapt[:, i] - r.q_real).norm(dim=-1)
     out = {
         "task_err_mm_rms_first_2s": adapt_first[i],
         "task_err_mm_rms_last_2s": adapt_last[i],
         "task_err_mm_rms_no_adapt": frozen[i],
         "task_err_mm_rms_analytic_nominal": analytic[i],
         "joint_err_rms_last_2s": None if jerr is None else float(jerr[last].square().mean().sqrt()),
-        "weight_change_norm": float(r["dw"][-1, i]),
-        "rejected_pairs": r["rejected"],
+        "weight_change_norm": float(r.dw[-1, i]),
+        "rejected_pairs": r.rejected,
         "duration_s": cfg.duration, "learner": str(cfg.learner), "path": path_name(cfg, ckpt["robot"]),
         "robot": ckpt["robot"].get("name", ""),
         "sweep": [{"size": s, "link_error": le, "offset_error": oe,
                    "task_err_mm_rms_first_2s": a0, "task_err_mm_rms_last_2s": a1,
                    "task_err_mm_rms_no_adapt": f, "task_err_mm_rms_analytic_nominal": an}
-                  for s, le, oe, a0, a1, f, an in zip(sizes, r["link_error"].tolist(), r["offset_error"].tolist(),
+                  for s, le, oe, a0, a1, f, an in zip(sizes, r.link_error.tolist(), r.offset_error.tolist(),
                                                       adapt_first, adapt_last, frozen, analytic)],
     }
-    if r["rot_adapt"] is not None:                  # pose targets: the orientation error too
-        rot = {"first_2s": _rms(r["rot_adapt"], first), "last_2s": _rms(r["rot_adapt"], last),
-               "no_adapt": _rms(r["rot_frozen"], last), "analytic_nominal": _rms(r["rot_analytic"], last)}
+    if r.rot_adapt is not None:                  # pose targets: the orientation error too
+        assert r.rot_frozen is not None and r.rot_analytic is not None
+        rot = {"first_2s": _rms(r.rot_adapt, first), "last_2s": _rms(r.rot_adapt, last),
+               "no_adapt": _rms(r.rot_frozen, last), "analytic_nominal": _rms(r.rot_analytic, last)}
         out.update({f"task_rot_err_deg_rms_{k}": v[i] for k, v in rot.items()})
         for j, row in enumerate(out["sweep"]):
             row.update({f"task_rot_err_deg_rms_{k}": v[j] for k, v in rot.items()})
@@ -67,20 +68,20 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
         stride = max(1, round(0.01 / cfg.dt))
         for k in range(0, t.shape[0], stride):
             step = int(round(float(t[k]) * 1000))      # ms
-            for name, err in (("adapted", r["err_adapt"]), ("no_adapt", r["err_frozen"]),
-                              ("analytic_nominal", r["err_analytic"])):
+            for name, err in (("adapted", r.err_adapt), ("no_adapt", r.err_frozen),
+                              ("analytic_nominal", r.err_analytic)):
                 writer.add_scalar(f"online/task_err_mm/{name}", float(err[k, i]), step)
         for key, v in out.items():
             if isinstance(v, float):
                 writer.add_scalar(f"online/{key}", v)
     if out_dir is not None:
-        fig = online_figure(t.cpu().numpy(), r["err_adapt"][:, i].cpu().numpy(), r["err_frozen"][:, i].cpu().numpy(),
-                            r["err_analytic"][:, i].cpu().numpy(), r["t_update"].cpu().numpy(),
-                            r["dw"][:, i].cpu().numpy(), f"online {cfg.learner}, path {cfg.path}")
+        fig = online_figure(t.cpu().numpy(), r.err_adapt[:, i].cpu().numpy(), r.err_frozen[:, i].cpu().numpy(),
+                            r.err_analytic[:, i].cpu().numpy(), r.t_update.cpu().numpy(),
+                            r.dw[:, i].cpu().numpy(), f"online {cfg.learner}, path {cfg.path}")
         write_figure(fig, out_dir / "online_task_error.png", 110, writer, "online/task_error")
         if cfg.save_checkpoint:
             adapted = copy.deepcopy(net)
-            adapted.set_output_weights(r["weights"][i].to(net.centers.dtype))
+            adapted.set_output_weights(r.weights[i].to(net.centers.dtype))
             new = dict(ckpt)
             new["state_dict"] = {k: v.cpu() for k, v in adapted.state_dict().items()}
             new["metrics"] = {**ckpt.get("metrics", {}), "online": {k: v for k, v in out.items() if k != "sweep"}}

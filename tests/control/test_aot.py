@@ -6,7 +6,8 @@ import torch
 
 from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.aot import fingerprint
-from rbfn.control.controllers import Gains, Stacked
+from rbfn.control.batch import Stacked
+from rbfn.control.controllers import Gains
 
 
 def test_fingerprint_follows_values_not_identity_or_caches():
@@ -39,7 +40,7 @@ def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("smc_obs", Gains(), sc.dt)
     pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
-    q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
+    q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
     eager = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, pay, chunk=4)
     with caplog.at_level("INFO", logger="rbfn.control.simulator"):
         first = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, pay, chunk=4, aot=True)

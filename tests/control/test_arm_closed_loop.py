@@ -29,8 +29,8 @@ PANDA = compose_config("evaluate", "robot=panda").robot
 
 
 def _run(plant, model, name, sc, ref, payload, **kw):
-    b, n = payload.shape[0], ref[0].shape[1]
-    q0, qd0 = ref[0][:1].expand(b, n).clone(), ref[1][:1].expand(b, n).clone()
+    b, n = payload.shape[0], ref.q_d.shape[1]
+    q0, qd0 = ref.q_d[:1].expand(b, n).clone(), ref.qd_d[:1].expand(b, n).clone()
     ctrl = make_controller(name, Gains(), sc.dt, model, **kw)
     return simulate(plant, ctrl, sc, ref, q0, qd0, payload)
 
@@ -93,7 +93,7 @@ def test_ur5_batched_run_matches_single_runs(integrator):
     pay = torch.tensor(setup.payloads, dtype=torch.float64)
     assert setup.payloads == [0.0, 2.5, 5.0] and setup.figure_payload == 2.5
     ctrl = make_controller("smc_obs", Gains(), sc.dt, setup.model, joint_scale=scale)
-    q0, qd0 = ref[0][:1].expand(3, 6).clone(), ref[1][:1].expand(3, 6).clone()
+    q0, qd0 = ref.q_d[:1].expand(3, 6).clone(), ref.qd_d[:1].expand(3, 6).clone()
     batch = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
     for i in range(3):
         one = simulate(setup.plant, ctrl, sc, ref, q0[i:i + 1], qd0[i:i + 1], pay[i:i + 1])
@@ -110,7 +110,7 @@ def test_ur5_divergence_stops_with_step_and_state():
     ref = setup.trajectory(sc.times())
     ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, setup.model)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = \["):
-        simulate(setup.plant, ctrl, sc, ref, ref[0][:1].clone(), ref[1][:1].clone(),
+        simulate(setup.plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(),
                  torch.zeros(1, dtype=torch.float64))
 
 
@@ -210,7 +210,7 @@ def test_ur5_compiled_step_equals_eager():
     scale = setup.joint_scale(dtype=torch.float64)
     ctrl = make_controller("smc_obs", Gains(), sc.dt, setup.model, joint_scale=scale)
     pay = torch.tensor([0.0, 2.5], dtype=torch.float64)
-    q0, qd0 = ref[0][:1].expand(2, 6).clone(), ref[1][:1].expand(2, 6).clone()
+    q0, qd0 = ref.q_d[:1].expand(2, 6).clone(), ref.qd_d[:1].expand(2, 6).clone()
     eager = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay)
     compiled = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, compile=True)
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)

@@ -2,7 +2,9 @@ import pytest
 import torch
 
 from rbfn.control import ScaraPlant, Scenario, SimulationDiverged, make_controller, paper_trajectory, simulate
-from rbfn.control.controllers import Gains, NominalModel, Stacked
+from rbfn.control.batch import Stacked
+from rbfn.control.controllers import Gains, NominalModel
+from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
 from rbfn.robots.scara import coriolis, gravity, m_solve, m_times, mass_matrix, mass_matrix_dot
 
 
@@ -76,8 +78,8 @@ def test_observer_estimates_the_model_gravity_error():
     sc = Scenario(duration=1.0, payload_on=0.0, payload_off=1.0, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("smc_obs", Gains(), sc.dt, model)
-    roll = simulate(plant, ctrl, sc, ref, ref[0][:1].clone(), ref[1][:1].clone(), torch.zeros(1, dtype=torch.float64))
-    err = (ref[0][-1] - roll.q[-1, 0]).abs()
+    roll = simulate(plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64))
+    err = (ref.q_d[-1] - roll.q[-1, 0]).abs()
     assert float(err.max()) < 1e-5       # with the bias observed and cancelled, tracking is tight
 
 
@@ -87,7 +89,7 @@ def test_batched_run_matches_single_runs(integrator):
     ref = paper_trajectory(sc.times())
     plant = ScaraPlant(friction="smooth")
     pay = torch.tensor([0.0, 10.0, 20.0], dtype=torch.float64)
-    q0, qd0 = ref[0][:1].expand(3, 3).clone(), ref[1][:1].expand(3, 3).clone()
+    q0, qd0 = ref.q_d[:1].expand(3, 3).clone(), ref.qd_d[:1].expand(3, 3).clone()
     ctrl = make_controller("smc_obs", Gains(), sc.dt)
     batch = simulate(plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
     for i in range(3):
@@ -106,7 +108,7 @@ def test_stacked_controllers_equal_their_separate_runs():
     ref = paper_trajectory(sc.times())
     plant = ScaraPlant()
     pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
-    q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
+    q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
     gen = torch.Generator().manual_seed(0)
     feats = torch.rand(sc.steps + 1, 4, generator=gen, dtype=torch.float64)
     other = torch.rand(sc.steps + 1, 3, generator=gen, dtype=torch.float64)
@@ -129,12 +131,29 @@ def test_stacked_controllers_equal_their_separate_runs():
         Stacked(parts, [2, 2])
 
 
+def test_adaptive_law_moves_the_weights():
+    """dW/dt = Gamma h s^T: after a second of tracking under a payload, W has left zero."""
+    n, dt = 1000, 1e-3
+    t = torch.arange(n, dtype=torch.float64) * dt
+    ref = paper_trajectory(t)
+    h = torch.rand(n, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    ctrl = make_controller("arbfn_x", Gains(), dt, NominalModel(), features=h)
+    plant = ScaraPlant()
+    q, qd = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
+    periods = Periods(ref=ref, h=h, alpha=ctrl.alphas(t), dist=stage_disturbances(plant, n, dt, dtype=torch.float64),
+                      co=plant.coefficients(torch.full((n, 1), 10.0, dtype=torch.float64)))
+    out = make_chunk(plant, ctrl, dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
+    assert out.q.shape == out.tau.shape == (n, 1, 3)
+    w = out.loop.controller.w
+    assert w.shape == (1, 5, 3) and float(w.abs().max()) > 1e-3
+
+
 def test_divergence_stops_with_step_and_state():
     sc = Scenario(duration=2.0, dt=0.05, payload_on=0.5, payload_off=1.0, integrator="euler")
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = "):
-        simulate(ScaraPlant(), ctrl, sc, ref, ref[0][:1].clone(), ref[1][:1].clone(), torch.zeros(1, dtype=torch.float64))
+        simulate(ScaraPlant(), ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64))
 
 
 @pytest.mark.parametrize("kwargs,match", [
@@ -152,11 +171,11 @@ def test_bad_inputs_fail_early():
     sc = Scenario(duration=0.1, payload_on=0.0, payload_off=0.05, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("smc", Gains(), sc.dt)
-    q0 = ref[0][:1].clone()
+    q0 = ref.q_d[:1].clone()
     with pytest.raises(ValueError, match="initial state"):
-        simulate(ScaraPlant(), ctrl, sc, ref, q0 * float("nan"), ref[1][:1].clone(), torch.zeros(1, dtype=torch.float64))
+        simulate(ScaraPlant(), ctrl, sc, ref, q0 * float("nan"), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64))
     with pytest.raises(ValueError, match="payload masses"):
-        simulate(ScaraPlant(), ctrl, sc, ref, q0, ref[1][:1].clone(), torch.tensor([-1.0], dtype=torch.float64))
+        simulate(ScaraPlant(), ctrl, sc, ref, q0, ref.qd_d[:1].clone(), torch.tensor([-1.0], dtype=torch.float64))
     with pytest.raises(ValueError, match="friction='coulomb' is not allowed"):
         ScaraPlant(friction="coulomb")
     with pytest.raises(ValueError, match="unknown controller 'lqr'"):
@@ -172,7 +191,7 @@ def test_compiled_step_equals_eager():
         pytest.skip("torch.compile's CPU backend needs a C++ compiler")
     sc = Scenario(duration=0.02, dt=1e-3, payload_on=0.005, payload_off=0.015, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    q0, qd0 = ref[0][:1].expand(2, 3).clone(), ref[1][:1].expand(2, 3).clone()
+    q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
     payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
     ctrl = make_controller("smc_obs", Gains(), sc.dt)
     eager = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, chunk=5)

@@ -42,13 +42,13 @@ def test_panda_adapts_online_with_its_locked_joint_held(panda_ckpt):
     cfg = OnlineConfig(duration=3.0, dt=0.002, sizes=[0.0, 0.03], link_error=[0.03, 0.02, -0.02],
                        offset_error=[0.02, 0.0, 0.0, 0.01])
     r = run_online(model_from_checkpoint(panda_ckpt), panda_ckpt["robot"], cfg, GainsConfig(), list(cfg.sizes))
-    assert r["q_adapt"].shape[1:] == (2, 6) and r["rot_adapt"] is not None and r["q_real"] is None
-    assert r["err_analytic"][:, 0].abs().max() < 1e-9 and r["err_analytic"][:, 1].mean() > 1.0
-    late = r["t"] >= 2.0
-    adapt, frozen = r["err_adapt"][late].mean(0), r["err_frozen"][late].mean(0)
+    assert r.q_adapt.shape[1:] == (2, 6) and r.rot_adapt is not None and r.q_real is None
+    assert r.err_analytic[:, 0].abs().max() < 1e-9 and r.err_analytic[:, 1].mean() > 1.0
+    late = r.t >= 2.0
+    adapt, frozen = r.err_adapt[late].mean(0), r.err_frozen[late].mean(0)
     assert (adapt < 0.2 * frozen).all(), (adapt, frozen)
-    assert (r["rot_adapt"][late].mean(0) < 0.5 * r["rot_frozen"][late].mean(0)).all()
-    assert r["dw"][-1].min() > 0
+    assert (r.rot_adapt[late].mean(0) < 0.5 * r.rot_frozen[late].mean(0)).all()
+    assert r.dw[-1].min() > 0
 
 
 def test_settings_that_do_not_suit_the_robot_are_named():

@@ -112,27 +112,6 @@ def test_control_gains_preset_composes():
     assert cfg.hydra.sweeper.params["gains.K"] == "15,30,50" and cfg.ik is False
 
 
-def test_adaptive_law_moves_the_weights():
-    """dW/dt = Gamma h s^T: after a second of tracking under a payload, W has left zero."""
-    from rbfn.control.controllers import NominalModel, make_controller
-    from rbfn.control.simulator import ScaraPlant, make_chunk, stage_disturbances
-    from rbfn.control.trajectory import paper_trajectory
-
-    n, dt = 1000, 1e-3
-    t = torch.arange(n, dtype=torch.float64) * dt
-    ref = paper_trajectory(t)
-    h = torch.rand(n, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    ctrl = make_controller("arbfn_x", GainsConfig(), dt, NominalModel(), features=h)
-    plant = ScaraPlant()
-    q, qd = ref[0][:1].clone(), ref[1][:1].clone()
-    state = ctrl.init_state(q, qd)
-    co = plant.coefficients(torch.full((n, 1), 10.0, dtype=torch.float64))
-    run = make_chunk(plant, ctrl, dt, "rk4", n)
-    *_, state, _, _, _ = run(q, qd, state, *ref, h, ctrl.alphas(t), stage_disturbances(plant, n, dt, dtype=torch.float64), co)
-    w = state[3]
-    assert w.shape == (1, 5, 3) and float(w.abs().max()) > 1e-3
-
-
 UR5_TINY = ["robot=ur5", "ik=false", "online.enabled=false", "control.duration=0.6", "control.dt=0.002",
             "control.payload_on=0.1", "control.payload_off=0.4", "control.controllers=[smc,arbfn_kmeans]",
             "control.network.num_centers=4"]

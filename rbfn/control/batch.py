@@ -1,0 +1,133 @@
+"""Several controllers as one batch, so that one simulation runs them all (the closed-loop
+comparison: B = controllers x payload cases).
+
+`Stacked` splits the environments into blocks, one per controller; consecutive sliding-mode
+controllers that share gains, time step, model and joint scale run as one `SlidingModeBatch`,
+which evaluates the model once for all their environments. The laws themselves
+(`rbfn.control.controllers`) know nothing of batching: a batch hands the sliding-mode law each
+environment's own features (B, M) and observer gain (B, 1).
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import cast
+
+import torch
+
+from .controllers import Controller, NominalModel, Reference, SlidingMode, SlidingState
+
+__all__ = ["Stacked", "SlidingModeBatch"]
+
+
+class SlidingModeBatch(SlidingMode):
+    """Sliding-mode controllers that share gains, time step, model and joint scale as one
+    controller of sum(sizes) environments (part i drives the i-th block of sizes[i]). Its features
+    are the parts' side by side (T, sum M_i); an environment adds d_hat only if its part has the
+    observer (its observer gain is 0 otherwise), and W^T h over its own part's feature columns
+    only (its W is zero elsewhere and stays so)."""
+
+    def __init__(self, parts: list[SlidingMode], sizes: list[int]) -> None:
+        first = parts[0]
+        feats = [p.features for p in parts if p.features is not None]
+        super().__init__(first.gains, first.dt, first.model, observer=any(p.observer for p in parts),
+                         features=torch.cat(feats, -1) if feats else None, joint_scale=first.scale)
+        self.members = list(zip(parts, sizes))
+        # Public, so a compiled chunk's cache key (which leaves features out) sees the column split.
+        self.member_columns = [0 if p.features is None else p.features.shape[1] for p in parts]
+        # Per environment, set by init_state: observer gain (B, 1) (None: every part has the
+        # observer) and mask of its own feature columns (B, M) (None: no features).
+        self._gain: torch.Tensor | None = None
+        self._own: torch.Tensor | None = None
+
+    def _blocks(self) -> Iterator[tuple[SlidingMode, slice, slice]]:
+        """(part, its environments' rows, its feature columns)."""
+        r = c = 0
+        for (part, size), k in zip(self.members, self.member_columns):
+            yield part, slice(r, r + size), slice(c, c + k)
+            r, c = r + size, c + k
+
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> SlidingState:
+        b = q0.shape[0]
+        observed = None if all(p.observer for p, _ in self.members) else torch.zeros(b, 1)
+        own = None if self.features is None else torch.zeros(b, self.features.shape[1])
+        for part, rows, cols in self._blocks():
+            if observed is not None:
+                observed[rows] = float(part.observer)
+            if own is not None:
+                own[rows, cols] = 1.0
+        self._gain = None if observed is None else observed.to(q0) * self.gains.observer_gain
+        self._own = None if own is None else own.to(q0)
+        state = super().init_state(q0, qd0)                    # w: zeros, the batch having no w0
+        for part, rows, cols in self._blocks():
+            if state.w is not None and part.w0 is not None:
+                state.w[rows, cols] = part.w0.to(state.w)      # each block's own columns hold its w0
+        return state
+
+    def observer_gain(self) -> float | torch.Tensor:
+        return self.gains.observer_gain if self._gain is None else self._gain
+
+    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: SlidingState, *,
+               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, SlidingState]:
+        own = None if h is None or self._own is None else h * self._own       # (B, M): each environment's own
+        return super().torque(ref, q, qd, state, h=own, alpha=alpha)
+
+
+class Stacked(Controller):
+    """Several controllers as one batch: controller i drives the i-th block of `sizes[i]`
+    environments. Consecutive sliding-mode controllers that share gains, time step, model and
+    joint scale run as one `SlidingModeBatch`. Its features are the units' side by side
+    (T, sum M_i), its adaptation steps one column per unit (T, K), its state a tuple of the units'
+    states; the reference (each (n,)) is every environment's."""
+
+    def __init__(self, controllers: list[Controller], sizes: list[int]) -> None:
+        if len(controllers) != len(sizes) or not controllers:
+            raise ValueError(f"need one batch size per controller, got {len(sizes)} for {len(controllers)}")
+        self.parts, self.sizes = list(controllers), list(sizes)
+        runs: list[list[tuple[Controller, int]]] = []
+        for c, size in zip(self.parts, self.sizes):
+            if runs and _batchable(runs[-1][-1][0], c):
+                runs[-1].append((c, size))
+            else:
+                runs.append([(c, size)])
+        self.units = [r[0][0] if len(r) == 1
+                      else SlidingModeBatch([cast(SlidingMode, c) for c, _ in r], [s for _, s in r])
+                      for r in runs]
+        self.unit_sizes = [sum(s for _, s in r) for r in runs]
+        feats = [c.features for c in self.units if c.features is not None]
+        self.features = torch.cat(feats, -1) if feats else None
+        self.columns: list[slice | None] = []
+        start = 0
+        for c in self.units:
+            m = 0 if c.features is None else c.features.shape[-1]
+            self.columns.append(slice(start, start + m) if m else None)
+            start += m
+
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
+        return tuple(c.init_state(q, qd) for c, q, qd in
+                     zip(self.units, q0.split(self.unit_sizes), qd0.split(self.unit_sizes)))
+
+    def alphas(self, t: torch.Tensor) -> torch.Tensor:
+        return torch.stack([c.alphas(t) for c in self.units], -1)
+
+    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: tuple, *,
+               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, tuple]:
+        assert alpha is not None                                    # one column per unit (K,)
+        taus, states = [], []
+        for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
+            cols = self.columns[i]
+            tau, st = c.torque(ref, qi, qdi, state[i], h=None if cols is None or h is None else h[cols],
+                               alpha=alpha[i])
+            taus.append(tau)
+            states.append(st)
+        return torch.cat(taus), tuple(states)
+
+
+def _batchable(a: Controller, b: Controller) -> bool:
+    """Whether sliding-mode controllers a and b can run as one: equal gains, time step, joint
+    scale and model (the same object, or the SCARA's with the same coefficients)."""
+    if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
+        return False
+    same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
+    same_model = a.model is b.model or (type(a.model) is type(b.model) is NominalModel
+                                        and vars(a.model) == vars(b.model))
+    return same_scale and same_model
