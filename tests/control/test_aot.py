@@ -3,11 +3,13 @@ import shutil
 
 import pytest
 import torch
+import torch.utils._pytree as pytree
 
 from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.aot import fingerprint
 from rbfn.control.batch import Stacked
-from rbfn.control.controllers import Gains
+from rbfn.control.controllers import Gains, SlidingState
+from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
 
 
 def test_fingerprint_follows_values_not_identity_or_caches():
@@ -29,6 +31,27 @@ def test_fingerprint_follows_values_not_identity_or_caches():
     assert fingerprint(both) != fingerprint(Stacked([c2, f1], [2, 2]))
     with pytest.raises(TypeError, match="cannot fingerprint a"):
         fingerprint(object())
+
+
+def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
+    """The chunk's named inputs and outputs are pytrees of tensors (what torch.compile and
+    torch.export take) whose structure an AOT package's call spec can store and read back."""
+    sc = Scenario(duration=0.01, payload_on=0.0, payload_off=0.005, metrics_after=0.0)
+    ref = paper_trajectory(sc.times())
+    plant, feats = ScaraPlant(), torch.rand(sc.steps + 1, 4, dtype=torch.float64)
+    ctrl = Stacked([make_controller("smc_obs", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt,
+                                                                                 features=feats)], [1, 1])
+    q, qd = ref.q_d[:2].clone(), ref.qd_d[:2].clone()
+    n = sc.steps
+    periods = Periods(ref=ref, h=feats, alpha=ctrl.alphas(sc.times()[:n]), dist=stage_disturbances(plant, n, sc.dt,
+                      dtype=torch.float64), co=plant.coefficients(torch.zeros(n, 2, dtype=torch.float64)))
+    out = make_chunk(plant, ctrl, sc.dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
+    for tree in ((Loop(q, qd, ctrl.init_state(q, qd)), periods), out):
+        leaves, spec = pytree.tree_flatten(tree)
+        assert all(isinstance(x, torch.Tensor) or x is None for x in leaves)
+        assert pytree.treespec_loads(pytree.treespec_dumps(spec)) == spec
+    (state,) = out.loop.controller                         # one batched sliding-mode unit
+    assert isinstance(state, SlidingState) and state.w is not None and state.w.shape == (2, 4, 3)
 
 
 @pytest.mark.slow
