@@ -236,7 +236,7 @@ def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
         from mujoco import rollout  # noqa: F401  (imported here only to return [] without it)
     except ImportError:
         return []
-    from rbfn.robots.mjcf import scara_mjcf
+    from rbfn.robots.scara.mjcf import scara_mjcf
 
     model = mujoco.MjModel.from_xml_string(scara_mjcf(payload=PAYLOAD, dt=DT, integrator=integrator))
     datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]

@@ -36,6 +36,8 @@ from lxml import etree
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 from pytorch_kinematics.urdf_parser_py.xml_reflection.core import Path as XmlPath
 
+from ..config import ROBOT_PRESETS
+
 __all__ = ["MAX_URDF_BYTES", "forward_kinematics", "forward_kinematics_pose", "is_urdf_text", "joint_limits",
            "load_serial_chain", "parse_urdf", "read_urdf", "urdf_path", "urdf_text", "urdf_tree"]
 
@@ -60,12 +62,11 @@ _JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "
 
 
 def urdf_path(name: str) -> Path:
-    """Path of a URDF shipped with rbfn.robots: "scara", "ur5" or "panda" (a name, never a path)."""
-    folder = Path(str(files("rbfn.robots")))
-    shipped = sorted(p.stem for p in folder.glob("*.urdf"))
-    if name not in shipped:
-        raise ValueError(f"name={name!r} is not a URDF shipped with rbfn.robots; allowed: {shipped}")
-    return folder / f"{name}.urdf"
+    """Path of a packaged robot's URDF, rbfn/robots/NAME/NAME.urdf, NAME one of
+    `rbfn.config.ROBOT_PRESETS` ("scara", "ur5", "panda"; a name, never a path)."""
+    if name not in ROBOT_PRESETS:
+        raise ValueError(f"name={name!r} is not a URDF shipped with rbfn.robots; allowed: {sorted(ROBOT_PRESETS)}")
+    return Path(str(files(f"rbfn.robots.{name}") / f"{name}.urdf"))
 
 
 def _matrix(origin) -> list[list[float]]:

@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from rbfn.robots import scara
-from rbfn.robots.mjcf import scara_mjcf
+from rbfn.robots.scara.mjcf import scara_mjcf
 
 mujoco = pytest.importorskip("mujoco")
 np = pytest.importorskip("numpy")

@@ -1,4 +1,6 @@
-"""The paper's 3-DOF SCARA: parameters, URDF, closed-form kinematics and corrected dynamics.
+"""The paper's 3-DOF SCARA in closed form: parameters, kinematics and corrected dynamics, a
+second form of what `rbfn.robots.kinematics` and `rbfn.robots.dynamics` compute from scara.urdf
+(faster: elementwise, no chain walk), tested equal to it.
 
 Joints q = (q1, q2, q3): rad, rad, m. Base frame at joint 1's axis, in the arm's plane:
 x = l1 cos q1 + l2 cos(q1 + q2), y = l1 sin q1 + l2 sin(q1 + q2), z = -q3.
@@ -14,23 +16,21 @@ leading dimension, and keeps the dtype and device of q.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from importlib.resources import files
-from pathlib import Path
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import torch
 
-__all__ = ["ScaraParams", "URDF_PATH", "END_LINK", "fk", "ik", "inertia_params", "mass_matrix",
-           "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "mass_entries", "m_times", "minus_c_qd", "c_times", "m_solve", "m_solve_parts"]
-
-URDF_PATH: Path = Path(str(files("rbfn.robots") / "scara.urdf"))
-END_LINK = "quill"
+__all__ = ["ScaraParams", "with_link_errors", "fk", "ik", "inertia_params", "mass_matrix", "mass_matrix_dot",
+           "coriolis", "gravity", "kinetic_energy", "joint_vector", "mass_entries", "m_times", "minus_c_qd", "c_times",
+           "m_solve", "m_solve_parts"]
 
 
 @dataclass(frozen=True)
 class ScaraParams:
-    """Link lengths (m), masses (kg) and gravity (m/s^2); defaults are the paper's."""
+    """Link lengths (m), masses (kg) and gravity (m/s^2); defaults are the paper's: l1, l2, m1, m2
+    and m3 those of scara.urdf, g that of conf/robot/scara.yaml (l3, the quill's length, is in
+    neither kinematics: only MuJoCo's model draws it)."""
 
     l1: float = 1.0
     l2: float = 0.8
@@ -39,6 +39,12 @@ class ScaraParams:
     m2: float = 0.8
     m3: float = 0.5
     g: float = 9.8
+
+
+def with_link_errors(p: ScaraParams, link_error: Sequence) -> ScaraParams:
+    """p with l1 and l2 scaled by (1 + link_error[0]) and (1 + link_error[1]): relative errors,
+    floats or (B,) tensors (then l1, l2 are (B,) too, one robot per row)."""
+    return replace(p, l1=p.l1 * (1 + link_error[0]), l2=p.l2 * (1 + link_error[1]))
 
 
 def fk(q: torch.Tensor, p: ScaraParams = ScaraParams()) -> torch.Tensor:
