@@ -137,7 +137,8 @@ SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
 # Controllers by name; the adaptive RBFN is arbfn_<one of CONTROL_CENTER_METHODS>.
 BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs")
 CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
-# Robots whose URDF ships with the package (conf/robot/NAME.yaml; rbfn/robots/NAME.urdf).
+# The packaged robots: folders rbfn/robots/NAME/ (NAME.urdf, optional closed forms), presets
+# conf/robot/NAME.yaml (tests/robots/test_registry.py checks that the three lists agree).
 ROBOT_PRESETS = ("scara", "ur5", "panda")
 # Seeds feed scikit-learn's random_state (< 2**32) and derive data streams seed * 1000 + k.
 MAX_SEED = 2**32 - 1
@@ -155,6 +156,8 @@ PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10
 class RobotConfig:
     """The robot (group `robot`: scara, ur5, panda; or any serial URDF with `urdf` and `end_link`):
     its chain, the box of joints its IK answers in and the kind of target, and its physical facts.
+    The defaults are the SCARA's preset, conf/robot/scara.yaml, but for gravity (null: the
+    preset's) and home (empty: the box centre; the SCARA's paper trajectory has none).
 
     Joint values are in the URDF's units (rad, or m for prismatic joints), in the URDF's joint
     order along the chain root -> end link, `locked` joints excluded from the box and the IK output.
@@ -168,7 +171,7 @@ class RobotConfig:
     joint_high: list[float] = field(default_factory=lambda: [2.0, 2.0, 1.5])
     locked: dict[str, float] = field(default_factory=dict)   # joint name -> held value (redundant arms)
     rotation_scale: float = 0.3        # m per unit of the rotation features (pose targets)
-    gravity: Optional[float] = None    # m/s^2 along -z of the root; null: 9.8 for the scara, else 9.81
+    gravity: Optional[float] = None    # m/s^2 along -z of the root; null: the preset's (name), else 9.81
     trajectory: Trajectory = Trajectory.paper  # closed loop's desired joints
     home: list[float] = field(default_factory=list)   # sinusoid centre per joint; empty: the box centre
     amplitude: float = 0.1             # sinusoid amplitude, a fraction of each joint's half range

@@ -4,8 +4,9 @@ robot, evaluated at a state (q, qd) (B, n).
 `model.at(q, qd)` gives what a controller asks of its model at one control period:
 `m_times(v)` = M_hat(q) v, `c_times(y)` = C_hat(q, qd) y, `gravity()` = G_hat(q) and
 `momentum_rate()` = dM_hat/dt qd - C_hat qd - G_hat (the momentum observer's known part), each
-(B, n). `NominalModel` is the SCARA's closed form (elementwise, no matrices); `ArmModel` any URDF
-arm through `rbfn.robots.arm_terms` (C the Christoffel matrix, so dM/dt = C + C^T).
+(B, n). `ArmModel` serves any URDF arm through `rbfn.robots.arm_terms` (C the Christoffel matrix,
+so dM/dt = C + C^T); `NominalModel` is the SCARA's closed form (elementwise, no matrices), which
+`rbfn.robots.registry` chooses for exactly the packaged scara.urdf.
 """
 from __future__ import annotations
 

@@ -7,7 +7,8 @@ tau_d,j = disturbance_j sin(frequency t); m_p the payload (kg, per environment),
 step like the torque (zero-order hold).
 
 * `ScaraPlant`: the paper's SCARA in closed form (M block diagonal: its inverse a 2x2 one and a
-  scalar; a step is a few dozen fused tensor operations).
+  scalar; a step is a few dozen fused tensor operations), the plant `rbfn.robots.registry`
+  chooses for exactly the packaged scara.urdf (`rbfn.robots.scara.ScaraClosedForm.plant`).
 * `ArmPlant`: any URDF chain (`rbfn.robots.dynamics.Arm`), M and C qd + G by
   `rbfn.robots.arm_terms` (batch-last CRBA and RNEA; `arm_scalar`, the same in scalar form, while
   torch.compile traces), M qdd = r solved by a batched Cholesky factorisation; the payload a

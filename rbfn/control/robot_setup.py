@@ -2,9 +2,11 @@
 payload cases and units, from `RobotConfig` and `ControlConfig`; every robot-dependent setting is
 checked here, before any simulation, with errors naming the key.
 
-The SCARA (robot.name scara, no robot.urdf) keeps its closed form; any other robot is its URDF
-chain (`rbfn.robots.dynamics.load_arm`) root -> robot.end_link. Every joint of the chain is
-controlled: joints in robot.locked are held at their value (desired amplitude 0). The joint box
+Every robot takes one path: its URDF chain (`rbfn.robots.dynamics.load_arm`) root ->
+robot.end_link is loaded and checked, then `rbfn.robots.registry.closed_form` is asked for faster
+closed forms of exactly that chain (the packaged SCARA's, with the payload at its end link);
+without them the plant and nominal model are the URDF's. Every joint of the chain is controlled:
+joints in robot.locked are held at their value (desired amplitude 0). The joint box
 (robot.joint_low/high) and robot.home list the free joints.
 """
 from __future__ import annotations
@@ -17,10 +19,10 @@ from typing import Any
 import torch
 
 from ..config import ControlConfig, RobotConfig, Trajectory
-from ..robots.dynamics import load_arm
-from ..robots.scara import ScaraParams
+from ..robots.dynamics import load_arm, urdf_source
+from ..robots.registry import closed_form
 from .models import ArmModel, NominalModel
-from .plants import ArmPlant, Plant, ScaraPlant
+from .plants import ArmPlant, Plant
 from .trajectory import paper_trajectory, sinusoid_trajectory
 
 __all__ = ["ControlRobot", "control_robot", "payload_cases"]
@@ -70,18 +72,20 @@ def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]
     return cases, (rated / 2 if cfg.figure_payload is None else cfg.figure_payload)
 
 
-def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = ScaraParams(),
+def control_robot(robot: RobotConfig, cfg: ControlConfig, params: Any = None,
                   urdf_text: str | None = None) -> ControlRobot:
     """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key).
+    `params`: constants for the robot's closed forms, if it has any (None: theirs, at robot.gravity).
     `urdf_text`: the URDF's text (a checkpoint's robot entry: data, never a file name), used
     instead of the file robot.urdf or the preset robot.name."""
     payloads, figure_payload = payload_cases(cfg, robot.rated_payload)
-    if robot.name == "scara" and not robot.urdf and urdf_text is None:
-        n, names, prismatic, arm = 3, ["joint1", "joint2", "joint3"], [False, False, True], None
-    else:
-        arm = _load(robot, cfg, urdf_text)
-        n, names, prismatic = arm.n, arm.joint_names, arm.prismatic
-    scale = _scale(cfg, robot, arm, n)
+    source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
+    arm = _load(robot, cfg, source, urdf_text)
+    n, names, prismatic = arm.n, arm.joint_names, arm.prismatic
+    closed = None
+    if cfg.payload_link in ("", robot.end_link):              # closed forms carry the payload at the end link
+        closed = closed_form(urdf_source(source)[0], robot.end_link, robot.locked, robot.gravity, params)
+    scale = _scale(cfg, robot, None if closed is not None else arm, n)
     home, amplitude = _sinusoid(robot, names)
     if robot.trajectory == Trajectory.paper and n != 3:
         raise ValueError(f"robot.trajectory={str(robot.trajectory)!r} is the SCARA's 3-joint path; the chain to "
@@ -91,8 +95,8 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = 
               disturbance=per(cfg.disturbance), disturbance_freq=cfg.disturbance_freq)
     plant: Plant
     model: NominalModel | ArmModel
-    if arm is None:
-        plant, model = ScaraPlant(params, **kw), NominalModel(params)
+    if closed is not None:
+        plant, model = closed.plant(**kw), closed.model()
     else:
         plant = ArmPlant(arm, **kw)
         model = ArmModel(plant.terms)
@@ -100,9 +104,8 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: ScaraParams = 
                         payloads, figure_payload)
 
 
-def _load(robot: RobotConfig, cfg: ControlConfig, urdf_text: str | None):
-    # the text, else robot.urdf (a file), else the preset robot.name
-    source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
+def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text: str | None):
+    """The URDF arm of `source`: the text, else robot.urdf (a file), else the preset robot.name."""
     try:
         arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity)
     except (FileNotFoundError, ValueError) as e:
@@ -139,7 +142,7 @@ def _sinusoid(robot: RobotConfig, names: list[str]) -> tuple[list[float], list[f
 
 
 def _scale(cfg: ControlConfig, robot: RobotConfig, arm, n: int) -> list[float] | None:
-    """control.joint_scale, else None for the closed-form SCARA and M_jj(home) of an arm."""
+    """control.joint_scale, else M_jj(home) of the URDF arm, None (ones) for closed forms (arm None)."""
     if cfg.joint_scale:
         if len(cfg.joint_scale) != n:
             raise ValueError(f"control.joint_scale={list(cfg.joint_scale)} needs one factor per joint of "

@@ -8,16 +8,18 @@ perturbation is kinematic (link lengths, joint offsets in FK_real); the dynamics
 The joint references' velocity and acceleration come from the network's design rows along the
 desired path, differentiated in time on the control grid, times the current weights.
 
-The robot is the one the network was trained for: the paper's SCARA in closed form (its
-packaged URDF), or any serial URDF arm through `rbfn.robots.perturbed` and the URDF dynamics.
+The robot is the one the network was trained for, set up as the closed loop sets up every robot
+(`control_robot`: its URDF's plant and nominal model, or the closed forms
+`rbfn.robots.registry.closed_form` has for exactly that URDF). Its kinematics, the real robot's
+included, are the closed forms' where they exist (position targets: the packaged SCARA's), else
+the URDF chain's through `rbfn.robots.perturbed`.
 """
 from __future__ import annotations
 
-import functools
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, cast
 
 import torch
@@ -27,55 +29,49 @@ from ..config import ControlConfig, GainsConfig, OnlineConfig, PathName, RobotCo
 from ..layer import RBFNetwork
 from ..lms import make_learner
 from ..robots.dynamics import load_arm
-from ..robots.kinematics import urdf_path
 from ..robots.perturbed import PerturbedChain
+from ..robots.registry import ClosedForm, closed_form
 from ..robots.robot import robot_from_record, rotation_error_deg, unit_quaternions
-from ..robots.scara import END_LINK, ScaraParams, fk, ik
 from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
 from .robot_setup import control_robot
-from .simulator import ArmPlant, Loop, Periods, Plant, ScaraPlant, Scenario, make_chunk, stage_disturbances
+from .simulator import ArmPlant, Loop, Periods, Plant, Scenario, make_chunk, stage_disturbances
 from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "is_closed_form_scara", "OnlineRun",
+__all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "record_closed_form", "OnlineRun",
            "run_online", "perturbation_sizes", "path_name", "check_online", "box_path"]
 
 
 @dataclass
 class RealRobot:
-    """Kinematics of the real SCARA: link lengths scaled by (1 + link_error), joint offsets added.
-    Batched: link_error (B, 2) (l1, l2), offset (B, 3)."""
+    """Kinematics of a real robot in closed form: link lengths scaled by (1 + link_error), joint
+    offsets added. Batched: link_error (B, L) (L = closed.links), offset (B, n)."""
 
+    closed: ClosedForm
     link_error: torch.Tensor
     offset: torch.Tensor
-    params: ScaraParams = ScaraParams()
 
     def fk(self, q: torch.Tensor) -> torch.Tensor:
-        """Measured positions (..., B, 3) of joints q (..., B, 3)."""
-        p = replace(self.params, l1=self.params.l1 * (1 + self.link_error[:, 0]),   # type: ignore[arg-type]
-                    l2=self.params.l2 * (1 + self.link_error[:, 1]))    # type: ignore[arg-type]  # (B,) links
-        return fk(q + self.offset, p)
+        """Measured positions (..., B, 3) of joints q (..., B, n)."""
+        return self.closed.fk(q + self.offset, self.link_error.unbind(-1))       # (B,) lengths per link
 
 
-@functools.cache
-def _scara_urdf() -> str:
-    return urdf_path("scara").read_text()
-
-
-def is_closed_form_scara(record: dict) -> bool:
-    """Whether a checkpoint's robot entry is the packaged SCARA, which the online part runs in closed
-    form (any other robot runs through its URDF)."""
-    return (record.get("name") == "scara" and record.get("end_link") == END_LINK and not record.get("locked")
-            and record.get("urdf") == _scara_urdf())
+def record_closed_form(record: dict) -> ClosedForm | None:
+    """The closed forms of a checkpoint's robot entry (`rbfn.robots.registry.closed_form`), for
+    position targets (closed-form kinematics give positions); None: its URDF serves it."""
+    if str(record.get("target", "position")) != Target.position:
+        return None
+    return closed_form(record.get("urdf", ""), record.get("end_link", ""), record.get("locked"))
 
 
 def path_name(cfg: OnlineConfig, record: dict) -> str:
-    """online.path, or its default for the robot: paper for the SCARA, sinusoid for a URDF arm."""
+    """online.path, or its default for the robot: its closed forms' (the SCARA's: paper), else sinusoid."""
     if cfg.path is not None:
         return str(cfg.path)
-    return str(PathName.paper) if is_closed_form_scara(record) else str(PathName.sinusoid)
+    closed = record_closed_form(record)
+    return str(PathName.sinusoid) if closed is None else closed.path
 
 
 def _padded(values: list[float], n: int, **kw) -> torch.Tensor:
@@ -97,11 +93,12 @@ def perturbation_sizes(cfg: OnlineConfig, sizes: list[float], n_links: int | Non
     return link, offset
 
 
-def desired_path(name: str, t: torch.Tensor, params: ScaraParams = ScaraParams()) -> torch.Tensor:
-    """The SCARA's desired end-effector positions (T, 3) in m at times t (T,) s."""
+def desired_path(name: str, t: torch.Tensor, fk: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """Desired end-effector positions (T, 3) in m at times t (T,) s of a path in the SCARA's
+    workspace (paper, circle, figure8), `fk` the closed-form kinematics (joints (B, 3) -> (B, 3) m)."""
     if name == PathName.paper:
-        return fk(paper_trajectory(t)[0], params)
-    centre = fk(torch.tensor([[1.0, 1.15, 1.0]], dtype=t.dtype), params)[0]
+        return fk(paper_trajectory(t)[0])
+    centre = fk(torch.tensor([[1.0, 1.15, 1.0]], dtype=t.dtype))[0]
     w = 2 * math.pi / 5.0                                                  # one loop per 5 s
     if name == PathName.circle:
         off = torch.stack([0.15 * torch.cos(w * t), 0.15 * torch.sin(w * t), 0.1 * torch.sin(w * t)], -1)
@@ -172,8 +169,9 @@ def check_online(cfg: OnlineConfig, record: dict) -> tuple[int, int]:
     """(links, joints) of the checkpoint entry's robot, after checking that online.path,
     online.link_error and online.offset_error suit it (ValueError naming the key)."""
     path = path_name(cfg, record)
-    if is_closed_form_scara(record):
-        n_links, n_joints, name = 2, 3, "the SCARA (links l1, l2)"
+    closed = record_closed_form(record)
+    if closed is not None:
+        n_links, n_joints, name = closed.links, len(closed.joint_names), closed.label
     else:
         if path != PathName.sinusoid:
             raise ValueError(f"online.path={path!r} is a path of the SCARA's workspace; the checkpoint's robot "
@@ -190,50 +188,41 @@ def check_online(cfg: OnlineConfig, record: dict) -> tuple[int, int]:
     return n_links, n_joints
 
 
-def _scara(cfg: OnlineConfig, record: dict, gains: GainsConfig, path: str, t: torch.Tensor, sizes: list[float],
-           **kw) -> OnlineRobot:
-    link, offset = perturbation_sizes(cfg, sizes, 2, 3, **kw)
-    if path == PathName.sinusoid:
-        low, high = (torch.tensor(record[k], **kw) for k in ("joint_low", "joint_high"))
-        x_d = fk(box_path(low, high, cfg.amplitude, t))
-    else:
-        x_d = desired_path(path, t).to(**kw)
-    real = RealRobot(torch.cat([link, link]), torch.cat([offset, offset]))
-    le, oe = perturbation_sizes(cfg, [cfg.link_error[0]], 2, 3, **kw)
-    p = ScaraParams()
-    q_real = ik(x_d, replace(p, l1=p.l1 * (1 + float(le[0, 0])), l2=p.l2 * (1 + float(le[0, 1])))) - oe[0]
-    return OnlineRobot(ScaraPlant(), make_controller("smc_obs", gains, cfg.dt), x_d, ik(x_d, p),
-                       lambda q: (None, real.fk(q)), [0, 1, 2], torch.zeros(3, **kw),
-                       str(Target.position), link, offset, q_real)
-
-
-def _arm(record: dict, cfg: OnlineConfig, gains: GainsConfig, t: torch.Tensor, sizes: list[float],
-         **kw) -> OnlineRobot:
+def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], t: torch.Tensor,
+                 **kw) -> OnlineRobot:
+    """The online scenario of a checkpoint's robot entry on the time grid t (T,) s, for the
+    perturbation rows `sizes` (ValueError naming the bad key): the robot set up by `control_robot`
+    from the entry's URDF text (closed forms where the registry has them), its kinematics, the
+    real robot's included, closed-form or the URDF chain's."""
+    check_online(cfg, record)
     robot = RobotConfig(name=record.get("name") or "urdf", end_link=record["end_link"],
                         target=record.get("target", "position"), joint_low=list(record["joint_low"]),
                         joint_high=list(record["joint_high"]), locked=dict(record.get("locked", {})),
                         trajectory=Trajectory.sinusoid)
-    # URDF dynamics of the entry's text; friction, disturbance scaled per joint
+    # the entry's dynamics; friction, disturbance scaled per joint
     setup = control_robot(robot, ControlConfig(), urdf_text=record["urdf"])
-    arm = cast(ArmPlant, setup.plant).arm                          # a URDF arm's plant
-    trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
-    link, offset = perturbation_sizes(cfg, sizes, arm.n, arm.n, **kw)
-    q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)   # (T, n_free)
-    held = trained.full_joints(q_path[:1])[0]
-    real = PerturbedChain(arm, torch.cat([link, link]), torch.cat([offset, offset]))
     ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=setup.joint_scale(**kw))
-    return OnlineRobot(setup.plant, ctrl, trained.targets(q_path).to(**kw), q_path, real.pose, trained.free, held,
-                       str(robot.target), link, offset)
-
-
-def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], t: torch.Tensor,
-                 **kw) -> OnlineRobot:
-    """The online scenario of a checkpoint's robot entry on the time grid t (T,) s, for the
-    perturbation rows `sizes` (ValueError naming the bad key)."""
-    check_online(cfg, record)
-    if is_closed_form_scara(record):
-        return _scara(cfg, record, gains, path_name(cfg, record), t, sizes, **kw)
-    return _arm(record, cfg, gains, t, sizes, **kw)
+    trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
+    closed, n = record_closed_form(record), setup.n
+    if closed is None:
+        arm = cast(ArmPlant, setup.plant).arm
+        link, offset = perturbation_sizes(cfg, sizes, n, n, **kw)
+        q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)   # (T, n_free)
+        held = trained.full_joints(q_path[:1])[0]
+        real = PerturbedChain(arm, torch.cat([link, link]), torch.cat([offset, offset]))
+        return OnlineRobot(setup.plant, ctrl, trained.targets(q_path).to(**kw), q_path, real.pose, trained.free,
+                           held, str(robot.target), link, offset)
+    link, offset = perturbation_sizes(cfg, sizes, closed.links, n, **kw)
+    path = path_name(cfg, record)
+    if path == PathName.sinusoid:
+        x_d = closed.fk(box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t))
+    else:
+        x_d = desired_path(path, t, closed.fk).to(**kw)
+    real_robot = RealRobot(closed, torch.cat([link, link]), torch.cat([offset, offset]))
+    le, oe = perturbation_sizes(cfg, [cfg.link_error[0]], closed.links, n, **kw)
+    q_real = closed.ik(x_d, [float(e) for e in le[0]]) - oe[0]
+    return OnlineRobot(setup.plant, ctrl, x_d, closed.ik(x_d), lambda q: (None, real_robot.fk(q)), trained.free,
+                       torch.zeros(n, **kw), str(Target.position), link, offset, q_real)
 
 
 @dataclass

@@ -66,17 +66,13 @@ from typing import Any
 import torch
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
+from ..config import ROBOT_PRESETS
 from .kinematics import _matrix, _path_to, is_urdf_text, parse_urdf, urdf_path, urdf_text
+from .registry import preset
 from .spatial import SIX, cross, dot, matvec, outer
 
-__all__ = ["PRESETS", "Arm", "load_arm", "urdf_source"]
+__all__ = ["Arm", "load_arm", "urdf_source"]
 
-# preset name (its URDF: rbfn/robots/NAME.urdf) -> (end links in order of preference, gravity m/s^2)
-PRESETS: dict[str, tuple[tuple[str, ...], float]] = {
-    "scara": (("quill",), 9.8),
-    "ur5": (("ee_link", "tool0"), 9.81),
-    "panda": (("panda_hand", "panda_link8"), 9.81),
-}
 _MOVING = ("revolute", "continuous", "prismatic")
 
 Payload = float | torch.Tensor
@@ -106,14 +102,14 @@ def _link_inertia(link, to_body: torch.Tensor) -> tuple[float, torch.Tensor, tor
 
 
 def urdf_source(name_or_urdf: str | bytes | os.PathLike, arg: str = "name_or_urdf") -> tuple[str, str]:
-    """(URDF text, its name in messages) of a preset's name (PRESETS: its packaged URDF), a URDF
+    """(URDF text, its name in messages) of a packaged robot's name (`rbfn.config.ROBOT_PRESETS`: its URDF), a URDF
     file (a `pathlib.Path`), the URDF's text (a str: never taken for a file name) or its bytes;
     `arg` names the argument in messages."""
-    if isinstance(name_or_urdf, str) and name_or_urdf in PRESETS:
+    if isinstance(name_or_urdf, str) and name_or_urdf in ROBOT_PRESETS:
         return urdf_text(urdf_path(name_or_urdf))
     if isinstance(name_or_urdf, str) and not is_urdf_text(name_or_urdf):
         raise ValueError(f"{arg}={reprlib.repr(name_or_urdf)} is neither a preset nor URDF text; allowed: "
-                         f"{', '.join(PRESETS)}, the URDF's text or bytes, or a pathlib.Path of a URDF file")
+                         f"{', '.join(ROBOT_PRESETS)}, the URDF's text or bytes, or a pathlib.Path of a URDF file")
     return urdf_text(name_or_urdf)
 
 
@@ -479,17 +475,19 @@ def load_arm(name_or_urdf: str | bytes | os.PathLike, end_link: str | None = Non
     """Dynamics of a preset ("scara", "ur5", "panda") or of a URDF: a file (a `pathlib.Path`), its
     text (a str: never taken for a file name) or its bytes, as `urdf_source` reads them.
 
-    end_link: the chain's last link (required for a URDF; a preset picks its own).
-    gravity: m/s^2 along -z of the root frame (or a (3,) vector); None is the preset's
-    (9.8 for the SCARA) or 9.81. payload_link: where the payload sits, default end_link.
+    end_link: the chain's last link (required for a URDF; None for a preset: its own).
+    gravity: m/s^2 along -z of the root frame (or a (3,) vector); None is the preset's or 9.81.
+    A preset's end link and gravity are those of conf/robot/NAME.yaml (`rbfn.robots.registry.preset`,
+    read only when one of them is None). payload_link: where the payload sits, default end_link.
     dtype, device: where the constants are first cached (inputs of any other are served too).
     """
     text, source = urdf_source(name_or_urdf)
     robot = parse_urdf(text, source, inertials=True)
-    ends, g = PRESETS[name_or_urdf] if isinstance(name_or_urdf, str) and name_or_urdf in PRESETS else ((), 9.81)
+    if isinstance(name_or_urdf, str) and name_or_urdf in ROBOT_PRESETS and (end_link is None or gravity is None):
+        values = preset(name_or_urdf)
+        end_link = values.end_link if end_link is None else end_link
+        gravity = values.gravity if gravity is None else gravity
     if end_link is None:
-        if not ends:
-            raise ValueError(f"end_link=None is allowed for a preset only; allowed for {source}: one of its links")
-        end_link = next((e for e in ends if e in robot.link_map), ends[0])
-    gravity = g if gravity is None else gravity
+        raise ValueError(f"end_link=None is allowed for a preset only; allowed for {source}: one of its links")
+    gravity = 9.81 if gravity is None else gravity
     return Arm(_build(robot, source, end_link, payload_link), gravity, end_link, dtype, device)

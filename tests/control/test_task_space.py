@@ -8,7 +8,7 @@ import torch
 
 from rbfn.checkpoint import model_from_checkpoint
 from rbfn.config import GainsConfig, OnlineConfig
-from rbfn.control.task_space import check_online, online_robot, run_online
+from rbfn.control.task_space import check_online, online_robot, path_name, record_closed_form, run_online
 from rbfn.robots.robot import load_robot
 
 from ..conftest import compose_config
@@ -26,7 +26,9 @@ def test_scara_through_its_urdf_equals_its_closed_form():
     cfg = OnlineConfig(path="sinusoid", link_error=[0.04, -0.03], offset_error=[0.02, -0.01, 0.005])
     t = torch.linspace(0.0, 6.0, 301, **KW)
     closed = online_robot(_record("scara"), cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
-    urdf = online_robot(_record("scara", name="my_scara"), cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
+    record = _record("scara")
+    copy = record["urdf"].replace('<robot name="scara">', '<robot name="my_scara">')   # not the packaged text
+    urdf = online_robot({**record, "urdf": copy}, cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
     assert type(urdf.plant).__name__ == "ArmPlant" and type(closed.plant).__name__ == "ScaraPlant"
     assert torch.allclose(urdf.x_d, closed.x_d, atol=1e-12, rtol=0)
     q = closed.full(closed.q_nominal)[:, None].expand(-1, 6, 3)          # [adapted, frozen] x 3 sizes
@@ -61,3 +63,14 @@ def test_settings_that_do_not_suit_the_robot_are_named():
         check_online(OnlineConfig(link_error=[0.03, 0.0, 0.01]), _record("scara"))
     assert check_online(OnlineConfig(), ur5) == (6, 6)
     assert check_online(replace(OnlineConfig(), path=None), _record("scara")) == (2, 3)
+
+
+def test_the_registry_alone_chooses_the_closed_form():
+    """The packaged SCARA runs in closed form under any name, on its default path (paper); its URDF
+    text changed, locked joints or pose targets, it is a URDF arm (default path sinusoid)."""
+    scara = _record("scara", name="any label")
+    assert path_name(replace(OnlineConfig(), path=None), scara) == "paper"
+    assert record_closed_form(scara) is not None
+    for change in ({"urdf": scara["urdf"] + "\n<!-- a copy -->"}, {"locked": {"joint3": 1.0}}, {"target": "pose"}):
+        assert record_closed_form({**scara, **change}) is None
+        assert path_name(replace(OnlineConfig(), path=None), {**scara, **change}) == "sinusoid"

@@ -10,6 +10,7 @@ from rbfn.control.task_space import RealRobot
 from rbfn.robots import forward_kinematics_pose, load_serial_chain, urdf_path
 from rbfn.robots.dynamics import load_arm
 from rbfn.robots.perturbed import PerturbedChain
+from rbfn.robots.scara import ScaraClosedForm
 
 from ..conftest import compose_config
 
@@ -73,7 +74,7 @@ def test_perturbed_scara_equals_the_closed_form():
     offset = torch.randn(5, 3, generator=g, dtype=torch.float64) * 0.03
     q = _joints("scara", 7 * 5).view(7, 5, 3)                       # (T, B, n)
     _, pos = PerturbedChain(arm, link, offset).pose(q)
-    assert torch.allclose(pos, RealRobot(link, offset).fk(q), atol=1e-12, rtol=0)
+    assert torch.allclose(pos, RealRobot(ScaraClosedForm(), link, offset).fk(q), atol=1e-12, rtol=0)
 
 
 def test_bad_shapes_are_named():

@@ -1,0 +1,110 @@
+"""The packaged robots' presets, and the one place that chooses closed forms.
+
+Every robot, packaged or a user's, is its URDF: kinematics (`rbfn.robots.kinematics`) and
+dynamics (`rbfn.robots.dynamics`) are computed from it. A robot may also have closed forms, a
+faster second form of the same equations tested equal to the first: `closed_form` hands them out
+for exactly the URDF they were written for (its text, end link, no joint locked), and nothing
+else in the package asks which robot it is.
+
+A packaged robot is a folder rbfn/robots/NAME/ (NAME.urdf, a docstring citing its numbers,
+optional closed forms), NAME one of `rbfn.config.ROBOT_PRESETS`. Its preset values (end link,
+IK box, gravity, home, rated payload) live in conf/robot/NAME.yaml only: `preset` reads that file
+(from the repository's conf/, beside the package, as the Hydra applications do).
+"""
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+import torch
+
+from ..config import ROBOT_PRESETS, RobotConfig
+from . import scara
+from .kinematics import read_urdf
+
+if TYPE_CHECKING:
+    from ..control.models import ArmModel, NominalModel
+    from ..control.plants import Plant
+
+__all__ = ["CONF_ROBOT", "ClosedForm", "closed_form", "preset"]
+
+CONF_ROBOT = Path(__file__).resolve().parents[2] / "conf" / "robot"
+"""The presets' folder, conf/robot/ of the repository the package is installed from."""
+
+
+def preset(name: str) -> RobotConfig:
+    """The packaged robot `name`'s preset, conf/robot/NAME.yaml, as a RobotConfig (no Hydra).
+    ValueError for a name that is no packaged robot, FileNotFoundError where conf/ is not there
+    (a package installed without its repository: give the values instead)."""
+    from omegaconf import DictConfig, OmegaConf
+
+    if name not in ROBOT_PRESETS:
+        raise ValueError(f"name={name!r} is not a packaged robot; allowed: {list(ROBOT_PRESETS)}")
+    path = CONF_ROBOT / f"{name}.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file; the presets of the packaged robots are the repository's "
+                                "conf/robot/*.yaml (install from a checkout, or give the robot's values)")
+    raw = OmegaConf.load(path)
+    assert isinstance(raw, DictConfig), f"{path}: a mapping of RobotConfig's keys"
+    raw.pop("defaults", None)
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RobotConfig), raw))   # type: ignore[return-value]
+
+
+class ClosedForm(Protocol):
+    """What the package may ask of a robot's closed forms (a robot folder's, e.g.
+    `rbfn.robots.scara.ScaraClosedForm`).
+
+    fk(q, link_error=None): end-link positions (B, 3) in m of joints q (B, n); ik(x, link_error=None):
+    joints (B, n) of the IK branch for positions x (B, 3) in m. link_error: relative errors of the
+    first `links` link lengths (floats, or (B,) tensors: one robot per row), the online part's
+    kinematic perturbation; None: the nominal robot. plant(**kw): the closed loop's plant (kw: the
+    friction and disturbance settings of `rbfn.control.plants.Plant`); model(): the controllers'
+    nominal model. path: the online part's default desired path (online.path null); label: the
+    robot in messages.
+    """
+
+    @property
+    def params(self) -> Any: ...
+
+    @property
+    def joint_names(self) -> list[str]: ...
+
+    @property
+    def prismatic(self) -> list[bool]: ...
+
+    @property
+    def links(self) -> int: ...
+
+    @property
+    def path(self) -> str: ...
+
+    @property
+    def label(self) -> str: ...
+
+    def fk(self, q: torch.Tensor, link_error: Sequence | None = None) -> torch.Tensor: ...
+
+    def ik(self, x: torch.Tensor, link_error: Sequence | None = None) -> torch.Tensor: ...
+
+    def plant(self, **kw) -> Plant: ...
+
+    def model(self) -> NominalModel | ArmModel: ...
+
+
+@functools.cache
+def _scara_urdf() -> str:
+    return read_urdf(scara.URDF_PATH)
+
+
+def closed_form(urdf_text: str, end_link: str, locked: Mapping[str, float] | None = None,
+                gravity: float | None = None, params: Any = None) -> ClosedForm | None:
+    """The closed forms valid for the robot given by its URDF text, end link and locked joints:
+    the SCARA's for the packaged scara.urdf (text equal), end link `scara.END_LINK` and nothing
+    locked; None for every other robot (its URDF forms serve it). Their constants: `params`, else
+    their own (the URDF's) under `gravity` (m/s^2; None: the preset's)."""
+    if urdf_text == _scara_urdf() and end_link == scara.END_LINK and not locked:
+        if params is None:
+            params = scara.ScaraParams() if gravity is None else scara.ScaraParams(g=gravity)
+        return scara.ScaraClosedForm(params)
+    return None
