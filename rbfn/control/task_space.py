@@ -11,8 +11,8 @@ desired path, differentiated in time on the control grid, times the current weig
 The robot is the one the network was trained for, set up as the closed loop sets up every robot
 (`control_robot`: its URDF's plant and nominal model, or the closed forms
 `rbfn.robots.registry.closed_form` has for exactly that URDF). Its kinematics, the real robot's
-included, are the closed forms' where they exist (position targets: the packaged SCARA's), else
-the URDF chain's through `rbfn.robots.perturbed`.
+included, are the closed forms' where they exist (for position targets), else the URDF chain's
+through `rbfn.robots.perturbed`.
 """
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def record_closed_form(record: dict) -> ClosedForm | None:
 
 
 def path_name(cfg: OnlineConfig, record: dict) -> str:
-    """online.path, or its default for the robot: its closed forms' (the SCARA's: paper), else sinusoid."""
+    """online.path, or its default for the robot: its closed forms' path, else sinusoid."""
     if cfg.path is not None:
         return str(cfg.path)
     closed = record_closed_form(record)
@@ -132,7 +132,7 @@ class OnlineRobot:
     target: str                          # position | pose
     link_error: torch.Tensor             # (S, L) each row's link errors
     offset_error: torch.Tensor           # (S, n) each row's joint offsets
-    q_real: torch.Tensor | None = None   # (T, n_free) the real robot's exact IK of the configured row (SCARA)
+    q_real: torch.Tensor | None = None   # (T, n_free) the real robot's exact IK of the configured row (closed forms)
 
     @property
     def n(self) -> int:

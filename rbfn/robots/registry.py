@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from ..control.models import ArmModel, NominalModel
     from ..control.plants import Plant
 
-__all__ = ["CONF_ROBOT", "ClosedForm", "closed_form", "preset"]
+__all__ = ["CONF_ROBOT", "WITH_CLOSED_FORMS", "ClosedForm", "closed_form", "preset"]
 
 CONF_ROBOT = Path(__file__).resolve().parents[2] / "conf" / "robot"
 """The presets' folder, conf/robot/ of the repository the package is installed from."""
@@ -92,19 +92,23 @@ class ClosedForm(Protocol):
     def model(self) -> NominalModel | ArmModel: ...
 
 
+# The robot folders that ship closed forms. Each gives URDF_PATH, END_LINK (the chain its forms
+# hold for, with no joint locked) and closed_form(gravity, params) -> its ClosedForm.
+WITH_CLOSED_FORMS = (scara,)
+
+
 @functools.cache
-def _scara_urdf() -> str:
-    return read_urdf(scara.URDF_PATH)
+def _packaged_text(path: Path) -> str:
+    return read_urdf(path)
 
 
 def closed_form(urdf_text: str, end_link: str, locked: Mapping[str, float] | None = None,
                 gravity: float | None = None, params: Any = None) -> ClosedForm | None:
-    """The closed forms valid for the robot given by its URDF text, end link and locked joints:
-    the SCARA's for the packaged scara.urdf (text equal), end link `scara.END_LINK` and nothing
-    locked; None for every other robot (its URDF forms serve it). Their constants: `params`, else
-    their own (the URDF's) under `gravity` (m/s^2; None: the preset's)."""
-    if urdf_text == _scara_urdf() and end_link == scara.END_LINK and not locked:
-        if params is None:
-            params = scara.ScaraParams() if gravity is None else scara.ScaraParams(g=gravity)
-        return scara.ScaraClosedForm(params)
+    """The closed forms valid for the robot given by its URDF text, end link and locked joints: a
+    robot folder's of `WITH_CLOSED_FORMS` for its packaged URDF (text equal), its END_LINK and
+    nothing locked (the SCARA's); None for every other robot (its URDF forms serve it). Their
+    constants: `params`, else their own (the URDF's) under `gravity` (m/s^2; None: the preset's)."""
+    for robot in WITH_CLOSED_FORMS:
+        if end_link == robot.END_LINK and not locked and urdf_text == _packaged_text(robot.URDF_PATH):
+            return robot.closed_form(gravity, params)
     return None

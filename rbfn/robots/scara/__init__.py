@@ -46,7 +46,7 @@ if TYPE_CHECKING:
     from ...control.models import NominalModel
     from ...control.plants import ScaraPlant
 
-__all__ = ["ScaraParams", "ScaraClosedForm", "URDF_PATH", "END_LINK", "fk", "ik", "with_link_errors",
+__all__ = ["ScaraParams", "ScaraClosedForm", "closed_form", "URDF_PATH", "END_LINK", "fk", "ik", "with_link_errors",
            "inertia_params", "mass_matrix", "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
            "joint_vector", "mass_entries", "m_times", "minus_c_qd", "c_times", "m_solve", "m_solve_parts"]
 
@@ -91,3 +91,11 @@ class ScaraClosedForm:
         from ...control.models import NominalModel
 
         return NominalModel(self.params)
+
+
+def closed_form(gravity: float | None = None, params: ScaraParams | None = None) -> ScaraClosedForm:
+    """The closed forms with constants `params`, else the URDF's under `gravity` (m/s^2; None: the
+    preset's, 9.8); what `rbfn.robots.registry.closed_form` hands out for scara.urdf."""
+    if params is None:
+        params = ScaraParams() if gravity is None else ScaraParams(g=gravity)
+    return ScaraClosedForm(params)
