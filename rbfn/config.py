@@ -172,9 +172,7 @@ class RobotConfig:
     locked: dict[str, float] = field(default_factory=dict)   # joint name -> held value (redundant arms)
     rotation_scale: float = 0.3        # m per unit of the rotation features (pose targets)
     gravity: Optional[float] = None    # m/s^2 along -z of the root; null: the preset's (name), else 9.81
-    trajectory: Trajectory = Trajectory.paper  # closed loop's desired joints
-    home: list[float] = field(default_factory=list)   # sinusoid centre per joint; empty: the box centre
-    amplitude: float = 0.1             # sinusoid amplitude, a fraction of each joint's half range
+    home: list[float] = field(default_factory=list)   # a nominal pose per free joint; empty: the box centre
     rated_payload: float = 20.0        # kg: control payload cases default to 0, half and all of it
 
     def check(self, key: str = "robot") -> None:
@@ -196,8 +194,6 @@ class RobotConfig:
               "must be >= 0 m/s^2 or null")
         _need(len(self.home) in (0, len(lo)) and all(finite(v) for v in self.home), f"{key}.home", list(self.home),
               f"empty (the box centre) or one finite value per joint ({len(lo)})")
-        _need(finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude,
-              "must be in [0, 1]")
         _need(finite(self.rated_payload) and self.rated_payload >= 0, f"{key}.rated_payload", self.rated_payload,
               "must be >= 0 kg")
 
@@ -508,6 +504,10 @@ class ControlConfig:
     enabled: bool = True
     controllers: list[str] = field(default_factory=lambda: ["pd", "ctc", "smc", "smc_obs", "arbfn_aco",
                                                             "arbfn_kmeans"])
+    trajectory: Optional[Trajectory] = None   # the desired joints; null: the robot's own (its closed form's,
+                                       # `paper` for the SCARA), else `sinusoid`
+    amplitude: float = 0.1             # sinusoid: amplitude per joint, a fraction of half its box range, about
+                                       # robot.home
     payloads: list[float] = field(default_factory=list)   # kg; empty: 0, half and all of robot.rated_payload
     payload_link: str = ""             # the link whose origin carries the payload; empty: robot.end_link
     duration: float = 10.0
@@ -536,6 +536,8 @@ class ControlConfig:
         _need(len(set(self.controllers)) == len(self.controllers), f"{key}.controllers", list(self.controllers),
               "each controller may appear once")
         _need(not (self.compile and self.aot), f"{key}.aot", self.aot, f"choose one of {key}.compile and {key}.aot")
+        _need(finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude,
+              "must be in [0, 1]")
         _need(finite(self.dt) and self.dt > 0, f"{key}.dt", self.dt, "must be a positive number of seconds")
         _need(finite(self.duration) and self.duration >= self.dt, f"{key}.duration", self.duration,
               f"must be finite and >= {key}.dt={self.dt}")

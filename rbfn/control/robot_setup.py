@@ -82,14 +82,14 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: Any = None,
     source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
     arm = _load(robot, cfg, source, urdf_text)
     n, names, prismatic = arm.n, arm.joint_names, arm.prismatic
-    closed = None
-    if cfg.payload_link in ("", robot.end_link):              # closed forms carry the payload at the end link
-        closed = closed_form(urdf_source(source)[0], robot.end_link, robot.locked, robot.gravity, params)
+    known = closed_form(urdf_source(source)[0], robot.end_link, robot.locked, robot.gravity, params)
+    closed = known if cfg.payload_link in ("", robot.end_link) else None   # they carry the payload at the end link
     scale = _scale(cfg, robot, None if closed is not None else arm, n)
-    home, amplitude = _sinusoid(robot, names)
-    if robot.trajectory == Trajectory.paper and n != 3:
-        raise ValueError(f"robot.trajectory={str(robot.trajectory)!r} is the SCARA's 3-joint path; the chain to "
-                         f"{robot.end_link!r} has {n} joints: use robot.trajectory=sinusoid")
+    home, amplitude = _sinusoid(robot, cfg, names)
+    trajectory = cfg.trajectory or (known.trajectory if known is not None else Trajectory.sinusoid)
+    if trajectory == Trajectory.paper and n != 3:
+        raise ValueError(f"control.trajectory={str(trajectory)!r} is the SCARA's 3-joint path; the chain to "
+                         f"{robot.end_link!r} has {n} joints: use control.trajectory=sinusoid (or null)")
     per = (lambda v: v) if scale is None else (lambda v: [v * s for s in scale])
     kw: dict[str, Any] = dict(viscous=per(cfg.viscous), coulomb=per(cfg.coulomb), friction=str(cfg.friction),
               disturbance=per(cfg.disturbance), disturbance_freq=cfg.disturbance_freq)
@@ -100,7 +100,7 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: Any = None,
     else:
         plant = ArmPlant(arm, **kw)
         model = ArmModel(plant.terms)
-    return ControlRobot(robot.name, names, prismatic, plant, model, scale, str(robot.trajectory), home, amplitude,
+    return ControlRobot(robot.name, names, prismatic, plant, model, scale, str(trajectory), home, amplitude,
                         payloads, figure_payload)
 
 
@@ -128,16 +128,16 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
     return arm
 
 
-def _sinusoid(robot: RobotConfig, names: list[str]) -> tuple[list[float], list[float]]:
+def _sinusoid(robot: RobotConfig, cfg: ControlConfig, names: list[str]) -> tuple[list[float], list[float]]:
     """Per chain joint: home (robot.home or the box centre; locked joints their value) and
-    amplitude robot.amplitude * half the box range (0 for locked joints)."""
+    amplitude control.amplitude * half the box range (0 for locked joints)."""
     free = [j for j in names if j not in robot.locked]
     lo, hi = robot.joint_low, robot.joint_high
     centre = list(robot.home) or [(a + b) / 2 for a, b in zip(lo, hi)]
     half = {j: (b - a) / 2 for j, a, b in zip(free, lo, hi)}
     by_name = dict(zip(free, centre))
     home = [float(robot.locked[j]) if j in robot.locked else by_name[j] for j in names]
-    amplitude = [0.0 if j in robot.locked else robot.amplitude * half[j] for j in names]
+    amplitude = [0.0 if j in robot.locked else cfg.amplitude * half[j] for j in names]
     return home, amplitude
 
 
@@ -150,6 +150,6 @@ def _scale(cfg: ControlConfig, robot: RobotConfig, arm, n: int) -> list[float] |
         return [float(v) for v in cfg.joint_scale]
     if arm is None:
         return None
-    home, _ = _sinusoid(robot, arm.joint_names)
+    home, _ = _sinusoid(robot, cfg, arm.joint_names)
     q = torch.tensor([home], dtype=torch.float64)
     return arm.mass_matrix(q)[0].diagonal().tolist()

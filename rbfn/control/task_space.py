@@ -197,10 +197,9 @@ def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: lis
     check_online(cfg, record)
     robot = RobotConfig(name=record.get("name") or "urdf", end_link=record["end_link"],
                         target=record.get("target", "position"), joint_low=list(record["joint_low"]),
-                        joint_high=list(record["joint_high"]), locked=dict(record.get("locked", {})),
-                        trajectory=Trajectory.sinusoid)
+                        joint_high=list(record["joint_high"]), locked=dict(record.get("locked", {})))
     # the entry's dynamics; friction, disturbance scaled per joint
-    setup = control_robot(robot, ControlConfig(), urdf_text=record["urdf"])
+    setup = control_robot(robot, ControlConfig(trajectory=Trajectory.sinusoid), urdf_text=record["urdf"])
     ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=setup.joint_scale(**kw))
     trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
     closed, n = record_closed_form(record), setup.n

@@ -61,8 +61,8 @@ class ClosedForm(Protocol):
     first `links` link lengths (floats, or (B,) tensors: one robot per row), the online part's
     kinematic perturbation; None: the nominal robot. plant(**kw): the closed loop's plant (kw: the
     friction and disturbance settings of `rbfn.control.plants.Plant`); model(): the controllers'
-    nominal model. path: the online part's default desired path (online.path null); label: the
-    robot in messages.
+    nominal model. path: the online part's default desired path (online.path null); trajectory:
+    the closed loop's default desired joints (control.trajectory null); label: the robot in messages.
     """
 
     @property
@@ -79,6 +79,9 @@ class ClosedForm(Protocol):
 
     @property
     def path(self) -> str: ...
+
+    @property
+    def trajectory(self) -> str: ...
 
     @property
     def label(self) -> str: ...

@@ -158,8 +158,7 @@ BAD_URDF = """<robot name="bad">
 def test_unsupported_joint_type_fails_naming_the_urdf_and_joint(tmp_path):
     path = tmp_path / "bad.urdf"
     path.write_text(BAD_URDF)
-    robot = RobotConfig(name="bad", urdf=str(path), end_link="l2", joint_low=[-1.0], joint_high=[1.0],
-                        trajectory="sinusoid")
+    robot = RobotConfig(name="bad", urdf=str(path), end_link="l2", joint_low=[-1.0], joint_high=[1.0])
     with pytest.raises(ValueError, match=r"robot.urdf='.*bad.urdf'.*joint 'j1' on the chain.*'floating'"):
         control_robot(robot, ControlConfig())
 
@@ -167,7 +166,7 @@ def test_unsupported_joint_type_fails_naming_the_urdf_and_joint(tmp_path):
 @pytest.mark.parametrize("robot,change,match", [
     (UR5, {"payload_link": "ghost"}, r"control.payload_link='ghost': payload link 'ghost' is not a link"),
     (UR5, {"joint_scale": [1.0, 2.0]}, r"control.joint_scale=\[1.0, 2.0\] needs one factor per joint"),
-    (replace(UR5, trajectory="paper"), {}, r"robot.trajectory='paper' is the SCARA's 3-joint path"),
+    (UR5, {"trajectory": "paper"}, r"control.trajectory='paper' is the SCARA's 3-joint path"),
     (replace(UR5, locked={"elbow": 0.0}), {}, r"robot.locked names \['elbow'\]"),
     (replace(UR5, joint_low=[0.0] * 5, joint_high=[1.0] * 5), {}, r"robot.joint_low/joint_high give 5 joints"),
 ])

@@ -380,7 +380,7 @@ def test_a_fifo_path_is_refused_by_what_it_is(tmp_path):
     os.mkfifo(fifo)
     out = run_guarded("from pathlib import Path\nfrom rbfn.config import ControlConfig, RobotConfig\n"
                       "from rbfn.control import control_robot\nfrom rbfn.robots.dynamics import load_arm\n"
-                      f"robot = RobotConfig(name='t', urdf={str(fifo)!r}, end_link='flange', trajectory='sinusoid')\n"
+                      f"robot = RobotConfig(name='t', urdf={str(fifo)!r}, end_link='flange')\n"
                       f"for load in (lambda: load_arm(Path({str(fifo)!r}), 'flange'),\n"
                       "             lambda: control_robot(robot, ControlConfig())):\n"
                       "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n")
@@ -401,7 +401,7 @@ def test_the_control_path_loads_what_the_kinematics_loads():
     chain = load_serial_chain(path, end)
     low, high = joint_limits(chain)
     robot = RobotConfig(name="icub", urdf=str(path), end_link=end, joint_low=(0.75 * low + 0.25 * high).tolist(),
-                        joint_high=(0.25 * low + 0.75 * high).tolist(), trajectory="sinusoid")
+                        joint_high=(0.25 * low + 0.75 * high).tolist())
     setup = control_robot(robot, ControlConfig())
     assert setup.joint_names == chain.get_joint_parameter_names() and setup.n == 10
     q, _ = _states(load_arm(path, end), 4, seed=18)

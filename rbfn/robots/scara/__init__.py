@@ -69,6 +69,7 @@ class ScaraClosedForm:
     prismatic: list[bool] = field(default_factory=lambda: [False, False, True])
     links: int = 2              # link lengths a kinematic perturbation scales: l1, l2
     path: str = "paper"         # the online part's default desired path: the paper's
+    trajectory: str = "paper"   # the closed loop's default desired joints: the paper's
     label: str = "the SCARA (links l1, l2)"     # in messages
 
     def _params(self, link_error: Sequence | None) -> ScaraParams:
