@@ -93,14 +93,16 @@ def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot
     refuses one that cannot, before any work."""
     r = cfg.centers.refine
     p = cfg.rbfn.num_centers + (features + 1 if cfg.rbfn.tail else 0)
-    if not (r.enabled and r.minibatch.loss == RefineLoss.task and refine_mode(r, data.train.q.shape[0], p) == "minibatch"):
+    task = r.enabled and r.minibatch.loss == RefineLoss.task
+    if not (task and refine_mode(r, data.train.q.shape[0], p) == "minibatch"):
         return False
     if robot is None:
-        raise ValueError("centers.refine.minibatch.loss=task needs the robot (train_ik(..., robot=ROBOT)) for its Jacobian")
+        raise ValueError("centers.refine.minibatch.loss=task needs the robot (train_ik(..., robot=ROBOT)) "
+                         "for its Jacobian")
     rows, joints = (6 if cfg.robot.target == Target.pose else 3), data.train.q.shape[1]
     if rows < joints:
-        raise ValueError(f"centers.refine.minibatch.loss=task weighs joint errors by the task Jacobian, which has {rows} rows "
-                         f"for robot.target={cfg.robot.target} and the robot has {joints} free joints "
+        raise ValueError(f"centers.refine.minibatch.loss=task weighs joint errors by the task Jacobian, which has "
+                         f"{rows} rows for robot.target={cfg.robot.target} and the robot has {joints} free joints "
                          f"({robot.joint_names}): errors in the joints it cannot see would go untrained. "
                          "Use centers.refine.minibatch.loss=joint, or hold joints with robot.locked")
     return True
