@@ -24,8 +24,7 @@ from tests.robots.test_dynamics import _closed_form as scara_closed_form
 
 BATCH = 600            # above arm_terms.WIDE: its wide code paths
 NARROW = 7             # below it: the narrow ones
-PACKAGED = ["scara", "ur5", "panda"]
-ROBOTS = [*PACKAGED, "test_arm"]                  # the test arm: everything the loader lumps
+ROBOTS = ["scara", "ur5", "panda", "test_arm"]   # the test arm: everything the loader lumps
 PAYLOADS = ["none", "2.5 kg", "per state"]
 
 
@@ -63,6 +62,7 @@ def _case(robot: str, payload: str) -> tuple[State, dict[str, torch.Tensor]]:
 
 # ----------------------------------------------------------------------------- backends
 def _arm_routes(robot: str, s: State) -> dict[str, torch.Tensor]:
+    """Arm's M from `dynamics`, C qd + G from the matrix C, G as RNEA at rest."""
     arm = _arm(robot)
     m, _ = arm.dynamics(s.q, s.qd, s.payload)                # M of the one-pass route
     c, g = arm.coriolis(s.q, s.qd, s.payload), arm.gravity(s.q, s.payload)
@@ -74,9 +74,12 @@ def _terms(form: type[ArmTerms] | type[ArmScalarTerms]) -> Callable[[str, State]
     def run(robot: str, s: State) -> dict[str, torch.Tensor]:
         cfg = form(_arm(robot)).at(s.q, s.payload)
         mo = cfg.motion(s.qd)
-        return {"M": cfg.mass_matrix(), "M y": cfg.mass_times(s.y), "C qd + G": cfg.bias(s.qd),
-                "G": cfg.gravity(), "C y": cfg.coriolis_times(s.qd, s.y, mo),
-                "C^T qd": cfg.coriolis_transpose_qd(s.qd, mo)} | ({"M^-1 y": cfg.solve(s.y)} if hasattr(cfg, "solve") else {})
+        out = {"M": cfg.mass_matrix(), "M y": cfg.mass_times(s.y), "C qd + G": cfg.bias(s.qd),
+               "G": cfg.gravity(), "C y": cfg.coriolis_times(s.qd, s.y, mo),
+               "C^T qd": cfg.coriolis_transpose_qd(s.qd, mo)}
+        if hasattr(cfg, "solve"):                       # the scalar form's Cholesky solve (the compiled step's)
+            out["M^-1 y"] = cfg.solve(s.y)
+        return out
     return run
 
 
