@@ -19,8 +19,7 @@ import torch
 
 from rbfn.robots.arm_scalar import ArmScalarTerms
 from rbfn.robots.arm_terms import ArmTerms
-from tests.robots import test_urdf_dynamics as urdf_dynamics
-from tests.robots.test_dynamics import _closed_form as scara_closed_form
+from tests.robots import test_dynamics as dynamics_tests
 
 BATCH = 600            # above arm_terms.WIDE: its wide code paths
 NARROW = 7             # below it: the narrow ones
@@ -41,7 +40,7 @@ def _mv(m: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return (m @ x.unsqueeze(-1)).squeeze(-1)
 
 
-_arm = functools.cache(urdf_dynamics._arm)
+_arm = functools.cache(dynamics_tests._arm)
 
 
 @functools.cache
@@ -92,10 +91,9 @@ def _narrow(robot: str, s: State) -> dict[str, torch.Tensor]:
 
 def _closed_form(robot: str, s: State) -> dict[str, torch.Tensor]:
     """The SCARA's closed forms."""
-    cf = scara_closed_form()
-    c = cf.coriolis(s.q, s.qd, s.payload)
-    g = cf.gravity(s.q, s.payload)
-    m = cf.mass_matrix(s.q, s.payload)
+    from rbfn.robots.scara.closed_form import coriolis, gravity, mass_matrix
+
+    c, g, m = coriolis(s.q, s.qd, s.payload), gravity(s.q, s.payload), mass_matrix(s.q, s.payload)
     return {"M": m, "M y": _mv(m, s.y), "C qd + G": _mv(c, s.qd) + g, "G": g, "C y": _mv(c, s.y),
             "C^T qd": _mv(c.transpose(1, 2), s.qd)}
 
@@ -106,9 +104,9 @@ def _pinocchio(robot: str, s: State) -> dict[str, torch.Tensor]:
     import numpy as np
 
     arm = _arm(robot)
-    pin, model, _ = urdf_dynamics._pinocchio(robot, arm, 0.0)
+    pin, model, _ = dynamics_tests._pinocchio(robot, arm, 0.0)
     model.gravity.linear = arm.gravity_vector.numpy()      # the SCARA's 9.8 m/s^2
-    end = urdf_dynamics._source(robot)[1]
+    end = dynamics_tests._source(robot)[1]
     frame = model.frames[model.getFrameId(end)]
     body = model.inertias[frame.parentJoint].copy()
     data = model.createData()
@@ -138,7 +136,7 @@ def _mujoco(robot: str, s: State) -> dict[str, torch.Tensor]:
     if torch.is_tensor(s.payload):
         pytest.skip("a MuJoCo model carries one payload")
     arm = _arm(robot)
-    model = arm_model(urdf_dynamics._source(robot)[0], payload=s.payload, payload_link=arm.end_link, gravity=-float(arm.gravity_vector[2]))
+    model = arm_model(dynamics_tests._source(robot)[0], payload=s.payload, payload_link=arm.end_link, gravity=-float(arm.gravity_vector[2]))
     data = mujoco.MjData(model)
     assert [model.joint(i).name for i in range(model.njnt)] == arm.joint_names
     out: dict[str, list] = {k: [] for k in ("M", "C qd + G", "G")}

@@ -61,7 +61,7 @@ def test_mujoco_compiles_example_robot_data_arms_to_the_same_dynamics(name):
     joints and inertials only (no mesh file opened) and gives rbfn.robots.dynamics' M and bias."""
     from rbfn.robots.dynamics import load_arm
     from rbfn.robots.mjcf import arm_model
-    from tests.robots.test_urdf_dynamics import ERD, _erd_urdf, _states
+    from tests.robots.test_dynamics import ERD, _erd_urdf, _states
 
     rel, end = ERD[name]
     path = _erd_urdf(rel)
