@@ -22,6 +22,7 @@ clock: a second evaluation started in the same second takes DIR_1 (rbfn.studies.
 evaluation writes nothing and leaves no directory behind. SIGTERM or SIGHUP stop it, its forked
 parts included, after their cleanup, with exit status 128 + the signal's number (rbfn.studies.stop).
 """
+
 from __future__ import annotations
 
 import atexit

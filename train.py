@@ -13,6 +13,7 @@ clock: a second run started in the same second takes DIR_1 (rbfn.studies.rundir)
 SIGHUP stop the run, its multirun's workers included, after their cleanup, with exit status
 128 + the signal's number (rbfn.studies.stop).
 """
+
 from __future__ import annotations
 
 import atexit
@@ -51,8 +52,10 @@ def main(dcfg: DictConfig) -> float:
             # A refused job (directory in use, or another config's run there) writes nothing.
             if hc.mode == RunMode.MULTIRUN and not isinstance(e, (RunDirInUse, DifferentRun)):
                 log.error("job failed: %s: %s", type(e).__name__, e)
-                write_json(out_dir / "failed.json", {"error": type(e).__name__, "message": str(e),
-                                                     "overrides": list(hc.overrides.task)})
+                write_json(
+                    out_dir / "failed.json",
+                    {"error": type(e).__name__, "message": str(e), "overrides": list(hc.overrides.task)},
+                )
             raise
     return metrics["val_E"]  # the validation objective, for sweepers
 

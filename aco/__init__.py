@@ -4,6 +4,7 @@
 continuous box (Socha & Dorigo's ACO_R). Both evaluate all ants of an iteration in one batched
 objective call and keep the best-so-far solution.
 """
+
 from .acor import ACOR
 from .ant_system import AntSystem
 from .result import ACOResult

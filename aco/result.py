@@ -1,4 +1,5 @@
 """What a colony returns: the best-so-far solution and its per-iteration history."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -13,6 +14,6 @@ class ACOResult:
     best: torch.Tensor
     best_value: float
     iterations: int
-    best_history: list[float] = field(default_factory=list)   # best-so-far after each iteration
-    mean_history: list[float] = field(default_factory=list)   # mean objective of that iteration's ants
+    best_history: list[float] = field(default_factory=list)  # best-so-far after each iteration
+    mean_history: list[float] = field(default_factory=list)  # mean objective of that iteration's ants
     converged: bool = False

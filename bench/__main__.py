@@ -1,4 +1,5 @@
 """`python -m bench`: the benchmark suite (bench.run)."""
+
 from .run import main
 
 main()

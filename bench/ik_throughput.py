@@ -14,6 +14,7 @@ drawn uniformly within the URDF limits; of each query's restarts the one with th
 position error on the trained elbow (q2 > 0) is kept. It is slow, so it runs on a smaller batch
 and its rate is per query.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,9 @@ __all__ = ["BRANCH_LOW", "BRANCH_HIGH", "build_network", "workspace_positions", 
 BRANCH_LOW, BRANCH_HIGH = tuple(RobotConfig().joint_low), tuple(RobotConfig().joint_high)
 
 
-def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine: bool = True,
-                  threads: int = 1) -> RBFNetwork:
+def build_network(
+    checkpoint: Path | None = None, num_centers: int = 80, refine: bool = True, threads: int = 1
+) -> RBFNetwork:
     """The network under test: a checkpoint's (as `rbfn.load_model` gives it: float32), or one
     trained here by train.py's pipeline (k-means centres with gradient refinement, `num_centers`
     centres, default data; float64 as fitted)."""
@@ -48,9 +50,12 @@ def build_network(checkpoint: Path | None = None, num_centers: int = 80, refine:
     from rbfn.pipeline import train_ik
     from rbfn.robots.robot import load_robot
 
-    cfg = TrainConfig(centers=CentersConfig(name="kmeans_refine", method=Method.kmeans,
-                                            refine=RefineConfig(enabled=refine)),
-                      num_threads=threads, progress=False, export=False)
+    cfg = TrainConfig(
+        centers=CentersConfig(name="kmeans_refine", method=Method.kmeans, refine=RefineConfig(enabled=refine)),
+        num_threads=threads,
+        progress=False,
+        export=False,
+    )
     cfg.rbfn.num_centers = num_centers
     robot = load_robot(cfg.robot)
     data = make_dataset(robot, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test), cfg.seed)
@@ -77,18 +82,34 @@ def pk_iterative_ik(chain, x: torch.Tensor, retries: int, seed: int = 0) -> tupl
 
     low, high = joint_limits(chain)
     limits = torch.stack([low, high], -1).to(dtype=chain.dtype, device=x.device)
-    torch.manual_seed(seed)   # the solver draws its restarts from the global generator
-    ik = pk.PseudoInverseIK(chain, num_retries=retries, joint_limits=limits, max_iterations=50,
-                            pos_tolerance=1e-4, rot_tolerance=1e9, orientation_weight=0.0)
+    torch.manual_seed(seed)  # the solver draws its restarts from the global generator
+    ik = pk.PseudoInverseIK(
+        chain,
+        num_retries=retries,
+        joint_limits=limits,
+        max_iterations=50,
+        pos_tolerance=1e-4,
+        rot_tolerance=1e9,
+        orientation_weight=0.0,
+    )
     sol = ik.solve(pk.Transform3d(pos=x, dtype=chain.dtype, device=x.device))
-    score = sol.err_pos + 1e3 * (sol.solutions[..., 1] <= 0)          # (B, retries): wrong elbow last
+    score = sol.err_pos + 1e3 * (sol.solutions[..., 1] <= 0)  # (B, retries): wrong elbow last
     best = sol.solutions[torch.arange(x.shape[0], device=x.device), score.argmin(1)]
     return best, float((best[:, 1] > 0).float().mean())
 
 
-def ik_rows(net: RBFNetwork, batch: int = 100_000, device: str = "cpu", repeats: int = 7,
-            pk_batch: int = 1000, pk_retries: int = 10, pk_repeats: int = 3, threads: int = 1,
-            onnx: bool = True, compiled: bool = False) -> list[dict]:
+def ik_rows(
+    net: RBFNetwork,
+    batch: int = 100_000,
+    device: str = "cpu",
+    repeats: int = 7,
+    pk_batch: int = 1000,
+    pk_retries: int = 10,
+    pk_repeats: int = 3,
+    threads: int = 1,
+    onnx: bool = True,
+    compiled: bool = False,
+) -> list[dict]:
     """One row per IK method: queries/s, its ratio to the closed form and to pytorch-kinematics,
     the median FK error (mm) of its answers and the threads it ran on. `compiled` adds the
     torch.compile'd module (its compile seconds in the note); `onnx` the ONNX model under
@@ -102,17 +123,35 @@ def ik_rows(net: RBFNetwork, batch: int = 100_000, device: str = "cpu", repeats:
         torch.set_num_threads(before)
 
 
-def _ik_rows(net: RBFNetwork, batch: int, device: str, repeats: int, pk_batch: int, pk_retries: int,
-             pk_repeats: int, threads: int, onnx: bool, compiled: bool) -> list[dict]:
+def _ik_rows(
+    net: RBFNetwork,
+    batch: int,
+    device: str,
+    repeats: int,
+    pk_batch: int,
+    pk_retries: int,
+    pk_repeats: int,
+    threads: int,
+    onnx: bool,
+    compiled: bool,
+) -> list[dict]:
     _, x_cpu = workspace_positions(batch)
     x = x_cpu.to(device)
-    net32 = copy.deepcopy(net).to(torch.float32).to(device).eval()      # what load_model gives
+    net32 = copy.deepcopy(net).to(torch.float32).to(device).eval()  # what load_model gives
     rows = []
 
     def add(name: str, dev: str, n: int, seconds: float | None, answer: torch.Tensor | None, note: str = "") -> None:
-        rows.append({"method": name, "device": dev, "batch": n, "threads": threads,
-                     "queries_per_s": n / seconds if seconds else None,
-                     "median_err_mm": _err_mm(answer, x_cpu[:n]) if answer is not None else None, "note": note})
+        rows.append(
+            {
+                "method": name,
+                "device": dev,
+                "batch": n,
+                "threads": threads,
+                "queries_per_s": n / seconds if seconds else None,
+                "median_err_mm": _err_mm(answer, x_cpu[:n]) if answer is not None else None,
+                "note": note,
+            }
+        )
 
     fns = {"module": lambda: net32(x), "flag": lambda: net32.solve(x), "closed": lambda: scara.ik(x)}
     sess, onnx_note = _onnx_session(net, threads) if onnx else (None, "")
@@ -131,8 +170,14 @@ def _ik_rows(net: RBFNetwork, batch: int, device: str, repeats: int, pk_batch: i
             add("RBF network, torch.compile", device, batch, tc, fast(x), f"compile {first - tc:.1f} s")
         add("closed-form SCARA IK, torch", device, batch, t["closed"], scara.ik(x))
     if sess is not None:
-        add("RBF network + flag, ONNX (onnxruntime)", "cpu", batch, t["onnx"],
-            torch.from_numpy(fns["onnx"]()[0]), onnx_note)
+        add(
+            "RBF network + flag, ONNX (onnxruntime)",
+            "cpu",
+            batch,
+            t["onnx"],
+            torch.from_numpy(fns["onnx"]()[0]),
+            onnx_note,
+        )
     elif onnx_note:
         add("RBF network + flag, ONNX (onnxruntime)", "cpu", batch, None, None, onnx_note)
 
@@ -141,8 +186,14 @@ def _ik_rows(net: RBFNetwork, batch: int, device: str, repeats: int, pk_batch: i
         xs = x[:pk_batch]
         t, _ = median_seconds(lambda: pk_iterative_ik(chain, xs, pk_retries), pk_repeats, device, warmup=1)
         best, right = pk_iterative_ik(chain, xs, pk_retries)
-        add(f"pytorch-kinematics PseudoInverseIK ({pk_retries} restarts)", device, pk_batch, t, best,
-            f"position only, 50 iterations max, tol 0.1 mm; right elbow {100 * right:.1f} %")
+        add(
+            f"pytorch-kinematics PseudoInverseIK ({pk_retries} restarts)",
+            device,
+            pk_batch,
+            t,
+            best,
+            f"position only, 50 iterations max, tol 0.1 mm; right elbow {100 * right:.1f} %",
+        )
 
     closed = next(r["queries_per_s"] for r in rows if r["method"].startswith("closed"))
     iterative = next((r["queries_per_s"] for r in rows if r["method"].startswith("pytorch-kinematics")), None)

@@ -10,6 +10,7 @@ of seed 0). PseudoInverseIK samples its restarts in the same box (its joint limi
 solve the same problem in the same branch; it is slow, so it runs on fewer targets (`--pk-n`)
 and its rate is per target. Prints one JSON line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,8 +33,13 @@ def polish_row(solver, x: torch.Tensor, iterations: int, restarts: int = 0, repe
     t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts), repeats)
     _, ok = solver.solve(x, iterations, restarts)
     more = f", up to {restarts} restarts of the rest" if restarts else ""
-    return {"method": f"network + {iterations} polish steps{more}", "n": x.shape[0], "seconds": t,
-            "queries_per_s": x.shape[0] / t, "success": float(ok.double().mean())}
+    return {
+        "method": f"network + {iterations} polish steps{more}",
+        "n": x.shape[0],
+        "seconds": t,
+        "queries_per_s": x.shape[0] / t,
+        "success": float(ok.double().mean()),
+    }
 
 
 def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> dict:
@@ -42,18 +48,25 @@ def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> d
     if robot.locked:
         raise ValueError("PseudoInverseIK solves for every chain joint; this robot holds joints fixed")
     limits = torch.stack([robot.low, robot.high], -1)
-    ik = pk.PseudoInverseIK(robot.chain, num_retries=retries, joint_limits=limits, max_iterations=max_iterations,
-                            pos_tolerance=1e-4, rot_tolerance=math.radians(0.1),
-                            orientation_weight=1.0 if solver.pose_target else 0.0,
-                            early_stopping_any_converged=True)
+    ik = pk.PseudoInverseIK(
+        robot.chain,
+        num_retries=retries,
+        joint_limits=limits,
+        max_iterations=max_iterations,
+        pos_tolerance=1e-4,
+        rot_tolerance=math.radians(0.1),
+        orientation_weight=1.0 if solver.pose_target else 0.0,
+        early_stopping_any_converged=True,
+    )
     if solver.pose_target:
         from pytorch_kinematics import transforms as tf
+
         goal = pk.Transform3d(pos=x[:, :3], rot=tf.quaternion_to_matrix(x[:, 3:]), dtype=x.dtype)
     else:
         goal = pk.Transform3d(pos=x[:, :3], dtype=x.dtype)
     torch.manual_seed(0)
     out = []
-    t = timed(lambda: out.append(ik.solve(goal)))       # one run: it is slow
+    t = timed(lambda: out.append(ik.solve(goal)))  # one run: it is slow
     sol = out[0]
     # Each target's best restart by our own error measure, so both rows are scored alike.
     n, r, dof = sol.solutions.shape
@@ -62,9 +75,13 @@ def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> d
     score = pos / 0.1 + (rot / 0.1 if rot is not None else 0.0)
     best = score.reshape(n, r).argmin(-1)
     ok = (pos.reshape(n, r) <= 0.1) & ((rot.reshape(n, r) <= 0.1) if rot is not None else True)
-    return {"method": f"pytorch-kinematics PseudoInverseIK ({retries} restarts, {max_iterations} iterations)",
-            "n": n, "seconds": t, "queries_per_s": n / t,
-            "success": float(ok.gather(1, best[:, None]).double().mean())}
+    return {
+        "method": f"pytorch-kinematics PseudoInverseIK ({retries} restarts, {max_iterations} iterations)",
+        "n": n,
+        "seconds": t,
+        "queries_per_s": n / t,
+        "success": float(ok.gather(1, best[:, None]).double().mean()),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -81,8 +98,15 @@ def main(argv: list[str] | None = None) -> None:
     solver = load_solver(a.checkpoint)
     x = evaluation_split(solver.robot, a.n, seed=0).x
     rows = [polish_row(solver, x, a.iterations, a.restarts), pk_row(solver, x[: a.pk_n], a.retries)]
-    print(json.dumps({"machine": machine_info("cpu", a.threads), "rows": rows,
-                      "speedup": rows[0]["queries_per_s"] / rows[1]["queries_per_s"]}))
+    print(
+        json.dumps(
+            {
+                "machine": machine_info("cpu", a.threads),
+                "rows": rows,
+                "speedup": rows[0]["queries_per_s"] / rows[1]["queries_per_s"],
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 set size N, the number of centres M and the number of ants K, and time of one closed-loop step
 against the batch B; each with the fitted exponent p of time ~ x^p (log-log least squares).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,7 +20,7 @@ def objective_seconds(objective, m: int, k: int, device: str = "cpu", repeats: i
     g = torch.Generator().manual_seed(0)
     z = objective.z_train
     idx = torch.stack([torch.randperm(z.shape[0], generator=g)[:m] for _ in range(k)]).to(z.device)
-    centers = z[idx]                                                    # (K, M, d)
+    centers = z[idx]  # (K, M, d)
     widths = torch.full((k, m), 0.3, dtype=z.dtype, device=z.device)
     return median_seconds(lambda: objective(centers, widths), repeats, device)[0]
 
@@ -28,18 +29,20 @@ def _curve(x: list[int], t: list[float], fixed: str) -> dict:
     return {"x": list(x), "seconds": t, "exponent": fit_exponent(x, t), "fixed": fixed}
 
 
-def scaling_curves(ns, ms, ks, sim_rows: list[dict], device: str = "cpu", n0: int = 2000, m0: int = 40,
-                   k0: int = 20, repeats: int = 3) -> dict:
+def scaling_curves(
+    ns, ms, ks, sim_rows: list[dict], device: str = "cpu", n0: int = 2000, m0: int = 40, k0: int = 20, repeats: int = 3
+) -> dict:
     """Curves {"N", "M", "K", "B"}: x, seconds, exponent; B from the simulator rows (seconds per
     step), with the exponent also over the three largest B (`exponent_large_B`)."""
     curves = {}
-    curves["N"] = _curve(ns, [objective_seconds(selection_objective(n, device), m0, k0, device, repeats)
-                              for n in ns], f"M = {m0}, K = {k0}")
+    curves["N"] = _curve(
+        ns,
+        [objective_seconds(selection_objective(n, device), m0, k0, device, repeats) for n in ns],
+        f"M = {m0}, K = {k0}",
+    )
     obj = selection_objective(n0, device)
-    curves["M"] = _curve(ms, [objective_seconds(obj, m, k0, device, repeats) for m in ms],
-                         f"N = {n0}, K = {k0}")
-    curves["K"] = _curve(ks, [objective_seconds(obj, m0, k, device, repeats) for k in ks],
-                         f"N = {n0}, M = {m0}")
+    curves["M"] = _curve(ms, [objective_seconds(obj, m, k0, device, repeats) for m in ms], f"N = {n0}, K = {k0}")
+    curves["K"] = _curve(ks, [objective_seconds(obj, m0, k, device, repeats) for k in ks], f"N = {n0}, M = {m0}")
     bs = [r["B"] for r in sim_rows]
     ts = [r["step_s"] for r in sim_rows]
     curves["B"] = _curve(bs, ts, "one closed-loop step, smc_obs, float32")
@@ -58,8 +61,12 @@ def plot_curves(curves: dict, path: Path, title: str) -> Path:
     from matplotlib.ticker import NullFormatter
 
     labels = {"N": "training set size N", "M": "centres M", "K": "ants K", "B": "environments B"}
-    what = {"N": "s per ACO iteration", "M": "s per ACO iteration", "K": "s per ACO iteration",
-            "B": "s per closed-loop step"}
+    what = {
+        "N": "s per ACO iteration",
+        "M": "s per ACO iteration",
+        "K": "s per ACO iteration",
+        "B": "s per closed-loop step",
+    }
     fig, axes = plt.subplots(1, len(curves), figsize=(4 * len(curves), 3.6))
     for ax, (key, c) in zip(np.atleast_1d(axes), curves.items()):
         x, t = np.array(c["x"], float), np.array(c["seconds"], float)
@@ -69,7 +76,7 @@ def plot_curves(curves: dict, path: Path, title: str) -> Path:
         ax.set_xlabel(labels[key])
         ax.set_ylabel(what[key])
         ax.set_title(c["fixed"], fontsize=9)
-        ax.set_xticks(x, [f"{v:g}" for v in x])          # the measured values, no minor labels
+        ax.set_xticks(x, [f"{v:g}" for v in x])  # the measured values, no minor labels
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.legend(fontsize=8)
         ax.grid(True, which="both", alpha=0.3)

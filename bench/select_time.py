@@ -12,6 +12,7 @@ from a short probe run (set-up + 100 x the median iteration) and marked so. The 
 KMeans and each colony in interleaved rounds, torch and every other thread pool (scikit-learn's
 OpenMP, BLAS) on `--threads` threads (set here, and reported in every row), and reports medians.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,10 +33,18 @@ from rbfn.select import select
 
 from .timing import machine_info, median_seconds, sync
 
-__all__ = ["COLONIES", "selection_objective", "aco_config", "time_aco", "time_kmeans", "select_rows",
-           "ratio_rows", "main"]
+__all__ = [
+    "COLONIES",
+    "selection_objective",
+    "aco_config",
+    "time_aco",
+    "time_kmeans",
+    "select_rows",
+    "ratio_rows",
+    "main",
+]
 
-COLONIES = {"aco": ("acor", "per_center"), "aco_paper": ("ant_system", "paper")}   # colony, width rule
+COLONIES = {"aco": ("acor", "per_center"), "aco_paper": ("ant_system", "paper")}  # colony, width rule
 NC_MAX = 100
 
 
@@ -83,9 +92,16 @@ def time_kmeans(objective: FitObjective, m: int, repeats: int) -> float:
     return median_seconds(lambda: KMeans(m, n_init=10, random_state=0).fit(z), repeats, warmup=0)[0]
 
 
-def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_full_s: float = 20.0,
-                always_full=((10000, 40),), probe: int = 2, repeats: int = 3,
-                on_row: Callable[[list[dict]], None] | None = None) -> list[dict]:
+def select_rows(
+    ns=(2000, 10000, 50000),
+    ms=(40, 160),
+    device: str = "cpu",
+    max_full_s: float = 20.0,
+    always_full=((10000, 40),),
+    probe: int = 2,
+    repeats: int = 3,
+    on_row: Callable[[list[dict]], None] | None = None,
+) -> list[dict]:
     """Rows (N, M, method): seconds for NC_max = 100 (measured, or extrapolated from a `probe`-
     iteration run when a full run is predicted above `max_full_s`, except (N, M) in
     `always_full`), iterations run, and the ratio to KMeans on the same data. `on_row(rows)`
@@ -95,8 +111,18 @@ def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_
         obj = selection_objective(n, device)
         for m in ms:
             km = time_kmeans(obj, m, repeats)
-            rows.append({"N": n, "M": m, "method": "sklearn KMeans (n_init = 10)", "device": "cpu",
-                         "seconds": km, "iterations": None, "how": f"median of {repeats}", "x_kmeans": 1.0})
+            rows.append(
+                {
+                    "N": n,
+                    "M": m,
+                    "method": "sklearn KMeans (n_init = 10)",
+                    "device": "cpu",
+                    "seconds": km,
+                    "iterations": None,
+                    "how": f"median of {repeats}",
+                    "x_kmeans": 1.0,
+                }
+            )
             for name in COLONIES:
                 p = time_aco(obj, name, m, probe, device)
                 predicted = p["setup_s"] + NC_MAX * p["per_iter_s"]
@@ -108,32 +134,52 @@ def select_rows(ns=(2000, 10000, 50000), ms=(40, 160), device: str = "cpu", max_
                     per_iter = statistics.median(r["per_iter_s"] for r in runs)
                 else:
                     secs, its, per_iter = predicted, NC_MAX, p["per_iter_s"]
-                    how = (f"extrapolated: set-up {p['setup_s']:.2f} s + 100 x {p['per_iter_s']:.3f} "
-                           "s/iteration")
-                rows.append({"N": n, "M": m, "method": f"{name} ({COLONIES[name][0]}, NC_max = 100)",
-                             "device": device, "seconds": secs, "iterations": its, "how": how,
-                             "per_iter_s": per_iter, "predicted_s": predicted, "x_kmeans": secs / km})
+                    how = f"extrapolated: set-up {p['setup_s']:.2f} s + 100 x {p['per_iter_s']:.3f} s/iteration"
+                rows.append(
+                    {
+                        "N": n,
+                        "M": m,
+                        "method": f"{name} ({COLONIES[name][0]}, NC_max = 100)",
+                        "device": device,
+                        "seconds": secs,
+                        "iterations": its,
+                        "how": how,
+                        "per_iter_s": per_iter,
+                        "predicted_s": predicted,
+                        "x_kmeans": secs / km,
+                    }
+                )
                 if on_row is not None:
                     on_row(rows)
     return rows
 
 
-def ratio_rows(n: int = 10000, m: int = 40, iterations: int = NC_MAX, names=tuple(COLONIES), device: str = "cpu",
-               repeats: int = 3) -> list[dict]:
+def ratio_rows(
+    n: int = 10000, m: int = 40, iterations: int = NC_MAX, names=tuple(COLONIES), device: str = "cpu", repeats: int = 3
+) -> list[dict]:
     """Rows (one per colony): KMeans' and the colony's median seconds at (N, M) over `repeats`
     interleaved rounds (KMeans a median of 3 in each), the colony's set-up and per-iteration
     seconds, and the median of the rounds' ratios colony / KMeans."""
     obj = selection_objective(n, device)
-    time_aco(obj, names[0], m, 2, device)                                   # warm-up
+    time_aco(obj, names[0], m, 2, device)  # warm-up
     rows = []
     for name in names:
         rounds = [(time_kmeans(obj, m, 3), time_aco(obj, name, m, iterations, device)) for _ in range(repeats)]
         runs = {key: statistics.median(r[key] for _, r in rounds) for key in ("seconds", "setup_s", "per_iter_s")}
-        rows.append({"N": n, "M": m, "method": f"{name} ({COLONIES[name][0]})", "device": device,
-                     "threads": torch.get_num_threads(), "iterations": rounds[0][1]["iterations"],
-                     "kmeans_s": statistics.median(km for km, _ in rounds), **runs,
-                     "x_kmeans": statistics.median(r["seconds"] / km for km, r in rounds),
-                     "how": f"median of {repeats} interleaved rounds"})
+        rows.append(
+            {
+                "N": n,
+                "M": m,
+                "method": f"{name} ({COLONIES[name][0]})",
+                "device": device,
+                "threads": torch.get_num_threads(),
+                "iterations": rounds[0][1]["iterations"],
+                "kmeans_s": statistics.median(km for km, _ in rounds),
+                **runs,
+                "x_kmeans": statistics.median(r["seconds"] / km for km, r in rounds),
+                "how": f"median of {repeats} interleaved rounds",
+            }
+        )
     return rows
 
 
@@ -159,11 +205,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
     with threadpool_limits(a.threads):
         rows = ratio_rows(a.n, a.m, a.iterations, names, a.device, a.repeats)
     info = machine_info(a.device, a.threads)
-    print(f"Selection at N = {a.n}, M = {a.m}, {a.iterations} iterations, {info['threads']} thread(s), "
-          f"{info['cpu']} (load {info['load_average_1min']}), median of {a.repeats} rounds:")
+    print(
+        f"Selection at N = {a.n}, M = {a.m}, {a.iterations} iterations, {info['threads']} thread(s), "
+        f"{info['cpu']} (load {info['load_average_1min']}), median of {a.repeats} rounds:"
+    )
     for r in rows:
-        print(f"  {r['method']:22s} {r['seconds']:8.2f} s (set-up {r['setup_s']:.2f} s + {r['iterations']} x "
-              f"{r['per_iter_s'] * 1e3:.1f} ms)  KMeans {r['kmeans_s']:.3f} s  {r['x_kmeans']:6.1f}x KMeans")
+        print(
+            f"  {r['method']:22s} {r['seconds']:8.2f} s (set-up {r['setup_s']:.2f} s + {r['iterations']} x "
+            f"{r['per_iter_s'] * 1e3:.1f} ms)  KMeans {r['kmeans_s']:.3f} s  {r['x_kmeans']:6.1f}x KMeans"
+        )
     if a.json:
         a.json.write_text(json.dumps({"machine": info, "rows": rows}, indent=1))
     return rows

@@ -19,6 +19,7 @@ scenario's friction minus its disturbance), both on one thread:
 
     python -m bench.simulator --arm ur5 --batches 1,1024,8192 --integrator rk4 --repeats 5
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,15 +41,35 @@ from rbfn.robots import scara
 
 from .timing import median_seconds, timed
 
-__all__ = ["DT", "PAYLOAD", "closed_loop", "env_steps_rows", "scenario_seconds", "compiled_scenario",
-           "aot_scenario", "scipy_row", "numpy_rk4_row", "mujoco_rows", "has_c_compiler", "robot_config",
-           "arm_closed_loop", "arm_rows", "arm_mujoco_rows"]
+__all__ = [
+    "DT",
+    "PAYLOAD",
+    "closed_loop",
+    "env_steps_rows",
+    "scenario_seconds",
+    "compiled_scenario",
+    "aot_scenario",
+    "scipy_row",
+    "numpy_rk4_row",
+    "mujoco_rows",
+    "has_c_compiler",
+    "robot_config",
+    "arm_closed_loop",
+    "arm_rows",
+    "arm_mujoco_rows",
+]
 
 DT, PAYLOAD = 1e-3, 10.0
 
 
-def closed_loop(b: int, duration: float, device: str = "cpu", compile: bool = False,
-                payload_window: tuple[float, float] | None = None, aot: bool = False):
+def closed_loop(
+    b: int,
+    duration: float,
+    device: str = "cpu",
+    compile: bool = False,
+    payload_window: tuple[float, float] | None = None,
+    aot: bool = False,
+):
     """A no-argument function running B environments for `duration` s (final state only)."""
     on, off = payload_window or (0.0, duration)
     sc = Scenario(duration=duration, dt=DT, payload_on=on, payload_off=off, metrics_after=0.0)
@@ -65,8 +86,7 @@ def env_steps_rows(steps_for: dict[int, int], device: str = "cpu", repeats: int 
     rows = []
     for b, n in steps_for.items():
         t, _ = median_seconds(closed_loop(b, n * DT, device), repeats, device)
-        rows.append({"B": b, "steps": n, "device": device, "seconds": t, "step_s": t / n,
-                     "env_steps_per_s": b * n / t})
+        rows.append({"B": b, "steps": n, "device": device, "seconds": t, "step_s": t / n, "env_steps_per_s": b * n / t})
     return rows
 
 
@@ -78,8 +98,9 @@ def _window(duration: float) -> tuple[float, float]:
 def scenario_seconds(device: str = "cpu", repeats: int = 3, duration: float = 10.0) -> float:
     """Median wall seconds of one eager scenario (B = 1, payload 1-4 s of 10) after a short warm-up."""
     closed_loop(1, 0.05, device)()
-    return median_seconds(closed_loop(1, duration, device, payload_window=_window(duration)), repeats,
-                          device, warmup=0)[0]
+    return median_seconds(
+        closed_loop(1, duration, device, payload_window=_window(duration)), repeats, device, warmup=0
+    )[0]
 
 
 def has_c_compiler() -> bool:
@@ -92,8 +113,17 @@ def compiled_scenario(device: str, threads: int, cap_s: float, duration: float =
     (first call minus a compiled run) and the median of two compiled runs, or why not."""
     if device == "cpu" and not has_c_compiler():
         return {"status": "no C++ compiler"}
-    cmd = [sys.executable, "-m", "bench.simulator", "--compiled-scenario", device,
-           "--threads", str(threads), "--duration", str(duration)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "bench.simulator",
+        "--compiled-scenario",
+        device,
+        "--threads",
+        str(threads),
+        "--duration",
+        str(duration),
+    ]
     t = time.perf_counter()
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=cap_s)
@@ -125,8 +155,17 @@ def aot_scenario(device: str, threads: int, cap_s: float, duration: float = 10.0
     out: dict = {"status": "ok"}
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "ACO_RBFN_CACHE": cache}
-        cmd = [sys.executable, "-m", "bench.simulator", "--aot-scenario", device, "--threads", str(threads),
-               "--duration", str(duration)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "bench.simulator",
+            "--aot-scenario",
+            device,
+            "--threads",
+            str(threads),
+            "--duration",
+            str(duration),
+        ]
         for run in ("build", "cached"):
             try:
                 res = subprocess.run(cmd, capture_output=True, text=True, timeout=cap_s, env=env)
@@ -160,9 +199,15 @@ def numpy_rk4_row(duration: float = 10.0) -> dict:
             k4 = rhs(t + h, s + h * k3)
             s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             t += h
+
     t, _ = median_seconds(run, 1, warmup=0)
-    return {"method": "numpy RK4 loop (PD in the RHS)", "B": 1, "duration": duration, "seconds": t,
-            "env_steps_per_s": n / t}
+    return {
+        "method": "numpy RK4 loop (PD in the RHS)",
+        "B": 1,
+        "duration": duration,
+        "seconds": t,
+        "env_steps_per_s": n / t,
+    }
 
 
 def _pd_rhs(p: scara.ScaraParams, plant: ScaraPlant, gains: Gains, on: float, off: float):
@@ -172,15 +217,20 @@ def _pd_rhs(p: scara.ScaraParams, plant: ScaraPlant, gains: Gains, on: float, of
     def rhs(t: float, s: np.ndarray) -> np.ndarray:
         q, qd = s[:3], s[3:]
         st, ct = math.sin, math.cos
-        q_d = np.array([1 + 0.1 * (st(t) + st(2 * t)), 1 + 0.1 * (ct(2 * t) + ct(3 * t)),
-                        1 + 0.1 * (st(3 * t) + st(4 * t))])
-        v_d = np.array([0.1 * (ct(t) + 2 * ct(2 * t)), -0.1 * (2 * st(2 * t) + 3 * st(3 * t)),
-                        0.1 * (3 * ct(3 * t) + 4 * ct(4 * t))])
+        q_d = np.array(
+            [1 + 0.1 * (st(t) + st(2 * t)), 1 + 0.1 * (ct(2 * t) + ct(3 * t)), 1 + 0.1 * (st(3 * t) + st(4 * t))]
+        )
+        v_d = np.array(
+            [
+                0.1 * (ct(t) + 2 * ct(2 * t)),
+                -0.1 * (2 * st(2 * t) + 3 * st(3 * t)),
+                0.1 * (3 * ct(3 * t) + 4 * ct(4 * t)),
+            ]
+        )
         tau = kp * (q_d - q) + kd * (v_d - qd)
         p1, p2, p3, m3 = scara.inertia_params(PAYLOAD if on <= t < off else 0.0, p)
         c2, h = math.cos(q[1]), p2 * math.sin(q[1])
-        r = (tau - plant.viscous * qd - plant.coulomb * np.sign(qd)
-             - plant.dist * math.sin(plant.dist_freq * t))
+        r = tau - plant.viscous * qd - plant.coulomb * np.sign(qd) - plant.dist * math.sin(plant.dist_freq * t)
         r[0] += h * (qd[1] * qd[0] + (qd[0] + qd[1]) * qd[1])
         r[1] -= h * qd[0] * qd[0]
         r[2] += m3 * p.g
@@ -198,19 +248,27 @@ def scipy_row(duration: float = 10.0, repeats: int = 1) -> dict:
 
     plant = ScaraPlant()
     rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
-    s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])   # the reference at t = 0
+    s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])  # the reference at t = 0
     sol = {}
 
     def run():
         sol["r"] = solve_ivp(rhs, (0.0, duration), s0, method="RK45", rtol=1e-6, atol=1e-8)
 
     t, _ = median_seconds(run, repeats, warmup=0)
-    return {"method": "scipy solve_ivp (RK45, PD in the RHS)", "B": 1, "duration": duration, "seconds": t,
-            "env_steps_per_s": duration / DT / t, "nfev": int(sol["r"].nfev), "ok": bool(sol["r"].success)}
+    return {
+        "method": "scipy solve_ivp (RK45, PD in the RHS)",
+        "B": 1,
+        "duration": duration,
+        "seconds": t,
+        "env_steps_per_s": duration / DT / t,
+        "nfev": int(sol["r"].nfev),
+        "ok": bool(sol["r"].success),
+    }
 
 
-def _timed_rollout(model, datas: list, q0: torch.Tensor, qd0: torch.Tensor, tau: torch.Tensor, b: int,
-                   repeats: int) -> tuple[float, list[float]]:
+def _timed_rollout(
+    model, datas: list, q0: torch.Tensor, qd0: torch.Tensor, tau: torch.Tensor, b: int, repeats: int
+) -> tuple[float, list[float]]:
     """(median, runs) seconds of MuJoCo's rollout of B copies of `model` from (q0, qd0), the open-loop
     torques tau (n, joints) shared by every copy; more than one MjData: rollout's threads."""
     import mujoco
@@ -222,14 +280,14 @@ def _timed_rollout(model, datas: list, q0: torch.Tensor, qd0: torch.Tensor, tau:
     state0 = np.empty(mujoco.mj_stateSize(model, spec))
     mujoco.mj_getState(model, d, state0, spec)
     init = np.tile(state0, (b, 1))
-    ctrl = np.ascontiguousarray(tau.numpy()[None])                       # (1, n, joints), tiled over B
+    ctrl = np.ascontiguousarray(tau.numpy()[None])  # (1, n, joints), tiled over B
     out = np.empty((b, tau.shape[0], state0.shape[0]))
-    return median_seconds(lambda: rollout.rollout(model, datas if len(datas) > 1 else d, init, ctrl, state=out),
-                          repeats)
+    return median_seconds(
+        lambda: rollout.rollout(model, datas if len(datas) > 1 else d, init, ctrl, state=out), repeats
+    )
 
 
-def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
-                integrator: str = "RK4") -> list[dict]:
+def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3, integrator: str = "RK4") -> list[dict]:
     """MuJoCo's rollout (dt = 1 ms, open loop) of B copies of the arm; [] if not installed."""
     try:
         import mujoco
@@ -245,17 +303,29 @@ def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3,
     for b, n in steps_for.items():
         t_grid = torch.arange(n, dtype=torch.float64) * DT
         q, qd, qdd = paper_trajectory(t_grid)
-        tau = (torch.einsum("bij,bj->bi", scara.mass_matrix(q, PAYLOAD), qdd)
-               + torch.einsum("bij,bj->bi", scara.coriolis(q, qd, PAYLOAD), qd) + scara.gravity(q, PAYLOAD)
-               + plant.friction_torque(qd) - plant.disturbance(t_grid)[:, None])
+        tau = (
+            torch.einsum("bij,bj->bi", scara.mass_matrix(q, PAYLOAD), qdd)
+            + torch.einsum("bij,bj->bi", scara.coriolis(q, qd, PAYLOAD), qd)
+            + scara.gravity(q, PAYLOAD)
+            + plant.friction_torque(qd)
+            - plant.disturbance(t_grid)[:, None]
+        )
         t, _ = _timed_rollout(model, datas, q[0], qd[0], tau, b, repeats)
-        rows.append({"B": b, "steps": n, "device": "cpu", "seconds": t, "env_steps_per_s": b * n / t,
-                     "mujoco": mujoco.__version__})
+        rows.append(
+            {
+                "B": b,
+                "steps": n,
+                "device": "cpu",
+                "seconds": t,
+                "env_steps_per_s": b * n / t,
+                "mujoco": mujoco.__version__,
+            }
+        )
     return rows
 
 
 # ----------------------------------------------------------------------------- URDF arms
-ARM_PAYLOAD = 2.5          # kg at the end link, the UR5's half rated payload
+ARM_PAYLOAD = 2.5  # kg at the end link, the UR5's half rated payload
 
 
 def robot_config(name: str) -> RobotConfig:
@@ -268,14 +338,22 @@ def robot_config(name: str) -> RobotConfig:
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RobotConfig), raw))
 
 
-def arm_closed_loop(b: int, steps: int, robot: str = "ur5", integrator: str = "rk4", device: str = "cpu",
-                    dtype: torch.dtype = torch.float32, compile: bool = False):
+def arm_closed_loop(
+    b: int,
+    steps: int,
+    robot: str = "ur5",
+    integrator: str = "rk4",
+    device: str = "cpu",
+    dtype: torch.dtype = torch.float32,
+    compile: bool = False,
+):
     """A no-argument function running B environments of the arm's closed loop (`smc_obs`) for
     `steps` periods (final state only)."""
     setup = control_robot(robot_config(robot), ControlConfig())
     kw = {"dtype": dtype, "device": device}
-    sc = Scenario(duration=steps * DT, dt=DT, integrator=integrator, payload_on=0.0, payload_off=steps * DT,
-                  metrics_after=0.0)
+    sc = Scenario(
+        duration=steps * DT, dt=DT, integrator=integrator, payload_on=0.0, payload_off=steps * DT, metrics_after=0.0
+    )
     ref = tuple(r.to(**kw) for r in setup.trajectory(sc.times()))
     ctrl = make_controller("smc_obs", Gains(), DT, setup.model, joint_scale=setup.joint_scale(**kw))
     q0, qd0 = ref[0][:1].expand(b, setup.n).clone(), ref[1][:1].expand(b, setup.n).clone()
@@ -283,21 +361,39 @@ def arm_closed_loop(b: int, steps: int, robot: str = "ur5", integrator: str = "r
     return lambda: simulate(setup.plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile)
 
 
-def arm_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: str = "rk4", device: str = "cpu",
-             repeats: int = 5, compile: bool = False) -> list[dict]:
+def arm_rows(
+    steps_for: dict[int, int],
+    robot: str = "ur5",
+    integrator: str = "rk4",
+    device: str = "cpu",
+    repeats: int = 5,
+    compile: bool = False,
+) -> list[dict]:
     """Per B: env-steps/s of the arm's closed loop (median of `repeats` runs of n steps, each run
     after a warm-up)."""
     rows = []
     for b, n in steps_for.items():
         t, ts = median_seconds(arm_closed_loop(b, n, robot, integrator, device, compile=compile), repeats, device)
-        rows.append({"robot": robot, "integrator": integrator, "B": b, "steps": n, "device": device,
-                     "compiled": compile, "seconds": t, "step_ms": 1e3 * t / n, "env_steps_per_s": b * n / t,
-                     "runs_env_steps_per_s": [b * n / x for x in ts]})
+        rows.append(
+            {
+                "robot": robot,
+                "integrator": integrator,
+                "B": b,
+                "steps": n,
+                "device": device,
+                "compiled": compile,
+                "seconds": t,
+                "step_ms": 1e3 * t / n,
+                "env_steps_per_s": b * n / t,
+                "runs_env_steps_per_s": [b * n / x for x in ts],
+            }
+        )
     return rows
 
 
-def arm_mujoco_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: str = "RK4", threads: int = 1,
-                    repeats: int = 5) -> list[dict]:
+def arm_mujoco_rows(
+    steps_for: dict[int, int], robot: str = "ur5", integrator: str = "RK4", threads: int = 1, repeats: int = 5
+) -> list[dict]:
     """MuJoCo's rollout (dt = 1 ms, open loop) of B copies of the same arm, [] without mujoco."""
     try:
         import mujoco
@@ -309,19 +405,38 @@ def arm_mujoco_rows(steps_for: dict[int, int], robot: str = "ur5", integrator: s
     cfg = robot_config(robot)
     setup = control_robot(cfg, ControlConfig())
     plant = setup.plant
-    model = arm_model(Path(cfg.urdf) if cfg.urdf else cfg.name, payload=ARM_PAYLOAD, payload_link=plant.arm.end_link,
-                      viscous=plant.viscous, coulomb=plant.coulomb, dt=DT, integrator=integrator, gravity=cfg.gravity)
+    model = arm_model(
+        Path(cfg.urdf) if cfg.urdf else cfg.name,
+        payload=ARM_PAYLOAD,
+        payload_link=plant.arm.end_link,
+        viscous=plant.viscous,
+        coulomb=plant.coulomb,
+        dt=DT,
+        integrator=integrator,
+        gravity=cfg.gravity,
+    )
     datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]
     rows = []
     for b, n in steps_for.items():
         t_grid = torch.arange(n, dtype=torch.float64) * DT
         q, qd, qdd = setup.trajectory(t_grid)
-        tau = (plant.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd)
-               - plant.disturbance(t_grid))
+        tau = (
+            plant.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd) - plant.disturbance(t_grid)
+        )
         t, ts = _timed_rollout(model, datas, q[0], qd[0], tau, b, repeats)
-        rows.append({"robot": robot, "integrator": integrator, "B": b, "steps": n, "device": "cpu", "seconds": t,
-                     "env_steps_per_s": b * n / t, "runs_env_steps_per_s": [b * n / x for x in ts],
-                     "mujoco": mujoco.__version__})
+        rows.append(
+            {
+                "robot": robot,
+                "integrator": integrator,
+                "B": b,
+                "steps": n,
+                "device": "cpu",
+                "seconds": t,
+                "env_steps_per_s": b * n / t,
+                "runs_env_steps_per_s": [b * n / x for x in ts],
+                "mujoco": mujoco.__version__,
+            }
+        )
     return rows
 
 
@@ -332,22 +447,29 @@ def _arm_main(a) -> None:
     ours = arm_rows(steps_for, a.arm, a.integrator, a.device, a.repeats, a.compile)
     theirs = arm_mujoco_rows(steps_for, a.arm, {"rk4": "RK4", "euler": "Euler"}[a.integrator], a.threads, a.repeats)
     mj = {r["B"]: r for r in theirs}
-    print(f"{a.arm} closed loop (smc_obs, {a.integrator}, float32, {a.threads} thread(s), {a.device}"
-          f"{', compiled' if a.compile else ''}): env-steps/s, median of {a.repeats}")
+    print(
+        f"{a.arm} closed loop (smc_obs, {a.integrator}, float32, {a.threads} thread(s), {a.device}"
+        f"{', compiled' if a.compile else ''}): env-steps/s, median of {a.repeats}"
+    )
     print(f"{'B':>6s} {'steps':>6s} {'ours':>12s} {'MuJoCo':>12s} {'ratio':>7s}")
     for r in ours:
         m = mj.get(r["B"])
-        mr = (f"{m['env_steps_per_s']:12.0f} {r['env_steps_per_s'] / m['env_steps_per_s']:7.2f}" if m
-              else f"{'-':>12s} {'-':>7s}")
+        mr = (
+            f"{m['env_steps_per_s']:12.0f} {r['env_steps_per_s'] / m['env_steps_per_s']:7.2f}"
+            if m
+            else f"{'-':>12s} {'-':>7s}"
+        )
         print(f"{r['B']:6d} {r['steps']:6d} {r['env_steps_per_s']:12.0f} {mr}")
     if a.json:
         Path(a.json).write_text(json.dumps({"ours": ours, "mujoco": theirs}, indent=1))
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description="closed-loop simulator benchmarks (the suite runs them through "
-                                             "python -m bench; this entry point: URDF arms, and the compiled "
-                                             "scenario's child process)")
+    ap = argparse.ArgumentParser(
+        description="closed-loop simulator benchmarks (the suite runs them through "
+        "python -m bench; this entry point: URDF arms, and the compiled "
+        "scenario's child process)"
+    )
     ap.add_argument("--compiled-scenario", metavar="DEVICE", help="child process of compiled_scenario")
     ap.add_argument("--aot-scenario", metavar="DEVICE", help="child process of aot_scenario")
     ap.add_argument("--arm", metavar="ROBOT", help="a URDF arm's closed loop against MuJoCo (ur5, panda, scara)")

@@ -1,5 +1,6 @@
 """Timing helpers shared by the suite's sections: medians of repeated runs, GPU-synchronised,
 the machine's description, and log-log exponent fits."""
+
 from __future__ import annotations
 
 import math
@@ -29,8 +30,9 @@ def timed(fn: Callable[[], object], device: str = "cpu") -> float:
     return time.perf_counter() - t
 
 
-def median_seconds(fn: Callable[[], object], repeats: int = 5, device: str = "cpu",
-                   warmup: int = 1) -> tuple[float, list[float]]:
+def median_seconds(
+    fn: Callable[[], object], repeats: int = 5, device: str = "cpu", warmup: int = 1
+) -> tuple[float, list[float]]:
     """(median, all) wall seconds of `repeats` calls of fn after `warmup` untimed calls."""
     for _ in range(warmup):
         fn()
@@ -38,8 +40,9 @@ def median_seconds(fn: Callable[[], object], repeats: int = 5, device: str = "cp
     return statistics.median(ts), ts
 
 
-def interleaved_medians(fns: dict[str, Callable[[], object]], repeats: int = 5, device: str = "cpu",
-                        warmup: int = 1) -> dict[str, float]:
+def interleaved_medians(
+    fns: dict[str, Callable[[], object]], repeats: int = 5, device: str = "cpu", warmup: int = 1
+) -> dict[str, float]:
     """Median wall seconds of each fn over `repeats` rounds that call every fn once in turn, after
     `warmup` untimed rounds: on a machine shared with other jobs, the load changes during the
     measurement, and taking the methods turn by turn lets their ratios see the same load."""
@@ -67,10 +70,18 @@ def _cpu_model() -> str:
 def machine_info(device: str, threads: int) -> dict:
     """Platform, CPU model, core counts (all, and usable by this process), torch, threads, device."""
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    info = {"platform": platform.platform(), "python": platform.python_version(), "cpu": _cpu_model(),
-            "nproc": os.cpu_count(), "usable_cpus": usable, "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "threads_requested": threads, "device": device,
-            "load_average_1min": round(os.getloadavg()[0], 2)}
+    info = {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpu": _cpu_model(),
+        "nproc": os.cpu_count(),
+        "usable_cpus": usable,
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "threads_requested": threads,
+        "device": device,
+        "load_average_1min": round(os.getloadavg()[0], 2),
+    }
     if str(device).startswith("cuda"):
         info["gpu"] = torch.cuda.get_device_name(torch.device(device))
     return info

@@ -2,6 +2,7 @@
 
 All work on scaled inputs z (N, d) and return centres (M, d) in the same units.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -43,8 +44,9 @@ def kmeans_centers(z: torch.Tensor, m: int, seed: int, restarts: int = 10) -> to
     return torch.as_tensor(km.cluster_centers_, dtype=z.dtype, device=z.device)
 
 
-def ols_centers(z: torch.Tensor, y: torch.Tensor, m: int, widths: torch.Tensor,
-                candidates: torch.Tensor, tail: bool = True) -> torch.Tensor:
+def ols_centers(
+    z: torch.Tensor, y: torch.Tensor, m: int, widths: torch.Tensor, candidates: torch.Tensor, tail: bool = True
+) -> torch.Tensor:
     """Orthogonal least squares forward selection (Chen, Cowan & Grant 1991), batched over widths.
 
     Candidates (C, d) are candidate centres; widths (S,) are global widths tried side by side.
@@ -59,21 +61,21 @@ def ols_centers(z: torch.Tensor, y: torch.Tensor, m: int, widths: torch.Tensor,
     cols = gaussian_features(z, candidates.expand(s, c, -1), widths[:, None].expand(s, c))  # (S, N, C)
     target = y.expand(s, *y.shape).clone()
     if tail:
-        base = design_matrix(z, candidates[:0], widths[:0], tail=True)          # (N, d + 1)
+        base = design_matrix(z, candidates[:0], widths[:0], tail=True)  # (N, d + 1)
         q, _ = torch.linalg.qr(base)
         cols = cols - q @ (q.T @ cols)
         target = target - q @ (q.T @ target)
     chosen = torch.zeros(s, c, dtype=torch.bool, device=z.device)
     picks = []
     for _ in range(m):  # sequential by nature: each pick changes the residual candidates
-        norm2 = cols.square().sum(1)                                            # (S, C)
+        norm2 = cols.square().sum(1)  # (S, C)
         err = (cols.transpose(1, 2) @ target).square().sum(-1) / norm2.clamp_min(1e-300)
         err = err.masked_fill(chosen | (norm2 < 1e-24), -1.0)
-        j = err.argmax(-1)                                                      # (S,)
+        j = err.argmax(-1)  # (S,)
         picks.append(j)
         chosen[torch.arange(s), j] = True
-        w = cols[torch.arange(s), :, j].unsqueeze(-1)                           # (S, N, 1)
+        w = cols[torch.arange(s), :, j].unsqueeze(-1)  # (S, N, 1)
         wn = w / w.square().sum(1, keepdim=True).sqrt().clamp_min(1e-300)
         cols = cols - wn @ (wn.transpose(1, 2) @ cols)
         target = target - wn @ (wn.transpose(1, 2) @ target)
-    return candidates[torch.stack(picks, dim=1)]                               # (S, m, d)
+    return candidates[torch.stack(picks, dim=1)]  # (S, m, d)

@@ -7,6 +7,7 @@ still a plain torch.save archive that `torch.load(path, weights_only=True)` read
 checks everything evaluation relies on (robot entry, shapes, finite weights) up front, so a bad
 file fails with a message naming it instead of deep inside evaluation.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -24,26 +25,39 @@ from .layer import MIN_WIDTH, RBFNetwork
 from .robots.robot import robot_from_record
 from .targets import TargetFeatures
 
-__all__ = ["FORMAT_VERSION", "KIND", "MIN_WIDTH", "load_model", "load_sealed", "model_from_checkpoint",
-           "read_checkpoint", "save_checkpoint", "save_sealed"]
+__all__ = [
+    "FORMAT_VERSION",
+    "KIND",
+    "MIN_WIDTH",
+    "load_model",
+    "load_sealed",
+    "model_from_checkpoint",
+    "read_checkpoint",
+    "save_checkpoint",
+    "save_sealed",
+]
 
 FORMAT_VERSION = 1
 KIND = "rbfn-ik"
-TRAIN_STATE_KIND = "rbfn-train-state"     # rbfn.resume's last.pt, sealed the same way
+TRAIN_STATE_KIND = "rbfn-train-state"  # rbfn.resume's last.pt, sealed the same way
 _REQUIRED = ("format_version", "kind", "model_args", "state_dict", "robot")
 _ROBOT_KEYS = ("urdf", "end_link", "joint_low", "joint_high")
 _MODEL_ARGS = ("num_centers", "in_features", "out_features", "tail")
 # Trained-region buffers of RBFNetwork: this infinity means "unbounded" (no set_domain yet).
-_UNBOUNDED = {"in_low": -math.inf, "out_low": -math.inf, "in_high": math.inf, "out_high": math.inf,
-              "cover_radius": math.inf}
+_UNBOUNDED = {
+    "in_low": -math.inf,
+    "out_low": -math.inf,
+    "in_high": math.inf,
+    "out_high": math.inf,
+    "cover_radius": math.inf,
+}
 _ADVICE = "Re-run training or restore the file from a copy."
-MAX_SEALED_BYTES = 2 << 30       # read whole before unpickling: a larger file is refused before it is read
-
+MAX_SEALED_BYTES = 2 << 30  # read whole before unpickling: a larger file is refused before it is read
 
 
 _SEAL = b"aco-rbfn-sha256:"
 _SEAL_LEN = len(_SEAL) + 64
-_EOCD = b"PK\x05\x06"                     # zip end-of-central-directory record: 22 bytes + comment
+_EOCD = b"PK\x05\x06"  # zip end-of-central-directory record: 22 bytes + comment
 
 
 def seal(data: bytes) -> bytes:
@@ -59,8 +73,8 @@ def _zip_comment(data: bytes) -> bytes | None:
     start = max(0, len(data) - 22 - 0xFFFF)
     i = data.rfind(_EOCD, start)
     while i >= 0:
-        if i + 22 <= len(data) and int.from_bytes(data[i + 20:i + 22], "little") == len(data) - i - 22:
-            return data[i + 22:]
+        if i + 22 <= len(data) and int.from_bytes(data[i + 20 : i + 22], "little") == len(data) - i - 22:
+            return data[i + 22 :]
         i = data.rfind(_EOCD, start, i)
     return None
 
@@ -79,16 +93,19 @@ def unseal(data: bytes, path: Path, what: str = "checkpoint", advice: str = _ADV
         # One changed byte in the seal's prefix still leaves a comment of the seal's length.
         if len(comment) == _SEAL_LEN and sum(a != b for a, b in zip(comment, _SEAL)) <= 2:
             raise ValueError(f"{path} is corrupted: its checksum seal is damaged. {advice}")
-        raise ValueError(f"{path} is not an aco-rbfn {what}: it has no aco-rbfn seal (a zip archive "
-                         f"written by another program, or by torch.save directly). {advice}")
-    original = data[:-_SEAL_LEN - 2] + b"\x00\x00"
-    if hashlib.sha256(original).hexdigest().encode() != comment[len(_SEAL):]:
+        raise ValueError(
+            f"{path} is not an aco-rbfn {what}: it has no aco-rbfn seal (a zip archive "
+            f"written by another program, or by torch.save directly). {advice}"
+        )
+    original = data[: -_SEAL_LEN - 2] + b"\x00\x00"
+    if hashlib.sha256(original).hexdigest().encode() != comment[len(_SEAL) :]:
         raise ValueError(f"{path} is corrupted: its bytes do not match its SHA-256 checksum. {advice}")
     return original
 
 
-def save_checkpoint(path: str | Path, model: RBFNetwork, robot: dict[str, Any], config: dict[str, Any],
-                    metrics: dict[str, Any]) -> None:
+def save_checkpoint(
+    path: str | Path, model: RBFNetwork, robot: dict[str, Any], config: dict[str, Any], metrics: dict[str, Any]
+) -> None:
     """Write the checkpoint dict for `model` to `path` atomically."""
     from . import __version__
 
@@ -96,9 +113,13 @@ def save_checkpoint(path: str | Path, model: RBFNetwork, robot: dict[str, Any], 
         "format_version": FORMAT_VERSION,
         "kind": KIND,
         "package_version": __version__,
-        "model_args": {"num_centers": model.num_centers, "in_features": model.centers.shape[1],
-                       "target": model.target,
-                       "out_features": model.head.out_features, "tail": model.tail is not None},
+        "model_args": {
+            "num_centers": model.num_centers,
+            "in_features": model.centers.shape[1],
+            "target": model.target,
+            "out_features": model.head.out_features,
+            "tail": model.tail is not None,
+        },
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "robot": robot,
         "config": config,
@@ -135,8 +156,10 @@ def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVIC
         raise FileNotFoundError(f"no {what} at {path}")
     size = path.stat().st_size
     if size > MAX_SEALED_BYTES:
-        raise ValueError(f"{path} holds {size / 2**30:.3g} GiB; a {what} aco-rbfn writes is at most "
-                         f"{MAX_SEALED_BYTES / 2**30:g} GiB (tens of MB at M = 2000), so this is not one. {advice}")
+        raise ValueError(
+            f"{path} holds {size / 2**30:.3g} GiB; a {what} aco-rbfn writes is at most "
+            f"{MAX_SEALED_BYTES / 2**30:g} GiB (tens of MB at M = 2000), so this is not one. {advice}"
+        )
     data = unseal(path.read_bytes(), path, what, advice)
     try:
         return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
@@ -145,13 +168,16 @@ def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVIC
         if isinstance(e, pickle.UnpicklingError) and ("Weights only" in text or "WeightsUnpickler" in text):
             name = _refused_global(text)
             refused = f" (refused global: {name})" if name else ""
-            raise ValueError(f"{path} holds objects other than tensors and plain data{refused}, which "
-                             f"aco-rbfn refuses to unpickle for safety: unpickling them can run "
-                             f"arbitrary code. {advice}") from None
-        unsafe = "weights_only" in text      # torch's advice to load unsafely: never passed on
+            raise ValueError(
+                f"{path} holds objects other than tensors and plain data{refused}, which "
+                f"aco-rbfn refuses to unpickle for safety: unpickling them can run "
+                f"arbitrary code. {advice}"
+            ) from None
+        unsafe = "weights_only" in text  # torch's advice to load unsafely: never passed on
         detail = "" if unsafe else f": {text.strip().rstrip('.')}"
-        raise ValueError(f"{path} is not a readable {what} (truncated or corrupted?){detail}. "
-                         f"{advice}") from (None if unsafe else e)
+        raise ValueError(f"{path} is not a readable {what} (truncated or corrupted?){detail}. {advice}") from (
+            None if unsafe else e
+        )
 
 
 def _model_problem(ckpt: dict[str, Any]) -> str | None:
@@ -168,23 +194,34 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
         return f"model_args tail={tail!r}; expected True or False"
     if not isinstance(sd, dict):
         return f"state_dict is a {type(sd).__name__}; expected a dict of tensors"
-    expected = {"offset": (d,), "scale": (d,), "centers": (m, d), "widths": (m,), "head.weight": (out, m),
-                "head.bias": (out,), "in_low": (d,), "in_high": (d,), "out_low": (out,), "out_high": (out,),
-                "cover_radius": ()}
+    expected = {
+        "offset": (d,),
+        "scale": (d,),
+        "centers": (m, d),
+        "widths": (m,),
+        "head.weight": (out, m),
+        "head.bias": (out,),
+        "in_low": (d,),
+        "in_high": (d,),
+        "out_low": (out,),
+        "out_high": (out,),
+        "cover_radius": (),
+    }
     if tail:
         expected["tail.weight"] = (out, d)
     pose = a.get("target", "position") == "pose"
     if a.get("target", "position") not in ("position", "pose"):
         return f"model_args target={a['target']!r}; expected 'position' or 'pose'"
     if d != (9 if pose else 3):
-        return (f"model_args in_features={d} with target={a.get('target', 'position')!r}; allowed: "
-                f"{9 if pose else 3} features")
+        return (
+            f"model_args in_features={d} with target={a.get('target', 'position')!r}; allowed: "
+            f"{9 if pose else 3} features"
+        )
     if pose:
         expected["inputs.rotation_scale"] = ()
     missing, unexpected = sorted(set(expected) - set(sd)), sorted(set(sd) - set(expected))
     if missing or unexpected:
-        return (f"state_dict does not match model_args {a}: missing keys {missing}, unexpected keys "
-                f"{unexpected}")
+        return f"state_dict does not match model_args {a}: missing keys {missing}, unexpected keys {unexpected}"
     for k, shape in expected.items():
         t = sd[k]
         if not isinstance(t, torch.Tensor) or not t.is_floating_point():
@@ -196,12 +233,16 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
         bad = torch.isnan(t) | (torch.isinf(t) & (t != _UNBOUNDED.get(k, math.nan)))
         if bool(bad.any()):
             allowed = f" (only {_UNBOUNDED[k]}, meaning unbounded, is allowed there)" if k in _UNBOUNDED else ""
-            return (f"non-finite weights in {k}: {int(torch.isnan(t).sum())} NaN and "
-                    f"{int(bad.sum()) - int(torch.isnan(t).sum())} inf of {t.numel()} values{allowed}; "
-                    "the fit diverged or the file was altered. Retrain")
+            return (
+                f"non-finite weights in {k}: {int(torch.isnan(t).sum())} NaN and "
+                f"{int(bad.sum()) - int(torch.isnan(t).sum())} inf of {t.numel()} values{allowed}; "
+                "the fit diverged or the file was altered. Retrain"
+            )
     if not bool((sd["widths"] >= MIN_WIDTH).all()):
-        return (f"state_dict widths has minimum {sd['widths'].min().item():.3g}; allowed: widths of at least "
-                f"MIN_WIDTH = {MIN_WIDTH:g} (scaled input units), below which a Gaussian is 0 but at its centre")
+        return (
+            f"state_dict widths has minimum {sd['widths'].min().item():.3g}; allowed: widths of at least "
+            f"MIN_WIDTH = {MIN_WIDTH:g} (scaled input units), below which a Gaussian is 0 but at its centre"
+        )
     for k in ("scale", "inputs.rotation_scale"):
         if k in sd and not bool((sd[k] > 0).all()):
             return f"state_dict {k} has minimum {sd[k].min().item():.3g}; allowed: positive input scales"
@@ -217,39 +258,51 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     ckpt = load_sealed(path)
     if not isinstance(ckpt, dict):
-        raise ValueError(f"{path} holds a {type(ckpt).__name__}, not a checkpoint dict; it was not written "
-                         "by aco-rbfn's save_checkpoint")
+        raise ValueError(
+            f"{path} holds a {type(ckpt).__name__}, not a checkpoint dict; it was not written "
+            "by aco-rbfn's save_checkpoint"
+        )
     if ckpt.get("kind") == TRAIN_STATE_KIND:
-        raise ValueError(f"{path} is a training state (last.pt of an unfinished or finished run), not a "
-                         f"checkpoint; the trained network is in checkpoint.pt of the same run directory "
-                         f"({path.parent / 'checkpoint.pt'}), written when the run finishes")
+        raise ValueError(
+            f"{path} is a training state (last.pt of an unfinished or finished run), not a "
+            f"checkpoint; the trained network is in checkpoint.pt of the same run directory "
+            f"({path.parent / 'checkpoint.pt'}), written when the run finishes"
+        )
     if "kind" in ckpt and ckpt["kind"] != KIND:
         raise ValueError(f"{path} holds a {ckpt['kind']!r} model, not an IK network ({KIND!r})")
     if "format_version" in ckpt and ckpt["format_version"] != FORMAT_VERSION:
-        raise ValueError(f"{path} has checkpoint format {ckpt['format_version']}, this aco-rbfn reads "
-                         f"format {FORMAT_VERSION}; use the aco-rbfn version "
-                         f"{ckpt.get('package_version', '?')} that wrote it, or retrain")
+        raise ValueError(
+            f"{path} has checkpoint format {ckpt['format_version']}, this aco-rbfn reads "
+            f"format {FORMAT_VERSION}; use the aco-rbfn version "
+            f"{ckpt.get('package_version', '?')} that wrote it, or retrain"
+        )
     missing = [k for k in _REQUIRED if k not in ckpt]
     if missing:
-        raise ValueError(f"{path} is missing checkpoint keys {missing}; checkpoints written by train.py "
-                         f"have {list(_REQUIRED)}. Retrain to get a complete checkpoint")
+        raise ValueError(
+            f"{path} is missing checkpoint keys {missing}; checkpoints written by train.py "
+            f"have {list(_REQUIRED)}. Retrain to get a complete checkpoint"
+        )
     robot = ckpt["robot"]
     missing = [k for k in _ROBOT_KEYS if not isinstance(robot, dict) or k not in robot]
     if missing:
-        raise ValueError(f"{path}: its robot entry is missing keys {missing}; evaluation needs "
-                         f"{list(_ROBOT_KEYS)} to rebuild the robot. Retrain to get a complete checkpoint")
+        raise ValueError(
+            f"{path}: its robot entry is missing keys {missing}; evaluation needs "
+            f"{list(_ROBOT_KEYS)} to rebuild the robot. Retrain to get a complete checkpoint"
+        )
     problem = _model_problem(ckpt)
     if problem:
         raise ValueError(f"{path}: {problem}")
     try:
-        robot_from_record(robot)       # every field, and the URDF text parsed (never opened as a file)
+        robot_from_record(robot)  # every field, and the URDF text parsed (never opened as a file)
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
     a = ckpt["model_args"]
     if a["out_features"] != len(robot["joint_low"]) or a.get("target", "position") != robot.get("target", "position"):
-        raise ValueError(f"{path}: model_args out_features={a['out_features']}, target={a.get('target', 'position')!r} "
-                         f"do not fit the robot entry; allowed: one output per free joint "
-                         f"({len(robot['joint_low'])}) and its target {robot.get('target', 'position')!r}")
+        raise ValueError(
+            f"{path}: model_args out_features={a['out_features']}, target={a.get('target', 'position')!r} "
+            f"do not fit the robot entry; allowed: one output per free joint "
+            f"({len(robot['joint_low'])}) and its target {robot.get('target', 'position')!r}"
+        )
     return ckpt
 
 

@@ -9,6 +9,7 @@ work starts. Schemas follow the concerns: the robot; the data; the centres (one 
 one per refinement mode); the network; and, for evaluation, the gains, the closed-loop scenario
 and the online part.
 """
+
 from __future__ import annotations
 
 import json
@@ -18,13 +19,53 @@ from enum import Enum
 from typing import Any, Optional
 
 __all__ = [
-    "Choice", "Method", "Colony", "Objective", "WidthRule", "WidthSearch", "RefineMode", "RefineLoss", "Solver",
-    "InputScaling", "Integrator", "Friction", "Dtype", "Robust", "PathName", "Learner", "Target", "Trajectory",
-    "SELECTORS", "BASE_CONTROLLERS", "CONTROL_CENTER_METHODS", "MAX_SEED", "ROBOT_PRESETS",
-    "RobotConfig", "DataConfig", "ACORConfig", "AntSystemConfig", "ACOConfig", "OLSConfig", "FullRefineConfig",
-    "MinibatchRefineConfig", "RefineConfig", "CentersConfig", "GrowthConfig", "RBFNConfig", "TrainConfig",
-    "GainsConfig", "NetworkConfig", "ControlConfig", "OnlineConfig", "EvalConfig", "validate_train",
-    "validate_evaluate", "validate_device", "finite", "plain", "register_configs",
+    "Choice",
+    "Method",
+    "Colony",
+    "Objective",
+    "WidthRule",
+    "WidthSearch",
+    "RefineMode",
+    "RefineLoss",
+    "Solver",
+    "InputScaling",
+    "Integrator",
+    "Friction",
+    "Dtype",
+    "Robust",
+    "PathName",
+    "Learner",
+    "Target",
+    "Trajectory",
+    "SELECTORS",
+    "BASE_CONTROLLERS",
+    "CONTROL_CENTER_METHODS",
+    "MAX_SEED",
+    "ROBOT_PRESETS",
+    "RobotConfig",
+    "DataConfig",
+    "ACORConfig",
+    "AntSystemConfig",
+    "ACOConfig",
+    "OLSConfig",
+    "FullRefineConfig",
+    "MinibatchRefineConfig",
+    "RefineConfig",
+    "CentersConfig",
+    "GrowthConfig",
+    "RBFNConfig",
+    "TrainConfig",
+    "GainsConfig",
+    "NetworkConfig",
+    "ControlConfig",
+    "OnlineConfig",
+    "EvalConfig",
+    "validate_train",
+    "validate_evaluate",
+    "validate_device",
+    "finite",
+    "plain",
+    "register_configs",
 ]
 
 
@@ -59,7 +100,7 @@ class Objective(Choice):
 
 class WidthRule(Choice):
     paper = "paper"
-    vars()["global"] = "global"        # a keyword, so set through the class namespace
+    vars()["global"] = "global"  # a keyword, so set through the class namespace
     per_center = "per_center"
 
 
@@ -70,12 +111,12 @@ class WidthSearch(Choice):
 
 
 class RefineMode(Choice):
-    auto = "auto"              # full where N P^2 <= 2e9
+    auto = "auto"  # full where N P^2 <= 2e9
     full = "full"
     minibatch = "minibatch"
 
 
-class RefineLoss(Choice):      # minibatch: the error J(q) dq, or dq itself
+class RefineLoss(Choice):  # minibatch: the error J(q) dq, or dq itself
     task = "task"
     joint = "joint"
 
@@ -92,12 +133,12 @@ class InputScaling(Choice):
 
 class Integrator(Choice):
     rk4 = "rk4"
-    euler = "euler"            # semi-implicit
+    euler = "euler"  # semi-implicit
 
 
 class Friction(Choice):
     sign = "sign"
-    smooth = "smooth"          # tanh(qd / 0.01)
+    smooth = "smooth"  # tanh(qd / 0.01)
 
 
 class Dtype(Choice):
@@ -122,12 +163,12 @@ class Learner(Choice):
     rls = "rls"
 
 
-class Target(Choice):          # IK input
-    position = "position"      # (B, 3) m
-    pose = "pose"              # (B, 7) m + quaternion
+class Target(Choice):  # IK input
+    position = "position"  # (B, 3) m
+    pose = "pose"  # (B, 7) m + quaternion
 
 
-class Trajectory(Choice):      # the desired joint path of the closed loop
+class Trajectory(Choice):  # the desired joint path of the closed loop
     paper = "paper"
     sinusoid = "sinusoid"
 
@@ -148,7 +189,7 @@ MAX_SEED = 2**32 - 1
 # alone between centres (and float32 features underflow to zero).
 MIN_WIDTH_SCALE = 1.0 / 16.0
 MAX_WIDTH_SCALE = 1024.0
-PILOT_STRIDE = 10          # the control network's pilot run is sampled every 10 control periods
+PILOT_STRIDE = 10  # the control network's pilot run is sampled every 10 control periods
 
 
 # ----------------------------------------------------------------------------------------- train
@@ -163,39 +204,65 @@ class RobotConfig:
     order along the chain root -> end link, `locked` joints excluded from the box and the IK output.
     """
 
-    name: str = "scara"                # the preset's label; with `urdf` empty, its packaged URDF
-    urdf: str = ""                     # a URDF file; empty: the packaged URDF of `name`
+    name: str = "scara"  # the preset's label; with `urdf` empty, its packaged URDF
+    urdf: str = ""  # a URDF file; empty: the packaged URDF of `name`
     end_link: str = "quill"
-    target: Target = Target.position           # position (B, 3) | pose (B, 7)
-    joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])   # the IK branch's box
+    target: Target = Target.position  # position (B, 3) | pose (B, 7)
+    joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])  # the IK branch's box
     joint_high: list[float] = field(default_factory=lambda: [2.0, 2.0, 1.5])
-    locked: dict[str, float] = field(default_factory=dict)   # joint name -> held value (redundant arms)
-    rotation_scale: float = 0.3        # m per unit of the rotation features (pose targets)
-    gravity: Optional[float] = None    # m/s^2 along -z of the root; null: the preset's (name), else 9.81
-    home: list[float] = field(default_factory=list)   # a nominal pose per free joint; empty: the box centre
-    rated_payload: float = 20.0        # kg: control payload cases default to 0, half and all of it
+    locked: dict[str, float] = field(default_factory=dict)  # joint name -> held value (redundant arms)
+    rotation_scale: float = 0.3  # m per unit of the rotation features (pose targets)
+    gravity: Optional[float] = None  # m/s^2 along -z of the root; null: the preset's (name), else 9.81
+    home: list[float] = field(default_factory=list)  # a nominal pose per free joint; empty: the box centre
+    rated_payload: float = 20.0  # kg: control payload cases default to 0, half and all of it
 
     def check(self, key: str = "robot") -> None:
         """The URDF itself is checked when it is loaded."""
         lo, hi = self.joint_low, self.joint_high
-        _need(len(lo) == len(hi) and len(lo) > 0, f"{key}.joint_low", list(lo),
-              f"{key}.joint_low and {key}.joint_high ({list(hi)}) need one value per joint each")
+        _need(
+            len(lo) == len(hi) and len(lo) > 0,
+            f"{key}.joint_low",
+            list(lo),
+            f"{key}.joint_low and {key}.joint_high ({list(hi)}) need one value per joint each",
+        )
         for i, (l, h) in enumerate(zip(lo, hi)):
             if not (finite(l) and finite(h) and l < h):
-                raise ValueError(f"{key}.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
-                                 f"[{l}, {h}] ({key}.joint_low < {key}.joint_high required)")
-        _need(self.urdf != "" or self.name in ROBOT_PRESETS, f"{key}.name", self.name,
-              f"with {key}.urdf empty, choose a packaged robot: {list(ROBOT_PRESETS)} (or give {key}.urdf=PATH)")
+                raise ValueError(
+                    f"{key}.joint_low/joint_high: empty or invalid range for joint {i + 1}: "
+                    f"[{l}, {h}] ({key}.joint_low < {key}.joint_high required)"
+                )
+        _need(
+            self.urdf != "" or self.name in ROBOT_PRESETS,
+            f"{key}.name",
+            self.name,
+            f"with {key}.urdf empty, choose a packaged robot: {list(ROBOT_PRESETS)} (or give {key}.urdf=PATH)",
+        )
         for j, v in self.locked.items():
             _need(finite(v), f"{key}.locked.{j}", v, "must be a finite joint value")
-        _need(finite(self.rotation_scale) and self.rotation_scale > 0, f"{key}.rotation_scale", self.rotation_scale,
-              "must be > 0 m")
-        _need(self.gravity is None or (finite(self.gravity) and self.gravity >= 0), f"{key}.gravity", self.gravity,
-              "must be >= 0 m/s^2 or null")
-        _need(len(self.home) in (0, len(lo)) and all(finite(v) for v in self.home), f"{key}.home", list(self.home),
-              f"empty (the box centre) or one finite value per joint ({len(lo)})")
-        _need(finite(self.rated_payload) and self.rated_payload >= 0, f"{key}.rated_payload", self.rated_payload,
-              "must be >= 0 kg")
+        _need(
+            finite(self.rotation_scale) and self.rotation_scale > 0,
+            f"{key}.rotation_scale",
+            self.rotation_scale,
+            "must be > 0 m",
+        )
+        _need(
+            self.gravity is None or (finite(self.gravity) and self.gravity >= 0),
+            f"{key}.gravity",
+            self.gravity,
+            "must be >= 0 m/s^2 or null",
+        )
+        _need(
+            len(self.home) in (0, len(lo)) and all(finite(v) for v in self.home),
+            f"{key}.home",
+            list(self.home),
+            f"empty (the box centre) or one finite value per joint ({len(lo)})",
+        )
+        _need(
+            finite(self.rated_payload) and self.rated_payload >= 0,
+            f"{key}.rated_payload",
+            self.rated_payload,
+            "must be >= 0 kg",
+        )
 
 
 @dataclass
@@ -205,8 +272,12 @@ class DataConfig:
     n_test: int = 5000
 
     def check(self, key: str = "data") -> None:
-        _need(self.n_train >= 2, f"{key}.n_train", self.n_train,
-              "must be >= 2 (widths come from distances between samples)")
+        _need(
+            self.n_train >= 2,
+            f"{key}.n_train",
+            self.n_train,
+            "must be >= 2 (widths come from distances between samples)",
+        )
         for name in ("n_val", "n_test"):
             _need(getattr(self, name) > 0, f"{key}.{name}", getattr(self, name), "must be > 0")
 
@@ -215,37 +286,42 @@ class DataConfig:
 class ACORConfig:
     """ACO_R (`colony: acor`), the continuous colony: a Gaussian-kernel archive of solutions."""
 
-    archive_size: int = 20             # archive k
-    q: float = 0.2                     # rank locality
-    xi: float = 0.85                   # spread
-    init_spread: float = 0.3           # seed perturbation, in nearest-centre distances
+    archive_size: int = 20  # archive k
+    q: float = 0.2  # rank locality
+    xi: float = 0.85  # spread
+    init_spread: float = 0.3  # seed perturbation, in nearest-centre distances
     search_widths: WidthSearch = WidthSearch.per_center  # also search widths (per centre, one scale, none)
 
     def check(self, key: str) -> None:
         _need(self.archive_size >= 2, f"{key}.archive_size", self.archive_size, "must be >= 2")
         _need(finite(self.q) and self.q > 0, f"{key}.q", self.q, "must be > 0")
         _need(finite(self.xi) and self.xi > 0, f"{key}.xi", self.xi, "must be > 0")
-        _need(finite(self.init_spread) and self.init_spread >= 0, f"{key}.init_spread", self.init_spread,
-              "must be >= 0")
+        _need(
+            finite(self.init_spread) and self.init_spread >= 0, f"{key}.init_spread", self.init_spread, "must be >= 0"
+        )
 
 
 @dataclass
 class AntSystemConfig:
     """The paper's discrete Ant System (`colony: ant_system`): ants choose M of `candidates` points."""
 
-    rho: float = 0.9                   # evaporation
-    Q: float = 100.0                   # deposit
-    alpha: float = 1.0                 # pheromone exponent
-    beta: float = 0.0                  # heuristic exponent (visibility: local data density)
-    candidates: int = 500              # candidate pool: training inputs drawn at random
+    rho: float = 0.9  # evaporation
+    Q: float = 100.0  # deposit
+    alpha: float = 1.0  # pheromone exponent
+    beta: float = 0.0  # heuristic exponent (visibility: local data density)
+    candidates: int = 500  # candidate pool: training inputs drawn at random
 
     def check(self, key: str, num_centers: int) -> None:
         _need(finite(self.rho) and 0 < self.rho < 1, f"{key}.rho", self.rho, "must be in (0, 1)")
         _need(finite(self.Q) and self.Q > 0, f"{key}.Q", self.Q, "must be > 0")
         _need(finite(self.alpha) and self.alpha >= 0, f"{key}.alpha", self.alpha, "must be >= 0")
         _need(finite(self.beta) and self.beta >= 0, f"{key}.beta", self.beta, "must be >= 0")
-        _need(self.candidates >= num_centers, f"{key}.candidates", self.candidates,
-              f"must be >= the number of centres ({num_centers}): ants choose them among the candidates")
+        _need(
+            self.candidates >= num_centers,
+            f"{key}.candidates",
+            self.candidates,
+            f"must be >= the number of centres ({num_centers}): ants choose them among the candidates",
+        )
 
 
 @dataclass
@@ -255,10 +331,10 @@ class ACOConfig:
 
     colony: Colony = Colony.acor
     objective: Objective = Objective.fit
-    iterations: int = 100              # NC_max
-    ants: int = 20                     # ants per iteration
-    fit_rows: int = 2048               # fit objective: the colony ranks ants on at most max(fit_rows, 50 P) training
-                                       # and validation rows (a seeded subset; 0: every row); the final fit uses all
+    iterations: int = 100  # NC_max
+    ants: int = 20  # ants per iteration
+    fit_rows: int = 2048  # fit objective: the colony ranks ants on at most max(fit_rows, 50 P) training
+    # and validation rows (a seeded subset; 0: every row); the final fit uses all
     acor: ACORConfig = field(default_factory=ACORConfig)
     ant_system: AntSystemConfig = field(default_factory=AntSystemConfig)
 
@@ -276,12 +352,22 @@ class ACOConfig:
         from .memory import FLOAT64, check_fits
 
         if self.colony == Colony.ant_system:
-            check_fits(f"{key}.ants", self.ants, self.ants * (pool + m * (d + 1)) * FLOAT64, device,
-                       f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and "
-                       "widths per ant, in float64")
-        elif self.objective != Objective.fit:     # (the fit objective's budget bounds ACO_R's ants)
-            check_fits(f"{key}.ants", self.ants, self.ants * m * (d + 1) * FLOAT64, device,
-                       f"one iteration's M = {m} centres and widths per ant, in float64")
+            check_fits(
+                f"{key}.ants",
+                self.ants,
+                self.ants * (pool + m * (d + 1)) * FLOAT64,
+                device,
+                f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and "
+                "widths per ant, in float64",
+            )
+        elif self.objective != Objective.fit:  # (the fit objective's budget bounds ACO_R's ants)
+            check_fits(
+                f"{key}.ants",
+                self.ants,
+                self.ants * m * (d + 1) * FLOAT64,
+                device,
+                f"one iteration's M = {m} centres and widths per ant, in float64",
+            )
 
 
 @dataclass
@@ -291,16 +377,20 @@ class OLSConfig:
     candidates: int = 500
 
     def check(self, key: str, num_centers: int) -> None:
-        _need(self.candidates >= num_centers, f"{key}.candidates", self.candidates,
-              f"must be >= the number of centres ({num_centers}): OLS chooses them among the candidates")
+        _need(
+            self.candidates >= num_centers,
+            f"{key}.candidates",
+            self.candidates,
+            f"must be >= the number of centres ({num_centers}): OLS chooses them among the candidates",
+        )
 
 
 @dataclass
 class FullRefineConfig:
     """`mode: full`: Adam on the whole training set, the output weights solved inside the loss."""
 
-    steps: int = 300                   # Adam steps
-    lr: float = 0.01                   # Adam step size
+    steps: int = 300  # Adam steps
+    lr: float = 0.01  # Adam step size
 
     def check(self, key: str) -> None:
         _need(self.steps >= 0, f"{key}.steps", self.steps, "must be >= 0")
@@ -311,11 +401,11 @@ class FullRefineConfig:
 class MinibatchRefineConfig:
     """`mode: minibatch`: Adam on mini-batches, the output weights trained too."""
 
-    epochs: int = 300                  # passes over the training set
-    batch: int = 256                   # rows per Adam step
-    lr: float = 0.003                  # first Adam step size, decayed to 0 on a cosine
+    epochs: int = 300  # passes over the training set
+    batch: int = 256  # rows per Adam step
+    lr: float = 0.003  # first Adam step size, decayed to 0 on a cosine
     loss: RefineLoss = RefineLoss.task  # task error (m; rotation x robot.rotation_scale) | joint error
-    huber: float = 0.005               # pseudo-Huber threshold on a row's error norm (m for task); 0: squared
+    huber: float = 0.005  # pseudo-Huber threshold on a row's error norm (m for task); 0: squared
 
     def check(self, key: str) -> None:
         _need(self.epochs >= 0, f"{key}.epochs", self.epochs, "must be >= 0")
@@ -332,7 +422,7 @@ class RefineConfig:
     enabled: bool = False
     mode: RefineMode = RefineMode.auto
     learn_input_scale: bool = True
-    min_ridge: float = 1e-11           # floor on the relative ridge inside the loss (conditioning)
+    min_ridge: float = 1e-11  # floor on the relative ridge inside the loss (conditioning)
     full: FullRefineConfig = field(default_factory=FullRefineConfig)
     minibatch: MinibatchRefineConfig = field(default_factory=MinibatchRefineConfig)
 
@@ -344,7 +434,7 @@ class RefineConfig:
 
 @dataclass
 class CentersConfig:
-    name: str = "aco"                  # the preset's label, one of SELECTORS
+    name: str = "aco"  # the preset's label, one of SELECTORS
     method: Method = Method.aco
     width_rule: WidthRule = WidthRule.per_center
     width_scale: Optional[float] = None  # fixed scale of the rule's width; null: chosen on validation
@@ -355,11 +445,14 @@ class CentersConfig:
 
     def check(self, num_centers: int, key: str = "centers") -> None:
         _need(self.name in SELECTORS, f"{key}.name", self.name, f"choose one of {list(SELECTORS)}")
-        _need(self.width_scale is None
-              or (finite(self.width_scale) and MIN_WIDTH_SCALE <= self.width_scale <= MAX_WIDTH_SCALE),
-              f"{key}.width_scale", self.width_scale,
-              f"must be null (chosen on validation) or in [{MIN_WIDTH_SCALE:g}, {MAX_WIDTH_SCALE:g}] times the width "
-              f"rule's base: narrower Gaussians vanish between the centres, and the network returns its bias alone")
+        _need(
+            self.width_scale is None
+            or (finite(self.width_scale) and MIN_WIDTH_SCALE <= self.width_scale <= MAX_WIDTH_SCALE),
+            f"{key}.width_scale",
+            self.width_scale,
+            f"must be null (chosen on validation) or in [{MIN_WIDTH_SCALE:g}, {MAX_WIDTH_SCALE:g}] times the width "
+            f"rule's base: narrower Gaussians vanish between the centres, and the network returns its bias alone",
+        )
         _need(self.kmeans_restarts >= 1, f"{key}.kmeans_restarts", self.kmeans_restarts, "must be >= 1")
         self.aco.check(f"{key}.aco", num_centers if self.method == Method.aco else 1)
         self.ols.check(f"{key}.ols", num_centers if self.method == Method.ols else 1)
@@ -368,9 +461,9 @@ class CentersConfig:
 
 @dataclass
 class GrowthConfig:
-    start: int = 0                     # first M; 0 disables growth (fit at num_centers only)
-    factor: float = 2.0                # next M = ceil(M * factor), capped at num_centers
-    goal: float = 0.0                  # E goal: validation 1/2 mean ||y - d||^2 (rad^2, m^2)
+    start: int = 0  # first M; 0 disables growth (fit at num_centers only)
+    factor: float = 2.0  # next M = ceil(M * factor), capped at num_centers
+    goal: float = 0.0  # E goal: validation 1/2 mean ||y - d||^2 (rad^2, m^2)
 
     def check(self, key: str = "rbfn.growth") -> None:
         _need(self.start >= 0, f"{key}.start", self.start, "must be >= 0 (0: no growth)")
@@ -382,11 +475,11 @@ class GrowthConfig:
 class RBFNConfig:
     num_centers: int = 40
     input_scaling: InputScaling = InputScaling.metres
-    tail: bool = True                  # linear tail A z + b beside the Gaussians
+    tail: bool = True  # linear tail A z + b beside the Gaussians
     solver: Solver = Solver.lstsq
     lms_alpha0: float = 0.5
     lms_epochs: int = 50
-    max_width: float = 2.0             # cap on widths, scaled units (float32 conditioning)
+    max_width: float = 2.0  # cap on widths, scaled units (float32 conditioning)
     # float32 deployment: a fit's rounding scale may reach this fraction of its own validation RMS
     # error per output where that exceeds the absolute 2e-6 (rad, m); 0: the absolute bound alone
     round_rel: float = 0.0
@@ -394,11 +487,16 @@ class RBFNConfig:
 
     def check(self, n_train: int, key: str = "rbfn") -> None:
         _need(self.num_centers > 0, f"{key}.num_centers", self.num_centers, "must be > 0")
-        _need(self.num_centers <= n_train, f"{key}.num_centers", self.num_centers,
-              f"exceeds the training set size data.n_train={n_train}; use at most {n_train} centres")
+        _need(
+            self.num_centers <= n_train,
+            f"{key}.num_centers",
+            self.num_centers,
+            f"exceeds the training set size data.n_train={n_train}; use at most {n_train} centres",
+        )
         _need(finite(self.max_width) and self.max_width > 0, f"{key}.max_width", self.max_width, "must be > 0")
-        _need(finite(self.round_rel) and 0 <= self.round_rel < 1, f"{key}.round_rel", self.round_rel,
-              "must be in [0, 1)")
+        _need(
+            finite(self.round_rel) and 0 <= self.round_rel < 1, f"{key}.round_rel", self.round_rel, "must be in [0, 1)"
+        )
         _need(0 < self.lms_alpha0 < 2, f"{key}.lms_alpha0", self.lms_alpha0, "must be in (0, 2)")
         _need(self.lms_epochs >= 1, f"{key}.lms_epochs", self.lms_epochs, "must be >= 1")
         self.growth.check(f"{key}.growth")
@@ -412,9 +510,9 @@ class TrainConfig:
     rbfn: RBFNConfig = field(default_factory=RBFNConfig)
     seed: int = 0
     device: str = "cpu"
-    num_threads: int = 0               # torch threads; 0 leaves torch's default
+    num_threads: int = 0  # torch threads; 0 leaves torch's default
     progress: bool = True
-    export: bool = True                # write ik.onnx and ik.pt2 next to checkpoint.pt
+    export: bool = True  # write ik.onnx and ik.pt2 next to checkpoint.pt
 
     def check(self) -> None:
         """Every value, then whether the run fits in memory."""
@@ -432,17 +530,27 @@ class TrainConfig:
 
         d, n_q = self.data, len(self.robot.joint_low)
         pose = self.robot.target == Target.pose
-        row = (7 if pose else 3) + n_q                         # target and joints of one sample
-        p = self.rbfn.num_centers + (9 if pose else 3) + 1     # design columns: M Gaussians, the tail, a bias
+        row = (7 if pose else 3) + n_q  # target and joints of one sample
+        p = self.rbfn.num_centers + (9 if pose else 3) + 1  # design columns: M Gaussians, the tail, a bias
         parts = {"n_train": d.n_train * (row + p), "n_val": d.n_val * row, "n_test": d.n_test * row}
         key = max(parts, key=lambda k: parts[k])
-        check_fits(f"data.{key}", getattr(d, key), sum(parts.values()) * FLOAT64, self.device,
-                   f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
-                   f"design matrix of rbfn.num_centers={self.rbfn.num_centers}")
+        check_fits(
+            f"data.{key}",
+            getattr(d, key),
+            sum(parts.values()) * FLOAT64,
+            self.device,
+            f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
+            f"design matrix of rbfn.num_centers={self.rbfn.num_centers}",
+        )
         if self.centers.method == Method.aco:
             a = self.centers.aco
-            a.check_fits("centers.aco", self.rbfn.num_centers, 9 if pose else 3, self.device,
-                         pool=min(a.ant_system.candidates, d.n_train))
+            a.check_fits(
+                "centers.aco",
+                self.rbfn.num_centers,
+                9 if pose else 3,
+                self.device,
+                pool=min(a.ant_system.candidates, d.n_train),
+            )
 
 
 # -------------------------------------------------------------------------------------- evaluate
@@ -452,16 +560,16 @@ class GainsConfig:
     robot's `paper` or `tuned` set, conf/gains/robot/<robot>_<set>.yaml). The torque gains K,
     epsilon, pd_kp, pd_kd and gamma act on joint j times `control.joint_scale` s_j (1 on the SCARA)."""
 
-    K: float = 50.0                # N m s / rad (N s / m): s feedback
-    Lambda: float = 20.0           # 1/s: sliding-surface slope
-    epsilon: float = 0.05          # N m (N): robust term amplitude
-    robust: Robust = Robust.sat    # sign | sat
-    boundary: float = 0.01         # rad/s (m/s): saturation boundary layer width of sat(s / boundary)
+    K: float = 50.0  # N m s / rad (N s / m): s feedback
+    Lambda: float = 20.0  # 1/s: sliding-surface slope
+    epsilon: float = 0.05  # N m (N): robust term amplitude
+    robust: Robust = Robust.sat  # sign | sat
+    boundary: float = 0.01  # rad/s (m/s): saturation boundary layer width of sat(s / boundary)
     observer_gain: float = 1000.0  # 1/s: momentum-observer bandwidth
-    gamma: float = 500.0           # adaptation rate Gamma of dW/dt = Gamma h s^T (alpha = gamma dt)
-    gamma_decay: float = 1e9       # s: Gamma(t) = gamma / (1 + t / gamma_decay)
-    leakage: float = 0.0           # 1/s: sigma-modification
-    pd_kp: float = 0.0             # PD gains; 0: K Lambda and K, the same feedback as smc's K s
+    gamma: float = 500.0  # adaptation rate Gamma of dW/dt = Gamma h s^T (alpha = gamma dt)
+    gamma_decay: float = 1e9  # s: Gamma(t) = gamma / (1 + t / gamma_decay)
+    leakage: float = 0.0  # 1/s: sigma-modification
+    pd_kp: float = 0.0  # PD gains; 0: K Lambda and K, the same feedback as smc's K s
     pd_kd: float = 0.0
 
     def check(self, key: str = "gains") -> None:
@@ -479,8 +587,8 @@ class NetworkConfig:
     """The adaptive controller's RBF network (controllers arbfn_<method>)."""
 
     num_centers: int = 25
-    observer: bool = True              # combine the network with the momentum observer
-    warm_start: bool = False           # start W at the ridge fit of the pilot run's residual torque
+    observer: bool = True  # combine the network with the momentum observer
+    warm_start: bool = False  # start W at the ridge fit of the pilot run's residual torque
     seed: int = 0
     aco: ACOConfig = field(default_factory=ACOConfig)
 
@@ -502,74 +610,116 @@ class ControlConfig:
     """
 
     enabled: bool = True
-    controllers: list[str] = field(default_factory=lambda: ["pd", "ctc", "smc", "smc_obs", "arbfn_aco",
-                                                            "arbfn_kmeans"])
-    trajectory: Optional[Trajectory] = None   # the desired joints; null: the robot's own (its closed form's,
-                                       # `paper` for the SCARA), else `sinusoid`
-    amplitude: float = 0.1             # sinusoid: amplitude per joint, a fraction of half its box range, about
-                                       # robot.home
-    payloads: list[float] = field(default_factory=list)   # kg; empty: 0, half and all of robot.rated_payload
-    payload_link: str = ""             # the link whose origin carries the payload; empty: robot.end_link
+    controllers: list[str] = field(default_factory=lambda: ["pd", "ctc", "smc", "smc_obs", "arbfn_aco", "arbfn_kmeans"])
+    trajectory: Optional[Trajectory] = None  # the desired joints; null: the robot's own (its closed form's,
+    # `paper` for the SCARA), else `sinusoid`
+    amplitude: float = 0.1  # sinusoid: amplitude per joint, a fraction of half its box range, about
+    # robot.home
+    payloads: list[float] = field(default_factory=list)  # kg; empty: 0, half and all of robot.rated_payload
+    payload_link: str = ""  # the link whose origin carries the payload; empty: robot.end_link
     duration: float = 10.0
     dt: float = 1e-3
     integrator: Integrator = Integrator.rk4
     payload_on: float = 1.0
     payload_off: float = 4.0
     friction: Friction = Friction.sign
-    viscous: float = 12.0              # N m s/rad (N s/m) per unit joint scale
-    coulomb: float = 0.2               # N m (N) per unit joint scale
-    disturbance: float = 5.0           # N m (N) per unit joint scale
-    disturbance_freq: float = 2.0      # rad/s
-    joint_scale: list[float] = field(default_factory=list)   # per joint; empty: derived (see above)
+    viscous: float = 12.0  # N m s/rad (N s/m) per unit joint scale
+    coulomb: float = 0.2  # N m (N) per unit joint scale
+    disturbance: float = 5.0  # N m (N) per unit joint scale
+    disturbance_freq: float = 2.0  # rad/s
+    joint_scale: list[float] = field(default_factory=list)  # per joint; empty: derived (see above)
     dtype: Dtype = Dtype.float64
-    compile: bool = False              # torch.compile the fused step (slow to compile; for long runs)
-    aot: bool = False                  # the step compiled ahead of time, cached on disk (minutes once per
-                                       # configuration)
-    figure_payload: Optional[float] = None   # kg, the case drawn in the figures; null: half the rated payload
+    compile: bool = False  # torch.compile the fused step (slow to compile; for long runs)
+    aot: bool = False  # the step compiled ahead of time, cached on disk (minutes once per
+    # configuration)
+    figure_payload: Optional[float] = None  # kg, the case drawn in the figures; null: half the rated payload
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
     def check(self, key: str = "control") -> None:
         arbfn = [f"arbfn_{m}" for m in CONTROL_CENTER_METHODS]
         for name in self.controllers:
-            _need(name in BASE_CONTROLLERS or name in arbfn, f"{key}.controllers", name,
-                  f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}")
-        _need(len(set(self.controllers)) == len(self.controllers), f"{key}.controllers", list(self.controllers),
-              "each controller may appear once")
+            _need(
+                name in BASE_CONTROLLERS or name in arbfn,
+                f"{key}.controllers",
+                name,
+                f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}",
+            )
+        _need(
+            len(set(self.controllers)) == len(self.controllers),
+            f"{key}.controllers",
+            list(self.controllers),
+            "each controller may appear once",
+        )
         _need(not (self.compile and self.aot), f"{key}.aot", self.aot, f"choose one of {key}.compile and {key}.aot")
-        _need(finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude,
-              "must be in [0, 1]")
+        _need(
+            finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude, "must be in [0, 1]"
+        )
         _need(finite(self.dt) and self.dt > 0, f"{key}.dt", self.dt, "must be a positive number of seconds")
-        _need(finite(self.duration) and self.duration >= self.dt, f"{key}.duration", self.duration,
-              f"must be finite and >= {key}.dt={self.dt}")
-        _need(finite(self.payload_on) and finite(self.payload_off)
-              and 0 <= self.payload_on < self.payload_off <= self.duration,
-              f"{key}.payload_on/payload_off", [self.payload_on, self.payload_off],
-              f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}")
-        _need(0.5 < self.duration, f"{key}.duration", self.duration,
-              "must exceed 0.5 s (errors are measured after 0.5 s)")
-        _need(all(finite(p) and p >= 0 for p in self.payloads), f"{key}.payloads",
-              list(self.payloads), "a list of masses >= 0 kg (empty: 0, half and all of robot.rated_payload)")
-        _need(len(set(self.payloads)) == len(self.payloads), f"{key}.payloads", list(self.payloads),
-              "each payload case may appear once (cases are keyed by mass)")
-        _need(self.figure_payload is None or finite(self.figure_payload), f"{key}.figure_payload",
-              self.figure_payload, "must be a finite mass in kg or null")
+        _need(
+            finite(self.duration) and self.duration >= self.dt,
+            f"{key}.duration",
+            self.duration,
+            f"must be finite and >= {key}.dt={self.dt}",
+        )
+        _need(
+            finite(self.payload_on)
+            and finite(self.payload_off)
+            and 0 <= self.payload_on < self.payload_off <= self.duration,
+            f"{key}.payload_on/payload_off",
+            [self.payload_on, self.payload_off],
+            f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}",
+        )
+        _need(
+            0.5 < self.duration, f"{key}.duration", self.duration, "must exceed 0.5 s (errors are measured after 0.5 s)"
+        )
+        _need(
+            all(finite(p) and p >= 0 for p in self.payloads),
+            f"{key}.payloads",
+            list(self.payloads),
+            "a list of masses >= 0 kg (empty: 0, half and all of robot.rated_payload)",
+        )
+        _need(
+            len(set(self.payloads)) == len(self.payloads),
+            f"{key}.payloads",
+            list(self.payloads),
+            "each payload case may appear once (cases are keyed by mass)",
+        )
+        _need(
+            self.figure_payload is None or finite(self.figure_payload),
+            f"{key}.figure_payload",
+            self.figure_payload,
+            "must be a finite mass in kg or null",
+        )
         for k in ("viscous", "coulomb", "disturbance", "disturbance_freq"):
-            _need(finite(getattr(self, k)) and getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k),
-                  "must be finite and >= 0")
-        _need(all(finite(v) and v > 0 for v in self.joint_scale), f"{key}.joint_scale", list(self.joint_scale),
-              "positive finite factors, one per joint (empty: derived from the robot)")
+            _need(
+                finite(getattr(self, k)) and getattr(self, k) >= 0,
+                f"{key}.{k}",
+                getattr(self, k),
+                "must be finite and >= 0",
+            )
+        _need(
+            all(finite(v) and v > 0 for v in self.joint_scale),
+            f"{key}.joint_scale",
+            list(self.joint_scale),
+            "positive finite factors, one per joint (empty: derived from the robot)",
+        )
         n = self.network
         _need(n.num_centers >= 1, f"{key}.network.num_centers", n.num_centers, "must be >= 1")
         if any(name.startswith("arbfn_") for name in self.controllers):
             steps = int(round(self.duration / self.dt))
-            n_train = (steps // PILOT_STRIDE + 1) // 2      # even pilot samples train the network
-            _need(n.num_centers <= n_train, f"{key}.network.num_centers", n.num_centers,
-                  f"exceeds the pilot run's {n_train} training samples ({key}.duration={self.duration} s, "
-                  f"one sample per {PILOT_STRIDE} periods, half of them for training)")
+            n_train = (steps // PILOT_STRIDE + 1) // 2  # even pilot samples train the network
+            _need(
+                n.num_centers <= n_train,
+                f"{key}.network.num_centers",
+                n.num_centers,
+                f"exceeds the pilot run's {n_train} training samples ({key}.duration={self.duration} s, "
+                f"one sample per {PILOT_STRIDE} periods, half of them for training)",
+            )
             n.check(f"{key}.network")
             # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
-            n.aco.check_fits(f"{key}.network.aco", n.num_centers, 2, "cpu",
-                             pool=min(n.aco.ant_system.candidates, n_train))
+            n.aco.check_fits(
+                f"{key}.network.aco", n.num_centers, 2, "cpu", pool=min(n.aco.ant_system.candidates, n_train)
+            )
 
 
 @dataclass
@@ -586,38 +736,66 @@ class OnlineConfig:
     """
 
     enabled: bool = True
-    duration: float = 20.0             # s
-    dt: float = 1e-3                   # s
-    path: Optional[PathName] = None    # null: paper (SCARA), sinusoid (URDF arms)
-    amplitude: float = 0.25            # sinusoid path: per joint amplitude / half the trained box range
-    link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])    # relative, links 1, 2, ...
+    duration: float = 20.0  # s
+    dt: float = 1e-3  # s
+    path: Optional[PathName] = None  # null: paper (SCARA), sinusoid (URDF arms)
+    amplitude: float = 0.25  # sinusoid path: per joint amplitude / half the trained box range
+    link_error: list[float] = field(default_factory=lambda: [0.03, -0.02])  # relative, links 1, 2, ...
     offset_error: list[float] = field(default_factory=lambda: [0.02, 0.0, 0.0])  # joints 1, 2, ... (rad or m)
     sizes: list[float] = field(default_factory=lambda: [0.0, 0.01, 0.03, 0.05])  # link-1 errors
     learner: Learner = Learner.nlms
-    alpha0: float = 0.5                # NLMS step alpha(0)
-    decay: float = 0.0                 # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
-    forgetting: float = 0.9995         # RLS forgetting factor
-    update_every: int = 10             # control periods per update (the pairs of one mini-batch)
-    aot: bool = False                  # the closed-loop chunk compiled ahead of time, cached on disk (as control.aot)
-    save_checkpoint: bool = True       # write checkpoint_online.pt (the configured perturbation's network)
+    alpha0: float = 0.5  # NLMS step alpha(0)
+    decay: float = 0.0  # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
+    forgetting: float = 0.9995  # RLS forgetting factor
+    update_every: int = 10  # control periods per update (the pairs of one mini-batch)
+    aot: bool = False  # the closed-loop chunk compiled ahead of time, cached on disk (as control.aot)
+    save_checkpoint: bool = True  # write checkpoint_online.pt (the configured perturbation's network)
 
     def check(self, key: str = "online") -> None:
         _need(finite(self.dt) and self.dt > 0, f"{key}.dt", self.dt, "must be a positive number of seconds")
-        _need(finite(self.duration) and self.duration >= 4.0, f"{key}.duration", self.duration,
-              "must be >= 4 s (the metrics use the first and last 2 s)")
-        _need(len(self.link_error) > 0 and all(finite(v) and v > -1 for v in self.link_error), f"{key}.link_error",
-              list(self.link_error), "relative errors > -1 of links 1, 2, ... (at least link 1)")
-        _need(all(finite(v) for v in self.offset_error), f"{key}.offset_error", list(self.offset_error),
-              "finite joint offsets (rad or m) of joints 1, 2, ...")
-        _need(finite(self.amplitude) and 0 < self.amplitude <= 0.5, f"{key}.amplitude", self.amplitude,
-              "must be in (0, 0.5] (the sinusoid path's two terms then stay inside the trained box)")
-        _need(len(self.sizes) > 0 and all(finite(s) for s in self.sizes), f"{key}.sizes", list(self.sizes),
-              "a non-empty list of link-1 errors")
+        _need(
+            finite(self.duration) and self.duration >= 4.0,
+            f"{key}.duration",
+            self.duration,
+            "must be >= 4 s (the metrics use the first and last 2 s)",
+        )
+        _need(
+            len(self.link_error) > 0 and all(finite(v) and v > -1 for v in self.link_error),
+            f"{key}.link_error",
+            list(self.link_error),
+            "relative errors > -1 of links 1, 2, ... (at least link 1)",
+        )
+        _need(
+            all(finite(v) for v in self.offset_error),
+            f"{key}.offset_error",
+            list(self.offset_error),
+            "finite joint offsets (rad or m) of joints 1, 2, ...",
+        )
+        _need(
+            finite(self.amplitude) and 0 < self.amplitude <= 0.5,
+            f"{key}.amplitude",
+            self.amplitude,
+            "must be in (0, 0.5] (the sinusoid path's two terms then stay inside the trained box)",
+        )
+        _need(
+            len(self.sizes) > 0 and all(finite(s) for s in self.sizes),
+            f"{key}.sizes",
+            list(self.sizes),
+            "a non-empty list of link-1 errors",
+        )
         ref = self.link_error[0]
-        _need(ref != 0 or all(s == 0 for s in self.sizes), f"{key}.sizes", list(self.sizes),
-              f"sizes scale the configured perturbation by its link-1 error, and {key}.link_error[0] is 0")
-        _need(any(math.isclose(s, ref, rel_tol=1e-9, abs_tol=1e-12) for s in self.sizes), f"{key}.sizes",
-              list(self.sizes), f"must include {key}.link_error[0]={ref}, the configured perturbation")
+        _need(
+            ref != 0 or all(s == 0 for s in self.sizes),
+            f"{key}.sizes",
+            list(self.sizes),
+            f"sizes scale the configured perturbation by its link-1 error, and {key}.link_error[0] is 0",
+        )
+        _need(
+            any(math.isclose(s, ref, rel_tol=1e-9, abs_tol=1e-12) for s in self.sizes),
+            f"{key}.sizes",
+            list(self.sizes),
+            f"must include {key}.link_error[0]={ref}, the configured perturbation",
+        )
         _need(0 <= self.alpha0 < 2, f"{key}.alpha0", self.alpha0, "must be in [0, 2)")
         _need(finite(self.decay) and self.decay >= 0, f"{key}.decay", self.decay, "must be >= 0")
         _need(0 < self.forgetting <= 1, f"{key}.forgetting", self.forgetting, "must be in (0, 1]")
@@ -626,17 +804,17 @@ class OnlineConfig:
 
 @dataclass
 class EvalConfig:
-    checkpoint: Optional[str] = None   # null: the newest checkpoint.pt under outputs_dir
+    checkpoint: Optional[str] = None  # null: the newest checkpoint.pt under outputs_dir
     outputs_dir: str = "outputs"
-    ik: bool = True                    # the IK accuracy part (needs a checkpoint)
+    ik: bool = True  # the IK accuracy part (needs a checkpoint)
     n_test: int = 10000
-    seed: Optional[int] = None         # null: the checkpoint's training seed; the test stream is derived
+    seed: Optional[int] = None  # null: the checkpoint's training seed; the test stream is derived
     device: str = "cpu"
-    num_threads: int = 0               # torch threads; 0: torch's default, or one per process while the parts
-                                       # run side by side
-    parallel: bool = True              # checkpoint parts, half the control figures in forked processes
-                                       # (fork, CPU, >= 2 cores)
-    robot: RobotConfig = field(default_factory=RobotConfig)   # the control part's robot (IK: the checkpoint's)
+    num_threads: int = 0  # torch threads; 0: torch's default, or one per process while the parts
+    # run side by side
+    parallel: bool = True  # checkpoint parts, half the control figures in forked processes
+    # (fork, CPU, >= 2 cores)
+    robot: RobotConfig = field(default_factory=RobotConfig)  # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     online: OnlineConfig = field(default_factory=OnlineConfig)
@@ -659,15 +837,20 @@ class EvalConfig:
         """The test set, the recorded closed loops and the online runs fit in memory (lower bounds)."""
         from .memory import FLOAT64, check_fits
 
-        if self.ik:    # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
-            check_fits("n_test", self.n_test, self.n_test * (7 + 7 + 16) * FLOAT64, self.device,
-                       "float64 test targets, joints and forward-kinematics poses")
+        if self.ik:  # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
+            check_fits(
+                "n_test",
+                self.n_test,
+                self.n_test * (7 + 7 + 16) * FLOAT64,
+                self.device,
+                "float64 test targets, joints and forward-kinematics poses",
+            )
         n = len(self.robot.joint_low)
         c = self.control
-        if c.enabled:   # q, qd and tau (n each) recorded every step, for each payload case at least
+        if c.enabled:  # q, qd and tau (n each) recorded every step, for each payload case at least
             _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, self.device)
         o = self.online
-        if o.enabled:   # joints and task position recorded every step, for each perturbation size
+        if o.enabled:  # joints and task position recorded every step, for each perturbation size
             _trajectory_fits("online.duration", o.duration, o.dt, len(o.sizes), 3 + 3, self.device)
 
 
@@ -694,8 +877,12 @@ def finite(x: Any) -> bool:
 
 def validate_device(device: str, num_threads: int, prefix: str = "") -> None:
     """`device` is cpu or an available cuda[:N]; `num_threads` >= 0."""
-    _need(isinstance(num_threads, int) and num_threads >= 0, f"{prefix}num_threads", num_threads,
-          "use 0 (torch's default) or a positive number of threads")
+    _need(
+        isinstance(num_threads, int) and num_threads >= 0,
+        f"{prefix}num_threads",
+        num_threads,
+        "use 0 (torch's default) or a positive number of threads",
+    )
     d = str(device)
     ok = d == "cpu" or d == "cuda" or (d.startswith("cuda:") and d[5:].isdigit())
     _need(ok, f"{prefix}device", device, "use 'cpu', 'cuda' or 'cuda:N'")
@@ -703,8 +890,10 @@ def validate_device(device: str, num_threads: int, prefix: str = "") -> None:
         import torch  # a runtime fact, not a schema one
 
         if not torch.cuda.is_available():
-            raise ValueError(f"{prefix}device={device!r}: no CUDA device is available to this torch "
-                             f"(torch {torch.__version__}, built for CUDA {torch.version.cuda}); use device=cpu")
+            raise ValueError(
+                f"{prefix}device={device!r}: no CUDA device is available to this torch "
+                f"(torch {torch.__version__}, built for CUDA {torch.version.cuda}); use device=cpu"
+            )
         n = torch.cuda.device_count()
         if d.startswith("cuda:") and int(d[5:]) >= n:
             raise ValueError(f"{prefix}device={device!r}: only {n} CUDA device(s) (cuda:0..cuda:{n - 1})")
@@ -720,8 +909,13 @@ def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: 
     from .memory import FLOAT64, check_fits
 
     steps = duration / dt + 1
-    check_fits(key, duration, steps * batch * columns * FLOAT64, device,
-               f"{steps:.3g} steps of {dt:g} s, each recording {columns} float64 values for {batch} run(s)")
+    check_fits(
+        key,
+        duration,
+        steps * batch * columns * FLOAT64,
+        device,
+        f"{steps:.3g} steps of {dt:g} s, each recording {columns} float64 values for {batch} run(s)",
+    )
 
 
 def plain(cfg: Any) -> dict:

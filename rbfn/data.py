@@ -1,4 +1,5 @@
 """Training data: seeded joint samples in the robot's box, FK targets, train/val/test splits."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,8 +10,17 @@ import torch
 if TYPE_CHECKING:
     from .robots.robot import Robot
 
-__all__ = ["Split", "Dataset", "sample_joints", "make_split", "make_dataset", "evaluation_split", "stream",
-           "input_scaling", "check_finite"]
+__all__ = [
+    "Split",
+    "Dataset",
+    "sample_joints",
+    "make_split",
+    "make_dataset",
+    "evaluation_split",
+    "stream",
+    "input_scaling",
+    "check_finite",
+]
 
 # Random streams: a seed s draws training, validation and test sets from streams s * 1000 + 0, 1, 2
 # and evaluation sets from s * 1000 + 777. Two streams of any seeds coincide only if they have the

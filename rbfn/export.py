@@ -16,6 +16,7 @@ mode). A bad argument (no such checkpoint, a damaged or
 foreign one, an --out-dir that is a file or write-protected) is a one-line error with exit status 2;
 a failed export or write, one with exit status 1.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -85,8 +86,10 @@ def _quiet_exporter():
     """Silence, narrowly and only while exporting, what torch's exporters say about themselves:
     their per-pass INFO lines and the notice that torchvision's operators are not registered (this
     model has none), and torch 2.13's FutureWarning from its own use of the deprecated LeafSpec."""
-    quiet = [logging.getLogger(n) for n in ("onnx_ir", "onnxscript", "torch.onnx",
-                                            "torch.onnx._internal.exporter._registration")]
+    quiet = [
+        logging.getLogger(n)
+        for n in ("onnx_ir", "onnxscript", "torch.onnx", "torch.onnx._internal.exporter._registration")
+    ]
     levels = [lg.level for lg in quiet]
     for lg in quiet:
         lg.setLevel(logging.ERROR)
@@ -110,10 +113,17 @@ def onnx_bytes(net: RBFNetwork, block_rows: int | None = None) -> bytes:
     """The single-file ONNX model of `export_onnx`, as bytes."""
     batch = torch.export.Dim("batch", min=1)
     with _quiet_exporter():
-        prog = torch.onnx.export(DeployedIK(net).eval(), (_example(net),), dynamo=True, external_data=False,
-                                 input_names=["positions"], output_names=["joints", "in_workspace"],
-                                 dynamic_shapes={"positions": {0: batch}}, verbose=False)
-    assert prog is not None                 # dynamo=True: always an ONNXProgram
+        prog = torch.onnx.export(
+            DeployedIK(net).eval(),
+            (_example(net),),
+            dynamo=True,
+            external_data=False,
+            input_names=["positions"],
+            output_names=["joints", "in_workspace"],
+            dynamic_shapes={"positions": {0: batch}},
+            verbose=False,
+        )
+    assert prog is not None  # dynamo=True: always an ONNXProgram
     model = _in_row_blocks(prog.model_proto, block_rows or net.rows_per_block)
     onnx.checker.check_model(model)
     return model.SerializeToString()
@@ -171,20 +181,24 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
         node("Pad", [x.name, "pads"], ["padded"], mode="edge"),
         node("Concat", ["blocks", "size", "block_shape_end"], ["block_shape"], axis=0),
         node("Reshape", ["padded", "block_shape"], ["in_blocks"]),
-        node("Scan", ["in_blocks"], [f"{y.name}_blocks" for y in outputs], num_scan_inputs=1, body=block)]
+        node("Scan", ["in_blocks"], [f"{y.name}_blocks" for y in outputs], num_scan_inputs=1, body=block),
+    ]
     for y in outputs:
         trailing = [d.dim_value for d in y.type.tensor_type.shape.dim[1:]]
         consts.append(ints(f"{y.name}_shape", [-1, *trailing]))
-        scan += [node("Reshape", [f"{y.name}_blocks", f"{y.name}_shape"], [f"{y.name}_padded"]),
-                 node("Slice", [f"{y.name}_padded", "zero", "batch"], [f"blocked_{y.name}"])]
+        scan += [
+            node("Reshape", [f"{y.name}_blocks", f"{y.name}_shape"], [f"{y.name}_padded"]),
+            node("Slice", [f"{y.name}_padded", "zero", "batch"], [f"blocked_{y.name}"]),
+        ]
     in_blocks = helper.make_graph(scan, "in_blocks", [], [named(y, f"blocked_{y.name}") for y in outputs])
-    nodes = [node("Shape", [x.name], ["batch"], end=1),
-             node("Greater", ["batch", "rows"], ["many_rows"]),
-             node("If", ["many_rows"], [y.name for y in outputs], then_branch=in_blocks, else_branch=whole)]
+    nodes = [
+        node("Shape", [x.name], ["batch"], end=1),
+        node("Greater", ["batch", "rows"], ["many_rows"]),
+        node("If", ["many_rows"], [y.name for y in outputs], then_branch=in_blocks, else_branch=whole),
+    ]
     result = onnx.ModelProto()
     result.CopyFrom(model)
-    result.graph.CopyFrom(helper.make_graph(nodes, graph.name, [x], outputs,
-                                            initializer=[*graph.initializer, *consts]))
+    result.graph.CopyFrom(helper.make_graph(nodes, graph.name, [x], outputs, initializer=[*graph.initializer, *consts]))
     return result
 
 
@@ -206,23 +220,38 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
         prog="python -m rbfn.export",
         description="Export a trained IK network (a checkpoint.pt written by train.py) as ik.onnx, an ONNX model "
-                    "in one file, and ik.pt2, a torch.export program, to run without this package.",
+        "in one file, and ik.pt2, a torch.export program, to run without this package.",
         epilog="Both files are written all or none: a failed export leaves the old ones as they were. An existing "
-               "write-protected ik.onnx or ik.pt2 is refused unless --force. A bad argument is an error with exit "
-               "status 2, a failed export or write one with exit status 1.")
+        "write-protected ik.onnx or ik.pt2 is refused unless --force. A bad argument is an error with exit "
+        "status 2, a failed export or write one with exit status 1.",
+    )
     p.add_argument("checkpoint", type=Path, metavar="CHECKPOINT", help="the checkpoint.pt that train.py wrote")
-    p.add_argument("--out-dir", type=Path, default=None, metavar="DIR",
-                   help="where to write ik.onnx and ik.pt2, created if missing (default: the checkpoint's directory)")
-    p.add_argument("--force", action="store_true",
-                   help="write even over a write-protected ik.onnx or ik.pt2 or into a write-protected directory "
-                        "(replaced files keep their mode)")
+    p.add_argument(
+        "--out-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="where to write ik.onnx and ik.pt2, created if missing (default: the checkpoint's directory)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write even over a write-protected ik.onnx or ik.pt2 or into a write-protected directory "
+        "(replaced files keep their mode)",
+    )
     a = p.parse_args(argv)
     if not a.checkpoint.is_file():
-        fail(p, f"CHECKPOINT {a.checkpoint}: " + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir()
-                                                   else "no such file"))
+        fail(
+            p,
+            f"CHECKPOINT {a.checkpoint}: "
+            + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir() else "no such file"),
+        )
     out_dir = a.out_dir or a.checkpoint.parent
-    where = (f"--out-dir {out_dir}" if a.out_dir
-             else f"the output directory {out_dir} (the checkpoint's; --out-dir picks another)")
+    where = (
+        f"--out-dir {out_dir}"
+        if a.out_dir
+        else f"the output directory {out_dir} (the checkpoint's; --out-dir picks another)"
+    )
     problem = unwritable([out_dir / "ik.onnx", out_dir / "ik.pt2"], a.force)
     if problem:
         fail(p, f"{where}: {problem}")
@@ -236,8 +265,11 @@ def main(argv: list[str] | None = None) -> None:
     try:
         paths = export_all(net, out_dir)
     except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
-        fail(p, f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
-              status=1)
+        fail(
+            p,
+            f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
+            status=1,
+        )
     for path in paths:
         print(f"wrote {path}")
 

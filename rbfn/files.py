@@ -11,6 +11,7 @@ removed on any exception, a signal turned into one included (rbfn.studies.stop).
 Written files get the permissions a plain open() would give them: those of the file they replace,
 else 0o666 minus the umask (mkstemp's 0o600 would hide outputs from the user's group).
 """
+
 from __future__ import annotations
 
 import os
@@ -47,7 +48,7 @@ def _complete_temp(path: Path, write: Callable[[BinaryIO], object]) -> Path:
     tmp = None
     try:
         fd = os.open(path.parent, os.O_TMPFILE | os.O_WRONLY, 0o600) if os.path.isdir("/proc/self/fd") else -1
-    except (AttributeError, OSError):       # no O_TMPFILE on this system or file system
+    except (AttributeError, OSError):  # no O_TMPFILE on this system or file system
         fd = -1
     if fd < 0:
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
@@ -58,7 +59,7 @@ def _complete_temp(path: Path, write: Callable[[BinaryIO], object]) -> Path:
             f.flush()
             os.fsync(f.fileno())
             os.fchmod(f.fileno(), mode)
-            while unnamed:                  # complete: link it in under a fresh temporary name
+            while unnamed:  # complete: link it in under a fresh temporary name
                 tmp = str(path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp"))
                 try:
                     # linkat(AT_SYMLINK_FOLLOW), which a dir fd selects (the absolute path ignores it)
@@ -70,7 +71,7 @@ def _complete_temp(path: Path, write: Callable[[BinaryIO], object]) -> Path:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
         raise
-    return Path(cast(str, tmp))             # named by now
+    return Path(cast(str, tmp))  # named by now
 
 
 def atomic_write_bytes(path: str | Path, write: Callable[[BinaryIO], object]) -> None:
@@ -123,6 +124,8 @@ def unwritable(paths: Iterable[str | Path], force: bool = False) -> str:
         if path.is_dir():
             return f"{path} is a directory"
         if path.exists() and not force and _write_protected(path):
-            return (f"{path} is write-protected (mode {path.stat().st_mode & 0o777:#o}); not replacing it "
-                    "(--force replaces it)")
+            return (
+                f"{path} is write-protected (mode {path.stat().st_mode & 0o777:#o}); not replacing it "
+                "(--force replaces it)"
+            )
     return ""

@@ -7,6 +7,7 @@ are optional columns), the column order of RBFNetwork.design.
 Fits meant for a lower deployment precision (float32) keep only ridges whose weights evaluate
 stably in it: see `ridge_fit` and `rounding_scale`.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -16,8 +17,18 @@ import torch
 
 from .layer import gaussian, gaussian_features
 
-__all__ = ["design_matrix", "RidgeFit", "ridge_fit", "ridge_choose", "ridge_solve", "deployed_design", "rounding_scale",
-           "DEFAULT_RIDGES", "ROUND_TOL", "rounding_tolerance"]
+__all__ = [
+    "design_matrix",
+    "RidgeFit",
+    "ridge_fit",
+    "ridge_choose",
+    "ridge_solve",
+    "deployed_design",
+    "rounding_scale",
+    "DEFAULT_RIDGES",
+    "ROUND_TOL",
+    "rounding_tolerance",
+]
 
 # Ridge values relative to the mean diagonal of the Gram matrix.
 DEFAULT_RIDGES = tuple(10.0**e for e in range(-13, -1))
@@ -28,8 +39,7 @@ DEFAULT_RIDGES = tuple(10.0**e for e in range(-13, -1))
 ROUND_TOL = 2e-6
 
 
-def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
-                  tail: bool = True) -> torch.Tensor:
+def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, tail: bool = True) -> torch.Tensor:
     """Design matrix (..., N, P) with P = M [+ d + 1]: features, then tail z and bias column.
 
     Without the tail there is no bias column either (P = M); `assemble` then sets a zero bias.
@@ -49,8 +59,15 @@ def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
     return torch.cat([phi, z.expand(*shape, z.shape[-1]), ones], dim=-1)
 
 
-def deployed_design(x: torch.Tensor, offset: torch.Tensor, scale: torch.Tensor, centers: torch.Tensor,
-                    widths: torch.Tensor, tail: bool, dtype: torch.dtype) -> torch.Tensor:
+def deployed_design(
+    x: torch.Tensor,
+    offset: torch.Tensor,
+    scale: torch.Tensor,
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    tail: bool,
+    dtype: torch.dtype,
+) -> torch.Tensor:
     """The design matrix (N, P) as `RBFNetwork.design` in `dtype` computes it from raw inputs x
     (broadcast distances); the module's prediction path expands them instead, which differs by
     float rounding only (bounded with the rest by ROUND_TOL)."""
@@ -85,10 +102,17 @@ def rounding_scale(a: torch.Tensor, weights: torch.Tensor, dtype: torch.dtype) -
     return (a.abs() @ weights.abs()).mul_(torch.finfo(dtype).eps / 2)
 
 
-def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor, y_val: torch.Tensor,
-              ridges: tuple[float, ...] = DEFAULT_RIDGES, eval_dtype: torch.dtype | None = None,
-              a_val_eval: torch.Tensor | None = None, round_tol: float = ROUND_TOL,
-              round_rel: float = 0.0) -> RidgeFit:
+def ridge_fit(
+    a_train: torch.Tensor,
+    y_train: torch.Tensor,
+    a_val: torch.Tensor,
+    y_val: torch.Tensor,
+    ridges: tuple[float, ...] = DEFAULT_RIDGES,
+    eval_dtype: torch.dtype | None = None,
+    a_val_eval: torch.Tensor | None = None,
+    round_tol: float = ROUND_TOL,
+    round_rel: float = 0.0,
+) -> RidgeFit:
     """Ridge least squares for every ridge in `ridges`; keep the one with the lowest validation MSE.
 
     a_train (..., N, P), y_train (N, out), a_val (..., Nv, P), y_val (Nv, out). Solved through
@@ -121,7 +145,7 @@ def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor,
             pred = a_val @ w_flat
         else:
             pred = (a_val.to(eval_dtype) @ w_flat.to(eval_dtype)).to(gram.dtype)
-        pred = pred.unflatten(-1, (n_l, n_out))                                  # (..., Nv, L, out)
+        pred = pred.unflatten(-1, (n_l, n_out))  # (..., Nv, L, out)
         mse = (pred - y_val.unsqueeze(-2)).square().sum(-1).mean(-2)
         if deploy is None:
             return mse, None
@@ -130,8 +154,9 @@ def ridge_fit(a_train: torch.Tensor, y_train: torch.Tensor, a_val: torch.Tensor,
     return ridge_choose(gram, rhs, score, ridges, deploy, round_tol, round_rel)
 
 
-def rounding_tolerance(mse: torch.Tensor, outputs: int, round_tol: float = ROUND_TOL,
-                       round_rel: float = 0.0) -> torch.Tensor:
+def rounding_tolerance(
+    mse: torch.Tensor, outputs: int, round_tol: float = ROUND_TOL, round_rel: float = 0.0
+) -> torch.Tensor:
     """The largest rounding scale (..., 1) a deployed fit may have: round_tol, or round_rel times
     the per-output validation RMS error of the best candidate (mse (..., L), summed over outputs)
     where that is larger (`rbfn.round_rel`). A network whose own error is 1e-2 rad gains nothing
@@ -141,9 +166,15 @@ def rounding_tolerance(mse: torch.Tensor, outputs: int, round_tol: float = ROUND
     return (round_rel * (best / outputs).sqrt()).clamp(min=round_tol)
 
 
-def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[float, ...] = DEFAULT_RIDGES,
-                 deploy: torch.dtype | None = None, round_tol: float = ROUND_TOL,
-                 round_rel: float = 0.0) -> RidgeFit:
+def ridge_choose(
+    gram: torch.Tensor,
+    rhs: torch.Tensor,
+    score,
+    ridges: tuple[float, ...] = DEFAULT_RIDGES,
+    deploy: torch.dtype | None = None,
+    round_tol: float = ROUND_TOL,
+    round_rel: float = 0.0,
+) -> RidgeFit:
     """`ridge_fit` from the normal equations: gram (..., P, P), rhs (..., P, out).
 
     score(weights (..., L, P, out)) -> validation MSE (..., L) and, with a deployment dtype
@@ -151,18 +182,18 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
     gets them (whole design matrices, row blocks) is the caller's.
     """
     evals, evecs = torch.linalg.eigh(gram)
-    proj = evecs.transpose(-1, -2) @ rhs                          # (..., P, out)
+    proj = evecs.transpose(-1, -2) @ rhs  # (..., P, out)
     scale = gram.diagonal(dim1=-2, dim2=-1).mean(-1, keepdim=True)  # (..., 1)
 
     def candidates(rel: torch.Tensor):
         """Weights (..., L, P, out), validation MSE (..., L) and rounding scale (..., L) or None."""
-        lam = rel * scale                                                       # (..., L)
-        coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)   # (..., L, P, out)
+        lam = rel * scale  # (..., L)
+        coef = proj.unsqueeze(-3) / (evals.unsqueeze(-2) + lam.unsqueeze(-1)).unsqueeze(-1)  # (..., L, P, out)
         # One product for every ridge, (P, P) @ (P, L out): broadcasting evecs over L copies it
         # L times (about 9x slower at P = 44, 18x at P = 2010).
         n_l, p, n_out = coef.shape[-3:]
         flat = coef.movedim(-3, -2).reshape(*coef.shape[:-3], p, n_l * n_out)
-        weights = (evecs @ flat).unflatten(-1, (n_l, n_out)).movedim(-2, -3)   # (..., L, P, out)
+        weights = (evecs @ flat).unflatten(-1, (n_l, n_out)).movedim(-2, -3)  # (..., L, P, out)
         mse, bnd = score(weights)
         mse = torch.nan_to_num(mse, nan=torch.inf)
         return weights, mse, None if bnd is None else torch.nan_to_num(bnd, nan=torch.inf)
@@ -180,7 +211,7 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
 
     grid = torch.as_tensor(ridges, dtype=gram.dtype, device=gram.device).expand(*scale.shape[:-1], -1)
     weights, mse, bound = candidates(grid)
-    tol = rounding_tolerance(mse, rhs.shape[-1], round_tol, round_rel)               # (..., 1)
+    tol = rounding_tolerance(mse, rhs.shape[-1], round_tol, round_rel)  # (..., 1)
     best = choose(mse, bound)
     ridge, best_mse = take(grid, best), take(mse, best)
     best_bound = None if bound is None else take(bound, best)
@@ -196,9 +227,9 @@ def ridge_choose(gram: torch.Tensor, rhs: torch.Tensor, score, ridges: tuple[flo
         binds = (best > 0) & (take(mse, (best - 1).clamp(min=0)) < best_mse) & (best_bound <= tol[..., 0])
         if ordered and bool(binds.any()):
             steps = torch.arange(1, 4, dtype=gram.dtype, device=gram.device) / 4
-            fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)   # (..., 3)
+            fine = torch.exp(lower.log().unsqueeze(-1) + (ridge / lower).log().unsqueeze(-1) * steps)  # (..., 3)
             w2, mse2, bound2 = candidates(fine)
-            assert bound2 is not None                 # candidates give bounds where the grid's did
+            assert bound2 is not None  # candidates give bounds where the grid's did
             b2 = choose(mse2, bound2)
             use = binds & (take(bound2, b2) <= tol[..., 0]) & (take(mse2, b2) <= best_mse)
             ridge = torch.where(use, take(fine, b2), ridge)
@@ -214,5 +245,4 @@ def ridge_solve(a: torch.Tensor, y: torch.Tensor, ridge: float | torch.Tensor) -
     gram = a.transpose(-1, -2) @ a
     scale = gram.diagonal(dim1=-2, dim2=-1).mean(-1)[..., None, None]
     eye = torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
-    return torch.linalg.solve(gram + torch.as_tensor(ridge, dtype=gram.dtype) * scale * eye,
-                              a.transpose(-1, -2) @ y)
+    return torch.linalg.solve(gram + torch.as_tensor(ridge, dtype=gram.dtype) * scale * eye, a.transpose(-1, -2) @ y)

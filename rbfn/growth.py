@@ -1,4 +1,5 @@
 """Growth: add hidden nodes until the validation error meets the goal or M reaches its maximum."""
+
 from __future__ import annotations
 
 import math
@@ -20,8 +21,12 @@ def growth_schedule(start: int, factor: float, m_max: int) -> list[int]:
     return ms
 
 
-def grow(fit_at: Callable[[int], tuple[T, float]], schedule: list[int], goal: float,
-         on_step: Callable[[int, float], None] | None = None) -> tuple[T, list[tuple[int, float]]]:
+def grow(
+    fit_at: Callable[[int], tuple[T, float]],
+    schedule: list[int],
+    goal: float,
+    on_step: Callable[[int, float], None] | None = None,
+) -> tuple[T, list[tuple[int, float]]]:
     """Fit at each M of `schedule` until the error E returned by `fit_at(M)` is <= goal.
 
     Returns the last fit and the (M, E) curve.
@@ -35,4 +40,4 @@ def grow(fit_at: Callable[[int], tuple[T, float]], schedule: list[int], goal: fl
             on_step(m, err)
         if err <= goal:
             break
-    return cast(T, result), curve           # a schedule has at least one M
+    return cast(T, result), curve  # a schedule has at least one M

@@ -34,6 +34,7 @@ The output weights as one matrix: net(x) = net.design(x) @ net.output_weights(),
 columns being the M Gaussians, then z (d) and a ones column with the tail, or a ones column
 without it (the order of rbfn.fit.design_matrix, which builds them in float64 for fitting).
 """
+
 from __future__ import annotations
 
 import copy
@@ -47,8 +48,16 @@ from torch import nn
 
 from .targets import TargetFeatures
 
-__all__ = ["RBFNetwork", "gaussian", "gaussian_features", "sq_distances", "distance_rows", "assemble", "MIN_WIDTH",
-           "LOG2E"]
+__all__ = [
+    "RBFNetwork",
+    "gaussian",
+    "gaussian_features",
+    "sq_distances",
+    "distance_rows",
+    "assemble",
+    "MIN_WIDTH",
+    "LOG2E",
+]
 
 MIN_WIDTH = 1e-12
 """Smallest Gaussian width sigma (scaled input units, those of z = (x - offset) / scale) a network
@@ -78,7 +87,7 @@ def gaussian(d2: torch.Tensor, widths: torch.Tensor, inplace: bool = False) -> t
 
     Written d2 / (-2 sigma^2): in IEEE arithmetic x / (-y) = -(x / y) exactly, so this is
     bit for bit -d2 / (2 sigma^2)."""
-    two_var = widths.unsqueeze(-2).square() * -2.0                  # -2 sigma^2 (..., 1, M)
+    two_var = widths.unsqueeze(-2).square() * -2.0  # -2 sigma^2 (..., 1, M)
     return d2.div_(two_var).exp_() if inplace else (d2 / two_var).exp_()
 
 
@@ -104,19 +113,19 @@ class _Expansion(NamedTuple):
     fast path's form of `gaussian_features` (see the module docstring), tested against the plain
     path; it keeps its own rounding order, which the trained metrics and the exports carry."""
 
-    centroid: torch.Tensor     # (d,) the centres' mean, the origin of u
-    in_weight: torch.Tensor    # (d, d + 1): [diag(1 / scale), 0]
-    in_bias: torch.Tensor      # (d + 1,): [-offset / scale - centroid, 1]
-    weight: torch.Tensor       # (d + 2, M): rows mu_i' / sigma_i^2, (1 - |mu_i'|^2) / (2 sigma_i^2) and
-                               # -1 / (2 sigma_i^2), times log_base(e), mu_i' = mu_i - centroid
-    to_sq_dist: torch.Tensor   # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base))
-    gaussians: Callable[[torch.Tensor], torch.Tensor]   # exponents -> activations (eager: in place)
-    cover_weight: torch.Tensor | None   # (d + 2, M): weight with the cover shift s_i (base units) added
-                                        # to the constant row; None where the cover test is not folded
-    head_scale: torch.Tensor | None     # (M,): base^-s_i, the head weights' factor for cover_weight's exponents
+    centroid: torch.Tensor  # (d,) the centres' mean, the origin of u
+    in_weight: torch.Tensor  # (d, d + 1): [diag(1 / scale), 0]
+    in_bias: torch.Tensor  # (d + 1,): [-offset / scale - centroid, 1]
+    weight: torch.Tensor  # (d + 2, M): rows mu_i' / sigma_i^2, (1 - |mu_i'|^2) / (2 sigma_i^2) and
+    # -1 / (2 sigma_i^2), times log_base(e), mu_i' = mu_i - centroid
+    to_sq_dist: torch.Tensor  # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base))
+    gaussians: Callable[[torch.Tensor], torch.Tensor]  # exponents -> activations (eager: in place)
+    cover_weight: torch.Tensor | None  # (d + 2, M): weight with the cover shift s_i (base units) added
+    # to the constant row; None where the cover test is not folded
+    head_scale: torch.Tensor | None  # (M,): base^-s_i, the head weights' factor for cover_weight's exponents
 
 
-MAX_COVER_SHIFT = 60.0     # largest cover shift s_i folded (natural units): e^60 and e^-60 are normal float32
+MAX_COVER_SHIFT = 60.0  # largest cover shift s_i folded (natural units): e^60 and e^-60 are normal float32
 
 
 def cover_foldable(widths: torch.Tensor, cover_radius: torch.Tensor) -> bool:
@@ -126,25 +135,40 @@ def cover_foldable(widths: torch.Tensor, cover_radius: torch.Tensor) -> bool:
     return math.isfinite(r) and r * r * 0.5 / float(widths.min()) ** 2 <= MAX_COVER_SHIFT
 
 
-def _expand(centers: torch.Tensor, widths: torch.Tensor, offset: torch.Tensor, scale: torch.Tensor,
-            cover_radius: torch.Tensor, base2: bool, fold: bool) -> _Expansion:
+def _expand(
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    offset: torch.Tensor,
+    scale: torch.Tensor,
+    cover_radius: torch.Tensor,
+    base2: bool,
+    fold: bool,
+) -> _Expansion:
     """The exponents' matrix form for centres (M, d), widths (M,), the input scaling (d,) and,
     with `fold`, the cover radius (0-dim)."""
     centroid = centers.mean(0)
     mu = centers - centroid
     log_e = LOG2E if base2 else 1.0
-    inv = log_e / widths.square()                                    # log_base(e) / sigma^2
+    inv = log_e / widths.square()  # log_base(e) / sigma^2
     weight = torch.stack([*(mu.T * inv), 0.5 * (1.0 - mu.square().sum(-1)) * inv, -0.5 * inv])
     in_weight = torch.cat([torch.diag(1.0 / scale), torch.zeros_like(scale)[:, None]], 1)
     in_bias = torch.cat([-offset / scale - centroid, torch.ones_like(scale[:1])])
     cover_weight = head_scale = None
     if fold:
-        shift = 0.5 * cover_radius.square() * inv                    # (M,) in base units
+        shift = 0.5 * cover_radius.square() * inv  # (M,) in base units
         d = centers.shape[1]
-        cover_weight = torch.cat([weight[:d], (weight[d] + shift)[None], weight[d + 1:]])
+        cover_weight = torch.cat([weight[:d], (weight[d] + shift)[None], weight[d + 1 :]])
         head_scale = torch.exp2(-shift) if base2 else torch.exp(-shift)
-    return _Expansion(centroid, in_weight, in_bias, weight, -2.0 / log_e * widths.square(),
-                      torch.Tensor.exp2_ if base2 else torch.exp, cover_weight, head_scale)
+    return _Expansion(
+        centroid,
+        in_weight,
+        in_bias,
+        weight,
+        -2.0 / log_e * widths.square(),
+        torch.Tensor.exp2_ if base2 else torch.exp,
+        cover_weight,
+        head_scale,
+    )
 
 
 def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
@@ -189,9 +213,16 @@ class RBFNetwork(nn.Module):
     out_high: torch.Tensor
     cover_radius: torch.Tensor
 
-    def __init__(self, centers: torch.Tensor, widths: torch.Tensor, out_features: int,
-                 offset: torch.Tensor | None = None, scale: torch.Tensor | None = None,
-                 tail: bool = True, inputs: TargetFeatures | None = None) -> None:
+    def __init__(
+        self,
+        centers: torch.Tensor,
+        widths: torch.Tensor,
+        out_features: int,
+        offset: torch.Tensor | None = None,
+        scale: torch.Tensor | None = None,
+        tail: bool = True,
+        inputs: TargetFeatures | None = None,
+    ) -> None:
         super().__init__()
         # Public inputs -> features (d): pose targets (B, 7) become 9 features; None: inputs are features.
         self.inputs = inputs
@@ -223,7 +254,7 @@ class RBFNetwork(nn.Module):
         self.register_buffer("out_low", torch.full((out_features,), -torch.inf, **kw))
         self.register_buffer("out_high", torch.full((out_features,), torch.inf, **kw))
         self.register_buffer("cover_radius", torch.tensor(torch.inf, **kw))
-        self._expansion_cache: tuple | None = None     # see `_expansion`
+        self._expansion_cache: tuple | None = None  # see `_expansion`
 
     @property
     def rows_per_block(self) -> int:
@@ -273,9 +304,9 @@ class RBFNetwork(nn.Module):
         if x.dtype == torch.bool or x.is_complex():
             raise TypeError(f"{name} must be real numbers, got dtype {x.dtype}")
         if torch.compiler.is_compiling() or torch.compiler.is_exporting():
-            return x                      # data checks: eager only
+            return x  # data checks: eager only
         if self.inputs is not None and self.inputs.pose and not leading:
-            self.inputs.check(x)          # unit quaternions, finite values
+            self.inputs.check(x)  # unit quaternions, finite values
         elif x.is_floating_point() and not bool(x.sum().isfinite()):
             # A finite sum means every value is finite (NaN and inf propagate): one pass without a mask,
             # 15 against 445 us at B = 1e5. Only a non-finite sum (or one that overflowed) looks at rows.
@@ -334,7 +365,7 @@ class RBFNetwork(nn.Module):
         cols = [e.gaussians(a)]
         if self.tail is not None:
             cols.append(v[:, :-1] + e.centroid)
-        return torch.cat([*cols, v[:, -1:]], -1)                  # v's last column is the ones
+        return torch.cat([*cols, v[:, -1:]], -1)  # v's last column is the ones
 
     def output_weights(self) -> torch.Tensor:
         """Output weights W (P, out) ordered as `design`'s columns (a detached copy)."""
@@ -354,8 +385,10 @@ class RBFNetwork(nn.Module):
             rows = f"{m} Gaussians{tail} + bias"
             raise ValueError(f"output weights must be ({p}, {out}) (rows: {rows}), got shape {tuple(w.shape)}")
         if not w.is_floating_point() or not bool(torch.isfinite(w).all()):
-            raise ValueError(f"output weights must be finite floating-point numbers, got dtype {w.dtype} with "
-                             f"{int((~torch.isfinite(w)).sum()) if w.is_floating_point() else 0} non-finite values")
+            raise ValueError(
+                f"output weights must be finite floating-point numbers, got dtype {w.dtype} with "
+                f"{int((~torch.isfinite(w)).sum()) if w.is_floating_point() else 0} non-finite values"
+            )
         self.head.weight.copy_(w[:m].T)
         if self.tail is not None:
             self.tail.weight.copy_(w[m:-1].T)
@@ -372,11 +405,12 @@ class RBFNetwork(nn.Module):
         bufs = (self.centers, self.widths, self.offset, self.scale, self.cover_radius)
         if torch.compiler.is_compiling() or torch.compiler.is_exporting():
             return _expand(*bufs, base2=False, fold=self.traced_cover_fold)
+
         def eager() -> _Expansion:
             return _expand(*bufs, base2=True, fold=cover_foldable(self.widths, self.cover_radius))
 
         if any(t.is_inference() or t.requires_grad for t in bufs):
-            return eager()                         # no version counter, or a graph to keep
+            return eager()  # no version counter, or a graph to keep
         key = [(t._version, t.data_ptr()) for t in bufs]
         hit = self._expansion_cache
         if hit is None or any(a is not b for a, b in zip(hit[0], bufs)) or hit[1] != key:
@@ -398,7 +432,7 @@ class RBFNetwork(nn.Module):
         w = self.head.weight * e.head_scale if cover and e.head_scale is not None else self.head.weight
         if self.tail is None:
             return torch.addmm(self.head.bias, phi, w.T)
-        a = self.tail.weight                                   # A z = A u + A centroid
+        a = self.tail.weight  # A z = A u + A centroid
         linear = torch.cat([a.T, (a @ e.centroid + self.head.bias).unsqueeze(0)])
         return torch.addmm(v @ linear, phi, w.T)
 
@@ -414,10 +448,10 @@ class RBFNetwork(nn.Module):
         x = self._inputs(x)
         if self.fast:
             return self._blocks(self._forward_rows, x)
-        z = self._scaled(x)                                           # (B, d)
-        h = gaussian_features(z, self.centers, self.widths)           # (B, M)
-        y = self.head(h)                                              # W h + b (B, out)
-        return y if self.tail is None else y + self.tail(z)           # + A z
+        z = self._scaled(x)  # (B, d)
+        h = gaussian_features(z, self.centers, self.widths)  # (B, M)
+        y = self.head(h)  # W h + b (B, out)
+        return y if self.tail is None else y + self.tail(z)  # + A z
 
     def _forward_rows(self, x: torch.Tensor) -> torch.Tensor:
         """`forward` on rows (B, d) in one piece (no blocks, no checks): the exported graph's path."""
@@ -434,15 +468,17 @@ class RBFNetwork(nn.Module):
             y = torch.as_tensor(y, device=self.centers.device)
         if not isinstance(y, torch.Tensor) or tuple(y.shape) != (x.shape[0], self.out_features):
             got = tuple(y.shape) if isinstance(y, torch.Tensor) else type(y).__name__
-            raise ValueError(f"outputs y must be ({x.shape[0]}, {self.out_features}) for "
-                             f"{x.shape[0]} inputs, got {got}")
+            raise ValueError(
+                f"outputs y must be ({x.shape[0]}, {self.out_features}) for {x.shape[0]} inputs, got {got}"
+            )
         if y.dtype == torch.bool or y.is_complex():
             raise TypeError(f"outputs y must be real numbers, got dtype {y.dtype}")
-        y = y.to(self.centers.dtype)      # compared in the module's dtype, as its own outputs are
+        y = y.to(self.centers.dtype)  # compared in the module's dtype, as its own outputs are
 
         def rows(xb: torch.Tensor, yb: torch.Tensor) -> torch.Tensor:
             _, a, e = self._exponents(xb, cover=True)
             return self._mask(xb, self._covered(a, e), yb)
+
         return self._blocks(rows, x, y)
 
     def solve(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -467,7 +503,7 @@ class RBFNetwork(nn.Module):
         """`solve` on rows (B, d) in one piece, the exponents computed once for the features and
         the mask (no blocks, no checks): the exported graph's path."""
         v, a, e = self._exponents(x, cover=True)
-        covered = self._covered(a, e)          # before the activations overwrite the exponents
+        covered = self._covered(a, e)  # before the activations overwrite the exponents
         y = self._head(v, e.gaussians(a), e, cover=True)
         return y, self._mask(x, covered, y)
 
@@ -504,14 +540,28 @@ class RBFNetwork(nn.Module):
         self.cover_radius.copy_(d_min.max() * (1 + margin))
 
 
-def assemble(centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, offset: torch.Tensor,
-             scale: torch.Tensor, tail: bool, inputs: TargetFeatures | None = None) -> RBFNetwork:
+def assemble(
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    weights: torch.Tensor,
+    offset: torch.Tensor,
+    scale: torch.Tensor,
+    tail: bool,
+    inputs: TargetFeatures | None = None,
+) -> RBFNetwork:
     """An RBFNetwork from fitted parts; weights (P, out) ordered as `RBFNetwork.design`'s columns,
     which are rbfn.fit.design_matrix's. Without the tail, weights may also be (M, out) (design_matrix
     has no bias column then): the bias is zero."""
     m = centers.shape[0]
-    net = RBFNetwork(centers, widths, weights.shape[-1], offset=offset, scale=scale, tail=tail,
-                     inputs=None if inputs is None or not inputs.pose else inputs.to(centers.dtype))
+    net = RBFNetwork(
+        centers,
+        widths,
+        weights.shape[-1],
+        offset=offset,
+        scale=scale,
+        tail=tail,
+        inputs=None if inputs is None or not inputs.pose else inputs.to(centers.dtype),
+    )
     if not tail and weights.dim() == 2 and weights.shape[0] == m:
         weights = torch.cat([weights, weights.new_zeros(1, weights.shape[1])])
     net.set_output_weights(weights.to(net.centers.dtype))

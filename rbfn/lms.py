@@ -11,6 +11,7 @@ were) and counted in `rejected`. `lms_fit` is the offline solver: shuffled mini-
 NLMS over a training set. LMS converges on well-conditioned bases; on the ill-conditioned ones
 that accurate wide-width fits produce, ridge least squares (rbfn.fit) is the solver.
 """
+
 from __future__ import annotations
 
 import torch
@@ -42,7 +43,7 @@ class NLMS:
             a, y = torch.where(ok[..., None], a, 0.0), torch.where(ok[..., None], y, 0.0)
             e = (y - a @ self.w) * ok[..., None]
             n = ok.sum(-1).clamp_min(1)[:, None, None]
-        else:                                  # every pair finite (the usual case): no masks
+        else:  # every pair finite (the usual case): no masks
             e, n = y - a @ self.w, a.shape[1]  # type: ignore[assignment]   # n: an int here
         norm = a.square().sum(-1, keepdim=True) + self.eps
         self.w = self.w + self.alpha(t) * (a / norm).transpose(1, 2) @ e / n
@@ -66,11 +67,11 @@ class RLS:
     def update(self, a: torch.Tensor, y: torch.Tensor, t: float = 0.0) -> torch.Tensor:
         ok = _finite(a, y)
         errs = []
-        for i in range(a.shape[1]):                      # rank-one updates, pair by pair
+        for i in range(a.shape[1]):  # rank-one updates, pair by pair
             ai, yi, oki = a[:, i], y[:, i], ok[:, i]
             ai, yi = torch.where(oki[:, None], ai, 0.0), torch.where(oki[:, None], yi, 0.0)
             e = yi - (ai[:, None, :] @ self.w)[:, 0]
-            pa = (self.p @ ai[..., None])[..., 0]                              # (B, P)
+            pa = (self.p @ ai[..., None])[..., 0]  # (B, P)
             k = pa / (self.lam + (ai * pa).sum(-1, keepdim=True))
             k = k * oki[:, None]
             self.w = self.w + k[..., None] * e[:, None, :]
@@ -85,8 +86,9 @@ def _finite(a: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return torch.isfinite(a).all(-1) & torch.isfinite(y).all(-1)
 
 
-def make_learner(name: str, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0,
-                 forgetting: float = 0.999) -> NLMS | RLS:
+def make_learner(
+    name: str, weights: torch.Tensor, alpha0: float = 0.5, decay: float = 0.0, forgetting: float = 0.999
+) -> NLMS | RLS:
     """The online learner `name` (nlms | rls) starting from weights (B, P, out)."""
     if name == "nlms":
         return NLMS(weights, alpha0, decay)
@@ -95,9 +97,16 @@ def make_learner(name: str, weights: torch.Tensor, alpha0: float = 0.5, decay: f
     raise ValueError(f"unknown learner {name!r}; choose one of {[str(v) for v in Learner]}")
 
 
-def lms_fit(a: torch.Tensor, y: torch.Tensor, weights: torch.Tensor | None = None, alpha0: float = 0.5,
-            decay: float = 1000.0, epochs: int = 50, batch_size: int = 32,
-            generator: torch.Generator | None = None) -> torch.Tensor:
+def lms_fit(
+    a: torch.Tensor,
+    y: torch.Tensor,
+    weights: torch.Tensor | None = None,
+    alpha0: float = 0.5,
+    decay: float = 1000.0,
+    epochs: int = 50,
+    batch_size: int = 32,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
     """Weights (P, out) by normalised mini-batch LMS on design a (N, P) and targets y (N, out):
     `epochs` shuffled passes of NLMS, its step decaying with the update count."""
     if not 0.0 < alpha0 < 2.0:

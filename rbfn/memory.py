@@ -10,6 +10,7 @@ physical memory), or on CUDA the device's free memory.
 
 Like rbfn.config this module imports no other part of the package.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,7 +19,7 @@ from pathlib import Path
 
 __all__ = ["available_bytes", "check_fits", "FLOAT64"]
 
-FLOAT64 = 8   # bytes
+FLOAT64 = 8  # bytes
 
 
 def _meminfo_available() -> int | None:
@@ -74,5 +75,7 @@ def check_fits(key: str, value, need: float, device: str = "cpu", what: str = ""
     have = available_bytes(device)
     if have is not None and need > have:
         where = "this machine's available memory" if str(device) == "cpu" else f"the free memory of {device}"
-        raise ValueError(f"{key}={value!r} needs at least {_size(need)}{f' ({what})' if what else ''}, "
-                         f"more than {where} ({_size(have)}); use a smaller {key}")
+        raise ValueError(
+            f"{key}={value!r} needs at least {_size(need)}{f' ({what})' if what else ''}, "
+            f"more than {where} ({_size(have)}); use a smaller {key}"
+        )

@@ -1,4 +1,5 @@
 """IK accuracy: joint RMSE, and end-effector position (and orientation) error through the robot's FK."""
+
 from __future__ import annotations
 
 import copy
@@ -15,17 +16,26 @@ __all__ = ["ik_metrics", "ik_metrics_both", "error_summary"]
 
 def error_summary(pos_mm: torch.Tensor, rot_deg: torch.Tensor | None) -> dict[str, float]:
     """pos_err_mm_median / p95 / max, and rot_err_deg_median / p95 / max where rotations apply."""
-    out = {"pos_err_mm_median": float(pos_mm.median()), "pos_err_mm_p95": float(pos_mm.quantile(0.95)),
-           "pos_err_mm_max": float(pos_mm.max())}
+    out = {
+        "pos_err_mm_median": float(pos_mm.median()),
+        "pos_err_mm_p95": float(pos_mm.quantile(0.95)),
+        "pos_err_mm_max": float(pos_mm.max()),
+    }
     if rot_deg is not None:
-        out.update({"rot_err_deg_median": float(rot_deg.median()), "rot_err_deg_p95": float(rot_deg.quantile(0.95)),
-                    "rot_err_deg_max": float(rot_deg.max())})
+        out.update(
+            {
+                "rot_err_deg_median": float(rot_deg.median()),
+                "rot_err_deg_p95": float(rot_deg.quantile(0.95)),
+                "rot_err_deg_max": float(rot_deg.max()),
+            }
+        )
     return out
 
 
 @torch.no_grad()
-def ik_metrics(model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor,
-               dtype: torch.dtype = torch.float64) -> tuple[dict[str, float], torch.Tensor, torch.Tensor]:
+def ik_metrics(
+    model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor, dtype: torch.dtype = torch.float64
+) -> tuple[dict[str, float], torch.Tensor, torch.Tensor]:
     """Errors of a copy of `model` evaluated in `dtype` on targets x (N, 3 or 7) with true joints q (N, n).
 
     Returns (metrics, position errors (N,) mm, in-workspace flags (N,)). Metrics: joint_rmse (RMS
@@ -38,15 +48,19 @@ def ik_metrics(model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor
     q_hat = q_hat.to(torch.float64)
     err = q_hat - q.to(q_hat)
     pos, rot = robot.errors(q_hat, x)
-    out = {"joint_rmse": float(err.square().mean().sqrt()), **error_summary(pos, rot),
-           "in_workspace": float(inside.double().mean())}
+    out = {
+        "joint_rmse": float(err.square().mean().sqrt()),
+        **error_summary(pos, rot),
+        "in_workspace": float(inside.double().mean()),
+    }
     for j, r in enumerate(err.square().mean(0).sqrt().tolist()):
         out[f"joint{j + 1}_rmse"] = float(r)
     return out, pos, inside
 
 
-def ik_metrics_both(model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor,
-                    prefix: str = "test_") -> tuple[dict[str, float], torch.Tensor, torch.Tensor]:
+def ik_metrics_both(
+    model: RBFNetwork, robot: Robot, x: torch.Tensor, q: torch.Tensor, prefix: str = "test_"
+) -> tuple[dict[str, float], torch.Tensor, torch.Tensor]:
     """`ik_metrics` in float64 (keys `prefix + name`) and float32 (`prefix + name + "_float32"`),
     with the float64 position errors (N,) mm and flags (N,)."""
     m64, pos, inside = ik_metrics(model, robot, x, q, torch.float64)

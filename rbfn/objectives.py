@@ -4,6 +4,7 @@
 and widths (supervised; for the IK network). `cluster`: sum of squared distances of the data to
 their nearest chosen centre (the k-means objective searched globally; no targets needed).
 """
+
 from __future__ import annotations
 
 from typing import Any, cast
@@ -38,10 +39,20 @@ class FitObjective:
     in that dtype (their exponents in float64; within 1e-6 relative of `ridge_fit`'s MSE).
     """
 
-    def __init__(self, z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor,
-                 y_val: torch.Tensor, tail: bool = True, ridges: tuple[float, ...] = DEFAULT_RIDGES,
-                 eval_dtype: torch.dtype | None = None, memory: float = 2**31, block: int = 2048,
-                 round_tol: float = ROUND_TOL, round_rel: float = 0.0) -> None:
+    def __init__(
+        self,
+        z_train: torch.Tensor,
+        y_train: torch.Tensor,
+        z_val: torch.Tensor,
+        y_val: torch.Tensor,
+        tail: bool = True,
+        ridges: tuple[float, ...] = DEFAULT_RIDGES,
+        eval_dtype: torch.dtype | None = None,
+        memory: float = 2**31,
+        block: int = 2048,
+        round_tol: float = ROUND_TOL,
+        round_rel: float = 0.0,
+    ) -> None:
         self.z_train, self.y_train, self.z_val, self.y_val = z_train, y_train, z_val, y_val
         self.tail, self.ridges, self.eval_dtype, self.round_tol = tail, ridges, eval_dtype, round_tol
         self.round_rel = round_rel
@@ -51,7 +62,7 @@ class FitObjective:
         ones = torch.ones_like(z_train[:, :1])
         tail_tr = torch.cat([z_train, ones], 1) if tail else z_train[:, :0]
         self._beside = torch.cat([tail_tr, y_train], 1)
-        self._tail_normal = tail_tr.T @ self._beside                          # (d + 1, d + 1 + out)
+        self._tail_normal = tail_tr.T @ self._beside  # (d + 1, d + 1 + out)
         self._tail_val = torch.cat([z_val.T, torch.ones_like(z_val[:, 0])[None]]) if tail else z_val.T[:0]
         self._tail_val_abs = self._tail_val.abs()
         self._y_val_t = y_val.T.contiguous()
@@ -65,8 +76,19 @@ class FitObjective:
         g = torch.Generator().manual_seed(seed)
         tr = torch.randperm(n, generator=g)[:rows].sort().values.to(self.z_train.device)
         va = torch.randperm(n_v, generator=g)[:rows].sort().values.to(self.z_val.device)
-        return FitObjective(self.z_train[tr], self.y_train[tr], self.z_val[va], self.y_val[va], self.tail, self.ridges,
-                            self.eval_dtype, self.memory, self.block, self.round_tol, self.round_rel)
+        return FitObjective(
+            self.z_train[tr],
+            self.y_train[tr],
+            self.z_val[va],
+            self.y_val[va],
+            self.tail,
+            self.ridges,
+            self.eval_dtype,
+            self.memory,
+            self.block,
+            self.round_tol,
+            self.round_rel,
+        )
 
     def width(self, m: int) -> int:
         """Design-matrix columns P for M = m."""
@@ -101,7 +123,7 @@ class FitObjective:
         # The rounding scale is summed in the deployment dtype, within (2 P + 3) u of float64's sum:
         # only a scale that close to round_tol could be judged otherwise; those are redone in float64.
         slack = 0.0 if self.eval_dtype is None else (2 * gram.shape[-1] + 3) * torch.finfo(self.eval_dtype).eps / 2
-        tols: list[torch.Tensor] = []                          # the grid's tolerance, kept for the finer ridges
+        tols: list[torch.Tensor] = []  # the grid's tolerance, kept for the finer ridges
 
         def score(weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
             mse, bound = self._score(val, weights)
@@ -110,7 +132,7 @@ class FitObjective:
             if not tols:
                 tols.append(rounding_tolerance(mse, rhs.shape[-1], self.round_tol, self.round_rel))
             if bool(((bound - tols[0]).abs() <= slack * tols[0]).any()):
-                bound = self._score(self._val_blocks(coef, rows, exact=True), weights)[1]   # (rare)
+                bound = self._score(self._val_blocks(coef, rows, exact=True), weights)[1]  # (rare)
             return mse, bound
 
         return ridge_choose(gram, rhs, score, self.ridges, self.eval_dtype, self.round_tol, self.round_rel).val_mse
@@ -120,17 +142,22 @@ class FitObjective:
         over row blocks: phi^T phi and phi^T [z, 1, y] by block, the tail's block once."""
         k, m = coef.shape[:2]
         gram = coef.new_zeros(k, m, m)
-        beside = coef.new_zeros(self._beside.shape[1], k * m)                 # [z, 1, y]^T phi
+        beside = coef.new_zeros(self._beside.shape[1], k * m)  # [z, 1, y]^T phi
         for r0 in range(0, self.z_train.shape[0], rows):
-            phi = _gaussians(coef, self._train_rows[:, r0:r0 + rows])           # (K, M, B)
+            phi = _gaussians(coef, self._train_rows[:, r0 : r0 + rows])  # (K, M, B)
             gram.baddbmm_(phi, phi.transpose(1, 2))
-            beside.addmm_(self._beside[r0:r0 + rows].T, phi.view(k * m, -1).T)
+            beside.addmm_(self._beside[r0 : r0 + rows].T, phi.view(k * m, -1).T)
             del phi
         n_tail = self._tail_normal.shape[0]
-        beside = beside.view(-1, k, m).permute(1, 2, 0)                         # (K, M, d + 1 + out)
+        beside = beside.view(-1, k, m).permute(1, 2, 0)  # (K, M, d + 1 + out)
         tail = self._tail_normal.expand(k, -1, -1)
-        gram = torch.cat([torch.cat([gram, beside[..., :n_tail]], 2),
-                          torch.cat([beside[..., :n_tail].transpose(1, 2), tail[..., :n_tail]], 2)], 1)
+        gram = torch.cat(
+            [
+                torch.cat([gram, beside[..., :n_tail]], 2),
+                torch.cat([beside[..., :n_tail].transpose(1, 2), tail[..., :n_tail]], 2),
+            ],
+            1,
+        )
         return gram, torch.cat([beside[..., n_tail:], tail[..., n_tail:]], 1)
 
     def _val_blocks(self, coef: torch.Tensor, rows: int, exact: bool = False):
@@ -144,12 +171,12 @@ class FitObjective:
         n_v, n_t = self.z_val.shape[0], self._tail_val.shape[0]
 
         def build(r0: int) -> tuple[int, torch.Tensor]:
-            tail = self._tail_val[:, r0:r0 + rows]
+            tail = self._tail_val[:, r0 : r0 + rows]
             a = torch.empty(k, m + n_t * (1 + bounds), tail.shape[1], dtype=dtype, device=coef.device)
-            _gaussians(coef, self._val_rows[:, r0:r0 + rows], out=a[:, :m])     # float64, then rounded
-            a[:, m:m + n_t] = tail
+            _gaussians(coef, self._val_rows[:, r0 : r0 + rows], out=a[:, :m])  # float64, then rounded
+            a[:, m : m + n_t] = tail
             if bounds:
-                a[:, m + n_t:] = self._tail_val_abs[:, r0:r0 + rows]
+                a[:, m + n_t :] = self._tail_val_abs[:, r0 : r0 + rows]
             return r0, a
 
         if exact or k * (m + 2 * n_t) * n_v * torch.finfo(dtype).bits / 8 > self.memory / 4:
@@ -164,11 +191,11 @@ class FitObjective:
         times the blocks' [a; |tail|])."""
         k, n_l, p, n_out = weights.shape
         lo, m = n_l * n_out, p - self._tail_val.shape[0]
-        w_t = weights.transpose(-1, -2).reshape(k, lo, p)                         # (K, L * out, P)
+        w_t = weights.transpose(-1, -2).reshape(k, lo, p)  # (K, L * out, P)
         sse = w_t.new_zeros(k, n_l, n_out)
         bound = w_t.new_zeros(k, lo)
         bounds, w2 = self.eval_dtype is not None, None
-        err: Any = None                                       # (K, L, out, block), made by the first block
+        err: Any = None  # (K, L, out, block), made by the first block
         for r0, a in val():
             b = a.shape[-1]
             if w2 is None:
@@ -178,10 +205,10 @@ class FitObjective:
                     w2[:, lo:, :m] = w_t[..., :m].abs()
                     w2[:, lo:, p:] = w_t[..., m:].abs()
                 w2 = w2.to(a.dtype)
-                err = w_t.new_empty(k, n_l, n_out, b)                              # reused by every block
+                err = w_t.new_empty(k, n_l, n_out, b)  # reused by every block
             out = torch.bmm(w2, a)
             pred = out[:, :lo].view(k, n_l, n_out, b)
-            sse.add_(err[..., :b].copy_(pred).sub_(self._y_val_t[:, r0:r0 + b]).square_().sum(-1))
+            sse.add_(err[..., :b].copy_(pred).sub_(self._y_val_t[:, r0 : r0 + b]).square_().sum(-1))
             if bounds:
                 torch.maximum(bound, out[:, lo:].amax(-1).to(bound.dtype), out=bound)
             del out, pred
@@ -196,6 +223,7 @@ class FitObjective:
 # with the ants' coefficients (no (K, M, B, d) differences), in base 2 (exp2 is about twice as fast
 # as exp in float64 on CPU). Its own rounding order, kept: the colony's choices depend on its bits.
 
+
 def _exponent_rows(z: torch.Tensor) -> torch.Tensor:
     """`rbfn.layer.distance_rows` [z, |z|^2, 1] transposed, (d + 2, N), contiguous."""
     return distance_rows(z).T.contiguous()
@@ -205,7 +233,7 @@ def _exponent_coefficients(centers: torch.Tensor, widths: torch.Tensor) -> torch
     """[-2 mu, 1, |mu|^2] / (-2 sigma^2 ln 2) (K, M, d + 2) of ants' centres (K, M, d) and widths
     (K, M): times `_exponent_rows` (d + 2, N), the Gaussians' exponents in base 2,
     -|z - mu|^2 / (2 sigma^2 ln 2) (K, M, N)."""
-    s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)                    # -2 sigma^2 ln 2 (K, M, 1)
+    s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)  # -2 sigma^2 ln 2 (K, M, 1)
     return torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
 
 
@@ -216,7 +244,7 @@ def _gaussians(coef: torch.Tensor, rows: torch.Tensor, out: torch.Tensor | None 
     network of that dtype does; float32's exp2 from float64 exponents is ~2x faster again)."""
     if out is None:
         return (coef @ rows).clamp_(max=0.0).exp2_()
-    return out.copy_(coef @ rows).clamp_(max=0.0).exp2_()            # rounded, then clamped in out's dtype
+    return out.copy_(coef @ rows).clamp_(max=0.0).exp2_()  # rounded, then clamped in out's dtype
 
 
 def cluster_objective(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:

@@ -5,6 +5,7 @@ validation error meets the goal -> optional gradient refinement -> an RBFNetwork
 in, a result out. Resuming is a separate, optional concern: given a `rbfn.resume.StateFile`, the
 run records its progress there and continues from it.
 """
+
 from __future__ import annotations
 
 import logging
@@ -49,9 +50,17 @@ class TrainResult:
     train_seconds: float = 0.0
 
 
-def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torch.Tensor], offset: torch.Tensor,
-                scale: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, gen: torch.Generator,
-                refined: Refined | None = None) -> RidgeFit:
+def fit_weights(
+    cfg: TrainConfig,
+    data: Dataset,
+    feats: tuple[torch.Tensor, torch.Tensor],
+    offset: torch.Tensor,
+    scale: torch.Tensor,
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    gen: torch.Generator,
+    refined: Refined | None = None,
+) -> RidgeFit:
     """Output weights (P, n) by ridge least squares (the ridge chosen on validation as the deployed
     float32 module evaluates it) or, with `rbfn.solver=lms`, the paper's normalised LMS. `feats`:
     the training and validation inputs' features (N, d). After mini-batch refinement (`refined`
@@ -68,7 +77,7 @@ def fit_weights(cfg: TrainConfig, data: Dataset, feats: tuple[torch.Tensor, torc
         fit.val_mse = (a_val @ fit.weights - q_val).square().sum(-1).mean()
     elif refined is not None and refined.weights is not None:
         trained = refined.weights
-        assert refined.val_loss is not None   # mini-batch refinement gives it with the weights
+        assert refined.val_loss is not None  # mini-batch refinement gives it with the weights
         pred = (a_val32 @ trained.to(a_val32.dtype)).to(q_val.dtype)
         mse = (pred - q_val).square().sum(-1).mean()
         rounding = rounding_scale(a_val, trained, torch.float32).amax()
@@ -97,19 +106,27 @@ def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot
     if not (task and refine_mode(r, data.train.q.shape[0], p) == "minibatch"):
         return False
     if robot is None:
-        raise ValueError("centers.refine.minibatch.loss=task needs the robot (train_ik(..., robot=ROBOT)) "
-                         "for its Jacobian")
+        raise ValueError(
+            "centers.refine.minibatch.loss=task needs the robot (train_ik(..., robot=ROBOT)) for its Jacobian"
+        )
     rows, joints = (6 if cfg.robot.target == Target.pose else 3), data.train.q.shape[1]
     if rows < joints:
-        raise ValueError(f"centers.refine.minibatch.loss=task weighs joint errors by the task Jacobian, which has "
-                         f"{rows} rows for robot.target={cfg.robot.target} and the robot has {joints} free joints "
-                         f"({robot.joint_names}): errors in the joints it cannot see would go untrained. "
-                         "Use centers.refine.minibatch.loss=joint, or hold joints with robot.locked")
+        raise ValueError(
+            f"centers.refine.minibatch.loss=task weighs joint errors by the task Jacobian, which has "
+            f"{rows} rows for robot.target={cfg.robot.target} and the robot has {joints} free joints "
+            f"({robot.joint_names}): errors in the joints it cannot see would go untrained. "
+            "Use centers.refine.minibatch.loss=joint, or hold joints with robot.locked"
+        )
     return True
 
 
-def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
-             state: TrainState | None = None, robot: Robot | None = None) -> TrainResult:
+def train_ik(
+    cfg: TrainConfig,
+    data: Dataset,
+    states: StateFile | None = None,
+    state: TrainState | None = None,
+    robot: Robot | None = None,
+) -> TrainResult:
     """Train the IK network of `cfg` on `data` (targets (N, 3 or 7) -> joints (N, n)).
 
     With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
@@ -135,8 +152,15 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     # _uses_task_loss refuses robot=None where the task loss is asked for
     uses_task = _uses_task_loss(cfg, data, z_tr.shape[1], robot)
     jacobians = task_jacobians(cfg, cast("Robot", robot), data) if uses_task else None
-    objective = FitObjective(z_tr, data.train.q, z_val, data.val.q, tail=cfg.rbfn.tail, eval_dtype=torch.float32,
-                             round_rel=cfg.rbfn.round_rel)
+    objective = FitObjective(
+        z_tr,
+        data.train.q,
+        z_val,
+        data.val.q,
+        tail=cfg.rbfn.tail,
+        eval_dtype=torch.float32,
+        round_rel=cfg.rbfn.round_rel,
+    )
     gen = torch.Generator().manual_seed(cfg.seed)
     if state.gen_after is not None:
         gen.set_state(state.gen_after)
@@ -150,17 +174,29 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
             state.current = {"num_centers": m, "gen_start": gen.get_state(), "colony": None}
 
         def on_state(colony_state: dict) -> None:
-            assert state.current is not None      # the growth step's state, set above
+            assert state.current is not None  # the growth step's state, set above
             state.current["colony"] = colony_state
             save(force=False)
 
         sel = select(cfg.centers, objective, m, cfg.seed, cfg.rbfn.max_width, cfg.progress, gen, resume, on_state)
         fit = fit_weights(cfg, data, feats, offset, scale, sel.centers, sel.widths, gen)
         err = 0.5 * float(fit.val_mse)
-        state.done.append({"num_centers": m, "val_E": err, "select_seconds": sel.seconds,
-                           "aco_best": list(sel.aco_best), "aco_mean": list(sel.aco_mean)})
-        state.last_fit = {"centers": sel.centers.cpu(), "widths": sel.widths.cpu(), "weights": fit.weights.cpu(),
-                          "ridge": float(fit.ridge), "val_mse": float(fit.val_mse)}
+        state.done.append(
+            {
+                "num_centers": m,
+                "val_E": err,
+                "select_seconds": sel.seconds,
+                "aco_best": list(sel.aco_best),
+                "aco_mean": list(sel.aco_mean),
+            }
+        )
+        state.last_fit = {
+            "centers": sel.centers.cpu(),
+            "widths": sel.widths.cpu(),
+            "weights": fit.weights.cpu(),
+            "ridge": float(fit.ridge),
+            "val_mse": float(fit.val_mse),
+        }
         state.gen_after, state.current = gen.get_state(), None
         save()
         log.info("M = %4d: validation E = %.3e (selection %.1f s)", m, err, sel.seconds)
@@ -169,7 +205,7 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
     schedule = growth_schedule(cfg.rbfn.growth.start, cfg.rbfn.growth.factor, cfg.rbfn.num_centers)
     curve = [(d["num_centers"], d["val_E"]) for d in state.done]
     if curve and (curve[-1][1] <= cfg.rbfn.growth.goal or curve[-1][0] == schedule[-1]):
-        schedule = []                                   # growth had finished before the interruption
+        schedule = []  # growth had finished before the interruption
     else:
         schedule = [m for m in schedule if m not in {c[0] for c in curve}]
     if schedule:
@@ -177,23 +213,43 @@ def train_ik(cfg: TrainConfig, data: Dataset, states: StateFile | None = None,
         curve += more
     else:
         lf = state.last_fit
-        assert lf is not None                   # saved with the finished growth
+        assert lf is not None  # saved with the finished growth
         centers, widths = lf["centers"].to(dev), lf["widths"].to(dev)
-        fit = RidgeFit(lf["weights"].to(dev), torch.tensor(lf["ridge"], dtype=torch.float64),
-                       torch.tensor(lf["val_mse"], dtype=torch.float64))     # the floats saved, exactly
+        fit = RidgeFit(
+            lf["weights"].to(dev),
+            torch.tensor(lf["ridge"], dtype=torch.float64),
+            torch.tensor(lf["val_mse"], dtype=torch.float64),
+        )  # the floats saved, exactly
 
     history: list[float] = []
-    if cfg.centers.refine.enabled:       # centres, widths and input scales (rbfn.refine)
+    if cfg.centers.refine.enabled:  # centres, widths and input scales (rbfn.refine)
         r = cfg.centers.refine
-        ref = refine(z_tr, data.train.q, z_val, data.val.q, centers, widths, fit.weights,
-                     max(float(fit.ridge), r.min_ridge), r, cfg.rbfn.tail, cfg.rbfn.max_width, cfg.seed, jacobians)
+        ref = refine(
+            z_tr,
+            data.train.q,
+            z_val,
+            data.val.q,
+            centers,
+            widths,
+            fit.weights,
+            max(float(fit.ridge), r.min_ridge),
+            r,
+            cfg.rbfn.tail,
+            cfg.rbfn.max_width,
+            cfg.seed,
+            jacobians,
+        )
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history
         fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen, ref)
     model = assemble(centers, widths, fit.weights, offset, scale, cfg.rbfn.tail, inputs=features)
     model.set_domain(data.train.x, data.train.q)
-    return TrainResult(model, fit, curve,
-                       colonies={d["num_centers"]: (d.get("aco_best", []), d.get("aco_mean", [])) for d in state.done},
-                       refine_history=history,
-                       select_seconds=sum(d["select_seconds"] for d in state.done),
-                       train_seconds=elapsed_before + time.perf_counter() - t_start)
+    return TrainResult(
+        model,
+        fit,
+        curve,
+        colonies={d["num_centers"]: (d.get("aco_best", []), d.get("aco_mean", [])) for d in state.done},
+        refine_history=history,
+        select_seconds=sum(d["select_seconds"] for d in state.done),
+        train_seconds=elapsed_before + time.perf_counter() - t_start,
+    )

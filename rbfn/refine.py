@@ -19,6 +19,7 @@ targets be stretched out. Either way the iterate with the lowest validation loss
 stopping); the caller solves the final output weights by ridge least squares for what is kept
 (and, after mini-batches, keeps the trained weights where they are better).
 """
+
 from __future__ import annotations
 
 import logging
@@ -31,8 +32,16 @@ import torch
 from .fit import design_matrix, ridge_solve
 from .layer import LOG2E, distance_rows
 
-__all__ = ["Refined", "refine", "refine_mode", "refine_full", "refine_minibatch", "row_loss", "gaussian_product",
-           "FULL_ROWS_MAX"]
+__all__ = [
+    "Refined",
+    "refine",
+    "refine_mode",
+    "refine_full",
+    "refine_minibatch",
+    "row_loss",
+    "gaussian_product",
+    "FULL_ROWS_MAX",
+]
 
 log = logging.getLogger(__name__)
 
@@ -66,34 +75,82 @@ def refine_mode(cfg, n: int, p: int) -> str:
     return mode
 
 
-def refine(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_val: torch.Tensor,
-           centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, ridge: float, cfg,
-           tail: bool = True, max_width: float = float("inf"), seed: int = 0,
-           jacobians: tuple[torch.Tensor, torch.Tensor] | None = None) -> Refined:
+def refine(
+    z_train: torch.Tensor,
+    y_train: torch.Tensor,
+    z_val: torch.Tensor,
+    y_val: torch.Tensor,
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    weights: torch.Tensor,
+    ridge: float,
+    cfg,
+    tail: bool = True,
+    max_width: float = float("inf"),
+    seed: int = 0,
+    jacobians: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> Refined:
     """Refine by `refine_mode` of `cfg` (a `RefineConfig`). weights (P, out): the current fit's, the
     mini-batch start. jacobians: (J_train (N, r, out), J_val (Nv, r, out)), the task Jacobians
     at the rows' joints, rows weighted as the task error is measured; the mini-batch loss then
     is the task error (`cfg.minibatch.loss=task`), else the joint error."""
     p = centers.shape[0] + (z_train.shape[1] + 1 if tail else 0)
     if refine_mode(cfg, z_train.shape[0], p) == "full":
-        return refine_full(z_train, y_train, z_val, y_val, centers, widths, ridge, cfg.full.steps, cfg.full.lr, tail,
-                           cfg.learn_input_scale, max_width)
+        return refine_full(
+            z_train,
+            y_train,
+            z_val,
+            y_val,
+            centers,
+            widths,
+            ridge,
+            cfg.full.steps,
+            cfg.full.lr,
+            tail,
+            cfg.learn_input_scale,
+            max_width,
+        )
     mb = cfg.minibatch
-    return refine_minibatch(z_train, y_train, z_val, y_val, centers, widths, weights, mb.epochs, mb.batch,
-                            mb.lr, tail, cfg.learn_input_scale, max_width, seed, huber=mb.huber,
-                            jacobians=jacobians)
+    return refine_minibatch(
+        z_train,
+        y_train,
+        z_val,
+        y_val,
+        centers,
+        widths,
+        weights,
+        mb.epochs,
+        mb.batch,
+        mb.lr,
+        tail,
+        cfg.learn_input_scale,
+        max_width,
+        seed,
+        huber=mb.huber,
+        jacobians=jacobians,
+    )
 
 
-def refine_full(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_val: torch.Tensor,
-                centers: torch.Tensor, widths: torch.Tensor, ridge: float, steps: int = 300, lr: float = 0.01,
-                tail: bool = True, learn_input_scale: bool = True, max_width: float = float("inf"),
-                eval_every: int = 10) -> Refined:
+def refine_full(
+    z_train: torch.Tensor,
+    y_train: torch.Tensor,
+    z_val: torch.Tensor,
+    y_val: torch.Tensor,
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    ridge: float,
+    steps: int = 300,
+    lr: float = 0.01,
+    tail: bool = True,
+    learn_input_scale: bool = True,
+    max_width: float = float("inf"),
+    eval_every: int = 10,
+) -> Refined:
     """Adam on (centres, log widths, log input scales), weights solved inside the loss with the
     relative `ridge`; returns the best-on-validation iterate."""
     c = centers.detach().clone().requires_grad_(True)
     log_w = widths.detach().log().clone().requires_grad_(True)
-    log_s = torch.zeros(z_train.shape[-1], dtype=z_train.dtype, device=z_train.device,
-                        requires_grad=learn_input_scale)
+    log_s = torch.zeros(z_train.shape[-1], dtype=z_train.dtype, device=z_train.device, requires_grad=learn_input_scale)
     opt = torch.optim.Adam([c, log_w] + ([log_s] if learn_input_scale else []), lr=lr)
     log_max = math.log(max_width)
 
@@ -140,11 +197,11 @@ class _GaussianProduct(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, z: torch.Tensor, c: torch.Tensor, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        a = 0.5 / s.square()                                                       # (M,)
-        rows = distance_rows(z)                                                    # (B, d + 2)
+        a = 0.5 / s.square()  # (M,)
+        rows = distance_rows(z)  # (B, d + 2)
         coef = torch.cat([2.0 * c, -torch.ones_like(a)[:, None], -c.square().sum(-1, keepdim=True)], 1)
-        coef = coef * (a * LOG2E)[:, None]                                         # exponent in base 2
-        phi = torch.exp2((rows @ coef.T).clamp_(max=0.0))                          # (B, M)
+        coef = coef * (a * LOG2E)[:, None]  # exponent in base 2
+        phi = torch.exp2((rows @ coef.T).clamp_(max=0.0))  # (B, M)
         ctx.save_for_backward(rows, c, s, w, a, phi)
         return (w.T @ phi.T).T
 
@@ -153,21 +210,22 @@ class _GaussianProduct(torch.autograd.Function):
         rows, c, s, w, a, phi = ctx.saved_tensors
         d = c.shape[1]
         grad_w = (grad.T @ phi).T if ctx.needs_input_grad[3] else None
-        h = (grad @ w.T).mul_(phi)                                                  # (B, M)
-        q = (rows.T @ h).T                                                          # (M, d + 2)
-        hz, hzz, hs = q[:, :d], q[:, d], q[:, d + 1]                                # h^T z, h^T |z|^2, sum h
+        h = (grad @ w.T).mul_(phi)  # (B, M)
+        q = (rows.T @ h).T  # (M, d + 2)
+        hz, hzz, hs = q[:, :d], q[:, d], q[:, d + 1]  # h^T z, h^T |z|^2, sum h
         grad_c = 2.0 * a[:, None] * (hz - c * hs[:, None])
-        hd = hzz + c.square().sum(-1) * hs - 2.0 * (hz * c).sum(-1)                 # sum_b h_bj |z_b - c_j|^2
+        hd = hzz + c.square().sum(-1) * hs - 2.0 * (hz * c).sum(-1)  # sum_b h_bj |z_b - c_j|^2
         grad_s = hd / s.pow(3)
         grad_z = None
         if ctx.needs_input_grad[0]:
-            r = (torch.cat([a[:, None], a[:, None] * c], 1).T @ h.T).T             # (B, 1 + d)
+            r = (torch.cat([a[:, None], a[:, None] * c], 1).T @ h.T).T  # (B, 1 + d)
             grad_z = 2.0 * (r[:, 1:] - rows[:, :d] * r[:, :1])
         return grad_z, grad_c, grad_s, grad_w
 
 
-def gaussian_product(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor,
-                     weights: torch.Tensor) -> torch.Tensor:
+def gaussian_product(
+    z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor
+) -> torch.Tensor:
     """phi(z) @ weights (B, out): Gaussians of z (B, d) about centres (M, d) with widths (M,),
     times weights (M, out); differentiable in all four at the cost of a few products."""
     return _GaussianProduct.apply(z, centers, widths, weights)
@@ -185,12 +243,26 @@ def row_loss(err: torch.Tensor, jac: torch.Tensor | None = None, huber: float = 
     return huber * ((sq + huber * huber).sqrt() - huber)
 
 
-def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.Tensor, y_val: torch.Tensor,
-                     centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor, epochs: int = 300,
-                     batch: int = 256, lr: float = 3e-3, tail: bool = True, learn_input_scale: bool = True,
-                     max_width: float = float("inf"), seed: int = 0, eval_every: int = 5,
-                     dtype: torch.dtype = torch.float32, huber: float = 0.0,
-                     jacobians: tuple[torch.Tensor, torch.Tensor] | None = None) -> Refined:
+def refine_minibatch(
+    z_train: torch.Tensor,
+    y_train: torch.Tensor,
+    z_val: torch.Tensor,
+    y_val: torch.Tensor,
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    weights: torch.Tensor,
+    epochs: int = 300,
+    batch: int = 256,
+    lr: float = 3e-3,
+    tail: bool = True,
+    learn_input_scale: bool = True,
+    max_width: float = float("inf"),
+    seed: int = 0,
+    eval_every: int = 5,
+    dtype: torch.dtype = torch.float32,
+    huber: float = 0.0,
+    jacobians: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> Refined:
     """Adam on (centres, log widths, log input scales, output weights (P, out)) over mini-batches
     of `batch` shuffled training rows for `epochs` passes, the step size cosine-annealed from `lr`
     to 0, computed in `dtype` (float32: about 1.4x the steps per second of float64 on a CPU, and
@@ -239,8 +311,13 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
             jac = None if j_tr is None else j_tr[rows]
             loss = row_loss(predict(z_tr[rows]) - y_tr[rows], jac, huber).mean()
             if not torch.isfinite(loss):
-                log.warning("mini-batch refinement diverged in epoch %d (loss %s); keeping the best iterate before "
-                            "it (a smaller centers.refine.minibatch.lr than %g avoids this)", epoch, loss.item(), lr)
+                log.warning(
+                    "mini-batch refinement diverged in epoch %d (loss %s); keeping the best iterate before "
+                    "it (a smaller centers.refine.minibatch.lr than %g avoids this)",
+                    epoch,
+                    loss.item(),
+                    lr,
+                )
                 diverged = True
                 break
             opt.zero_grad()
@@ -255,6 +332,12 @@ def refine_minibatch(z_train: torch.Tensor, y_train: torch.Tensor, z_val: torch.
             if e < best[0]:
                 best = (e, *snapshot())
     e, cb, lwb, lsb, wb = best
-    return Refined(centers=cb.to(out_dtype), widths=lwb.clamp(max=log_max).exp().to(out_dtype),
-                   input_scale=lsb.exp().to(out_dtype), val_mse=e, history=history, weights=wb.to(out_dtype),
-                   val_loss=val_loss)
+    return Refined(
+        centers=cb.to(out_dtype),
+        widths=lwb.clamp(max=log_max).exp().to(out_dtype),
+        input_scale=lsb.exp().to(out_dtype),
+        val_mse=e,
+        history=history,
+        weights=wb.to(out_dtype),
+        val_loss=val_loss,
+    )

@@ -7,6 +7,7 @@ the run finished, its metrics. Written sealed and atomically, at most every `eve
 while a colony runs and at once at each step's end. A directory holding another configuration's
 state, or another command's metrics.json (evaluate.py's), is refused before anything is written.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,6 +25,7 @@ class DifferentRun(ValueError):
     """The run directory holds another configuration's run, or another command's results (refused;
     the directory is left as it was)."""
 
+
 KIND = TRAIN_STATE_KIND
 FORMAT_VERSION = 1
 # Keys that may differ between the interrupted run and its resumption.
@@ -35,11 +37,11 @@ class TrainState:
     config: dict
     # done: {"num_centers", "val_E", "select_seconds", "aco_best", "aco_mean"} per growth step
     done: list[dict] = field(default_factory=list)
-    last_fit: dict | None = None                        # {"centers", "widths", "weights", "ridge", "val_mse"}
-    gen_after: Any = None                               # generator state after the last completed step
-    current: dict | None = None                         # {"num_centers", "gen_start", "colony"}
-    finished: dict | None = None                        # final metrics
-    elapsed: float = 0.0                                # s spent training, over every process so far
+    last_fit: dict | None = None  # {"centers", "widths", "weights", "ridge", "val_mse"}
+    gen_after: Any = None  # generator state after the last completed step
+    current: dict | None = None  # {"num_centers", "gen_start", "colony"}
+    finished: dict | None = None  # final metrics
+    elapsed: float = 0.0  # s spent training, over every process so far
 
 
 def _foreign_metrics(run_dir: Path) -> bool:
@@ -69,21 +71,27 @@ class StateFile:
         """The saved state if there is one for this config, else a fresh state."""
         if not self.path.exists():
             if _foreign_metrics(self.path.parent):
-                raise DifferentRun(f"{self.path.parent / 'metrics.json'} is not a training run's (evaluate.py's, "
-                                   "say), and training would write over it; give train.py another hydra.run.dir")
+                raise DifferentRun(
+                    f"{self.path.parent / 'metrics.json'} is not a training run's (evaluate.py's, "
+                    "say), and training would write over it; give train.py another hydra.run.dir"
+                )
             return TrainState(config=config)
         # Re-running training reads the same file again, so the remedy for a bad one is deleting it.
         restart = f"Delete {self.path} to start the run over (its completed steps are lost)."
         raw = load_sealed(self.path, what="training state", advice=restart)
         if not isinstance(raw, dict) or raw.get("kind") != KIND or raw.get("format_version") != FORMAT_VERSION:
             kind, version = (raw.get("kind"), raw.get("format_version")) if isinstance(raw, dict) else (None, None)
-            raise ValueError(f"{self.path} is not a training state this aco-rbfn can resume "
-                             f"(kind {kind!r}, format {version}). {restart}")
+            raise ValueError(
+                f"{self.path} is not a training state this aco-rbfn can resume "
+                f"(kind {kind!r}, format {version}). {restart}"
+            )
         if not isinstance(raw.get("state"), dict) or not isinstance(raw["state"].get("config"), dict):
             raise ValueError(f"{self.path} holds no training state with a config. {restart}")
         if _comparable(raw["state"]["config"]) != _comparable(config):
-            raise DifferentRun(f"{self.path} belongs to a run with a different configuration; resume it "
-                             "with the same overrides, use another hydra.run.dir, or delete last.pt")
+            raise DifferentRun(
+                f"{self.path} belongs to a run with a different configuration; resume it "
+                "with the same overrides, use another hydra.run.dir, or delete last.pt"
+            )
         return TrainState(**raw["state"])
 
     def save(self, state: TrainState, force: bool = True) -> None:

@@ -8,6 +8,7 @@ name, the config search path, the output directories, signal handling and exit s
 same. They need the source checkout the package is installed from (`pip install -e .`); from
 anywhere else they refuse in one line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,9 +25,12 @@ ROOT = Path(__file__).resolve().parent.parent
 def _run_script(name: str) -> None:
     script, config = ROOT / f"{name}.py", ROOT / "conf" / f"{name}.yaml"
     if not (script.is_file() and config.is_file()):
-        print(f"error: aco-rbfn-{name} runs {name}.py of the source checkout, and {ROOT} has no {name}.py "
-              f"and conf/{name}.yaml; install the package from a checkout with pip install -e . (or run "
-              f"python {name}.py there)", file=sys.stderr)
+        print(
+            f"error: aco-rbfn-{name} runs {name}.py of the source checkout, and {ROOT} has no {name}.py "
+            f"and conf/{name}.yaml; install the package from a checkout with pip install -e . (or run "
+            f"python {name}.py there)",
+            file=sys.stderr,
+        )
         raise SystemExit(1)
     sys.argv[0] = str(script)
     sys.path.insert(0, str(ROOT))

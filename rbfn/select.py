@@ -5,6 +5,7 @@ with what the search recorded (time, ACO objective per iteration). Widths not se
 method come from the width rule, scaled by `width_scale` or by the scale with the lowest
 validation error.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,23 +36,32 @@ class Selection:
     aco_mean: list[float] = field(default_factory=list)
 
 
-def choose_widths(objective: FitObjective, centers: torch.Tensor, rule: str,
-                  scale: float | None, max_width: float) -> torch.Tensor:
+def choose_widths(
+    objective: FitObjective, centers: torch.Tensor, rule: str, scale: float | None, max_width: float
+) -> torch.Tensor:
     """Widths (M,) = rule's base widths times `scale`, or the grid scale best on validation (every
     other grid scale where M * d > FULL_SEARCH_MAX: each costs a full fit there)."""
     base = base_widths(centers, rule)
     if rule == "paper" or scale is not None:
         return (base * (1.0 if scale is None else scale)).clamp(max=max_width)
-    coarse = centers.shape[-2] * centers.shape[-1] > FULL_SEARCH_MAX    # every other scale (x2 apart)
+    coarse = centers.shape[-2] * centers.shape[-1] > FULL_SEARCH_MAX  # every other scale (x2 apart)
     grid = torch.as_tensor(SCALE_GRID[::2] if coarse else SCALE_GRID, dtype=base.dtype, device=base.device)
-    cand = (grid[:, None] * base).clamp(max=max_width)                          # (S, M)
+    cand = (grid[:, None] * base).clamp(max=max_width)  # (S, M)
     err = objective(centers.expand(len(grid), *centers.shape), cand)
     return cand[int(err.argmin())]
 
 
-def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_width: float,
-           progress: bool = False, generator: torch.Generator | None = None,
-           resume: dict | None = None, on_state: Callable[[dict], None] | None = None) -> Selection:
+def select(
+    cfg: CentersConfig,
+    objective: FitObjective,
+    m: int,
+    seed: int,
+    max_width: float,
+    progress: bool = False,
+    generator: torch.Generator | None = None,
+    resume: dict | None = None,
+    on_state: Callable[[dict], None] | None = None,
+) -> Selection:
     """Centres and widths for M = m with the method `cfg.method` on the objective's training inputs.
 
     For the ACO methods, `on_state` receives the colony's snapshots and `resume` continues from
@@ -70,7 +80,7 @@ def select(cfg: CentersConfig, objective: FitObjective, m: int, seed: int, max_w
         widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
     elif cfg.method == "ols":
         pool = _candidate_pool(z, cfg.ols.candidates, g)
-        base = paper_widths(pool[None])[0, 0] * (pool.shape[0] / m) ** 0.5      # d_max / sqrt(2M)
+        base = paper_widths(pool[None])[0, 0] * (pool.shape[0] / m) ** 0.5  # d_max / sqrt(2M)
         grid = torch.as_tensor(SCALE_GRID, dtype=z.dtype, device=z.device)
         scales = grid if cfg.width_scale is None else grid.new_tensor([cfg.width_scale])
         sets = ols_centers(z, objective.y_train, m, (scales * base).clamp(max=max_width), pool, objective.tail)
@@ -135,12 +145,14 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
             c = pool[idx.to(pool.device)]
             return ranked(c, widths_of(c))
     else:
+
         def obj(idx: torch.Tensor) -> torch.Tensor:
             return cluster_objective(objective.z_train, pool[idx.to(pool.device)])
 
     a, s = cfg.aco, cfg.aco.ant_system
-    colony = AntSystem(ants=a.ants, iterations=a.iterations, rho=s.rho, Q=s.Q, alpha=s.alpha,
-                       beta=s.beta, progress=progress)
+    colony = AntSystem(
+        ants=a.ants, iterations=a.iterations, rho=s.rho, Q=s.Q, alpha=s.alpha, beta=s.beta, progress=progress
+    )
     eta = visibility(objective.z_train, pool) if s.beta else None
     res = colony.minimize(obj, pool.shape[0], m, eta=eta, generator=g, state=resume, on_state=on_state)
     centers = pool[res.best.to(pool.device)]
@@ -189,27 +201,41 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     def unpack(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         c = x[:, : m * d].reshape(-1, m, d)
         if r.search_widths == "per_center":
-            w = x[:, m * d:].exp()
+            w = x[:, m * d :].exp()
         elif r.search_widths == "scale":
-            w = (w0 * x[:, m * d:].exp()).clamp(max=max_width)
+            w = (w0 * x[:, m * d :].exp()).clamp(max=max_width)
         else:
             w = w0.expand(x.shape[0], m)
         return c, w
 
     if a.objective == "fit":
+
         def obj(x: torch.Tensor) -> torch.Tensor:
             return ranked(*unpack(x))
     else:
+
         def obj(x: torch.Tensor) -> torch.Tensor:
             return cluster_objective(z, unpack(x)[0])
 
     seed_vec = torch.cat([c0.reshape(-1), w_seed])
-    spread = torch.cat([(r.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
-                        torch.full((n_w,), r.init_spread, dtype=z.dtype, device=z.device)])
+    spread = torch.cat(
+        [
+            (r.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
+            torch.full((n_w,), r.init_spread, dtype=z.dtype, device=z.device),
+        ]
+    )
     noise = torch.randn(r.archive_size - 1, seed_vec.shape[0], dtype=z.dtype, generator=g).to(z.device)
     init = torch.cat([seed_vec[None], seed_vec + spread * noise])
-    colony = ACOR(archive_size=r.archive_size, ants=a.ants, q=r.q, xi=r.xi, iterations=a.iterations,
-                  lower=lower, upper=upper, progress=progress)
+    colony = ACOR(
+        archive_size=r.archive_size,
+        ants=a.ants,
+        q=r.q,
+        xi=r.xi,
+        iterations=a.iterations,
+        lower=lower,
+        upper=upper,
+        progress=progress,
+    )
     res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     c, w = unpack(res.best[None])
     return c[0], w[0].clamp(max=max_width), res
@@ -238,14 +264,15 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
     rel = (w0 / w_med).log()
 
     def widths_of(x: torch.Tensor) -> torch.Tensor:
-        return (w_med * (x[:, :1] + (1 + x[:, 1:]) * rel).exp()).clamp(max=max_width)   # (K, M)
+        return (w_med * (x[:, :1] + (1 + x[:, 1:]) * rel).exp()).clamp(max=max_width)  # (K, M)
 
     def obj(x: torch.Tensor) -> torch.Tensor:
         return objective(c0.expand(x.shape[0], *c0.shape), widths_of(x))
 
     noise = torch.randn(k - 1, 2, dtype=z.dtype, generator=g).to(z.device)
     init = torch.cat([torch.zeros(1, 2, dtype=z.dtype, device=z.device), 0.2 * noise])
-    colony = ACOR(archive_size=k, ants=ants, q=r.q, xi=r.xi, iterations=iterations,
-                  lower=lower, upper=upper, progress=progress)
+    colony = ACOR(
+        archive_size=k, ants=ants, q=r.q, xi=r.xi, iterations=iterations, lower=lower, upper=upper, progress=progress
+    )
     res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     return c0, widths_of(res.best[None])[0], res

@@ -12,6 +12,7 @@ targets that did not converge are tried again from random joints in the box, as 
 would, so only the hard few pay for it. Runs where torch and the robot model are available;
 deployed exports hold the network alone.
 """
+
 from __future__ import annotations
 
 import copy
@@ -28,7 +29,7 @@ from .robots.robot import Robot, robot_from_record
 __all__ = ["IKSolver", "load_solver", "DEFAULT_ITERATIONS", "MAX_ITERATIONS"]
 
 DEFAULT_ITERATIONS = 3
-MAX_ITERATIONS = 1000     # per call and per restart: a guard against typos (the polish converges in a few)
+MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the polish converges in a few)
 
 
 def _count(name: str, v) -> int:
@@ -46,15 +47,18 @@ def _positive(name: str, v, zero: bool = False) -> float:
 class IKSolver:
     """The IK network of a checkpoint plus damped-least-squares polish on the robot's kinematics."""
 
-    def __init__(self, model: RBFNetwork, robot: Robot, tol_mm: float = 0.1, tol_deg: float = 0.1,
-                 damping: float = 1e-8) -> None:
+    def __init__(
+        self, model: RBFNetwork, robot: Robot, tol_mm: float = 0.1, tol_deg: float = 0.1, damping: float = 1e-8
+    ) -> None:
         if not isinstance(model, RBFNetwork):
             raise TypeError(f"model must be an RBFNetwork, got {type(model).__name__}")
         if not isinstance(robot, Robot):
             raise TypeError(f"robot must be a rbfn.robots.robot.Robot, got {type(robot).__name__}")
         if model.out_features != len(robot.joint_names):
-            raise ValueError(f"the model returns {model.out_features} joints, the robot has {len(robot.joint_names)} "
-                             f"free joints ({robot.joint_names})")
+            raise ValueError(
+                f"the model returns {model.out_features} joints, the robot has {len(robot.joint_names)} "
+                f"free joints ({robot.joint_names})"
+            )
         self.model, self.robot = model, robot
         self.tol_mm, self.tol_deg = _positive("tol_mm", tol_mm), _positive("tol_deg", tol_deg)
         self.damping = _positive("damping", damping, zero=True)
@@ -67,7 +71,7 @@ class IKSolver:
         if not self.pose_target:
             return e_pos, jac, e_pos.norm(dim=-1), None
         r_err = tf.quaternion_to_matrix(x[:, 3:]) @ pose[:, :3, :3].transpose(-1, -2)
-        e_rot = tf.matrix_to_axis_angle(r_err)                     # (B, 3), world frame
+        e_rot = tf.matrix_to_axis_angle(r_err)  # (B, 3), world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
     def _polish(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -86,8 +90,14 @@ class IKSolver:
         return q, ok
 
     @torch.no_grad()
-    def solve(self, targets, iterations: int = DEFAULT_ITERATIONS, restarts: int = 0,
-              restart_iterations: int = 20, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    def solve(
+        self,
+        targets,
+        iterations: int = DEFAULT_ITERATIONS,
+        restarts: int = 0,
+        restart_iterations: int = 20,
+        seed: int = 0,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math).
 
         restarts: for the targets not converged after `iterations` steps from the network's answer,
@@ -108,8 +118,9 @@ class IKSolver:
             todo = (~ok).nonzero().squeeze(-1)
             if todo.numel() == 0:
                 break
-            start = low + (high - low) * torch.rand(todo.numel(), low.shape[0], generator=g, dtype=torch.float64,
-                                                    device=dev)
+            start = low + (high - low) * torch.rand(
+                todo.numel(), low.shape[0], generator=g, dtype=torch.float64, device=dev
+            )
             q_r, ok_r = self._polish(start, x[todo], restart_iterations)
             q[todo[ok_r]], ok[todo[ok_r]] = q_r[ok_r], True
         return q, ok

@@ -21,6 +21,7 @@ values it does not take, an output that is a directory or write-protected withou
 one-line error, exit status 2, and nothing is written. The outputs are written all or none: each to
 a temporary file beside it, renamed over the old one once every output is written.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,8 +41,14 @@ from .scripts import fail
 
 __all__ = ["Job", "compare", "find_jobs", "load_jobs", "main", "summarize"]
 
-DEFAULT_METRICS = ("test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max",
-                   "test_pos_err_mm_median_float32", "select_seconds", "train_seconds")
+DEFAULT_METRICS = (
+    "test_pos_err_mm_median",
+    "test_pos_err_mm_p95",
+    "test_pos_err_mm_max",
+    "test_pos_err_mm_median_float32",
+    "select_seconds",
+    "train_seconds",
+)
 
 
 def _parse_overrides(lines) -> dict[str, str]:
@@ -68,7 +75,7 @@ class Job:
 
     path: Path
     overrides: dict[str, str]
-    status: str                  # "completed", "failed", "unfinished" or "malformed"
+    status: str  # "completed", "failed", "unfinished" or "malformed"
     metrics: dict | None = None
     error: str = ""
 
@@ -107,8 +114,12 @@ def _load_job(d: Path) -> Job:
         except ValueError as e:
             return Job(d, _overrides(d), "malformed", error=f"metrics.json is not valid JSON: {e}")
         if not isinstance(got, dict):
-            return Job(d, _overrides(d), "malformed", error=f"metrics.json holds a JSON {_json_type(got)}, not an "
-                                                            "object of metrics")
+            return Job(
+                d,
+                _overrides(d),
+                "malformed",
+                error=f"metrics.json holds a JSON {_json_type(got)}, not an object of metrics",
+            )
         return Job(d, _overrides(d), "completed", got)
     if failed.is_file():
         try:
@@ -116,13 +127,15 @@ def _load_job(d: Path) -> Job:
         except (OSError, ValueError) as e:
             return Job(d, _overrides(d), "failed", error=f"unreadable failed.json: {e}")
         if not isinstance(rec, dict):
-            return Job(d, _overrides(d), "failed", error=f"unreadable failed.json: a JSON {_json_type(rec)}, not an "
-                                                         "object")
+            return Job(
+                d, _overrides(d), "failed", error=f"unreadable failed.json: a JSON {_json_type(rec)}, not an object"
+            )
         over = _parse_overrides(rec["overrides"]) if isinstance(rec.get("overrides"), list) else {}
         return Job(d, over or _overrides(d), "failed", error=f"{rec.get('error', 'error')}: {rec.get('message', '')}")
-    error = _last_log_error(d) or ("no metrics.json: still running, or stopped without an error (killed, "
-                                   "timed out)" + ("; a rerun resumes from its last.pt" if (d / "last.pt").is_file()
-                                                   else ""))
+    error = _last_log_error(d) or (
+        "no metrics.json: still running, or stopped without an error (killed, "
+        "timed out)" + ("; a rerun resumes from its last.pt" if (d / "last.pt").is_file() else "")
+    )
     return Job(d, _overrides(d), "unfinished", error=error)
 
 
@@ -131,15 +144,22 @@ def _not_json(token: str):
 
 
 def _json_type(v) -> str:
-    return {bool: "boolean", int: "number", float: "number", str: "string", list: "array", dict: "object",
-            type(None): "null"}[type(v)]
+    return {
+        bool: "boolean",
+        int: "number",
+        float: "number",
+        str: "string",
+        list: "array",
+        dict: "object",
+        type(None): "null",
+    }[type(v)]
 
 
 def _is_number(v) -> bool:
     """A finite JSON number (bool is not one)."""
     try:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-    except OverflowError:        # an int beyond float's range
+    except OverflowError:  # an int beyond float's range
         return False
 
 
@@ -240,8 +260,11 @@ def compare(jobs, key: str, a: str, b: str, metrics=DEFAULT_METRICS, ignore=("se
     for g in sorted(groups, key=_order_all):
         stats = {}
         for metric in metrics:
-            pairs = [(float(ma[metric]), float(mb[metric])) for ma, mb in groups[g]
-                     if ma.get(metric) is not None and mb.get(metric) is not None]
+            pairs = [
+                (float(ma[metric]), float(mb[metric]))
+                for ma, mb in groups[g]
+                if ma.get(metric) is not None and mb.get(metric) is not None
+            ]
             if pairs:
                 mean, std = _mean_std([x - y for x, y in pairs])
                 ratio = sum(x / y for x, y in pairs) / len(pairs) if all(y for _, y in pairs) else math.nan
@@ -269,8 +292,9 @@ def to_markdown(swept, rows, metrics) -> str:
     head = [*swept, "n", *metrics]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for g, n, stats in rows:
-        cells = [*map(_cell, g), str(n)] + [f"{stats[k][0]:.4g} ± {stats[k][1]:.2g}" if k in stats else ""
-                                            for k in metrics]
+        cells = [*map(_cell, g), str(n)] + [
+            f"{stats[k][0]:.4g} ± {stats[k][1]:.2g}" if k in stats else "" for k in metrics
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -281,12 +305,16 @@ def _cell(text: str) -> str:
 
 def failures_to_markdown(jobs: list[Job], sweep_dir: Path) -> str:
     """The jobs left out of the tables: job, status, the overrides that vary across the sweep, error."""
-    known = [j.overrides for j in jobs if j.overrides]       # a job killed at its start may have none
+    known = [j.overrides for j in jobs if j.overrides]  # a job killed at its start may have none
     keys = sorted({k for o in known for k in o})
     varying = [k for k in keys if len({o.get(k) for o in known}) > 1]
     bad = [j for j in jobs if j.status != "completed"]
-    lines = [f"Jobs not summarized ({len(bad)} of {len(jobs)})", "", "| job | status | overrides | error |",
-             "|---|---|---|---|"]
+    lines = [
+        f"Jobs not summarized ({len(bad)} of {len(jobs)})",
+        "",
+        "| job | status | overrides | error |",
+        "|---|---|---|---|",
+    ]
     for j in bad:
         shown = [k for k in (varying or keys) if k in j.overrides]
         over = " ".join(f"{k}={j.overrides[k]}" for k in shown)
@@ -316,15 +344,21 @@ def plot_against_m(swept, rows, metric: str) -> bytes | None:
     for g, _, stats in rows:
         m = _num(g[i_m])
         if metric in stats and isinstance(m, float) and m > 0:
-            lines[g[:i_m] + g[i_m + 1:]].append((m, *stats[metric]))
+            lines[g[:i_m] + g[i_m + 1 :]].append((m, *stats[metric]))
     if not lines:
         return None
     fig = Figure(figsize=(6.4, 4.8), layout="constrained")
     ax = fig.subplots()
     for label, pts in sorted(lines.items()):
         pts.sort()
-        ax.errorbar([p[0] for p in pts], [p[1] for p in pts], yerr=[p[2] for p in pts], marker="o",
-                    capsize=3, label=", ".join(label) or "all")
+        ax.errorbar(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            yerr=[p[2] for p in pts],
+            marker="o",
+            capsize=3,
+            label=", ".join(label) or "all",
+        )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("M (hidden nodes)")
@@ -345,15 +379,18 @@ def _metrics(p: argparse.ArgumentParser, asked: list[str] | None, jobs: list[Job
     """The metrics to summarize: those asked for (each a number in some job, else a usage error
     naming the numbers the jobs hold), or the default ones that some job holds."""
     if asked is None:
-        held = {k for j in jobs for k in cast(dict, j.metrics)}   # completed jobs: metrics read
+        held = {k for j in jobs for k in cast(dict, j.metrics)}  # completed jobs: metrics read
         return [k for k in DEFAULT_METRICS if k in held] if jobs else list(DEFAULT_METRICS)
     asked = list(dict.fromkeys(asked))
     numeric = sorted({k for j in jobs for k, v in cast(dict, j.metrics).items() if _is_number(v)})
     unknown = [k for k in asked if k not in numeric]
     if jobs and unknown:
         names = ", ".join(repr(k) + _did_you_mean(repr(k), map(repr, numeric)) for k in unknown)
-        fail(p, f"--metrics: no number named {names} in any job's metrics.json; the jobs' numeric metrics are: "
-                 f"{', '.join(numeric) or 'none'}")
+        fail(
+            p,
+            f"--metrics: no number named {names} in any job's metrics.json; the jobs' numeric metrics are: "
+            f"{', '.join(numeric) or 'none'}",
+        )
     return asked
 
 
@@ -369,43 +406,75 @@ def _compare_pair(p: argparse.ArgumentParser, spec: str, jobs) -> tuple[str, str
             taken[k].add(v)
     swept = sorted(k for k in taken if len({o.get(k) for o, _ in jobs}) > 1)
     if key not in swept:
-        fail(p, f"--compare {spec}: {key} is not a swept override{_did_you_mean(key, swept)}; swept: "
-                 f"{', '.join(swept) or 'none'}" + ("" if jobs else " (no completed job)"))
-    pairs = [(values[:i], values[i + 1:]) for i, c in enumerate(values) if c == ","]
+        fail(
+            p,
+            f"--compare {spec}: {key} is not a swept override{_did_you_mean(key, swept)}; swept: "
+            f"{', '.join(swept) or 'none'}" + ("" if jobs else " (no completed job)"),
+        )
+    pairs = [(values[:i], values[i + 1 :]) for i, c in enumerate(values) if c == ","]
     pair = next((ab for ab in pairs if ab[0] != ab[1] and set(ab) <= taken[key]), None)
     if pair is None:
-        fail(p, f"--compare {spec}: expected {key}=A,B with A and B two different values of {key}: "
-                 f"{', '.join(sorted(taken[key], key=_order))}")
+        fail(
+            p,
+            f"--compare {spec}: expected {key}=A,B with A and B two different values of {key}: "
+            f"{', '.join(sorted(taken[key], key=_order))}",
+        )
     return key, *pair
 
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
-        prog="python -m rbfn.summarize", description=__doc__.splitlines()[0],
+        prog="python -m rbfn.summarize",
+        description=__doc__.splitlines()[0],
         epilog="Jobs whose metrics.json is damaged are listed as malformed and left out of the tables. A bad "
-               "argument is an error (exit status 2) that writes nothing; the outputs are replaced all together "
-               "or not at all (exit status 1 if writing them fails).")
-    p.add_argument("sweep_dir", type=Path, metavar="SWEEP_DIR",
-                   help="a Hydra multirun directory (hydra.sweep.dir), one subdirectory per job")
-    p.add_argument("--metrics", nargs="+", default=None, metavar="KEY",
-                   help="numeric keys of the jobs' metrics.json to tabulate (default: whichever of "
-                        f"{', '.join(DEFAULT_METRICS)} the jobs have)")
-    p.add_argument("--out", type=Path, default=None, metavar="PREFIX",
-                   help="write PREFIX.md, PREFIX.csv and, when rbfn.num_centers is swept, PREFIX.png "
-                        "(default SWEEP_DIR/summary)")
-    p.add_argument("--compare", action="append", default=[], metavar="KEY=A,B",
-                   help="paired table of KEY=A against KEY=B over jobs equal in every other override "
-                        "(KEY a swept override; repeatable)")
-    p.add_argument("--force", action="store_true",
-                   help="write even over write-protected outputs or into a write-protected directory (replaced "
-                        "files keep their mode)")
+        "argument is an error (exit status 2) that writes nothing; the outputs are replaced all together "
+        "or not at all (exit status 1 if writing them fails).",
+    )
+    p.add_argument(
+        "sweep_dir",
+        type=Path,
+        metavar="SWEEP_DIR",
+        help="a Hydra multirun directory (hydra.sweep.dir), one subdirectory per job",
+    )
+    p.add_argument(
+        "--metrics",
+        nargs="+",
+        default=None,
+        metavar="KEY",
+        help="numeric keys of the jobs' metrics.json to tabulate (default: whichever of "
+        f"{', '.join(DEFAULT_METRICS)} the jobs have)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        metavar="PREFIX",
+        help="write PREFIX.md, PREFIX.csv and, when rbfn.num_centers is swept, PREFIX.png (default SWEEP_DIR/summary)",
+    )
+    p.add_argument(
+        "--compare",
+        action="append",
+        default=[],
+        metavar="KEY=A,B",
+        help="paired table of KEY=A against KEY=B over jobs equal in every other override "
+        "(KEY a swept override; repeatable)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write even over write-protected outputs or into a write-protected directory (replaced "
+        "files keep their mode)",
+    )
     a = p.parse_args(argv)
     if not a.sweep_dir.is_dir():
         fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))
     found = find_jobs(a.sweep_dir)
     if not found:
-        fail(p, f"SWEEP_DIR {a.sweep_dir}: no job directories under it (none holds a metrics.json, failed.json, "
-                 ".hydra/overrides.yaml, last.pt or log file)")
+        fail(
+            p,
+            f"SWEEP_DIR {a.sweep_dir}: no job directories under it (none holds a metrics.json, failed.json, "
+            ".hydra/overrides.yaml, last.pt or log file)",
+        )
     metrics = _metrics(p, a.metrics, [j for j in found if j.status == "completed"])
     for j in found:
         if j.status == "completed" and _bad_metric(cast(dict, j.metrics), metrics):

@@ -7,6 +7,7 @@ the quaternion itself, with its q / -q ambiguity: the matrix is quadratic in q, 
 the same features). `rotation_scale` sets how many metres one unit of rotation feature weighs in
 the Gaussians' distances (0.3 m: a 10 deg turn moves the features as far as about 5 cm).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,7 +16,7 @@ from torch import nn
 
 __all__ = ["TargetFeatures", "quaternion_columns", "UNIT_TOL"]
 
-UNIT_TOL = 1e-3        # |q| may differ from 1 by this much (rounding, float32); farther is an error
+UNIT_TOL = 1e-3  # |q| may differ from 1 by this much (rounding, float32); farther is an error
 
 
 def quaternion_columns(quat: torch.Tensor) -> torch.Tensor:
@@ -23,20 +24,34 @@ def quaternion_columns(quat: torch.Tensor) -> torch.Tensor:
     normalised first; the same for q and -q."""
     q = quat / quat.norm(dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
-    return torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y),
-                        2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], -1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y + w * z),
+            2 * (x * z - w * y),
+            2 * (x * y - w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z + w * x),
+        ],
+        -1,
+    )
 
 
 class TargetFeatures(nn.Module):
     """Targets (B, 3) -> features (B, 3) (identity), or (B, 7) -> (B, 9) for pose targets."""
 
-    rotation_scale: torch.Tensor      # a buffer, registered for pose targets only
+    rotation_scale: torch.Tensor  # a buffer, registered for pose targets only
 
-    def __init__(self, pose: bool = False, rotation_scale: float = 0.3, dtype: torch.dtype = torch.float64,
-                 device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self,
+        pose: bool = False,
+        rotation_scale: float = 0.3,
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+    ) -> None:
         super().__init__()
         self.pose = pose
-        if pose:      # position targets carry no state, so their networks' state_dicts stay as they were
+        if pose:  # position targets carry no state, so their networks' state_dicts stay as they were
             self.register_buffer("rotation_scale", torch.tensor(float(rotation_scale), dtype=dtype, device=device))
 
     @property
@@ -58,10 +73,13 @@ class TargetFeatures(nn.Module):
         if isinstance(x, np.ndarray):
             x = torch.from_numpy(x)
         if not isinstance(x, torch.Tensor):
-            raise TypeError(f"IK targets must be a torch.Tensor or numpy array of shape (B, {self.in_features}), "
-                            f"got {type(x).__name__}")
-        what = "poses (B, 7): position in m, then a unit quaternion (w, x, y, z)" if self.pose \
-            else "positions (B, 3) in m"
+            raise TypeError(
+                f"IK targets must be a torch.Tensor or numpy array of shape (B, {self.in_features}), "
+                f"got {type(x).__name__}"
+            )
+        what = (
+            "poses (B, 7): position in m, then a unit quaternion (w, x, y, z)" if self.pose else "positions (B, 3) in m"
+        )
         if x.dim() != 2 or x.shape[1] != self.in_features:
             hint = " (a pose network takes position and quaternion)" if self.pose and x.shape[-1:] == (3,) else ""
             raise ValueError(f"IK targets must be {what}; got shape {tuple(x.shape)}{hint}")
@@ -76,6 +94,8 @@ class TargetFeatures(nn.Module):
             off = (norm - 1).abs() > UNIT_TOL
             if bool(off.any()):
                 i = int(off.nonzero()[0])
-                raise ValueError(f"IK target quaternions must be unit length (w, x, y, z); row {i} has norm "
-                                 f"{float(norm[i]):.6g} ({x[i, 3:].tolist()}); normalise it first")
+                raise ValueError(
+                    f"IK target quaternions must be unit length (w, x, y, z); row {i} has norm "
+                    f"{float(norm[i]):.6g} ({x[i, 3:].tolist()}); normalise it first"
+                )
         return x

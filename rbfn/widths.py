@@ -3,6 +3,7 @@
 Every rule returns a base width per centre (M,); a scale s multiplies it. The paper's rule is
 s = 1 with the global base; "validation" chooses s on the validation split (see `fit_widths`).
 """
+
 from __future__ import annotations
 
 import torch
@@ -49,7 +50,9 @@ def check_max_width(z: torch.Tensor, max_width: float, m: int) -> None:
     diag = float((z.amax(0) - z.amin(0)).norm())
     floor = 0.5 * MIN_WIDTH_SCALE * diag / (2.0 * m) ** 0.5
     if max_width < floor:
-        raise ValueError(f"rbfn.max_width={max_width!r} is not allowed: it caps every width below {floor:.3g} "
-                         f"(1/{1 / (0.5 * MIN_WIDTH_SCALE):g} of the paper's width d_max / sqrt(2M) = "
-                         f"{diag / (2.0 * m) ** 0.5:.3g} scaled units for these inputs at M = {m}), where "
-                         f"the Gaussians vanish between centres; use at least {floor:.3g}")
+        raise ValueError(
+            f"rbfn.max_width={max_width!r} is not allowed: it caps every width below {floor:.3g} "
+            f"(1/{1 / (0.5 * MIN_WIDTH_SCALE):g} of the paper's width d_max / sqrt(2M) = "
+            f"{diag / (2.0 * m) ** 0.5:.3g} scaled units for these inputs at M = {m}), where "
+            f"the Gaussians vanish between centres; use at least {floor:.3g}"
+        )

@@ -1,4 +1,5 @@
 """Shared fixtures: the SCARA chain, a small data set, and Hydra composition of the two entry points."""
+
 from pathlib import Path
 
 import pytest
@@ -56,9 +57,22 @@ def panda_ckpt(tmp_path_factory):
     from rbfn.checkpoint import read_checkpoint
 
     out = tmp_path_factory.mktemp("panda")
-    train.run(compose_config("train", "robot=panda", "centers=kmeans", "rbfn.num_centers=40", "rbfn.growth.start=0",
-                             "data.n_train=1500", "data.n_val=500", "data.n_test=200", "progress=false",
-                             "export=false", "num_threads=1"), out)
+    train.run(
+        compose_config(
+            "train",
+            "robot=panda",
+            "centers=kmeans",
+            "rbfn.num_centers=40",
+            "rbfn.growth.start=0",
+            "data.n_train=1500",
+            "data.n_val=500",
+            "data.n_test=200",
+            "progress=false",
+            "export=false",
+            "num_threads=1",
+        ),
+        out,
+    )
     return read_checkpoint(out / "checkpoint.pt")
 
 

@@ -1,6 +1,7 @@
 """Run code that might read an endless file (/dev/zero) or block on a FIFO in a child process with
 a memory cap and a deadline, so that a loader doing so fails the test instead of exhausting the
 machine's memory or hanging it."""
+
 import os
 import subprocess
 import sys
@@ -21,8 +22,14 @@ def run_guarded(code: str, timeout: float = 60.0) -> str:
     OpenBLAS reserves buffers per thread, which on a many-core machine alone exceed the cap."""
     one = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
     try:
-        done = subprocess.run([sys.executable, "-c", _PRELUDE + code], capture_output=True, text=True,
-                              timeout=timeout, check=False, env={**os.environ, **one})
+        done = subprocess.run(
+            [sys.executable, "-c", _PRELUDE + code],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            check=False,
+            env={**os.environ, **one},
+        )
     except subprocess.TimeoutExpired:
         pytest.fail(f"still running after {timeout} s (blocked on a FIFO?):\n{code}")
     return done.stdout + done.stderr

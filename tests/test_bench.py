@@ -1,4 +1,5 @@
 """The benchmark suite runs end to end at tiny sizes and writes its report (no timing asserted)."""
+
 import json
 
 import pytest
@@ -8,12 +9,27 @@ from bench.run import merge, run_suite, targets, to_markdown, write_report
 from bench.timing import fit_exponent
 
 TINY = {
-    "ik": {"batch": 500, "num_centers": 10, "refine": False, "repeats": 1, "pk_batch": 10, "pk_retries": 2,
-           "pk_repeats": 1, "compiled": False, "onnx": False},
-    "select": {"ns": (300, 400), "ms": (5,), "max_full_s": 0.0, "always_full": ((300, 5),), "probe": 2,
-               "repeats": 1},
-    "sim": {"steps_for": {1: 5, 8: 5}, "repeats": 1, "scenario_s": 0.02, "scenario_repeats": 1,
-            "compile_cap_s": 0.0, "scipy_s": 0.05, "mujoco_steps_for": {1: 5, 8: 2}},
+    "ik": {
+        "batch": 500,
+        "num_centers": 10,
+        "refine": False,
+        "repeats": 1,
+        "pk_batch": 10,
+        "pk_retries": 2,
+        "pk_repeats": 1,
+        "compiled": False,
+        "onnx": False,
+    },
+    "select": {"ns": (300, 400), "ms": (5,), "max_full_s": 0.0, "always_full": ((300, 5),), "probe": 2, "repeats": 1},
+    "sim": {
+        "steps_for": {1: 5, 8: 5},
+        "repeats": 1,
+        "scenario_s": 0.02,
+        "scenario_repeats": 1,
+        "compile_cap_s": 0.0,
+        "scipy_s": 0.05,
+        "mujoco_steps_for": {1: 5, 8: 2},
+    },
     "scaling": {"ns": (200, 300), "ms": (3, 5), "ks": (2, 4), "repeats": 1},
 }
 
@@ -25,7 +41,7 @@ def test_exponent_fit_recovers_a_power_law():
 def test_suite_runs_at_tiny_sizes(tmp_path):
     res = run_suite(TINY, "cpu", 1, tmp_path)
     ik = {r["method"].split(" (")[0].split(",")[0]: r for r in res["sections"]["ik"]}
-    assert ik["closed-form SCARA IK"]["median_err_mm"] < 1e-2          # exact up to float32 rounding
+    assert ik["closed-form SCARA IK"]["median_err_mm"] < 1e-2  # exact up to float32 rounding
     assert ik["pytorch-kinematics PseudoInverseIK"]["median_err_mm"] < 1.0
     assert all(r["queries_per_s"] is None or r["queries_per_s"] > 0 for r in ik.values())
     sel = res["sections"]["select"]
@@ -34,14 +50,13 @@ def test_suite_runs_at_tiny_sizes(tmp_path):
     sim = res["sections"]["sim"]
     assert [r["B"] for r in sim["steps"]] == [1, 8] and sim["scipy"]["ok"]
     assert set(res["sections"]["scaling"]) == {"N", "M", "K", "B"}
-    saved = json.loads((tmp_path / "benchmarks.json").read_text())       # written as results came in
+    saved = json.loads((tmp_path / "benchmarks.json").read_text())  # written as results came in
     assert saved["machine"]["threads"] == torch.get_num_threads() and not saved["errors"]
-    write_report(merge([saved]), tmp_path)                                 # what --merge writes
+    write_report(merge([saved]), tmp_path)  # what --merge writes
     assert (tmp_path / "scaling_cpu.png").stat().st_size > 0
     assert (tmp_path / "benchmarks.md").read_text().count("## ") >= 5
     text = to_markdown(res, "python -m bench (tiny)")
-    for heading in ("IK queries per second", "Centre selection time", "Closed-loop simulator", "Scaling",
-                    "Targets"):
+    for heading in ("IK queries per second", "Centre selection time", "Closed-loop simulator", "Scaling", "Targets"):
         assert heading in text
     assert all(t["met"] in (True, False, None) for t in targets(res))
 

@@ -27,6 +27,7 @@ def test_kmeans_and_random_shapes():
 
 def test_kmeans_restarts_capped_on_large_problems():
     from rbfn.centers import kmeans_restarts
-    assert kmeans_restarts(2000, 80, 3, 10) == 10          # the SCARA's default: unchanged
-    assert kmeans_restarts(20000, 2000, 9, 10) == 1        # the UR5's
+
+    assert kmeans_restarts(2000, 80, 3, 10) == 10  # the SCARA's default: unchanged
+    assert kmeans_restarts(20000, 2000, 9, 10) == 1  # the UR5's
     assert kmeans_restarts(20000, 200, 9, 10) == 5

@@ -1,4 +1,5 @@
 """Checkpoints: weights-only loadable, written atomically, and every broken file says what is wrong."""
+
 import os
 import re
 import reprlib
@@ -28,7 +29,7 @@ from rbfn.resume import StateFile, TrainState
 from rbfn.robots.robot import load_robot
 from tests.guarded import run_guarded
 
-ROBOT = load_robot(RobotConfig()).record()          # the SCARA: 3 free joints, position targets
+ROBOT = load_robot(RobotConfig()).record()  # the SCARA: 3 free joints, position targets
 
 
 def _resave(raw, path):
@@ -60,14 +61,17 @@ def test_round_trip_weights_only(ckpt):
 def test_load_model_dtype(ckpt):
     path, net = ckpt
     x = torch.randn(4, 3, dtype=torch.float64)
-    model = load_model(path)                                # float32 for inference by default
+    model = load_model(path)  # float32 for inference by default
     assert model.centers.dtype == torch.float32 and model(x).dtype == torch.float32
     assert all(t.dtype == torch.float32 for t in model.state_dict().values())
     assert (model(x).double() - net(x).detach()).abs().max() < 1e-5
     assert load_model(path, dtype=torch.float64).centers.dtype == torch.float64
     for bad in (torch.float16, torch.int64, "float32", 64):
-        with pytest.raises(ValueError, match=rf"load_model\(dtype={re.escape(repr(bad))}\): allowed are torch.float32 "
-                                             r"\(the default\) and torch.float64"):
+        with pytest.raises(
+            ValueError,
+            match=rf"load_model\(dtype={re.escape(repr(bad))}\): allowed are torch.float32 "
+            r"\(the default\) and torch.float64",
+        ):
             load_model(path, dtype=bad)
 
 
@@ -141,11 +145,11 @@ from rbfn.checkpoint import save_checkpoint
 from rbfn.layer import RBFNetwork
 net = RBFNetwork(torch.randn(20000, 3, dtype=torch.float64), torch.ones(20000, dtype=torch.float64), 3)
 while True:
-    save_checkpoint({str(tmp_path / 'checkpoint.pt')!r}, net, {ROBOT!r}, {{}}, {{}})
+    save_checkpoint({str(tmp_path / "checkpoint.pt")!r}, net, {ROBOT!r}, {{}}, {{}})
     print("wrote", flush=True)
 """
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
-    assert proc.stdout.readline().strip() == "wrote"     # one complete file, the next write under way
+    assert proc.stdout.readline().strip() == "wrote"  # one complete file, the next write under way
     time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
@@ -171,7 +175,7 @@ def test_flipped_byte_in_the_seal_region_is_damage_not_a_foreign_file(ckpt):
 
 def test_plain_torch_save_is_not_an_aco_rbfn_checkpoint(ckpt):
     path, _ = ckpt
-    torch.save(torch.load(path, weights_only=True), path)   # valid zip archive, no seal
+    torch.save(torch.load(path, weights_only=True), path)  # valid zip archive, no seal
     with pytest.raises(ValueError, match="is not an aco-rbfn checkpoint: it has no aco-rbfn seal") as e:
         read_checkpoint(path)
     assert str(path) in str(e.value) and "torch.save" in str(e.value) and "truncated" not in str(e.value)
@@ -189,7 +193,7 @@ def test_sealed_file_with_objects_is_refused_without_suggesting_unsafe_load(tmp_
     msg = str(e.value)
     assert str(path) in msg and "for safety" in msg and "_Opaque" in msg
     assert "weights_only" not in msg
-    assert e.value.__cause__ is None and e.value.__suppress_context__   # torch's advice not chained either
+    assert e.value.__cause__ is None and e.value.__suppress_context__  # torch's advice not chained either
 
 
 def test_training_state_is_not_a_checkpoint(tmp_path):
@@ -199,8 +203,15 @@ def test_training_state_is_not_a_checkpoint(tmp_path):
             read(tmp_path / "last.pt")
 
 
-@pytest.mark.parametrize("key,value", [("head.weight", float("nan")), ("centers", float("inf")),
-                                       ("in_low", float("inf")), ("cover_radius", float("nan"))])
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        ("head.weight", float("nan")),
+        ("centers", float("inf")),
+        ("in_low", float("inf")),
+        ("cover_radius", float("nan")),
+    ],
+)
 def test_non_finite_weights_are_refused(ckpt, key, value):
     path, _ = ckpt
     raw = torch.load(path, weights_only=True)
@@ -270,11 +281,14 @@ def test_rewritten_file_keeps_its_mode(tmp_path):
     assert path.stat().st_mode & 0o777 == 0o640 and path.read_bytes() == b"y"
 
 
-@pytest.mark.parametrize("args,match", [
-    ({"num_centers": 6}, r"centers has shape \(5, 3\), but model_args .* give \(6, 3\)"),
-    ({"tail": False}, r"unexpected keys \['tail.weight'\]"),
-    ({"out_features": "3"}, r"out_features='3'; expected a positive integer"),
-])
+@pytest.mark.parametrize(
+    "args,match",
+    [
+        ({"num_centers": 6}, r"centers has shape \(5, 3\), but model_args .* give \(6, 3\)"),
+        ({"tail": False}, r"unexpected keys \['tail.weight'\]"),
+        ({"out_features": "3"}, r"out_features='3'; expected a positive integer"),
+    ],
+)
 def test_model_args_disagree_with_state_dict(ckpt, args, match):
     path, _ = ckpt
     raw = torch.load(path, weights_only=True)
@@ -318,7 +332,9 @@ for load in (read_checkpoint, load_solver, lambda p: robot_from_record(load_seal
 """)
     lines = out.strip().splitlines()
     assert len(lines) == 3 and "loaded" not in out, out
-    refused = rf"robot\.urdf: {re.escape(reprlib.repr(target))} is not URDF text; allowed: XML whose root element is <robot>"
+    refused = (
+        rf"robot\.urdf: {re.escape(reprlib.repr(target))} is not URDF text; allowed: XML whose root element is <robot>"
+    )
     assert all(re.search(refused, line) for line in lines), out
     assert all(line.startswith(f"ValueError: {path}: ") for line in lines[:2]), out
 
@@ -327,28 +343,81 @@ _BAD_FIELDS = [
     ("urdf", 42, r"robot\.urdf=42 is not allowed; allowed: the URDF's text \(a str of XML"),
     ("urdf", b"<robot/>", r"robot\.urdf=b'<robot/>' is not allowed; allowed: the URDF's text"),
     ("urdf", "<robot name='r'><link name='a'/>", r"robot\.urdf: malformed URDF: .*line 1"),
-    ("urdf", "<rbt><link name='quill'/></rbt>", r"robot\.urdf: malformed URDF: the root element is <rbt>; a URDF's is <robot>"),
-    ("urdf", "<robot name='r'><link name='a'/></robot>" + " " * (16 << 20),
-     r"robot\.urdf: the URDF has 16777256 bytes or characters or more; allowed: at most MAX_URDF_BYTES = 16777216"),
+    (
+        "urdf",
+        "<rbt><link name='quill'/></rbt>",
+        r"robot\.urdf: malformed URDF: the root element is <rbt>; a URDF's is <robot>",
+    ),
+    (
+        "urdf",
+        "<robot name='r'><link name='a'/></robot>" + " " * (16 << 20),
+        r"robot\.urdf: the URDF has 16777256 bytes or characters or more; allowed: at most MAX_URDF_BYTES = 16777216",
+    ),
     ("end_link", 3, r"robot\.end_link=3 is not allowed; allowed: the name of a link of the URDF"),
     ("end_link", "gripper", r"robot\.urdf: end_link 'gripper' is not a link of the URDF; links: \['base', 'link1'"),
-    ("joint_low", [0.0, float("nan"), 0.5], (r"robot\.joint_low=\[0\.0, nan, 0\.5\] is not allowed; allowed: a list of "
-                                            r"finite numbers \(rad or m\), one per free joint")),
+    (
+        "joint_low",
+        [0.0, float("nan"), 0.5],
+        (
+            r"robot\.joint_low=\[0\.0, nan, 0\.5\] is not allowed; allowed: a list of "
+            r"finite numbers \(rad or m\), one per free joint"
+        ),
+    ),
     ("joint_low", "0 0.3 0.5", r"robot\.joint_low='0 0\.3 0\.5' is not allowed; allowed: a list of finite numbers"),
-    ("joint_high", [2.0, True, 1.5], r"robot\.joint_high=\[2\.0, True, 1\.5\] is not allowed; allowed: a list of finite"),
-    ("joint_high", [2.0, 2.0], (r"robot\.joint_high=\[2\.0, 2\.0\] is not allowed; allowed: as many entries as "
-                               r"robot\.joint_low \(3\)")),
-    ("joint_high", [2.0, 0.2, 1.5], (r"robot\.joint_high=\[2\.0, 0\.2, 1\.5\] is not allowed; allowed: each entry above "
-                                    r"robot\.joint_low's \(\[0\.0, 0\.3, 0\.5\]\)")),
-    ("joint_names", ["joint1", 2, "joint3"], (r"robot\.joint_names=\['joint1', 2, 'joint3'\] is not allowed; allowed: a "
-                                             r"list of joint names")),
-    ("joint_names", ["a", "b", "c"], (r"robot\.joint_names=\['a', 'b', 'c'\] is not allowed; allowed: the free joints "
-                                     r"of the chain to 'quill', in chain order: \['joint1', 'joint2', 'joint3'\]")),
+    (
+        "joint_high",
+        [2.0, True, 1.5],
+        r"robot\.joint_high=\[2\.0, True, 1\.5\] is not allowed; allowed: a list of finite",
+    ),
+    (
+        "joint_high",
+        [2.0, 2.0],
+        (
+            r"robot\.joint_high=\[2\.0, 2\.0\] is not allowed; allowed: as many entries as "
+            r"robot\.joint_low \(3\)"
+        ),
+    ),
+    (
+        "joint_high",
+        [2.0, 0.2, 1.5],
+        (
+            r"robot\.joint_high=\[2\.0, 0\.2, 1\.5\] is not allowed; allowed: each entry above "
+            r"robot\.joint_low's \(\[0\.0, 0\.3, 0\.5\]\)"
+        ),
+    ),
+    (
+        "joint_names",
+        ["joint1", 2, "joint3"],
+        (
+            r"robot\.joint_names=\['joint1', 2, 'joint3'\] is not allowed; allowed: a "
+            r"list of joint names"
+        ),
+    ),
+    (
+        "joint_names",
+        ["a", "b", "c"],
+        (
+            r"robot\.joint_names=\['a', 'b', 'c'\] is not allowed; allowed: the free joints "
+            r"of the chain to 'quill', in chain order: \['joint1', 'joint2', 'joint3'\]"
+        ),
+    ),
     ("target", "orientation", r"robot\.target='orientation' is not allowed; allowed: one of \['position', 'pose'\]"),
-    ("target", "pose", (r"model_args out_features=3, target='position' do not fit the robot entry; allowed: one output "
-                       r"per free joint \(3\) and its target 'pose'")),
-    ("locked", {"joint3": float("inf")}, (r"robot\.locked=\{'joint3': inf\} is not allowed; allowed: a dict from joint "
-                                         r"name \(str\) to a finite held value")),
+    (
+        "target",
+        "pose",
+        (
+            r"model_args out_features=3, target='position' do not fit the robot entry; allowed: one output "
+            r"per free joint \(3\) and its target 'pose'"
+        ),
+    ),
+    (
+        "locked",
+        {"joint3": float("inf")},
+        (
+            r"robot\.locked=\{'joint3': inf\} is not allowed; allowed: a dict from joint "
+            r"name \(str\) to a finite held value"
+        ),
+    ),
     ("locked", ["joint3"], r"robot\.locked=\['joint3'\] is not allowed; allowed: a dict"),
     ("locked", {"elbow": 0.0}, r"robot\.locked names \['elbow'\], which are not joints of the chain to 'quill'"),
     ("name", None, r"robot\.name=None is not allowed; allowed: a label \(str\)"),
@@ -362,11 +431,24 @@ def test_bad_robot_field_is_named(tmp_path, key, value, match):
         read_checkpoint(path)
 
 
-@pytest.mark.parametrize("low,high,match", [
-    ([0.0, 0.3], [2.0, 2.0], (r"robot\.joint_low/joint_high give 2 joints \(\[0\.0, 0\.3\]\); allowed: one per free "
-                             r"joint of the chain to 'quill', which has 3")),
-    ([-9.0, 0.3, 0.5], [2.0, 2.0, 1.5], r"joint range of joint1 \[-9, 2\] leaves the URDF limits \[-3\.142, 3\.142\]"),
-])
+@pytest.mark.parametrize(
+    "low,high,match",
+    [
+        (
+            [0.0, 0.3],
+            [2.0, 2.0],
+            (
+                r"robot\.joint_low/joint_high give 2 joints \(\[0\.0, 0\.3\]\); allowed: one per free "
+                r"joint of the chain to 'quill', which has 3"
+            ),
+        ),
+        (
+            [-9.0, 0.3, 0.5],
+            [2.0, 2.0, 1.5],
+            r"joint range of joint1 \[-9, 2\] leaves the URDF limits \[-3\.142, 3\.142\]",
+        ),
+    ],
+)
 def test_robot_box_must_fit_the_chain(tmp_path, low, high, match):
     path = _crafted(tmp_path / "crafted.pt", joint_low=low, joint_high=high)
     with pytest.raises(ValueError, match=f"{path.name}: robot entry: {match}"):
@@ -382,13 +464,22 @@ def test_robot_entry_with_only_the_required_keys_loads(tmp_path):
     assert read_checkpoint(path)["robot"]["end_link"] == "quill"
 
 
-@pytest.mark.parametrize("key,value,match", [
-    ("widths", 1e-300, (r"widths has minimum 1e-300; allowed: widths of at least MIN_WIDTH = 1e-12 \(scaled input "
-                       r"units\), below which a Gaussian is 0 but at its centre")),
-    ("widths", -1.0, r"widths has minimum -1; allowed: widths of at least MIN_WIDTH"),
-    ("scale", 0.0, r"scale has minimum 0; allowed: positive input scales"),
-    ("cover_radius", -1.0, r"cover_radius is -1; allowed: a radius >= 0 \(inf: unbounded\)"),
-])
+@pytest.mark.parametrize(
+    "key,value,match",
+    [
+        (
+            "widths",
+            1e-300,
+            (
+                r"widths has minimum 1e-300; allowed: widths of at least MIN_WIDTH = 1e-12 \(scaled input "
+                r"units\), below which a Gaussian is 0 but at its centre"
+            ),
+        ),
+        ("widths", -1.0, r"widths has minimum -1; allowed: widths of at least MIN_WIDTH"),
+        ("scale", 0.0, r"scale has minimum 0; allowed: positive input scales"),
+        ("cover_radius", -1.0, r"cover_radius is -1; allowed: a radius >= 0 \(inf: unbounded\)"),
+    ],
+)
 def test_useless_model_buffers_are_refused(ckpt, key, value, match):
     path, _ = ckpt
     raw = torch.load(path, weights_only=True)
@@ -413,8 +504,11 @@ def test_min_width_is_where_gaussians_vanish():
 def test_network_outputs_must_match_the_robot(tmp_path):
     net = RBFNetwork(torch.randn(5, 3, dtype=torch.float64), torch.ones(5, dtype=torch.float64), 2)
     path = _crafted(tmp_path / "crafted.pt", model=net)
-    with pytest.raises(ValueError, match=r"model_args out_features=2, target='position' do not fit the robot entry; "
-                                         r"allowed: one output per free joint \(3\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"model_args out_features=2, target='position' do not fit the robot entry; "
+        r"allowed: one output per free joint \(3\)",
+    ):
         read_checkpoint(path)
 
 
@@ -422,7 +516,7 @@ def test_a_file_too_large_to_be_a_checkpoint_is_refused_before_it_is_read(tmp_pa
     from rbfn.checkpoint import load_sealed
 
     big = tmp_path / "big.pt"
-    with open(big, "wb") as f:          # sparse: no disk used
+    with open(big, "wb") as f:  # sparse: no disk used
         f.truncate(3 << 30)
     with pytest.raises(ValueError, match=r"big.pt holds 3 GiB; a checkpoint aco-rbfn writes is at most 2 GiB"):
         load_sealed(big)

@@ -1,4 +1,5 @@
 """Every config option composes; bad values fail early with a message naming the full key and value."""
+
 import re
 
 import pytest
@@ -34,43 +35,49 @@ def test_unknown_selector_names_it():
         _cfg("centers=foo")
 
 
-@pytest.mark.parametrize("override,options", [
-    ("rbfn.num_centers=many", "num_centers"),
-    ("centers.aco.colony=magic", "expected one of [acor, ant_system]"),
-    ("centers.width_rule=wide", "expected one of [paper, global, per_center]"),
-    ("rbfn.solver=adam", "expected one of [lstsq, lms]"),
-    ("centers.refine.mode=sgd", "expected one of [auto, full, minibatch]"),
-    ("centers.refine.minibatch.loss=mse", "expected one of [task, joint]"),
-])
+@pytest.mark.parametrize(
+    "override,options",
+    [
+        ("rbfn.num_centers=many", "num_centers"),
+        ("centers.aco.colony=magic", "expected one of [acor, ant_system]"),
+        ("centers.width_rule=wide", "expected one of [paper, global, per_center]"),
+        ("rbfn.solver=adam", "expected one of [lstsq, lms]"),
+        ("centers.refine.mode=sgd", "expected one of [auto, full, minibatch]"),
+        ("centers.refine.minibatch.loss=mse", "expected one of [task, joint]"),
+    ],
+)
 def test_mistyped_value_fails_at_composition(override, options):
     with pytest.raises(Exception) as e:
         _cfg(override)
     assert options in f"{e.value} {e.value.__cause__}"
 
 
-@pytest.mark.parametrize("override,match", [
-    ("rbfn.num_centers=0", "rbfn.num_centers=0"),
-    ("rbfn.num_centers=-3", "rbfn.num_centers=-3"),
-    ("rbfn.num_centers=5000", "rbfn.num_centers=5000 is not allowed: exceeds"),
-    ("centers.width_scale=-1.0", "centers.width_scale=-1.0"),
-    ("centers.name=bogus", "centers.name='bogus'"),
-    ("robot.joint_high=[2.0,0.3,1.5]", "joint 2"),
-    ("robot.joint_high=[2.0,2.0]", "robot.joint_low"),
-    ("centers.aco.ant_system.rho=1.5", "centers.aco.ant_system.rho=1.5"),
-    ("centers.aco.acor.q=0", "centers.aco.acor.q=0"),
-    ("centers.aco.ant_system.beta=-1", "centers.aco.ant_system.beta=-1"),
-    ("centers.refine.full.lr=0", "centers.refine.full.lr=0"),
-    ("centers.refine.minibatch.batch=0", "centers.refine.minibatch.batch=0"),
-    ("centers.refine.minibatch.lr=-1", "centers.refine.minibatch.lr=-1"),
-    ("centers.refine.minibatch.epochs=-1", "centers.refine.minibatch.epochs=-1"),
-    ("centers.refine.minibatch.huber=-0.1", "centers.refine.minibatch.huber=-0.1"),
-    ("centers.aco.fit_rows=-5", "centers.aco.fit_rows=-5"),
-    ("rbfn.growth.factor=1.0", "rbfn.growth.factor=1.0"),
-    ("device=tpu", "device='tpu'"),
-    ("seed=-1", "seed=-1 is not allowed: use an integer in [0, 4294967295]"),
-    ("seed=5000000000", "seed=5000000000"),
-    ("num_threads=-2", "num_threads=-2"),
-])
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        ("rbfn.num_centers=0", "rbfn.num_centers=0"),
+        ("rbfn.num_centers=-3", "rbfn.num_centers=-3"),
+        ("rbfn.num_centers=5000", "rbfn.num_centers=5000 is not allowed: exceeds"),
+        ("centers.width_scale=-1.0", "centers.width_scale=-1.0"),
+        ("centers.name=bogus", "centers.name='bogus'"),
+        ("robot.joint_high=[2.0,0.3,1.5]", "joint 2"),
+        ("robot.joint_high=[2.0,2.0]", "robot.joint_low"),
+        ("centers.aco.ant_system.rho=1.5", "centers.aco.ant_system.rho=1.5"),
+        ("centers.aco.acor.q=0", "centers.aco.acor.q=0"),
+        ("centers.aco.ant_system.beta=-1", "centers.aco.ant_system.beta=-1"),
+        ("centers.refine.full.lr=0", "centers.refine.full.lr=0"),
+        ("centers.refine.minibatch.batch=0", "centers.refine.minibatch.batch=0"),
+        ("centers.refine.minibatch.lr=-1", "centers.refine.minibatch.lr=-1"),
+        ("centers.refine.minibatch.epochs=-1", "centers.refine.minibatch.epochs=-1"),
+        ("centers.refine.minibatch.huber=-0.1", "centers.refine.minibatch.huber=-0.1"),
+        ("centers.aco.fit_rows=-5", "centers.aco.fit_rows=-5"),
+        ("rbfn.growth.factor=1.0", "rbfn.growth.factor=1.0"),
+        ("device=tpu", "device='tpu'"),
+        ("seed=-1", "seed=-1 is not allowed: use an integer in [0, 4294967295]"),
+        ("seed=5000000000", "seed=5000000000"),
+        ("num_threads=-2", "num_threads=-2"),
+    ],
+)
 def test_bad_values_fail_with_message(override, match):
     with pytest.raises(ValueError, match=re.escape(match)):
         validate_train(_cfg(override))
@@ -82,10 +89,15 @@ def test_cuda_without_a_gpu_is_named():
         validate_train(_cfg("device=cuda"))
 
 
-@pytest.mark.parametrize("field,value,match", [
-    ("n_test", 0, "n_test=0"), ("seed", -4, "seed=-4"), ("device", "gpu", "device='gpu'"),
-    ("num_threads", -1, "num_threads=-1"),
-])
+@pytest.mark.parametrize(
+    "field,value,match",
+    [
+        ("n_test", 0, "n_test=0"),
+        ("seed", -4, "seed=-4"),
+        ("device", "gpu", "device='gpu'"),
+        ("num_threads", -1, "num_threads=-1"),
+    ],
+)
 def test_bad_evaluate_values(field, value, match):
     cfg = EvalConfig(**{field: value})
     with pytest.raises(ValueError, match=match):
@@ -129,26 +141,34 @@ def test_experiment_presets_compose(experiment):
     cfg = compose_config("train", f"experiment={experiment}", hydra=True)
     if experiment == "paper":
         assert cfg.centers.aco.colony == "ant_system" and cfg.centers.width_rule == "paper"
-        assert (cfg.centers.aco.ant_system.rho, cfg.centers.aco.ant_system.Q, cfg.centers.aco.iterations) == (0.9, 100.0, 100)
+        assert (cfg.centers.aco.ant_system.rho, cfg.centers.aco.ant_system.Q, cfg.centers.aco.iterations) == (
+            0.9,
+            100.0,
+            100,
+        )
     else:
         assert cfg.hydra.sweeper.params["seed"] == "0,1,2,3,4"
 
 
 @pytest.mark.parametrize("launcher,target", [("joblib", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
 def test_launchers_compose(launcher, target):
-    pytest.importorskip("hydra_plugins.hydra_joblib_launcher" if launcher == "joblib"
-                        else "hydra_plugins.hydra_submitit_launcher")
+    pytest.importorskip(
+        "hydra_plugins.hydra_joblib_launcher" if launcher == "joblib" else "hydra_plugins.hydra_submitit_launcher"
+    )
     cfg = compose_config("train", f"hydra/launcher={launcher}", hydra=True)
     assert cfg.hydra.launcher._target_.endswith(target)
 
 
 # --- settings that make a useless network, or cannot fit in memory, fail before any work ----------
-@pytest.mark.parametrize("override,key", [
-    ("centers.width_scale=1e-30", "centers.width_scale"),
-    ("centers.width_scale=0.01", "centers.width_scale"),
-    ("centers.width_scale=1e9", "centers.width_scale"),
-    ("data.n_train=1", "data.n_train"),
-])
+@pytest.mark.parametrize(
+    "override,key",
+    [
+        ("centers.width_scale=1e-30", "centers.width_scale"),
+        ("centers.width_scale=0.01", "centers.width_scale"),
+        ("centers.width_scale=1e9", "centers.width_scale"),
+        ("data.n_train=1", "data.n_train"),
+    ],
+)
 def test_settings_that_make_a_useless_network_are_refused_by_key(override, key):
     with pytest.raises(ValueError, match=re.escape(key)):
         validate_train(_cfg(override, "rbfn.num_centers=1"))
@@ -159,33 +179,42 @@ def test_a_useful_width_scale_is_accepted():
     validate_train(_cfg("centers.width_scale=64"))
 
 
-@pytest.mark.parametrize("override,key", [
-    ("data.n_train=1000000000000", "data.n_train"),
-    ("data.n_val=1000000000000", "data.n_val"),
-    ("data.n_test=1000000000000", "data.n_test"),
-])
+@pytest.mark.parametrize(
+    "override,key",
+    [
+        ("data.n_train=1000000000000", "data.n_train"),
+        ("data.n_val=1000000000000", "data.n_val"),
+        ("data.n_test=1000000000000", "data.n_test"),
+    ],
+)
 def test_training_sizes_that_cannot_fit_name_the_key_the_estimate_and_the_limit(override, key):
     # 1e12 rows need terabytes: more than any machine this runs on.
-    with pytest.raises(ValueError, match=rf"{re.escape(key)}=1000000000000 needs at least [\d.]+ TiB .*"
-                                         r"more than this machine's available memory \([\d.]+ \w+\)"):
+    with pytest.raises(
+        ValueError,
+        match=rf"{re.escape(key)}=1000000000000 needs at least [\d.]+ TiB .*"
+        r"more than this machine's available memory \([\d.]+ \w+\)",
+    ):
         validate_train(_cfg(override))
 
 
 def test_the_memory_estimate_is_held_against_what_is_available(monkeypatch):
     import rbfn.memory
 
-    cfg = _cfg("data.n_train=100000", "rbfn.num_centers=1000")   # 100000 x 1004 float64: 0.75 GiB
+    cfg = _cfg("data.n_train=100000", "rbfn.num_centers=1000")  # 100000 x 1004 float64: 0.75 GiB
     validate_train(cfg)
     monkeypatch.setattr(rbfn.memory, "available_bytes", lambda device="cpu": 512 << 20)
     with pytest.raises(ValueError, match=r"data.n_train=100000 needs at least 7\d\d MiB .*\(512 MiB\)"):
         validate_train(cfg)
 
 
-@pytest.mark.parametrize("override,key", [
-    ("n_test=1000000000000", "n_test"),
-    ("control.duration=1e12", "control.duration"),
-    ("online.duration=1e12", "online.duration"),
-])
+@pytest.mark.parametrize(
+    "override,key",
+    [
+        ("n_test=1000000000000", "n_test"),
+        ("control.duration=1e12", "control.duration"),
+        ("online.duration=1e12", "online.duration"),
+    ],
+)
 def test_evaluation_sizes_that_cannot_fit_name_the_key(override, key):
     with pytest.raises(ValueError, match=rf"{re.escape(key)}=1.*needs at least .* more than this machine's"):
         validate_evaluate(compose_config("evaluate", override))
@@ -193,9 +222,10 @@ def test_evaluation_sizes_that_cannot_fit_name_the_key(override, key):
 
 def test_an_ant_system_colony_that_cannot_fit_names_its_ants():
     with pytest.raises(ValueError, match=r"centers\.aco\.ants=100000000000 needs at least .* TiB .*300 candidates"):
-        validate_train(_cfg("centers=aco_paper", "data.n_train=300", "rbfn.num_centers=10",
-                            "centers.aco.ants=100000000000"))
-    validate_train(_cfg("centers=aco", "centers.aco.ants=100000000000"))   # ACO_R's ants are bounded by its budget
+        validate_train(
+            _cfg("centers=aco_paper", "data.n_train=300", "rbfn.num_centers=10", "centers.aco.ants=100000000000")
+        )
+    validate_train(_cfg("centers=aco", "centers.aco.ants=100000000000"))  # ACO_R's ants are bounded by its budget
 
 
 def test_the_centers_presets_are_the_files_of_the_group():

@@ -1,11 +1,12 @@
 """Data streams: an evaluation set never repeats a training, validation or test set."""
+
 import torch
 
 from rbfn.data import EVALUATION, TRAIN_VAL_TEST, evaluation_split, make_dataset, stream
 
 
 def test_evaluation_streams_never_coincide_with_training_streams():
-    seeds = [*list(range(0, 50)), 4242, 2 ** 32 - 1]
+    seeds = [*list(range(0, 50)), 4242, 2**32 - 1]
     training = {stream(s, k) for s in seeds for k in TRAIN_VAL_TEST}
     assert not training & {stream(s, EVALUATION) for s in seeds}
 

@@ -7,6 +7,7 @@
 - every flag of a `python -m rbfn.summarize` / `python -m rbfn.export` command shown exists;
 - the README's test command is the one CI runs (.ci/run), and the README stays a front page.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -27,8 +28,11 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"^(```|~~~)")
 LINK = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(\s*<?([^)\s>]+)>?(?:\s+\"[^\"]*\")?\s*\)")
 # Hydra plugins a command may name; without them only the launcher/sweeper overrides are dropped.
-PLUGINS = ("hydra_plugins.hydra_joblib_launcher", "hydra_plugins.hydra_submitit_launcher",
-           "hydra_plugins.hydra_optuna_sweeper")
+PLUGINS = (
+    "hydra_plugins.hydra_joblib_launcher",
+    "hydra_plugins.hydra_submitit_launcher",
+    "hydra_plugins.hydra_optuna_sweeper",
+)
 
 
 def _rel(path: Path) -> str:
@@ -77,7 +81,7 @@ def _links():
     for page in PAGES:
         _, prose = _split(page.read_text(encoding="utf-8"))
         for target in LINK.findall(prose):
-            if not re.match(r"^[a-z][a-z0-9+.-]*:", target):      # http:, https:, mailto: ...
+            if not re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto: ...
                 yield pytest.param(page, target, id=f"{_rel(page)}->{target}")
 
 
@@ -88,8 +92,10 @@ def test_relative_link_resolves(page, target):
     assert dest.exists(), f"{_rel(page)}: link {target!r} points to a missing file {dest}"
     if anchor:
         assert dest.suffix == ".md", f"{_rel(page)}: link {target!r}: an anchor into a non-Markdown file"
-        assert anchor in _anchors(dest), (f"{_rel(page)}: link {target!r}: no heading with anchor #{anchor} in "
-                                          f"{_rel(dest)} (has: {sorted(_anchors(dest))})")
+        assert anchor in _anchors(dest), (
+            f"{_rel(page)}: link {target!r}: no heading with anchor #{anchor} in "
+            f"{_rel(dest)} (has: {sorted(_anchors(dest))})"
+        )
 
 
 def _commands():
@@ -158,19 +164,22 @@ def test_command_composes_and_validates(page, argv):
         if a in ("-m", "--multirun"):
             multirun = True
         elif a in ("--cfg", "-c", "--package", "-p"):
-            next(args, None)                 # `--cfg job`: print the config; it composes the same
+            next(args, None)  # `--cfg job`: print the config; it composes the same
         elif a.startswith("-"):
             pytest.fail(f"{_rel(page)}: {' '.join(argv)}: unexpected flag {a!r}")
         elif re.fullmatch(r"\[[^\[\]=]+=[^\[\]]*\]", a):
-            overrides.append(a[1:-1])        # `[key=value]`: an optional override, checked as given
+            overrides.append(a[1:-1])  # `[key=value]`: an optional override, checked as given
         else:
             overrides.append(a)
     overrides = _first_values(overrides, multirun)
     try:
         cfg = compose_config(name, *overrides)
     except Exception:
-        missing = [p for p in PLUGINS if importlib.util.find_spec(p.split(".")[0]) is None
-                   or importlib.util.find_spec(p) is None]
+        missing = [
+            p
+            for p in PLUGINS
+            if importlib.util.find_spec(p.split(".")[0]) is None or importlib.util.find_spec(p) is None
+        ]
         if not missing or not any(_plugin_override(o) for o in overrides):
             raise
         cfg = compose_config(name, *[o for o in overrides if not _plugin_override(o)])
@@ -232,7 +241,7 @@ def test_readme_is_a_front_page_with_ci_test_command():
 
 def test_docs_never_name_issue_numbers():
     for page in PAGES:
-        if page.name in ("results.md", "benchmarks.md"):     # written by the bench/ tools
+        if page.name in ("results.md", "benchmarks.md"):  # written by the bench/ tools
             continue
         text = page.read_text(encoding="utf-8")
         assert not re.search(r"(?<![\w&])#\d+\b", _split(text)[1]), f"{_rel(page)} mentions an issue number"

@@ -1,5 +1,6 @@
 """evaluate.py end to end: its metrics.json layout, every setting checked before any work, the
 parts independent of each other, and the online sweep labelled by its real perturbation."""
+
 import json
 from dataclasses import replace
 
@@ -16,11 +17,27 @@ from rbfn.studies.rundir import RunDirInUse
 
 from .conftest import compose_config
 
-TRAIN = ["data.n_train=400", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=12", "rbfn.growth.start=0",
-         "centers=kmeans", "progress=false", "export=false"]
-SHORT = ["n_test=300", "control.duration=1.2", "control.payload_on=0.3", "control.payload_off=0.9",
-         "control.payloads=[0.0,10.0]", "control.controllers=[smc,smc_obs,arbfn_kmeans]",
-         "control.network.num_centers=8", "online.duration=4", "online.sizes=[0.0,0.03]"]
+TRAIN = [
+    "data.n_train=400",
+    "data.n_val=200",
+    "data.n_test=200",
+    "rbfn.num_centers=12",
+    "rbfn.growth.start=0",
+    "centers=kmeans",
+    "progress=false",
+    "export=false",
+]
+SHORT = [
+    "n_test=300",
+    "control.duration=1.2",
+    "control.payload_on=0.3",
+    "control.payload_off=0.9",
+    "control.payloads=[0.0,10.0]",
+    "control.controllers=[smc,smc_obs,arbfn_kmeans]",
+    "control.network.num_centers=8",
+    "online.duration=4",
+    "online.sizes=[0.0,0.03]",
+]
 CONTROL_KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
 
 
@@ -36,9 +53,12 @@ def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
     import rbfn.studies.evaluation
 
     control = rbfn.studies.evaluation.evaluate_control
-    monkeypatch.setattr(rbfn.studies.evaluation, "evaluate_control",
-                        lambda *a, **kw: seen.append(torch.get_num_threads()) or control(*a, **kw))
-    torch.set_num_threads(2)                 # the suite runs one thread; the default is more
+    monkeypatch.setattr(
+        rbfn.studies.evaluation,
+        "evaluate_control",
+        lambda *a, **kw: seen.append(torch.get_num_threads()) or control(*a, **kw),
+    )
+    torch.set_num_threads(2)  # the suite runs one thread; the default is more
     try:
         m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", *SHORT), tmp_path)
         # Beside the forked parts this process ran one torch thread, and has its own count back.
@@ -55,8 +75,13 @@ def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
         assert all(set(c) == CONTROL_KEYS and all(len(v) == 3 for v in c.values()) for c in cases.values())
     assert set(on_disk["control_info"]) == {"gains", "select_seconds", "sim_seconds"}
     assert on_disk["online"]["task_err_mm_rms_last_2s"] < on_disk["online"]["task_err_mm_rms_no_adapt"]
-    for name in ("workspace_error_map.png", "online_task_error.png", "control_smc.png", "checkpoint_online.pt",
-                 "metrics.json"):
+    for name in (
+        "workspace_error_map.png",
+        "online_task_error.png",
+        "control_smc.png",
+        "checkpoint_online.pt",
+        "metrics.json",
+    ):
         assert (tmp_path / name).is_file(), name
     assert list(tmp_path.glob("events.out.tfevents.*"))
     # The checkpoint's parts ran in a forked process beside the control part (this machine forks);
@@ -73,18 +98,30 @@ def _without_times(m):
 
 
 def test_explicit_seed_is_a_seed_not_a_stream(ckpt, tmp_path):
-    m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "seed=0", "n_test=300", "online.enabled=false",
-                                    "control.enabled=false"), tmp_path)
+    m = evaluate.run(
+        compose_config(
+            "evaluate", f"checkpoint={ckpt}", "seed=0", "n_test=300", "online.enabled=false", "control.enabled=false"
+        ),
+        tmp_path,
+    )
     trained = read_checkpoint(ckpt)["metrics"]
     # Seed 0 is the training seed: a fresh set, not the training set (where the error is lower).
     assert m["test_seed"] == 0 and m["test_pos_err_mm_median"] != trained["test_pos_err_mm_median"]
 
 
-@pytest.mark.parametrize("override,match", [
-    ("control.dt=-1", "control.dt=-1"), ("online.path=spiral", "spiral"), ("online.update_every=0", "online.update_every=0"),
-    ("control.integrator=rk2", "rk2"), ("control.controllers=[smc,lqr]", "control.controllers='lqr'"),
-    ("online.sizes=[0.0,0.02]", "online.sizes"), ("device=gpu", "device='gpu'"), ("num_threads=-1", "num_threads=-1"),
-])
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        ("control.dt=-1", "control.dt=-1"),
+        ("online.path=spiral", "spiral"),
+        ("online.update_every=0", "online.update_every=0"),
+        ("control.integrator=rk2", "rk2"),
+        ("control.controllers=[smc,lqr]", "control.controllers='lqr'"),
+        ("online.sizes=[0.0,0.02]", "online.sizes"),
+        ("device=gpu", "device='gpu'"),
+        ("num_threads=-1", "num_threads=-1"),
+    ],
+)
 def test_bad_settings_stop_before_any_work(ckpt, tmp_path, override, match):
     with pytest.raises(Exception) as e:
         evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", override), tmp_path)
@@ -93,8 +130,17 @@ def test_bad_settings_stop_before_any_work(ckpt, tmp_path, override, match):
 
 
 def test_online_runs_without_the_ik_part(ckpt, tmp_path):
-    m = evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "ik=false", "control.enabled=false",
-                                    "online.duration=4", "online.sizes=[0.03]"), tmp_path)
+    m = evaluate.run(
+        compose_config(
+            "evaluate",
+            f"checkpoint={ckpt}",
+            "ik=false",
+            "control.enabled=false",
+            "online.duration=4",
+            "online.sizes=[0.03]",
+        ),
+        tmp_path,
+    )
     assert "online" in m and "ik" not in m
 
 
@@ -102,7 +148,9 @@ def test_online_sweep_rows_carry_the_real_perturbation(ckpt):
     cfg = OnlineConfig(duration=4.0, link_error=[0.02, -0.01], offset_error=[0.01, 0.0, 0.0], sizes=[0.0, 0.02, 0.04])
     m = evaluate_online(read_checkpoint(ckpt), cfg, GainsConfig())
     rows = {r["size"]: r for r in m["sweep"]}
-    assert rows[0.02]["link_error"] == pytest.approx([0.02, -0.01]) and rows[0.02]["offset_error"][0] == pytest.approx(0.01)
+    assert rows[0.02]["link_error"] == pytest.approx([0.02, -0.01]) and rows[0.02]["offset_error"][0] == pytest.approx(
+        0.01
+    )
     assert rows[0.04]["link_error"] == pytest.approx([0.04, -0.02])
     assert rows[0.0]["link_error"] == [0.0, 0.0]
     assert m["task_err_mm_rms_last_2s"] == rows[0.02]["task_err_mm_rms_last_2s"]
@@ -132,22 +180,42 @@ def test_command_line_runs_the_control_part_alone(tmp_path):
 
     from .conftest import ROOT
 
-    r = subprocess.run([sys.executable, "evaluate.py", "ik=false", "online.enabled=false", "control.duration=1.2",
-                        "control.payload_on=0.3", "control.payload_off=0.9", "control.controllers=[smc]",
-                        f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "evaluate.py",
+            "ik=false",
+            "online.enabled=false",
+            "control.duration=1.2",
+            "control.payload_on=0.3",
+            "control.payload_off=0.9",
+            "control.controllers=[smc]",
+            f"hydra.run.dir={tmp_path}",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert list(m) == ["control", "control_info", "evaluate_seconds", "robots", "skipped"]
-    assert list(m["control"]) == ["smc"] and m["robots"] == {"control": "scara (quill, 3 joints)"} and m["skipped"] == {}
+    assert (
+        list(m["control"]) == ["smc"] and m["robots"] == {"control": "scara (quill, 3 joints)"} and m["skipped"] == {}
+    )
     assert "Closed loop" in (tmp_path / "evaluate.log").read_text()
-    assert "ik: false" in (tmp_path / ".hydra" / "config.yaml").read_text()      # written by evaluate.py
+    assert "ik: false" in (tmp_path / ".hydra" / "config.yaml").read_text()  # written by evaluate.py
 
 
 def test_a_directory_holding_files_is_refused_before_any_work(ckpt, tmp_path):
     (tmp_path / "metrics.json").write_text("{}")
     with pytest.raises(RunDirInUse, match="holds files already"):
-        evaluate.run(compose_config("evaluate", f"checkpoint={ckpt}", "n_test=300", "online.enabled=false",
-                                    "control.enabled=false"), tmp_path)
+        evaluate.run(
+            compose_config(
+                "evaluate", f"checkpoint={ckpt}", "n_test=300", "online.enabled=false", "control.enabled=false"
+            ),
+            tmp_path,
+        )
     assert [p.name for p in tmp_path.iterdir()] == ["metrics.json"]
 
 
@@ -156,8 +224,9 @@ def test_nothing_to_evaluate_is_an_error_naming_why(tmp_path):
     with pytest.raises(ValueError, match=r"nothing to evaluate: outputs_dir=.*typo.*no such directory.*control"):
         evaluate.run(compose_config("evaluate", f"outputs_dir={missing}", "control.enabled=false"), tmp_path / "a")
     with pytest.raises(ValueError, match=r"nothing to evaluate: ik, online.enabled and control.enabled are all false"):
-        evaluate.run(compose_config("evaluate", "ik=false", "online.enabled=false", "control.enabled=false"),
-                     tmp_path / "b")
+        evaluate.run(
+            compose_config("evaluate", "ik=false", "online.enabled=false", "control.enabled=false"), tmp_path / "b"
+        )
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
@@ -165,10 +234,20 @@ def test_metrics_name_the_robot_of_every_part_and_what_was_skipped(panda_ckpt, t
     from rbfn.checkpoint import save_sealed
 
     save_sealed(tmp_path / "panda.pt", panda_ckpt)
-    m = evaluate.run(compose_config("evaluate", f"checkpoint={tmp_path / 'panda.pt'}", "n_test=200",
-                                    "online.enabled=false", "control.duration=1.2", "control.payload_on=0.3",
-                                    "control.payload_off=0.9", "control.controllers=[smc]", "parallel=false"),
-                     tmp_path / "run")
+    m = evaluate.run(
+        compose_config(
+            "evaluate",
+            f"checkpoint={tmp_path / 'panda.pt'}",
+            "n_test=200",
+            "online.enabled=false",
+            "control.duration=1.2",
+            "control.payload_on=0.3",
+            "control.payload_off=0.9",
+            "control.controllers=[smc]",
+            "parallel=false",
+        ),
+        tmp_path / "run",
+    )
     assert m["robots"]["ik"].startswith("panda (") and m["robots"]["control"] == "scara (quill, 3 joints)"
     assert m["skipped"] == {}
     assert "the parts evaluate different robots" in caplog.text

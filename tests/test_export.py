@@ -1,4 +1,5 @@
 """Exports reproduce the module: ONNX under onnxruntime and the torch.export program."""
+
 import pytest
 import torch
 
@@ -55,7 +56,7 @@ def test_round_trip_10k_positions_batches_1_7_10000(net, tmp_path):
     net.double()
     prog = torch.export.load(str(export_pt2(net, tmp_path / "ik.pt2"))).module()
     sess = ort.InferenceSession(str(export_onnx(net, tmp_path / "ik.onnx")), providers=["CPUExecutionProvider"])
-    assert in_ref.float().mean() > 0.9                      # the positions are in the trained workspace
+    assert in_ref.float().mean() > 0.9  # the positions are in the trained workspace
     for batch in (1, 7, 10_000):
         parts = x.split(batch)
         with torch.no_grad():
@@ -65,8 +66,10 @@ def test_round_trip_10k_positions_batches_1_7_10000(net, tmp_path):
         y_onnx = torch.cat([torch.from_numpy(o[0]) for o in onnx])
         in_onnx = torch.cat([torch.from_numpy(o[1]) for o in onnx])
         d_pt2, d_onnx = float((y_pt2 - y_ref).abs().max()), float((y_onnx - y_ref).abs().max())
-        print(f"batch {batch}: max |pt2 - module| = {d_pt2:.3g}, max |onnx - module| = {d_onnx:.3g}, "
-              f"workspace flags equal: {torch.equal(in_pt2, in_ref)} / {torch.equal(in_onnx, in_ref)}")
+        print(
+            f"batch {batch}: max |pt2 - module| = {d_pt2:.3g}, max |onnx - module| = {d_onnx:.3g}, "
+            f"workspace flags equal: {torch.equal(in_pt2, in_ref)} / {torch.equal(in_onnx, in_ref)}"
+        )
         assert d_pt2 < 1e-5 and d_onnx < 1e-5
         assert torch.equal(in_pt2, in_ref) and torch.equal(in_onnx, in_ref)
 
@@ -79,7 +82,7 @@ def test_export_is_one_graph_whatever_the_eager_block_size(net, small_data, tmp_
     small.block_rows = 8
     x = small_data.test.x[:50].float()
     with torch.no_grad():
-        y_ref, in_ref = copy.deepcopy(small).float().solve(x)      # eager: 7 blocks
+        y_ref, in_ref = copy.deepcopy(small).float().solve(x)  # eager: 7 blocks
     prog = torch.export.load(str(export_pt2(small, tmp_path / "ik.pt2")))
     # One exp over the (B, M) exponents (the other exps act on (M,) constants: the cover shift's scale).
     assert sum(n.target == torch.ops.aten.exp.default and n.meta["val"].dim() == 2 for n in prog.graph.nodes) == 1
@@ -96,11 +99,12 @@ def test_onnx_runs_rows_in_blocks_row_for_row_as_one_pass(net, small_data, tmp_p
 
     path = export_onnx(net, tmp_path / "ik8.onnx", block_rows=8)
     (branch,) = [n for n in onnx.load(str(path)).graph.node if n.op_type == "If"]
-    in_blocks = next(a.g for a in branch.attribute if a.name == "then_branch")   # B > 8
+    in_blocks = next(a.g for a in branch.attribute if a.name == "then_branch")  # B > 8
     assert [n.op_type for n in in_blocks.node].count("Scan") == 1
     blocked = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    whole = ort.InferenceSession(str(export_onnx(net, tmp_path / "ik.onnx", block_rows=64)),
-                                 providers=["CPUExecutionProvider"])
+    whole = ort.InferenceSession(
+        str(export_onnx(net, tmp_path / "ik.onnx", block_rows=64)), providers=["CPUExecutionProvider"]
+    )
     x = small_data.test.x[:batch].float().numpy()
     (y8, in8), (y, inside) = blocked.run(None, {"positions": x}), whole.run(None, {"positions": x})
     assert y8.shape == (batch, 3) and in8.shape == (batch,) and in8.dtype == bool

@@ -1,4 +1,5 @@
 """`python -m rbfn.export` on bad inputs: one-line errors, and no good file destroyed or half written."""
+
 import os
 import shutil
 
@@ -52,12 +53,16 @@ def test_a_missing_or_bad_checkpoint_is_one_line(tmp_path, capsys, fake_export):
 def test_a_bad_out_dir_is_one_line(ckpt, tmp_path, capsys, fake_export):
     (tmp_path / "file").write_text("x")
     assert f"--out-dir {tmp_path / 'file'}: {tmp_path / 'file'} is not a directory" in _error_line(
-        capsys, ckpt, "--out-dir", tmp_path / "file")
-    assert f"{tmp_path / 'file'} is not a directory" in _error_line(capsys, ckpt, "--out-dir", tmp_path / "file" / "sub")
+        capsys, ckpt, "--out-dir", tmp_path / "file"
+    )
+    assert f"{tmp_path / 'file'} is not a directory" in _error_line(
+        capsys, ckpt, "--out-dir", tmp_path / "file" / "sub"
+    )
     (tmp_path / "ro").mkdir(mode=0o555)
     assert f"{tmp_path / 'ro'} is a write-protected directory (mode 0o555)" in _error_line(
-        capsys, ckpt, "--out-dir", tmp_path / "ro" / "sub")
-    if os.geteuid() == 0:                    # root may write there: --force does
+        capsys, ckpt, "--out-dir", tmp_path / "ro" / "sub"
+    )
+    if os.geteuid() == 0:  # root may write there: --force does
         main([str(ckpt), "--out-dir", str(tmp_path / "ro" / "sub"), "--force"])
         assert sorted(p.name for p in (tmp_path / "ro" / "sub").iterdir()) == ["ik.onnx", "ik.pt2"]
         shutil.rmtree(tmp_path / "ro" / "sub")
@@ -72,8 +77,10 @@ def test_a_write_protected_output_is_kept_unless_forced(ckpt, capsys, fake_expor
     onnx.write_bytes(b"good")
     onnx.chmod(0o444)
     err = _error_line(capsys, ckpt)
-    assert (f"the output directory {ckpt.parent} (the checkpoint's; --out-dir picks another): {onnx} is "
-            "write-protected (mode 0o444); not replacing it (--force replaces it)") in err
+    assert (
+        f"the output directory {ckpt.parent} (the checkpoint's; --out-dir picks another): {onnx} is "
+        "write-protected (mode 0o444); not replacing it (--force replaces it)"
+    ) in err
     assert onnx.read_bytes() == b"good" and not (ckpt.parent / "ik.pt2").exists()
     main([str(ckpt), "--force"])
     assert onnx.read_bytes() == b"onnx" and (onnx.stat().st_mode & 0o777) == 0o444
@@ -90,8 +97,9 @@ def test_an_export_that_fails_writes_nothing(ckpt, capsys, monkeypatch, fake_exp
 
     monkeypatch.setattr(rbfn.export, failing, fail)
     err = _error_line(capsys, ckpt, status=1)
-    assert f"exporting {ckpt} failed (RuntimeError: the exporter broke); ik.onnx and ik.pt2 were left as they were" \
-        in err
+    assert (
+        f"exporting {ckpt} failed (RuntimeError: the exporter broke); ik.onnx and ik.pt2 were left as they were" in err
+    )
     assert _files(ckpt.parent) == {"checkpoint.pt": ckpt.read_bytes(), "ik.onnx": b"old onnx"}
 
 

@@ -156,8 +156,10 @@ def test_relative_rounding_bound_follows_the_fit_error():
     y = torch.sin(3 * z)
     a_tr, a_val = design_matrix(z[:350], c, w * 2.5), design_matrix(z[350:], c, w * 2.5)
     absolute = ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7)
-    assert torch.equal(ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7,
-                                 round_rel=0.0).ridge, absolute.ridge)
+    assert torch.equal(
+        ridge_fit(a_tr, y[:350], a_val, y[350:], eval_dtype=torch.float32, round_tol=1e-7, round_rel=0.0).ridge,
+        absolute.ridge,
+    )
     free = ridge_fit(a_tr, y[:350], a_val, y[350:])
     rel = 1e-3
     tol = float(rounding_tolerance(free.val_mse[None], 2, 1e-7, rel))
@@ -174,8 +176,9 @@ def test_no_stable_ridge_keeps_the_most_stable():
     z, c, w, _true = _problem(4)
     a = design_matrix(z, c, w * 3)
     y = torch.sin(3 * z)
-    fit = ridge_fit(a[:300], y[:300], a[300:], y[300:], ridges=(1e-12, 1e-8, 1e-4), eval_dtype=torch.float32,
-                    round_tol=0.0)
+    fit = ridge_fit(
+        a[:300], y[:300], a[300:], y[300:], ridges=(1e-12, 1e-8, 1e-4), eval_dtype=torch.float32, round_tol=0.0
+    )
     assert float(fit.ridge) == 1e-4 and fit.rounding > 0
 
 
@@ -189,7 +192,7 @@ def test_binding_constraint_refines_between_the_grid_ridges(gain, expected):
 
     def score(weights):
         w = weights[..., 0, 0].abs()
-        return 2.0 - w, w                                       # (mse, rounding scale), each (..., L)
+        return 2.0 - w, w  # (mse, rounding scale), each (..., L)
 
     gram = torch.ones(1, 1, dtype=torch.float64)
     fit = ridge_choose(gram, gain * gram, score, ridges=(1e-4, 1e-3, 1e-2), deploy=torch.float32, round_tol=1.0)

@@ -8,8 +8,13 @@ from rbfn.layer import RBFNetwork, assemble, gaussian, gaussian_features, sq_dis
 
 def test_shapes_and_scaling():
     c = torch.randn(7, 3, dtype=torch.float64)
-    net = RBFNetwork(c, torch.ones(7, dtype=torch.float64), 2, offset=torch.tensor([1.0, 2.0, 3.0]),
-                     scale=torch.tensor([2.0, 2.0, 2.0]))
+    net = RBFNetwork(
+        c,
+        torch.ones(7, dtype=torch.float64),
+        2,
+        offset=torch.tensor([1.0, 2.0, 3.0]),
+        scale=torch.tensor([2.0, 2.0, 2.0]),
+    )
     x = torch.randn(5, 3, dtype=torch.float64)
     assert net(x).shape == (5, 2)
     assert net.features(x).shape == (5, 7)
@@ -79,8 +84,14 @@ def test_workspace_flag():
 def _net(tail=True, m=6, seed=0):
     g = torch.Generator().manual_seed(seed)
     c = torch.randn(m, 3, generator=g, dtype=torch.float64)
-    net = RBFNetwork(c, torch.rand(m, generator=g, dtype=torch.float64) + 0.5, 2,
-                     offset=torch.tensor([0.1, -0.2, 0.3]), scale=torch.tensor([1.5, 0.5, 2.0]), tail=tail)
+    net = RBFNetwork(
+        c,
+        torch.rand(m, generator=g, dtype=torch.float64) + 0.5,
+        2,
+        offset=torch.tensor([0.1, -0.2, 0.3]),
+        scale=torch.tensor([1.5, 0.5, 2.0]),
+        tail=tail,
+    )
     with torch.no_grad():
         for p in net.parameters():
             p.copy_(torch.randn(p.shape, generator=g, dtype=torch.float64))
@@ -117,10 +128,13 @@ def test_rows_in_blocks_match_one_piece(monkeypatch):
     with torch.no_grad():
         ref = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
     calls = []
-    monkeypatch.setattr(layer, "sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1))
+    monkeypatch.setattr(
+        layer, "sq_distances", lambda z, c: calls.append(z.shape[0]) or (z[:, None] - c).square().sum(-1)
+    )
     exponents = layer.RBFNetwork._exponents
-    monkeypatch.setattr(layer.RBFNetwork, "_exponents",
-                        lambda self, xb, **kw: calls.append(xb.shape[0]) or exponents(self, xb, **kw))
+    monkeypatch.setattr(
+        layer.RBFNetwork, "_exponents", lambda self, xb, **kw: calls.append(xb.shape[0]) or exponents(self, xb, **kw)
+    )
     net.block_rows = 16
     with torch.no_grad():
         out = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
@@ -169,7 +183,7 @@ def test_assemble_without_tail_takes_design_matrix_weights():
     c, w = torch.randn(4, 3, dtype=torch.float64), torch.rand(4, dtype=torch.float64) + 0.5
     off, sc = torch.randn(3, dtype=torch.float64), torch.rand(3, dtype=torch.float64) + 0.5
     x = torch.randn(9, 3, dtype=torch.float64)
-    weights = torch.randn(4, 2, dtype=torch.float64)      # design_matrix(tail=False): no bias column
+    weights = torch.randn(4, 2, dtype=torch.float64)  # design_matrix(tail=False): no bias column
     net = assemble(c, w, weights, off, sc, tail=False)
     assert torch.allclose(net(x), design_matrix((x - off) / sc, c, w, tail=False) @ weights, atol=1e-12)
     assert torch.equal(net.head.bias, torch.zeros(2, dtype=torch.float64))
@@ -200,15 +214,19 @@ def _wide_net(seed=3, m=40):
     """A network with uneven widths, an input offset far from the origin and centres off-centre,
     and 2000 inputs (the first 1000 its training inputs)."""
     g = torch.Generator().manual_seed(seed)
-    net = RBFNetwork(torch.rand(m, 3, generator=g, dtype=torch.float64) * 4 - 2,
-                     torch.rand(m, generator=g, dtype=torch.float64) * 1.0 + 0.25, 3,
-                     offset=torch.tensor([5.0, -4.0, 3.0]), scale=torch.tensor([0.5, 0.7, 0.3]))
+    net = RBFNetwork(
+        torch.rand(m, 3, generator=g, dtype=torch.float64) * 4 - 2,
+        torch.rand(m, generator=g, dtype=torch.float64) * 1.0 + 0.25,
+        3,
+        offset=torch.tensor([5.0, -4.0, 3.0]),
+        scale=torch.tensor([0.5, 0.7, 0.3]),
+    )
     with torch.no_grad():
         for p in net.parameters():
             p.copy_(torch.randn(p.shape, generator=g, dtype=torch.float64))
     x = net.offset + net.scale * (torch.rand(2000, 3, generator=g, dtype=torch.float64) * 5 - 2.5)
     net.set_domain(x[:1000], net(x[:1000]).detach())
-    net.cover_radius.mul_(0.5)                 # some inputs beyond it, some inside
+    net.cover_radius.mul_(0.5)  # some inputs beyond it, some inside
     return net.eval(), x
 
 
@@ -227,7 +245,7 @@ def test_matrix_product_exponents_match_broadcast_distances():
         y32, mask32 = net32.solve(x.float())
         assert y32.dtype == torch.float32 and (y32.double() - y_ref).abs().max() < 1e-5
         _y32_ref, mask32_ref = _reference(net32, x.float())
-        assert (mask32 != mask32_ref).sum() <= 2             # rounding at the cover radius only
+        assert (mask32 != mask32_ref).sum() <= 2  # rounding at the cover radius only
         assert (mask32 != mask_ref).sum() <= 2
 
 
@@ -237,14 +255,21 @@ def _trained(tail=True, m=60, seed=5):
     from rbfn.fit import design_matrix, ridge_fit
 
     g = torch.Generator().manual_seed(seed)
-    x = torch.rand(1500, 3, generator=g, dtype=torch.float64) * torch.tensor([2.0, 1.7, 1.0]) + torch.tensor([0, 0.3, 0.5])
+    x = torch.rand(1500, 3, generator=g, dtype=torch.float64) * torch.tensor([2.0, 1.7, 1.0]) + torch.tensor(
+        [0, 0.3, 0.5]
+    )
     y = torch.stack([x[:, 0].sin() + x[:, 1].cos(), (x[:, 0] * x[:, 1]).cos(), -x[:, 2]], 1)
     off, sc = x.mean(0), torch.ones(3, dtype=torch.float64)
     c = (x[torch.randperm(1000, generator=g)[:m]] - off) / sc
     w = torch.full((m,), 0.4, dtype=torch.float64)
     z = (x - off) / sc
-    fit = ridge_fit(design_matrix(z[:1000], c, w, tail), y[:1000], design_matrix(z[1000:], c, w, tail), y[1000:],
-                    eval_dtype=torch.float32)
+    fit = ridge_fit(
+        design_matrix(z[:1000], c, w, tail),
+        y[:1000],
+        design_matrix(z[1000:], c, w, tail),
+        y[1000:],
+        eval_dtype=torch.float32,
+    )
     net = assemble(c, w, fit.weights, off, sc, tail=tail)
     net.set_domain(x[:1000], y[:1000])
     return net.eval(), x * 1.1 - 0.05
@@ -270,7 +295,7 @@ def test_plain_and_fast_paths_agree(tail):
             assert (_plain(net32, x.float()).double() - plain).abs().max() < 1e-5 * scale
             net.block_rows = 64
             assert torch.equal(net(x), fast) and torch.equal(_plain(net, x), plain)
-    assert RBFNetwork.fast and nets[0][0].fast                          # the default, restored
+    assert RBFNetwork.fast and nets[0][0].fast  # the default, restored
 
 
 def test_for_export_is_a_frozen_float32_copy_with_the_cover_fold_decided():
@@ -295,7 +320,7 @@ def test_cover_test_folded_into_the_exponents_or_not_matches_the_reference():
         assert net._expansion().cover_weight is not None
         narrow = copy.deepcopy(net)
         r = float(narrow.cover_radius)
-        narrow.widths[0] = r / (2 * MAX_COVER_SHIFT) ** 0.5 * 0.99     # shift just over the limit
+        narrow.widths[0] = r / (2 * MAX_COVER_SHIFT) ** 0.5 * 0.99  # shift just over the limit
         assert not cover_foldable(narrow.widths, narrow.cover_radius)
         assert narrow._expansion().cover_weight is None
         unbounded = copy.deepcopy(net)
@@ -316,22 +341,22 @@ def test_exponents_follow_changed_buffers():
     with torch.no_grad():
         y0 = net(x)
         assert torch.equal(net(x), y0)
-        net.centers[3] += 0.5                                 # in place
+        net.centers[3] += 0.5  # in place
         net.widths.mul_(1.1)
         net.scale[1] = 0.9
         net.offset.add_(0.01)
         y1 = net(x)
         assert (y1 - y0).abs().max() > 1e-3 and (y1 - fresh(net)(x)).abs().max() < 1e-12
         other, _ = _wide_net(seed=4)
-        net.load_state_dict(other.state_dict())               # copied in place
+        net.load_state_dict(other.state_dict())  # copied in place
         assert (net(x) - other(x)).abs().max() < 1e-12
-        net.centers = net.centers.flip(0).contiguous()        # a new tensor
+        net.centers = net.centers.flip(0).contiguous()  # a new tensor
         net.widths = net.widths.flip(0).contiguous()
         net.head.weight.copy_(net.head.weight.flip(1))
         assert (net(x) - other(x)).abs().max() < 1e-12
         net.float()
         assert net(x).dtype == torch.float32 and (net(x).double() - other(x)).abs().max() < 1e-5
-    with torch.inference_mode():                            # inference tensors: no version counter
+    with torch.inference_mode():  # inference tensors: no version counter
         infer = copy.deepcopy(other).float()
         y = infer(x)
         infer.centers[0] += 1.0
@@ -360,7 +385,7 @@ def test_non_finite_inputs_are_refused_by_every_entry_point():
             call(bad)
     with pytest.raises(ValueError, match="finite"):
         net(torch.tensor([[float("inf"), 0.0, 0.0]]).numpy())
-    assert net(torch.tensor([[3e38, 3e38, 3e38]])).shape == (1, 2)      # finite, though their sum overflows
+    assert net(torch.tensor([[3e38, 3e38, 3e38]])).shape == (1, 2)  # finite, though their sum overflows
 
 
 def test_in_workspace_takes_outputs_of_another_float_dtype():
@@ -369,14 +394,17 @@ def test_in_workspace_takes_outputs_of_another_float_dtype():
     assert torch.equal(net.in_workspace(x, net(x).double()), net.in_workspace(x, net(x)))
 
 
-@pytest.mark.parametrize("centers,widths,out,message", [
-    (torch.full((2, 3), float("nan")), torch.ones(2), 3, "centers must be finite"),
-    (torch.zeros(2, 3), torch.tensor([1.0, float("inf")]), 3, "widths must be finite"),
-    (torch.zeros(2, 3), torch.tensor([1.0, 1e-30]), 3, "widths must be >= 1e-12"),
-    (torch.zeros(2, 3, dtype=torch.int64), torch.ones(2), 3, "floating-point"),
-    (torch.zeros(3), torch.ones(3), 3, r"shape \(M, d\)"),
-    (torch.zeros(2, 3), torch.ones(2), 0, "out_features=0"),
-])
+@pytest.mark.parametrize(
+    "centers,widths,out,message",
+    [
+        (torch.full((2, 3), float("nan")), torch.ones(2), 3, "centers must be finite"),
+        (torch.zeros(2, 3), torch.tensor([1.0, float("inf")]), 3, "widths must be finite"),
+        (torch.zeros(2, 3), torch.tensor([1.0, 1e-30]), 3, "widths must be >= 1e-12"),
+        (torch.zeros(2, 3, dtype=torch.int64), torch.ones(2), 3, "floating-point"),
+        (torch.zeros(3), torch.ones(3), 3, r"shape \(M, d\)"),
+        (torch.zeros(2, 3), torch.ones(2), 0, "out_features=0"),
+    ],
+)
 def test_the_constructor_checks_its_arguments(centers, widths, out, message):
     with pytest.raises((ValueError, TypeError), match=message):
         RBFNetwork(centers, widths, out)

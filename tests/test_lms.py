@@ -25,11 +25,10 @@ def test_one_step_reduces_the_error_on_its_own_pair(cls):
 def test_converges_to_the_least_squares_solution(name, passes):
     a, y, _ = _stream(400)
     w_ls = torch.linalg.lstsq(a, y).solution
-    learner = make_learner(name, torch.zeros(1, 6, 2, dtype=torch.float64), alpha0=0.5, decay=0.0,
-                           forgetting=1.0)
+    learner = make_learner(name, torch.zeros(1, 6, 2, dtype=torch.float64), alpha0=0.5, decay=0.0, forgetting=1.0)
     for _ in range(passes):
         for i in range(0, 400, 4):
-            learner.update(a[None, i:i + 4], y[None, i:i + 4])
+            learner.update(a[None, i : i + 4], y[None, i : i + 4])
     tol = 0.02 if name == "nlms" else 1e-3
     assert torch.allclose(learner.w[0], w_ls, atol=tol)
 

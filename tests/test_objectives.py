@@ -24,7 +24,7 @@ def _reference(z, y, c, w, tail=True, **kw):
 def test_objective_equals_ridge_fit_on_whole_design_matrices(eval_dtype, tail):
     z, y, c, w = _problem()
     ref = _reference(z, y, c, w, tail, eval_dtype=eval_dtype).val_mse
-    rtol = 1e-6 if eval_dtype else 1e-10           # float32 predictions: float32 sums in another order
+    rtol = 1e-6 if eval_dtype else 1e-10  # float32 predictions: float32 sums in another order
     # All ants at once, validation Gaussians kept; one ant a batch in blocks of 64 rows, rebuilt.
     for memory, block in ((2**31, 2048), (0, 64)):
         obj = FitObjective(z[:500], y[:500], z[500:], y[500:], tail, eval_dtype=eval_dtype, memory=memory, block=block)
@@ -37,10 +37,10 @@ def test_rounding_scale_near_the_tolerance_is_judged_in_float64():
     z, y, c, w = _problem(k=3)
     a_val = design_matrix(z[500:], c, w)
     fit = _reference(z, y, c, w, eval_dtype=torch.float32)
-    bound = rounding_scale(a_val, fit.weights, torch.float32).amax((-2, -1))        # float64 sums
+    bound = rounding_scale(a_val, fit.weights, torch.float32).amax((-2, -1))  # float64 sums
     assert torch.allclose(bound, fit.rounding)
     chosen = []
-    for factor in (1 - 1e-9, 1 + 1e-9):                       # far below float32's resolution
+    for factor in (1 - 1e-9, 1 + 1e-9):  # far below float32's resolution
         tol = float(bound[0]) * factor
         obj = FitObjective(z[:500], y[:500], z[500:], y[500:], eval_dtype=torch.float32, round_tol=tol)
         exact = []
@@ -48,10 +48,9 @@ def test_rounding_scale_near_the_tolerance_is_judged_in_float64():
         obj._val_blocks = lambda *a, **kw: exact.append(kw.get("exact", False)) or blocks(*a, **kw)  # noqa: B023 - this obj's
         ref = _reference(z, y, c, w, eval_dtype=torch.float32, round_tol=tol)
         assert torch.allclose(obj(c, w), ref.val_mse, rtol=1e-6, atol=0)
-        assert any(exact)                                     # the float64 rescoring ran
+        assert any(exact)  # the float64 rescoring ran
         chosen.append(float(ref.ridge[0]))
-    assert chosen[0] > chosen[1]                              # the tolerance decides ant 0's ridge
-
+    assert chosen[0] > chosen[1]  # the tolerance decides ant 0's ridge
 
 
 def test_colony_gaussians_are_the_layers():
@@ -62,7 +61,7 @@ def test_colony_gaussians_are_the_layers():
 
     z, _y, c, w = _problem()
     coef, rows = _exponent_coefficients(c, w), _exponent_rows(z)
-    want = gaussian_features(z, c, w).transpose(-1, -2)                         # (K, M, N)
+    want = gaussian_features(z, c, w).transpose(-1, -2)  # (K, M, N)
     assert (_gaussians(coef, rows) - want).abs().max() < 1e-12
     out = torch.empty(want.shape, dtype=torch.float32)
     assert (_gaussians(coef, rows, out=out).double() - want).abs().max() < 1e-6

@@ -1,5 +1,6 @@
 """Training's library path: the task Jacobians, the choice of output weights after mini-batch
 refinement, and the task loss refused where it cannot see every joint."""
+
 import math
 
 import pytest
@@ -15,9 +16,19 @@ from rbfn.targets import TargetFeatures
 
 from .conftest import compose_config
 
-UR5_SMALL = ["robot=ur5", "centers=kmeans_refine", "rbfn.num_centers=40", "data.n_train=800", "data.n_val=300",
-             "data.n_test=200", "centers.refine.mode=minibatch", "centers.refine.minibatch.epochs=4", "progress=false",
-             "export=false", "num_threads=1"]
+UR5_SMALL = [
+    "robot=ur5",
+    "centers=kmeans_refine",
+    "rbfn.num_centers=40",
+    "data.n_train=800",
+    "data.n_val=300",
+    "data.n_test=200",
+    "centers.refine.mode=minibatch",
+    "centers.refine.minibatch.epochs=4",
+    "progress=false",
+    "export=false",
+    "num_threads=1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -61,8 +72,17 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
     def prefers_other(pred):
         return float((pred - target).abs().mean())
 
-    kept = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen,
-                       Refined(centers, widths, scale, 0.0, [], other, prefers_other))
+    kept = fit_weights(
+        cfg,
+        data,
+        feats,
+        offset,
+        scale,
+        centers,
+        widths,
+        gen,
+        Refined(centers, widths, scale, 0.0, [], other, prefers_other),
+    )
     assert torch.equal(kept.weights, other) and math.isnan(float(kept.ridge)) and kept.rounding <= 2e-6
     assert float(kept.val_mse) == pytest.approx(float(((a_val @ other - data.val.q) ** 2).sum(-1).mean()), rel=1e-4)
     # The plain validation MSE prefers the ridge fit: it stays.
@@ -76,15 +96,17 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
     c2[1] = c2[0]
     calls = []
 
-    def prefers_trained(pred):          # called with the trained weights' predictions first
+    def prefers_trained(pred):  # called with the trained weights' predictions first
         calls.append(1)
         return float(len(calls) > 1)
 
-    kept = fit_weights(cfg, data, feats, offset, scale, c2, widths, gen,
-                       Refined(c2, widths, scale, 0.0, [], unstable, prefers_trained))
+    kept = fit_weights(
+        cfg, data, feats, offset, scale, c2, widths, gen, Refined(c2, widths, scale, 0.0, [], unstable, prefers_trained)
+    )
     assert not torch.equal(kept.weights, unstable) and not math.isnan(float(kept.ridge))
-    stable = fit_weights(cfg, data, feats, offset, scale, c2, widths, gen,
-                         Refined(c2, widths, scale, 0.0, [], other, prefers_trained))
+    stable = fit_weights(
+        cfg, data, feats, offset, scale, c2, widths, gen, Refined(c2, widths, scale, 0.0, [], other, prefers_trained)
+    )
     assert torch.equal(stable.weights, other)
 
 
@@ -99,6 +121,8 @@ def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
     m = train.run(compose_config("train", *UR5_SMALL), tmp_path)
     assert m["output_weights"] in ("trained", "ridge")
     assert (m["ridge"] is None) == (m["output_weights"] == "trained")
-    joint = train.run(compose_config("train", *UR5_SMALL, "centers.refine.minibatch.loss=joint", "centers.refine.minibatch.huber=0"),
-                      tmp_path / "joint")
+    joint = train.run(
+        compose_config("train", *UR5_SMALL, "centers.refine.minibatch.loss=joint", "centers.refine.minibatch.huber=0"),
+        tmp_path / "joint",
+    )
     assert joint["test_pos_err_mm_median"] != m["test_pos_err_mm_median"]

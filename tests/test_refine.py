@@ -30,7 +30,7 @@ def test_minibatch_refinement_lowers_validation_error_and_keeps_the_best():
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
     r = rf.refine_minibatch(z_tr, y_tr, z_val, y_val, c, w, weights, epochs=30, batch=32, lr=0.01, eval_every=5)
     assert len(r.history) == 1 + 30 // 5 and r.val_mse == min(r.history)
-    assert r.history[-1] < 0.5 * r.history[0]                      # it learns, not just keeps the start
+    assert r.history[-1] < 0.5 * r.history[0]  # it learns, not just keeps the start
     assert r.centers.dtype == torch.float64 and r.centers.shape == (15, 2) and r.input_scale.shape == (2,)
     assert (r.widths > 0).all()
     # The kept centres are better than the start once the pipeline re-solves the weights too.
@@ -40,8 +40,12 @@ def test_minibatch_refinement_lowers_validation_error_and_keeps_the_best():
 
 def test_minibatch_refinement_is_seeded_and_caps_widths():
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
-    runs = [rf.refine_minibatch(z_tr, y_tr, z_val, y_val, c, w, weights, epochs=3, batch=64, seed=s,
-                                max_width=0.41, lr=0.05) for s in (1, 1, 2)]
+    runs = [
+        rf.refine_minibatch(
+            z_tr, y_tr, z_val, y_val, c, w, weights, epochs=3, batch=64, seed=s, max_width=0.41, lr=0.05
+        )
+        for s in (1, 1, 2)
+    ]
     assert torch.equal(runs[0].centers, runs[1].centers) and not torch.equal(runs[0].centers, runs[2].centers)
     assert all(float(r.widths.max()) <= 0.41 * (1 + 1e-6) for r in runs)
 
@@ -50,7 +54,7 @@ def test_minibatch_refinement_stops_where_it_diverges(caplog):
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
     r = rf.refine_minibatch(z_tr, y_tr, z_val, y_val, c, w, weights, epochs=5, batch=32, lr=1e30)
     assert "diverged in epoch 1" in caplog.text and "centers.refine.minibatch.lr" in caplog.text
-    assert r.history == [r.val_mse]                                # the start, the only finite iterate
+    assert r.history == [r.val_mse]  # the start, the only finite iterate
     assert torch.allclose(r.centers, c, atol=1e-6) and torch.allclose(r.widths, w, rtol=1e-6)
 
 
@@ -60,8 +64,10 @@ def test_full_refinement_keeps_the_best_on_validation():
     assert len(r.history) == 5 and r.val_mse == min(r.history) and r.val_mse < r.history[0]
 
 
-@pytest.mark.parametrize("mode,rows_max,full", [("auto", math.inf, True), ("auto", 0.0, False),
-                                                ("full", 0.0, True), ("minibatch", math.inf, False)])
+@pytest.mark.parametrize(
+    "mode,rows_max,full",
+    [("auto", math.inf, True), ("auto", 0.0, False), ("full", 0.0, True), ("minibatch", math.inf, False)],
+)
 def test_mode_picks_the_way(monkeypatch, mode, rows_max, full):
     calls = []
     monkeypatch.setattr(rf, "FULL_ROWS_MAX", rows_max)
@@ -91,12 +97,12 @@ def test_row_loss_squared_task_and_pseudo_huber():
     err = torch.tensor([[0.003, -0.004], [0.0, 0.0], [3.0, 4.0]], dtype=torch.float64)
     assert torch.allclose(rf.row_loss(err), torch.tensor([25e-6, 0.0, 25.0], dtype=torch.float64))
     jac = torch.tensor([[2.0, 0.0], [0.0, 1.0], [1.0, 1.0]], dtype=torch.float64).expand(3, 3, 2)
-    task = rf.row_loss(err, jac)                              # |J err|^2: (2 e1)^2 + e2^2 + (e1 + e2)^2
+    task = rf.row_loss(err, jac)  # |J err|^2: (2 e1)^2 + e2^2 + (e1 + e2)^2
     assert torch.allclose(task, (4 * err[:, 0] ** 2 + err[:, 1] ** 2 + err.sum(-1) ** 2))
     h = rf.row_loss(err, huber=0.1)
     assert h[1] == 0.0
-    assert h[0] == pytest.approx(25e-6 / 2, rel=1e-3)          # small errors: |e|^2 / 2
-    assert h[2] == pytest.approx(0.1 * 5.0, rel=3e-2)          # large ones: huber * |e|, linear
+    assert h[0] == pytest.approx(25e-6 / 2, rel=1e-3)  # small errors: |e|^2 / 2
+    assert h[2] == pytest.approx(0.1 * 5.0, rel=3e-2)  # large ones: huber * |e|, linear
 
 
 def test_minibatch_task_loss_lowers_the_task_error_and_returns_trained_weights():
@@ -104,19 +110,20 @@ def test_minibatch_task_loss_lowers_the_task_error_and_returns_trained_weights()
     # A fixed per-row "Jacobian" that weighs output 0 ten times output 1.
     jac_tr = torch.diag(torch.tensor([10.0, 1.0], dtype=torch.float64)).expand(400, 2, 2)
     jac_val = jac_tr[:200]
-    r = rf.refine_minibatch(z_tr, y_tr, z_val, y_val, c, w, weights, epochs=30, batch=32, lr=0.01,
-                            huber=0.05, jacobians=(jac_tr, jac_val))
+    r = rf.refine_minibatch(
+        z_tr, y_tr, z_val, y_val, c, w, weights, epochs=30, batch=32, lr=0.01, huber=0.05, jacobians=(jac_tr, jac_val)
+    )
     assert r.val_mse == min(r.history) and r.history[-1] < 0.5 * r.history[0]
     assert r.weights.shape == weights.shape and r.weights.dtype == torch.float64
     pred = design_matrix(z_val / r.input_scale, r.centers, r.widths) @ r.weights
-    assert r.val_loss(pred) == pytest.approx(r.val_mse, rel=1e-4)     # the loss it kept, from the weights it returns
+    assert r.val_loss(pred) == pytest.approx(r.val_mse, rel=1e-4)  # the loss it kept, from the weights it returns
     start = design_matrix(z_val, c, w) @ weights
     assert r.val_loss(pred) < r.val_loss(start)
 
 
 def test_refine_mode_auto_takes_minibatches_for_large_problems():
     cfg = RefineConfig()
-    assert rf.refine_mode(cfg, 2000, 84) == "full"                       # the SCARA's
-    assert rf.refine_mode(cfg, 20000, 2010) == "minibatch"               # the UR5's M = 2000
+    assert rf.refine_mode(cfg, 2000, 84) == "full"  # the SCARA's
+    assert rf.refine_mode(cfg, 20000, 2010) == "minibatch"  # the UR5's M = 2000
     cfg.mode = RefineMode.full
     assert rf.refine_mode(cfg, 20000, 2010) == "full"

@@ -8,6 +8,7 @@ file saved the running colony's snapshot of iteration K. The rerun must end with
 uninterrupted run's checkpoint weights and metrics bit for bit (wall-clock seconds aside), and no
 temporary file may be left. One test stops a real `python train.py` with SIGTERM.
 """
+
 import importlib
 import json
 import os
@@ -28,13 +29,32 @@ from rbfn.studies.stop import Stopped
 
 from .conftest import ROOT, compose_config
 
-OVERRIDES = ["data.n_train=400", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=12",
-             "rbfn.growth.start=6", "centers.aco.iterations=12", "centers.refine.full.steps=20", "progress=false",
-             "num_threads=1", "export=false"]
+OVERRIDES = [
+    "data.n_train=400",
+    "data.n_val=200",
+    "data.n_test=200",
+    "rbfn.num_centers=12",
+    "rbfn.growth.start=6",
+    "centers.aco.iterations=12",
+    "centers.refine.full.steps=20",
+    "progress=false",
+    "num_threads=1",
+    "export=false",
+]
 # Every step of training, small: two growth steps of a colony, refinement (and the exports where
 # a point concerns them: they take most of such a run's time).
-POINT_RUN = ["data.n_train=300", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=10", "rbfn.growth.start=5",
-             "centers.aco.iterations=5", "centers.refine.full.steps=10", "progress=false", "num_threads=1", "export=false"]
+POINT_RUN = [
+    "data.n_train=300",
+    "data.n_val=200",
+    "data.n_test=200",
+    "rbfn.num_centers=10",
+    "rbfn.growth.start=5",
+    "centers.aco.iterations=5",
+    "centers.refine.full.steps=10",
+    "progress=false",
+    "num_threads=1",
+    "export=false",
+]
 RUN_FILES = {".hydra/config.yaml": "seed: 0\n"}
 
 
@@ -79,6 +99,7 @@ def _stop(monkeypatch, how: str, target: str, when) -> None:
             if Path(dst).name == target and due(Path(dst)):
                 raise Stopped(signal.SIGTERM)
             return replace(src, dst, *a, **kw)
+
         monkeypatch.setattr(os, "replace", replacing)
         return
     module, name = target.rsplit(".", 1)
@@ -91,6 +112,7 @@ def _stop(monkeypatch, how: str, target: str, when) -> None:
         if how == "after" and due():
             raise Stopped(signal.SIGTERM)
         return out
+
     monkeypatch.setattr(target, stopping)
 
 
@@ -126,28 +148,34 @@ def reference(tmp_path_factory):
             made[tuple(extra)] = out = tmp_path_factory.mktemp("reference")
             train.run(compose_config("train", *POINT_RUN, *extra), out, RUN_FILES)
         return made[tuple(extra)]
+
     return run_dir
 
 
 @pytest.mark.parametrize("how,target,when,extra", POINTS)
-def test_a_rerun_after_any_interruption_ends_as_an_uninterrupted_run(reference, tmp_path, monkeypatch, how, target,
-                                                                       when, extra):
+def test_a_rerun_after_any_interruption_ends_as_an_uninterrupted_run(
+    reference, tmp_path, monkeypatch, how, target, when, extra
+):
     with monkeypatch.context() as mp:
         _stop(mp, how, target, when)
         with pytest.raises(Stopped):
             train.run(compose_config("train", *POINT_RUN, *extra), tmp_path, RUN_FILES)
     assert not list(tmp_path.rglob("*.tmp"))
     state = load_sealed(tmp_path / "last.pt")["state"] if (tmp_path / "last.pt").exists() else None
-    assert state is None or state["finished"] is None             # interrupted before the end
+    assert state is None or state["finished"] is None  # interrupted before the end
     train.run(compose_config("train", *POINT_RUN, *extra), tmp_path, RUN_FILES)
     _assert_same_outcome(tmp_path, reference(extra))
 
 
 def test_a_run_interrupted_again_and_again_ends_as_an_uninterrupted_run(reference, tmp_path, monkeypatch):
     """Each rerun interrupted at a later point than the one before (resuming, then stopped again)."""
-    for how, target, when in [("writing", "last.pt", 1), ("before", "rbfn.pipeline.select", 1),
-                              ("after", "rbfn.pipeline.fit_weights", 1), ("after", "rbfn.pipeline.refine", 1),
-                              ("after", "rbfn.studies.ik.write_json", 1)]:
+    for how, target, when in [
+        ("writing", "last.pt", 1),
+        ("before", "rbfn.pipeline.select", 1),
+        ("after", "rbfn.pipeline.fit_weights", 1),
+        ("after", "rbfn.pipeline.refine", 1),
+        ("after", "rbfn.studies.ik.write_json", 1),
+    ]:
         with monkeypatch.context() as mp:
             _stop(mp, how, target, when)
             with pytest.raises(Stopped):
@@ -164,21 +192,27 @@ class Interrupted(Exception):
 def _interrupt_at(num_centers: int, iteration: int):
     class Interrupting(StateFile):
         def __init__(self, run_dir):
-            super().__init__(run_dir, every=0.0)          # save every snapshot
+            super().__init__(run_dir, every=0.0)  # save every snapshot
 
         def save(self, state, force=True):
             super().save(state, force)
             colony = (state.current or {}).get("colony")
-            if state.current and state.current["num_centers"] == num_centers and colony \
-                    and colony["iteration"] >= iteration:
+            if (
+                state.current
+                and state.current["num_centers"] == num_centers
+                and colony
+                and colony["iteration"] >= iteration
+            ):
                 raise Interrupted
+
     return Interrupting
 
 
 # (centres, M, colony iteration): mid-colony, and the colony's last snapshot (it had ended, its
 # growth step not yet saved).
-@pytest.mark.parametrize("centers,m,k", [("aco", 6, 4), ("aco", 12, 4), ("aco_paper", 6, 4), ("aco_paper", 12, 4),
-                                         ("aco", 12, 12)])
+@pytest.mark.parametrize(
+    "centers,m,k", [("aco", 6, 4), ("aco", 12, 4), ("aco_paper", 6, 4), ("aco_paper", 12, 4), ("aco", 12, 12)]
+)
 def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch, centers, m, k):
     cfg = compose_config("train", *OVERRIDES, f"centers={centers}")
     reference = train.run(cfg, tmp_path / "ref")

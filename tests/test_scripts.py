@@ -1,4 +1,5 @@
 """The console scripts pyproject.toml declares resolve to callables, and each answers --help."""
+
 import shutil
 import subprocess
 import sys
@@ -31,16 +32,22 @@ def test_entry_points_resolve():
 
 
 @needs_install
-@pytest.mark.parametrize("name,shows", [("aco-rbfn-summarize", "SWEEP_DIR"), ("aco-rbfn-export", "CHECKPOINT"),
-                                        ("aco-rbfn-train", "train is powered by Hydra"),
-                                        ("aco-rbfn-evaluate", "evaluate is powered by Hydra")])
+@pytest.mark.parametrize(
+    "name,shows",
+    [
+        ("aco-rbfn-summarize", "SWEEP_DIR"),
+        ("aco-rbfn-export", "CHECKPOINT"),
+        ("aco-rbfn-train", "train is powered by Hydra"),
+        ("aco-rbfn-evaluate", "evaluate is powered by Hydra"),
+    ],
+)
 def test_help_runs(name, shows, tmp_path):
-    beside = Path(sys.executable).parent / name          # this interpreter's environment first
+    beside = Path(sys.executable).parent / name  # this interpreter's environment first
     exe = str(beside) if beside.is_file() else shutil.which(name)
     assert exe, f"{name} is not on PATH"
     out = subprocess.run([exe, "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and shows in out.stdout, out.stderr[-2000:]
-    assert list(tmp_path.iterdir()) == []          # --help writes nothing, wherever it runs
+    assert list(tmp_path.iterdir()) == []  # --help writes nothing, wherever it runs
 
 
 @needs_install

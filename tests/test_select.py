@@ -10,12 +10,18 @@ from rbfn.select import select
 @pytest.fixture(scope="module")
 def objective(small_data):
     off, sc = input_scaling(small_data.train.x, "metres")
-    return FitObjective((small_data.train.x - off) / sc, small_data.train.q,
-                        (small_data.val.x - off) / sc, small_data.val.q, eval_dtype=torch.float32)
+    return FitObjective(
+        (small_data.train.x - off) / sc,
+        small_data.train.q,
+        (small_data.val.x - off) / sc,
+        small_data.val.q,
+        eval_dtype=torch.float32,
+    )
 
 
-@pytest.mark.parametrize("method,colony", [("random", "acor"), ("kmeans", "acor"), ("ols", "acor"),
-                                           ("aco", "acor"), ("aco", "ant_system")])
+@pytest.mark.parametrize(
+    "method,colony", [("random", "acor"), ("kmeans", "acor"), ("ols", "acor"), ("aco", "acor"), ("aco", "ant_system")]
+)
 def test_every_method_returns_centres_and_positive_widths(objective, method, colony):
     cfg = CentersConfig(method=method)
     cfg.aco.colony, cfg.aco.iterations = colony, 5
@@ -23,9 +29,9 @@ def test_every_method_returns_centres_and_positive_widths(objective, method, col
     s = select(cfg, objective, 12, seed=0, max_width=2.0)
     assert s.centers.shape == (12, 3) and s.widths.shape == (12,)
     assert (s.widths > 0).all() and (s.widths <= 2.0).all()
-    if method == "aco":                                  # one entry per iteration run (the Ant System
-        assert 1 <= len(s.aco_best) <= 5                 # stops early once every ant agrees)
-        assert s.aco_best == sorted(s.aco_best, reverse=True)   # best-so-far never worsens
+    if method == "aco":  # one entry per iteration run (the Ant System
+        assert 1 <= len(s.aco_best) <= 5  # stops early once every ant agrees)
+        assert s.aco_best == sorted(s.aco_best, reverse=True)  # best-so-far never worsens
 
 
 def test_acor_is_no_worse_than_its_kmeans_seed(objective):
@@ -77,23 +83,26 @@ def test_ant_system_visibility_is_wired(objective):
     z = objective.z_train
     eta = visibility(z, z[:50])
     assert eta.shape == (50,) and (eta > 0).all()
+
     def run(beta):
         cfg = CentersConfig(method="aco")
         cfg.aco.colony, cfg.aco.iterations = "ant_system", 3
         cfg.aco.ant_system.candidates, cfg.aco.ant_system.beta = 100, beta
         return select(cfg, objective, 8, seed=0, max_width=2.0).centers
+
     assert not torch.equal(run(0.0), run(4.0))
 
 
 @pytest.mark.parametrize("limit", ["FULL_SEARCH_MAX", "FULL_FLOPS"])
 def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch, limit):
     import rbfn.select as sel
-    monkeypatch.setattr(sel, limit, 0)      # the large-M search on a small problem (too many coordinates, or flops)
+
+    monkeypatch.setattr(sel, limit, 0)  # the large-M search on a small problem (too many coordinates, or flops)
     km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
     cfg = CentersConfig(method="aco")
     cfg.aco.iterations = 4
     aco = select(cfg, objective, 10, seed=0, max_width=2.0)
-    assert torch.equal(aco.centers, km.centers)          # centres are the k-means seed's
+    assert torch.equal(aco.centers, km.centers)  # centres are the k-means seed's
     assert 1 <= len(aco.aco_best) <= 4
     e_km = objective(km.centers[None], km.widths[None]).item()
     e_aco = objective(aco.centers[None], aco.widths[None]).item()
@@ -104,9 +113,9 @@ def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch, l
 def test_objective_subset_is_the_objective_on_seeded_rows(objective):
     sub = objective.subset(100, seed=3)
     assert sub.z_train.shape == (100, 3) and sub.z_val.shape == (100, 3)
-    assert torch.equal(sub.z_train, objective.subset(100, seed=3).z_train)           # seeded
+    assert torch.equal(sub.z_train, objective.subset(100, seed=3).z_train)  # seeded
     assert not torch.equal(sub.z_train, objective.subset(100, seed=4).z_train)
-    rows = (sub.z_train[:, None] == objective.z_train[None]).all(-1)                 # rows of the original, once each
+    rows = (sub.z_train[:, None] == objective.z_train[None]).all(-1)  # rows of the original, once each
     assert (rows.sum(1) == 1).all() and torch.equal(objective.y_train[rows.int().argmax(1)], sub.y_train)
     direct = FitObjective(sub.z_train, sub.y_train, sub.z_val, sub.y_val, eval_dtype=torch.float32)
     c, w = objective.z_train[:8][None], torch.full((1, 8), 0.5, dtype=torch.float64)
@@ -117,9 +126,9 @@ def test_objective_subset_is_the_objective_on_seeded_rows(objective):
 def test_colony_ranks_on_a_subset_of_at_least_50_rows_per_column(objective):
     from rbfn.select import colony_objective
 
-    assert colony_objective(objective, 10, 0, seed=0) is objective                   # fit_rows = 0: every row
-    assert colony_objective(objective, 10, 100, seed=0) is objective                 # 50 x 14 columns >= 600 rows
-    small = colony_objective(objective, 2, 100, seed=0)                              # 50 x 6 = 300 rows
+    assert colony_objective(objective, 10, 0, seed=0) is objective  # fit_rows = 0: every row
+    assert colony_objective(objective, 10, 100, seed=0) is objective  # 50 x 14 columns >= 600 rows
+    small = colony_objective(objective, 2, 100, seed=0)  # 50 x 6 = 300 rows
     assert small.z_train.shape[0] == 300 and small.z_val.shape[0] == 300
 
 

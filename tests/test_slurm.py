@@ -5,6 +5,7 @@ Skipped where SLURM or munge is not installed (.ci/run installs them on Debian) 
 test does not run as root (slurmd starts the jobs). Every daemon is stopped at the end, also on
 failure.
 """
+
 import json
 import os
 import shutil
@@ -24,29 +25,44 @@ pytestmark = [pytest.mark.slurm, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "examples" / "slurm_local_cluster.sh"
 TOOLS = ("slurmctld", "slurmd", "munged", "sbatch", "squeue", "sinfo", "scontrol", "scancel")
-SMALL = ["data.n_train=300", "data.n_val=150", "data.n_test=150", "rbfn.growth.start=0", "export=false",
-         "progress=false", "num_threads=1"]
-LAUNCHER = ["hydra/launcher=slurm", "hydra.launcher.partition=local", "hydra.launcher.timeout_min=5",
-            "hydra.launcher.mem_gb=1"]
+SMALL = [
+    "data.n_train=300",
+    "data.n_val=150",
+    "data.n_test=150",
+    "rbfn.growth.start=0",
+    "export=false",
+    "progress=false",
+    "num_threads=1",
+]
+LAUNCHER = [
+    "hydra/launcher=slurm",
+    "hydra.launcher.partition=local",
+    "hydra.launcher.timeout_min=5",
+    "hydra.launcher.mem_gb=1",
+]
 # About 15-20 s of colony on one core: long enough to be requeued in the middle.
 COLONY_ITERATIONS = 10000
 LONG = ["centers=aco", f"centers.aco.iterations={COLONY_ITERATIONS}", "rbfn.num_centers=20", *SMALL]
-REQUEUE_AFTER = 100          # colony iterations in last.pt before the job is requeued
+REQUEUE_AFTER = 100  # colony iterations in last.pt before the job is requeued
 
 
 def _missing() -> str | None:
     absent = [t for t in TOOLS if shutil.which(t) is None]
     if absent:
-        return (f"SLURM is not installed ({', '.join(absent)} not found); on Debian: "
-                "apt-get install slurmctld slurmd slurm-client munge (.ci/run does)")
+        return (
+            f"SLURM is not installed ({', '.join(absent)} not found); on Debian: "
+            "apt-get install slurmctld slurmd slurm-client munge (.ci/run does)"
+        )
     if os.geteuid() != 0:
         return "the local SLURM cluster needs root (slurmd starts the jobs)"
     return None
 
 
 def _logs(d: Path) -> str:
-    return "\n".join(f"--- {p.name}\n" + "\n".join(p.read_text(errors="replace").splitlines()[-15:])
-                     for p in sorted((d / "log").glob("*.log")))
+    return "\n".join(
+        f"--- {p.name}\n" + "\n".join(p.read_text(errors="replace").splitlines()[-15:])
+        for p in sorted((d / "log").glob("*.log"))
+    )
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +72,7 @@ def cluster():
     if why:
         pytest.skip(why)
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
-    d = Path(tempfile.mkdtemp(prefix="slurm-", dir="/tmp"))     # short: munge and slurmd use unix sockets here
+    d = Path(tempfile.mkdtemp(prefix="slurm-", dir="/tmp"))  # short: munge and slurmd use unix sockets here
     try:
         r = subprocess.run(["bash", str(SCRIPT), "start", str(d)], capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, f"cluster did not start:\n{r.stdout}{r.stderr}\n{_logs(d)}"
@@ -99,9 +115,23 @@ def test_multirun_on_slurm_writes_every_job_and_summarizes(cluster, tmp_path):
     d, env = cluster
     sweep = tmp_path / "sweep"
     t0 = time.monotonic()
-    r = subprocess.run([sys.executable, "train.py", "-m", *LAUNCHER, "centers=kmeans,random", "rbfn.num_centers=10",
-                        *SMALL, f"hydra.sweep.dir={sweep}"], cwd=ROOT, env=env, capture_output=True, text=True,
-                       timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "train.py",
+            "-m",
+            *LAUNCHER,
+            "centers=kmeans,random",
+            "rbfn.num_centers=10",
+            *SMALL,
+            f"hydra.sweep.dir={sweep}",
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     wall = time.monotonic() - t0
     assert r.returncode == 0, f"{r.stderr[-3000:]}\n{_logs(d)}"
     submitted = [line for line in r.stdout.splitlines() + r.stderr.splitlines() if "\t#" in line]
@@ -111,27 +141,45 @@ def test_multirun_on_slurm_writes_every_job_and_summarizes(cluster, tmp_path):
         assert (job / "checkpoint.pt").is_file(), job
         assert json.loads((job / "metrics.json").read_text())["test_pos_err_mm_median"] > 0
     results = list((sweep / ".submitit").glob("*/*_result.pkl"))
-    out = subprocess.run([sys.executable, "-m", "rbfn.summarize", str(sweep)], cwd=ROOT, capture_output=True,
-                         text=True, timeout=120).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "rbfn.summarize", str(sweep)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    ).stdout
     assert len([line for line in out.splitlines() if line.startswith(("| kmeans |", "| random |"))]) == 2, out
     assert "2 jobs: 2 completed, 0 failed, 0 unfinished" in out
-    print(f"\nSLURM sweep: {len(submitted)} jobs submitted, {len(results)} results from submitit, "
-          f"{len(jobs)} completed with metrics.json; {wall:.1f} s")
+    print(
+        f"\nSLURM sweep: {len(submitted)} jobs submitted, {len(results)} results from submitit, "
+        f"{len(jobs)} completed with metrics.json; {wall:.1f} s"
+    )
 
 
 def test_requeued_job_resumes_from_last_pt_to_the_uninterrupted_result(cluster, tmp_path):
     d, env = cluster
     sweep, ref_dir = tmp_path / "sweep", tmp_path / "reference"
     t0 = time.monotonic()
-    sub = subprocess.Popen([sys.executable, "train.py", "-m", *LAUNCHER, *LONG, f"hydra.sweep.dir={sweep}"],
-                           cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    sub = subprocess.Popen(
+        [sys.executable, "train.py", "-m", *LAUNCHER, *LONG, f"hydra.sweep.dir={sweep}"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     # The uninterrupted reference, as a plain run beside it (the node uses one of the two cores).
-    ref = subprocess.Popen([sys.executable, "train.py", *LONG, f"hydra.run.dir={ref_dir}"], cwd=ROOT,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    ref = subprocess.Popen(
+        [sys.executable, "train.py", *LONG, f"hydra.run.dir={ref_dir}"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         job = sweep / "0"
-        job_id = _wait("the job to run", lambda: [line.split()[0] for line in _squeue(env, "%i %T")
-                                                  if line.endswith("RUNNING")], 60, on_fail=lambda: _logs(d))[0]
+        job_id = _wait(
+            "the job to run",
+            lambda: [line.split()[0] for line in _squeue(env, "%i %T") if line.endswith("RUNNING")],
+            60,
+            on_fail=lambda: _logs(d),
+        )[0]
 
         def colony_iteration():
             try:
@@ -145,8 +193,12 @@ def test_requeued_job_resumes_from_last_pt_to_the_uninterrupted_result(cluster, 
         subprocess.run(["scontrol", "requeue", job_id], env=env, check=True, timeout=30)
         # The killed process must be gone (its lock on the run directory released) before the job
         # starts again: SLURM holds a requeued job back for a while, then it is released here.
-        _wait("the requeued job to be pending", lambda: any(
-            line == f"{job_id} PENDING" for line in _squeue(env, "%i %T")), 60, on_fail=lambda: _logs(d))
+        _wait(
+            "the requeued job to be pending",
+            lambda: any(line == f"{job_id} PENDING" for line in _squeue(env, "%i %T")),
+            60,
+            on_fail=lambda: _logs(d),
+        )
 
         def lock_free():
             try:
@@ -177,6 +229,8 @@ def test_requeued_job_resumes_from_last_pt_to_the_uninterrupted_result(cluster, 
     for key in ("val_E", "test_pos_err_mm_median", "test_pos_err_mm_p95", "test_pos_err_mm_max", "growth"):
         assert got[key] == want[key], key
     assert k < COLONY_ITERATIONS and load_sealed(job / "last.pt")["state"]["finished"] is not None
-    print(f"\nSLURM requeue: job {job_id} requeued at colony iteration {k}; "
-          f"{resumed[0].split(' - ', 1)[-1]}; metrics equal the uninterrupted run's "
-          f"(val_E {got['val_E']:.4g}, test median {got['test_pos_err_mm_median']:.3f} mm); {wall:.1f} s")
+    print(
+        f"\nSLURM requeue: job {job_id} requeued at colony iteration {k}; "
+        f"{resumed[0].split(' - ', 1)[-1]}; metrics equal the uninterrupted run's "
+        f"(val_E {got['val_E']:.4g}, test median {got['test_pos_err_mm_median']:.3f} mm); {wall:.1f} s"
+    )

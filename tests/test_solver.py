@@ -1,5 +1,6 @@
 """Pose IK on the UR5 end to end at a small size: (B, 7) targets, q and -q alike, bad targets named,
 the polish converging from the network's answer without leaving the joint box, the export."""
+
 import pytest
 import torch
 
@@ -8,8 +9,16 @@ from rbfn import load_model, load_solver
 
 from .conftest import compose_config
 
-SMALL = ["robot=ur5", "centers=kmeans", "rbfn.num_centers=150", "data.n_train=3000", "data.n_val=1000",
-         "data.n_test=500", "progress=false", "num_threads=1"]
+SMALL = [
+    "robot=ur5",
+    "centers=kmeans",
+    "rbfn.num_centers=150",
+    "data.n_train=3000",
+    "data.n_val=1000",
+    "data.n_test=500",
+    "progress=false",
+    "num_threads=1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -28,8 +37,13 @@ def _targets(n=200, seed=5):
 
 def test_pose_metrics_are_reported(ur5_run):
     _, m = ur5_run
-    for key in ("test_pos_err_mm_median", "test_rot_err_deg_median", "test_rot_err_deg_p95",
-                "test_polished_success_rate", "test_polished_pos_err_mm_median"):
+    for key in (
+        "test_pos_err_mm_median",
+        "test_rot_err_deg_median",
+        "test_rot_err_deg_p95",
+        "test_polished_success_rate",
+        "test_polished_pos_err_mm_median",
+    ):
         assert m[key] >= 0, key
     assert m["target"] == "pose" and m["test_polished_pos_err_mm_median"] < m["test_pos_err_mm_median"]
 
@@ -42,7 +56,9 @@ def test_pose_network_takes_poses_and_ignores_the_quaternion_sign(ur5_run):
     q = net(x)
     assert q.shape == (x.shape[0], 6)
     assert torch.allclose(net(flipped), q, atol=1e-12)
-    with pytest.raises(ValueError, match=r"poses must be \(B, 7\): position in m, then a unit quaternion.*got shape \(200, 3\)"):
+    with pytest.raises(
+        ValueError, match=r"poses must be \(B, 7\): position in m, then a unit quaternion.*got shape \(200, 3\)"
+    ):
         net(x[:, :3])
     bad = x.clone()
     bad[3, 3:] *= 1.5
@@ -76,7 +92,7 @@ def test_restarts_rescue_the_targets_the_polish_leaves(ur5_run):
     pos, rot = robot.errors(q, split.x)
     assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
     assert ((q >= robot.low) & (q <= robot.high)).all()
-    assert torch.equal(solver.solve(split.x, iterations=1, restarts=5)[0], q)       # seeded
+    assert torch.equal(solver.solve(split.x, iterations=1, restarts=5)[0], q)  # seeded
     with pytest.raises(ValueError, match="restarts=-2"):
         solver.solve(split.x, restarts=-2)
 
@@ -93,14 +109,17 @@ def test_pose_export_matches_the_module(ur5_run, tmp_path):
     assert inside_onnx.tolist() == inside.tolist()
 
 
-@pytest.mark.parametrize("kwargs,message", [
-    ({"iterations": True}, r"iterations=True is not allowed: use an integer in \[0, 1000\]"),
-    ({"iterations": 10**9}, r"iterations=1000000000 is not allowed"),
-    ({"iterations": 2.0}, r"iterations=2.0 is not allowed"),
-    ({"restarts": -1}, r"restarts=-1 is not allowed"),
-    ({"restart_iterations": "5"}, r"restart_iterations='5' is not allowed"),
-    ({"seed": -1}, r"seed=-1 is not allowed"),
-])
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        ({"iterations": True}, r"iterations=True is not allowed: use an integer in \[0, 1000\]"),
+        ({"iterations": 10**9}, r"iterations=1000000000 is not allowed"),
+        ({"iterations": 2.0}, r"iterations=2.0 is not allowed"),
+        ({"restarts": -1}, r"restarts=-1 is not allowed"),
+        ({"restart_iterations": "5"}, r"restart_iterations='5' is not allowed"),
+        ({"seed": -1}, r"seed=-1 is not allowed"),
+    ],
+)
 def test_solve_checks_its_arguments(panda_ckpt, kwargs, message):
     from rbfn.checkpoint import model_from_checkpoint
     from rbfn.robots.robot import robot_from_record
@@ -115,11 +134,14 @@ def test_solve_checks_its_arguments(panda_ckpt, kwargs, message):
         solver.solve(torch.full_like(x, float("nan")))
 
 
-@pytest.mark.parametrize("kwargs,message", [
-    ({"tol_mm": -1}, r"tol_mm=-1 is not allowed: use a finite number > 0"),
-    ({"tol_deg": float("nan")}, r"tol_deg=nan is not allowed"),
-    ({"damping": -1e-3}, r"damping=-0.001 is not allowed: use a finite number >= 0"),
-])
+@pytest.mark.parametrize(
+    "kwargs,message",
+    [
+        ({"tol_mm": -1}, r"tol_mm=-1 is not allowed: use a finite number > 0"),
+        ({"tol_deg": float("nan")}, r"tol_deg=nan is not allowed"),
+        ({"damping": -1e-3}, r"damping=-0.001 is not allowed: use a finite number >= 0"),
+    ],
+)
 def test_solver_settings_are_checked(panda_ckpt, kwargs, message):
     from rbfn.checkpoint import model_from_checkpoint
     from rbfn.robots.robot import robot_from_record

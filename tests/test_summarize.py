@@ -21,15 +21,19 @@ def test_groups_by_swept_keys_over_seeds(tmp_path, capsys):
         for m in (10, 40):
             for seed in (0, 1):
                 err = (1.0 if c == "aco" else 2.0) * 10 / m + seed
-                _job(tmp_path, n, [f"centers={c}", f"rbfn.num_centers={m}", f"seed={seed}"],
-                     {"test_pos_err_mm_median": err, "select_seconds": 1.0})
+                _job(
+                    tmp_path,
+                    n,
+                    [f"centers={c}", f"rbfn.num_centers={m}", f"seed={seed}"],
+                    {"test_pos_err_mm_median": err, "select_seconds": 1.0},
+                )
                 n += 1
     swept, rows = summarize(load_jobs(tmp_path), ("test_pos_err_mm_median",))
     assert swept == ["centers", "rbfn.num_centers"]
     assert len(rows) == 4
     by = {g: stats["test_pos_err_mm_median"] for g, _, stats in rows}
-    assert by[("aco", "10")][0] == 1.5                      # mean of 1.0 and 2.0
-    assert abs(by[("aco", "10")][1] - 0.7071) < 1e-3        # sample std
+    assert by[("aco", "10")][0] == 1.5  # mean of 1.0 and 2.0
+    assert abs(by[("aco", "10")][1] - 0.7071) < 1e-3  # sample std
     main([str(tmp_path)])
     out = capsys.readouterr().out
     assert "| aco | 10 | 2 |" in out
@@ -40,15 +44,19 @@ def test_compare_pairs_jobs_by_seed(tmp_path, capsys):
     n = 0
     for c, err in (("aco", (1.0, 3.0)), ("kmeans", (2.0, 2.5)), ("random", (9.0, 9.0))):
         for seed in (0, 1):
-            _job(tmp_path, n, [f"centers={c}", "rbfn.num_centers=10", f"seed={seed}"],
-                 {"test_pos_err_mm_median": err[seed]})
+            _job(
+                tmp_path,
+                n,
+                [f"centers={c}", "rbfn.num_centers=10", f"seed={seed}"],
+                {"test_pos_err_mm_median": err[seed]},
+            )
             n += 1
     swept, rows = compare(load_jobs(tmp_path), "centers", "aco", "kmeans", ("test_pos_err_mm_median",))
-    assert swept == []                                      # M is not swept here
+    assert swept == []  # M is not swept here
     ((_g, pairs, stats),) = rows
     diff, std, ratio, wins = stats["test_pos_err_mm_median"]
-    assert (pairs, diff, wins) == (2, -0.25, 1)             # (1 - 2 + 3 - 2.5) / 2; seed 0 only
-    assert abs(std - 0.75 * 2 ** 0.5) < 1e-12 and abs(ratio - (0.5 + 1.2) / 2) < 1e-12
+    assert (pairs, diff, wins) == (2, -0.25, 1)  # (1 - 2 + 3 - 2.5) / 2; seed 0 only
+    assert abs(std - 0.75 * 2**0.5) < 1e-12 and abs(ratio - (0.5 + 1.2) / 2) < 1e-12
     main([str(tmp_path), "--metrics", "test_pos_err_mm_median", "--compare", "centers=aco,kmeans"])
     assert "| 2 | -0.25 ± 1.1 | 0.850 | 1/2 |" in capsys.readouterr().out
 
@@ -61,15 +69,22 @@ def test_jobs_without_metrics_are_listed_with_their_error(tmp_path, capsys):
     # Failed in validation: no .hydra, the error and overrides in failed.json.
     (tmp_path / "2").mkdir()
     (tmp_path / "2" / "train.log").write_text("")
-    (tmp_path / "2" / "failed.json").write_text(json.dumps({
-        "error": "ValueError", "message": "rbfn.num_centers=100000 is not allowed | too many",
-        "overrides": ["rbfn.num_centers=100000", "seed=0"]}))
+    (tmp_path / "2" / "failed.json").write_text(
+        json.dumps(
+            {
+                "error": "ValueError",
+                "message": "rbfn.num_centers=100000 is not allowed | too many",
+                "overrides": ["rbfn.num_centers=100000", "seed=0"],
+            }
+        )
+    )
     # Stopped without failed.json (killed): its last ERROR log line, if any, is the error.
     (tmp_path / "3" / ".hydra").mkdir(parents=True)
     (tmp_path / "3" / ".hydra" / "overrides.yaml").write_text("- rbfn.num_centers=40\n- seed=0\n")
     (tmp_path / "3" / "last.pt").write_bytes(b"")
-    (tmp_path / "3" / "train.log").write_text("[2026-01-01 00:00:00,000][train][INFO] - resuming\n"
-                                              "[2026-01-01 00:00:01,000][rbfn][ERROR] - out of memory\n")
+    (tmp_path / "3" / "train.log").write_text(
+        "[2026-01-01 00:00:00,000][train][INFO] - resuming\n[2026-01-01 00:00:01,000][rbfn][ERROR] - out of memory\n"
+    )
     (tmp_path / "4").mkdir()
     (tmp_path / "4" / "train.log").write_text("")
     # A rerun that completed after a recorded failure counts as completed.
@@ -82,8 +97,13 @@ def test_jobs_without_metrics_are_listed_with_their_error(tmp_path, capsys):
 
     jobs = find_jobs(tmp_path)
     assert [(j.path.name, j.status) for j in jobs] == [
-        ("0", "completed"), ("1", "completed"), ("2", "failed"), ("3", "unfinished"), ("4", "unfinished"),
-        ("5", "completed")]
+        ("0", "completed"),
+        ("1", "completed"),
+        ("2", "failed"),
+        ("3", "unfinished"),
+        ("4", "unfinished"),
+        ("5", "completed"),
+    ]
     assert jobs[2].overrides == {"rbfn.num_centers": "100000", "seed": "0"}
     assert jobs[3].error == "out of memory"
     assert jobs[4].error.startswith("no metrics.json")
@@ -91,8 +111,9 @@ def test_jobs_without_metrics_are_listed_with_their_error(tmp_path, capsys):
 
     main([str(tmp_path), "--metrics", "test_pos_err_mm_median"])
     out = capsys.readouterr().out
-    assert ("| 2 | failed | rbfn.num_centers=100000 | ValueError: rbfn.num_centers=100000 is not allowed "
-            "\\| too many |") in out
+    assert (
+        "| 2 | failed | rbfn.num_centers=100000 | ValueError: rbfn.num_centers=100000 is not allowed \\| too many |"
+    ) in out
     assert "| 3 | unfinished | rbfn.num_centers=40 | out of memory |" in out
     assert "6 jobs: 3 completed, 1 failed, 2 unfinished" in out
     assert "| 2 | failed |" in (tmp_path / "summary.md").read_text()
@@ -100,8 +121,9 @@ def test_jobs_without_metrics_are_listed_with_their_error(tmp_path, capsys):
 
 def test_a_sweep_where_every_job_failed_is_still_summarized(tmp_path, capsys):
     (tmp_path / "0").mkdir()
-    (tmp_path / "0" / "failed.json").write_text(json.dumps({"error": "ValueError", "message": "bad",
-                                                            "overrides": ["seed=0"]}))
+    (tmp_path / "0" / "failed.json").write_text(
+        json.dumps({"error": "ValueError", "message": "bad", "overrides": ["seed=0"]})
+    )
     main([str(tmp_path)])
     out = capsys.readouterr().out
     assert "No completed job." in out and "| 0 | failed | seed=0 | ValueError: bad |" in out
@@ -128,24 +150,27 @@ def _error_line(capsys, *argv, status=2):
     return error_line(capsys, main, "python -m rbfn.summarize", *argv, status=status)
 
 
-@pytest.mark.parametrize("text, why", [
-    ('"oops"', "holds a JSON string, not an object"),
-    ("{not json", "not valid JSON"),
-    ("[1, 2]", "holds a JSON array"),
-    ("3.5", "holds a JSON number"),
-    ("null", "holds a JSON null"),
-    ("", "not valid JSON"),
-    (b"\xff\xfe{}", "not valid JSON"),
-    ('{"test_pos_err_mm_median": NaN}', "NaN is not a JSON number"),
-    ('{"test_pos_err_mm_median": -Infinity}', "-Infinity is not a JSON number"),
-    ('{"test_pos_err_mm_median": 1e400}', "test_pos_err_mm_median is a number beyond float's range"),
-    ('{"test_pos_err_mm_median": 1' + "0" * 400 + "}", "test_pos_err_mm_median is a number beyond float's range"),
-    ('{"test_pos_err_mm_median": "1.5"}', 'test_pos_err_mm_median is a JSON string ("1.5"), not a number'),
-    ('{"test_pos_err_mm_median": [1.0]}', "test_pos_err_mm_median is a JSON array ([1.0]), not a number"),
-    ('{"test_pos_err_mm_median": {"a": 1}}', 'test_pos_err_mm_median is a JSON object ({"a": 1}), not a number'),
-    ('{"test_pos_err_mm_median": true}', "test_pos_err_mm_median is a JSON boolean (true), not a number"),
-    (None, "metrics.json cannot be read: Is a directory"),
-])
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ('"oops"', "holds a JSON string, not an object"),
+        ("{not json", "not valid JSON"),
+        ("[1, 2]", "holds a JSON array"),
+        ("3.5", "holds a JSON number"),
+        ("null", "holds a JSON null"),
+        ("", "not valid JSON"),
+        (b"\xff\xfe{}", "not valid JSON"),
+        ('{"test_pos_err_mm_median": NaN}', "NaN is not a JSON number"),
+        ('{"test_pos_err_mm_median": -Infinity}', "-Infinity is not a JSON number"),
+        ('{"test_pos_err_mm_median": 1e400}', "test_pos_err_mm_median is a number beyond float's range"),
+        ('{"test_pos_err_mm_median": 1' + "0" * 400 + "}", "test_pos_err_mm_median is a number beyond float's range"),
+        ('{"test_pos_err_mm_median": "1.5"}', 'test_pos_err_mm_median is a JSON string ("1.5"), not a number'),
+        ('{"test_pos_err_mm_median": [1.0]}', "test_pos_err_mm_median is a JSON array ([1.0]), not a number"),
+        ('{"test_pos_err_mm_median": {"a": 1}}', 'test_pos_err_mm_median is a JSON object ({"a": 1}), not a number'),
+        ('{"test_pos_err_mm_median": true}', "test_pos_err_mm_median is a JSON boolean (true), not a number"),
+        (None, "metrics.json cannot be read: Is a directory"),
+    ],
+)
 def test_a_malformed_job_is_listed_and_the_good_ones_summarized(tmp_path, capsys, text, why):
     _sweep(tmp_path)
     bad = tmp_path / "4" / "metrics.json"
@@ -158,7 +183,7 @@ def test_a_malformed_job_is_listed_and_the_good_ones_summarized(tmp_path, capsys
     main([str(tmp_path), "--metrics", "test_pos_err_mm_median"])
     out = capsys.readouterr().out
     assert "| aco | 2 | 1.5 ± 0.71 |" in out and "| kmeans | 2 | 3.5 ± 0.71 |" in out
-    assert "random" not in out.split("Jobs not summarized")[0]           # the bad job is in no row
+    assert "random" not in out.split("Jobs not summarized")[0]  # the bad job is in no row
     assert "| 4 | malformed | centers=random seed=0 |" in out and why in out
     assert "5 jobs: 4 completed, 0 failed, 0 unfinished, 1 malformed" in out
     assert (tmp_path / "summary.md").read_text() in out
@@ -173,15 +198,28 @@ def test_a_null_metric_is_a_blank_cell_not_a_malformed_job(tmp_path, capsys):
     assert "| refine | 1 |  |" in out and "| ridge | 1 | 1e-06 ± 0 |" in out and "malformed" not in out
 
 
-@pytest.mark.parametrize("metrics, message", [
-    (["test_pos_err_mm_mediam"], ("--metrics: no number named 'test_pos_err_mm_mediam' (did you mean "
-                                  "'test_pos_err_mm_median'?) in any job's metrics.json; the jobs' numeric "
-                                  "metrics are: select_seconds, test_pos_err_mm_median")),
-    (["select_seconds", "selector", "nothing_like_it"], ("--metrics: no number named 'selector' (did you mean "
-                                                          "'select_seconds'?), 'nothing_like_it' in any job's "
-                                                          "metrics.json")),
-    (["growth"], "no number named 'growth'"),
-])
+@pytest.mark.parametrize(
+    "metrics, message",
+    [
+        (
+            ["test_pos_err_mm_mediam"],
+            (
+                "--metrics: no number named 'test_pos_err_mm_mediam' (did you mean "
+                "'test_pos_err_mm_median'?) in any job's metrics.json; the jobs' numeric "
+                "metrics are: select_seconds, test_pos_err_mm_median"
+            ),
+        ),
+        (
+            ["select_seconds", "selector", "nothing_like_it"],
+            (
+                "--metrics: no number named 'selector' (did you mean "
+                "'select_seconds'?), 'nothing_like_it' in any job's "
+                "metrics.json"
+            ),
+        ),
+        (["growth"], "no number named 'growth'"),
+    ],
+)
 def test_an_unknown_metric_is_an_error_and_writes_nothing(tmp_path, capsys, metrics, message):
     main([str(_sweep(tmp_path))])
     good = _outputs(tmp_path)
@@ -191,18 +229,31 @@ def test_an_unknown_metric_is_an_error_and_writes_nothing(tmp_path, capsys, metr
     assert _outputs(tmp_path) == good
 
 
-@pytest.mark.parametrize("spec, message", [
-    ("center=aco,kmeans", ("--compare center=aco,kmeans: center is not a swept override (did you mean "
-                           "centers?); swept: centers, seed")),
-    ("rbfn.num_centers=10,20", "rbfn.num_centers is not a swept override"),
-    ("centers=aco,kmean", ("--compare centers=aco,kmean: expected centers=A,B with A and B two different "
-                           "values of centers: aco, kmeans")),
-    ("centers=aco", "expected centers=A,B"),
-    ("centers=aco,aco", "two different values"),
-    ("centers=aco,kmeans,random", "two different values"),
-    ("=aco,kmeans", "--compare =aco,kmeans: expected KEY=A,B"),
-    ("centers", "expected KEY=A,B"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        (
+            "center=aco,kmeans",
+            (
+                "--compare center=aco,kmeans: center is not a swept override (did you mean "
+                "centers?); swept: centers, seed"
+            ),
+        ),
+        ("rbfn.num_centers=10,20", "rbfn.num_centers is not a swept override"),
+        (
+            "centers=aco,kmean",
+            (
+                "--compare centers=aco,kmean: expected centers=A,B with A and B two different "
+                "values of centers: aco, kmeans"
+            ),
+        ),
+        ("centers=aco", "expected centers=A,B"),
+        ("centers=aco,aco", "two different values"),
+        ("centers=aco,kmeans,random", "two different values"),
+        ("=aco,kmeans", "--compare =aco,kmeans: expected KEY=A,B"),
+        ("centers", "expected KEY=A,B"),
+    ],
+)
 def test_a_bad_compare_is_an_error_and_writes_nothing(tmp_path, capsys, spec, message):
     main([str(_sweep(tmp_path))])
     good = _outputs(tmp_path)
@@ -270,10 +321,13 @@ def test_files_are_written_all_or_none(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a"] and (tmp_path / "a").read_text() == "old a"
 
 
-@pytest.mark.parametrize("record, error", [
-    ([1], "unreadable failed.json: a JSON array, not an object"),
-    ({"error": "ValueError", "message": "bad", "overrides": 5}, "ValueError: bad"),
-])
+@pytest.mark.parametrize(
+    "record, error",
+    [
+        ([1], "unreadable failed.json: a JSON array, not an object"),
+        ({"error": "ValueError", "message": "bad", "overrides": 5}, "ValueError: bad"),
+    ],
+)
 def test_a_malformed_failed_json_is_listed(tmp_path, capsys, record, error):
     _sweep(tmp_path)
     (tmp_path / "4").mkdir()

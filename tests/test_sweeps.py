@@ -3,6 +3,7 @@ a multirun stopped by SIGTERM, the Optuna search preset and TensorBoard's HParam
 
 Each test runs `python train.py -m ...` as a user would, in a subprocess, with small data sets.
 """
+
 import contextlib
 import json
 import socket
@@ -17,8 +18,15 @@ import pytest
 from rbfn.config import SELECTORS
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = ["data.n_train=300", "data.n_val=150", "data.n_test=300", "rbfn.growth.start=0",
-        "export=false", "progress=false", "num_threads=1"]
+FAST = [
+    "data.n_train=300",
+    "data.n_val=150",
+    "data.n_test=300",
+    "rbfn.growth.start=0",
+    "export=false",
+    "progress=false",
+    "num_threads=1",
+]
 
 
 def _python(*args: str, timeout: float = 120) -> str:
@@ -33,8 +41,16 @@ def joblib_sweep(tmp_path_factory):
     """A 2 x 2 multirun (k-means, random) x (M = 10, 20) on two joblib workers."""
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     sweep = tmp_path_factory.mktemp("sweep")
-    _python("train.py", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-            "centers=kmeans,random", "rbfn.num_centers=10,20", *FAST, f"hydra.sweep.dir={sweep}")
+    _python(
+        "train.py",
+        "-m",
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+        "centers=kmeans,random",
+        "rbfn.num_centers=10,20",
+        *FAST,
+        f"hydra.sweep.dir={sweep}",
+    )
     return sweep
 
 
@@ -54,11 +70,25 @@ def test_joblib_multirun_writes_every_job_and_summarizes(joblib_sweep):
 def test_a_failed_job_does_not_stop_the_others_and_is_summarized(tmp_path):
     """Job 1 fails validation; jobs 0 and 2 still complete, and the summary lists job 1's error."""
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
-    r = subprocess.run([sys.executable, "train.py", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-                        "centers=kmeans", "rbfn.num_centers=10,100000,20", *FAST, f"hydra.sweep.dir={tmp_path}"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "train.py",
+            "-m",
+            "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2",
+            "centers=kmeans",
+            "rbfn.num_centers=10,100000,20",
+            *FAST,
+            f"hydra.sweep.dir={tmp_path}",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     bad = "rbfn.num_centers=100000 is not allowed: exceeds the training set size data.n_train=300"
-    assert r.returncode != 0 and bad in r.stderr, r.stderr[-3000:]       # the multirun reports it
+    assert r.returncode != 0 and bad in r.stderr, r.stderr[-3000:]  # the multirun reports it
     for job in ("0", "2"):
         assert json.loads((tmp_path / job / "metrics.json").read_text())["test_pos_err_mm_median"] > 0
     failed = json.loads((tmp_path / "1" / "failed.json").read_text())
@@ -68,8 +98,10 @@ def test_a_failed_job_does_not_stop_the_others_and_is_summarized(tmp_path):
     out = _python("-m", "rbfn.summarize", str(tmp_path))
     assert f"| 1 | failed | rbfn.num_centers=100000 | ValueError: {bad}" in out, out
     assert "3 jobs: 2 completed, 1 failed, 0 unfinished" in out
-    assert [line.split("|")[1].strip() for line in out.splitlines() if line.startswith(("| 10 |", "| 20 |"))] \
-        == ["10", "20"]
+    assert [line.split("|")[1].strip() for line in out.splitlines() if line.startswith(("| 10 |", "| 20 |"))] == [
+        "10",
+        "20",
+    ]
 
 
 def test_sigterm_to_a_joblib_multirun_stops_its_workers(tmp_path):
@@ -79,9 +111,20 @@ def test_sigterm_to_a_joblib_multirun_stops_its_workers(tmp_path):
     from .studies.test_stop import start, stop_and_check
 
     sweep = tmp_path / "sweep"
-    proc = start(["train.py", "-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", "centers=aco",
-                  "centers.aco.iterations=1000000", "rbfn.num_centers=10,12", *FAST, f"hydra.sweep.dir={sweep}"],
-                 tmp_path / "out.log")
+    proc = start(
+        [
+            "train.py",
+            "-m",
+            "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2",
+            "centers=aco",
+            "centers.aco.iterations=1000000",
+            "rbfn.num_centers=10,12",
+            *FAST,
+            f"hydra.sweep.dir={sweep}",
+        ],
+        tmp_path / "out.log",
+    )
     # Both jobs are in their colonies once each has saved a snapshot.
     stop_and_check(proc, tmp_path / "out.log", sweep, lambda: all((sweep / j / "last.pt").exists() for j in "01"))
 
@@ -100,20 +143,39 @@ def test_hparams_search_preset_composes():
     sweeper = cfg.hydra.sweeper
     assert sweeper._target_.endswith("OptunaSweeper") and sweeper.direction == "minimize"
     assert sweeper.sampler._target_ == "optuna.samplers.TPESampler" and sweeper.sampler.seed == 0
-    assert set(sweeper.params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.acor.q", "centers.aco.acor.xi"}
+    assert set(sweeper.params) == {
+        "centers.width_scale",
+        "rbfn.num_centers",
+        "centers.aco.acor.q",
+        "centers.aco.acor.xi",
+    }
     assert cfg.rbfn.growth.start == 0 and cfg.num_threads == 1
 
 
 def test_hparams_search_runs_two_trials_and_reports_the_best(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_optuna_sweeper")
-    _python("train.py", "-m", "experiment=hparams_search", "hydra.sweeper.n_trials=2", "hydra.sweeper.n_jobs=1",
-            "centers.aco.iterations=3", "centers.refine.full.steps=5", *FAST, f"hydra.sweep.dir={tmp_path}")
+    _python(
+        "train.py",
+        "-m",
+        "experiment=hparams_search",
+        "hydra.sweeper.n_trials=2",
+        "hydra.sweeper.n_jobs=1",
+        "centers.aco.iterations=3",
+        "centers.refine.full.steps=5",
+        *FAST,
+        f"hydra.sweep.dir={tmp_path}",
+    )
     from omegaconf import OmegaConf
 
     best = OmegaConf.load(tmp_path / "optimization_results.yaml")
     val_e = [json.loads((tmp_path / j / "metrics.json").read_text())["val_E"] for j in ("0", "1")]
     assert best.best_value == min(val_e)
-    assert set(best.best_params) == {"centers.width_scale", "rbfn.num_centers", "centers.aco.acor.q", "centers.aco.acor.xi"}
+    assert set(best.best_params) == {
+        "centers.width_scale",
+        "rbfn.num_centers",
+        "centers.aco.acor.q",
+        "centers.aco.acor.xi",
+    }
 
 
 def _free_port() -> int:
@@ -134,10 +196,24 @@ def test_tensorboard_serves_scalars_and_one_hparams_session_per_job(joblib_sweep
     metrics = {p.parent.name: json.loads(p.read_text()) for p in joblib_sweep.glob("*/metrics.json")}
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
-    tb = subprocess.Popen([sys.executable, "-m", "tensorboard.main", "--logdir", str(joblib_sweep),
-                           "--host", "127.0.0.1", "--port", str(port), "--load_fast=false",
-                           "--reload_interval=1"],
-                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    tb = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tensorboard.main",
+            "--logdir",
+            str(joblib_sweep),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--load_fast=false",
+            "--reload_interval=1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         runs, deadline = [], time.monotonic() + 90
         while sorted(runs) != sorted(metrics) and time.monotonic() < deadline:
@@ -158,9 +234,15 @@ def test_tensorboard_serves_scalars_and_one_hparams_session_per_job(joblib_sweep
         assert set(infos) == {"centers", "num_centers", "seed"}
         assert infos["centers"]["domainDiscrete"] == list(SELECTORS)
         assert {"tag": "hparam/test_pos_err_mm_median", "group": ""} in [m["name"] for m in exp["metricInfos"]]
-        groups = _get(f"{url}/data/plugin/hparams/session_groups", {
-            "experimentName": "", "startIndex": 0, "sliceSize": 100,
-            "allowedStatuses": ["STATUS_UNKNOWN", "STATUS_SUCCESS", "STATUS_FAILURE", "STATUS_RUNNING"]})
+        groups = _get(
+            f"{url}/data/plugin/hparams/session_groups",
+            {
+                "experimentName": "",
+                "startIndex": 0,
+                "sliceSize": 100,
+                "allowedStatuses": ["STATUS_UNKNOWN", "STATUS_SUCCESS", "STATUS_FAILURE", "STATUS_RUNNING"],
+            },
+        )
         assert groups["totalSize"] == len(metrics)
         for g in groups["sessionGroups"]:
             (session,) = g["sessions"]

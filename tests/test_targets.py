@@ -1,4 +1,5 @@
 """Pose targets: features equal for q and -q, match the rotation matrix, and bad targets are named."""
+
 import numpy as np
 import pytest
 import torch
@@ -28,15 +29,18 @@ def test_pose_features_scale_rotation_against_metres():
     assert torch.allclose(z[:, 3:6].norm(dim=-1), torch.full((4,), 0.5, dtype=torch.float64))
 
 
-@pytest.mark.parametrize("pose,x,err,match", [
-    (True, torch.zeros(2, 3), ValueError, r"poses \(B, 7\).*got shape \(2, 3\).*position and quaternion"),
-    (True, torch.tensor([[0.0, 0, 0, 1.0, 0.1, 0, 0]]), ValueError, "unit length.*row 0 has norm 1.00499"),
-    (False, torch.zeros(3), ValueError, r"positions \(B, 3\) in m; got shape \(3,\)"),
-    (False, torch.zeros(4, 2), ValueError, r"got shape \(4, 2\)"),
-    (False, [[1.0, 2.0, 3.0]], TypeError, "got list"),
-    (False, torch.tensor([[0.0, float("nan"), 1.0]]), ValueError, "non-finite values .first at row 0"),
-    (False, torch.zeros(2, 3, dtype=torch.long), TypeError, "floating point"),
-])
+@pytest.mark.parametrize(
+    "pose,x,err,match",
+    [
+        (True, torch.zeros(2, 3), ValueError, r"poses \(B, 7\).*got shape \(2, 3\).*position and quaternion"),
+        (True, torch.tensor([[0.0, 0, 0, 1.0, 0.1, 0, 0]]), ValueError, "unit length.*row 0 has norm 1.00499"),
+        (False, torch.zeros(3), ValueError, r"positions \(B, 3\) in m; got shape \(3,\)"),
+        (False, torch.zeros(4, 2), ValueError, r"got shape \(4, 2\)"),
+        (False, [[1.0, 2.0, 3.0]], TypeError, "got list"),
+        (False, torch.tensor([[0.0, float("nan"), 1.0]]), ValueError, "non-finite values .first at row 0"),
+        (False, torch.zeros(2, 3, dtype=torch.long), TypeError, "floating point"),
+    ],
+)
 def test_bad_targets_are_named(pose, x, err, match):
     with pytest.raises(err, match=match):
         TargetFeatures(pose=pose).check(x)

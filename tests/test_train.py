@@ -1,5 +1,6 @@
 """Training end to end: files written, metrics consistent, the checkpoint reloads, the run
 directory is locked while in use, and a refused run leaves it exactly as it was."""
+
 import json
 import subprocess
 import sys
@@ -15,9 +16,17 @@ from rbfn.studies.rundir import RunDirInUse
 from .conftest import ROOT, compose_config
 from .studies.test_rundir_lock import held_elsewhere
 
-SMALL = ["data.n_train=400", "data.n_val=200", "data.n_test=300", "rbfn.num_centers=12",
-         "rbfn.growth.start=6", "centers.aco.iterations=5", "centers.refine.full.steps=20",
-         "centers.aco.ant_system.candidates=100", "progress=false"]
+SMALL = [
+    "data.n_train=400",
+    "data.n_val=200",
+    "data.n_test=300",
+    "rbfn.num_centers=12",
+    "rbfn.growth.start=6",
+    "centers.aco.iterations=5",
+    "centers.refine.full.steps=20",
+    "centers.aco.ant_system.candidates=100",
+    "progress=false",
+]
 
 
 def _snapshot(d):
@@ -51,7 +60,7 @@ def test_checkpoint_reloads_and_reproduces_metrics(trained, chain, scara_robot):
     from rbfn.data import make_dataset
 
     data = make_dataset(scara_robot, (400, 200, 300), seed=0)
-    x = data.test.x                                   # the run's own test set: metrics must reproduce
+    x = data.test.x  # the run's own test set: metrics must reproduce
     err = (forward_kinematics(chain, model(x)) - x).norm(dim=-1) * 1000
     assert float(err.median()) == pytest.approx(metrics["test_pos_err_mm_median"], rel=1e-6)
     # A 12-centre network on 400 samples: about 1 cm, far better than a constant guess (~0.5 m).
@@ -80,7 +89,7 @@ def test_a_run_directory_in_use_is_refused(tmp_path):
 
 
 def test_another_commands_results_are_refused(tmp_path):
-    (tmp_path / "metrics.json").write_text('{"ik": {}, "evaluate_seconds": {"ik": 1.0}}')     # evaluate.py's
+    (tmp_path / "metrics.json").write_text('{"ik": {}, "evaluate_seconds": {"ik": 1.0}}')  # evaluate.py's
     before = _snapshot(tmp_path)
     with pytest.raises(ValueError, match=r"metrics.json is not a training run's"):
         train.run(compose_config("train", *SMALL), tmp_path, {".hydra/overrides.yaml": "- seed=0\n"})
@@ -89,8 +98,15 @@ def test_another_commands_results_are_refused(tmp_path):
 
 @pytest.mark.slow
 def test_refused_rerun_on_the_command_line_leaves_the_directory_as_it_was(tmp_path):
-    args = [sys.executable, "train.py", *SMALL, "rbfn.growth.start=0", "centers=kmeans", "export=false",
-            f"hydra.run.dir={tmp_path}"]
+    args = [
+        sys.executable,
+        "train.py",
+        *SMALL,
+        "rbfn.growth.start=0",
+        "centers=kmeans",
+        "export=false",
+        f"hydra.run.dir={tmp_path}",
+    ]
     first = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert first.returncode == 0, first.stderr[-3000:]
     before = _snapshot(tmp_path)
@@ -112,8 +128,13 @@ def test_lms_solver_and_paper_preset_run(tmp_path, extra):
 def test_export_command_writes_models_that_reproduce_the_checkpoint(trained, tmp_path):
     ort = pytest.importorskip("onnxruntime")
     out, _ = trained
-    r = subprocess.run([sys.executable, "-m", "rbfn.export", str(out / "checkpoint.pt"), "--out-dir", str(tmp_path)],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "rbfn.export", str(out / "checkpoint.pt"), "--out-dir", str(tmp_path)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     x = torch.tensor([[1.2, 0.8, -1.0], [0.5, 1.4, -0.7], [2.5, 0.0, -1.0]], dtype=torch.float32)
     q, inside = load_model(out / "checkpoint.pt").solve(x)

@@ -1,4 +1,5 @@
 """Width rules and the cap on widths: a cap that leaves only vanishing Gaussians is refused by key."""
+
 import pytest
 import torch
 
@@ -17,4 +18,4 @@ def test_every_cap_that_keeps_the_smallest_useful_width_is_accepted():
     for m in (2, 10, 40, 160):
         centers = z[torch.randperm(500, generator=torch.Generator().manual_seed(m))[:m]]
         smallest_useful = MIN_WIDTH_SCALE * float(paper_widths(centers)[0])
-        check_max_width(z, smallest_useful, m)       # the reference is lenient: never refuses these
+        check_max_width(z, smallest_useful, m)  # the reference is lenient: never refuses these

@@ -10,6 +10,7 @@ plant parameter, robot, integrator, chunk length, input shape, dtype, device, to
 source file of `rbfn.control` / `rbfn.robots` gives a new package, never a stale one. Packages are
 written atomically; the directory is $ACO_RBFN_CACHE/aot, default ~/.cache/aco-rbfn/aot.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -29,7 +30,7 @@ import torch.utils._pytree as pytree
 
 __all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable"]
 
-_SOURCES = ("control", "robots")          # packages whose code the chunk runs
+_SOURCES = ("control", "robots")  # packages whose code the chunk runs
 
 
 def cache_dir() -> Path:
@@ -51,8 +52,9 @@ def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
             t = x.detach().cpu().contiguous()
             h.update(f"T{t.dtype}{tuple(t.shape)}{x.device.type}".encode())
             h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
-        elif x is None or isinstance(x, (bool, int, float, str, bytes, slice, range, enum.Enum, torch.dtype,
-                                         torch.device)):
+        elif x is None or isinstance(
+            x, (bool, int, float, str, bytes, slice, range, enum.Enum, torch.dtype, torch.device)
+        ):
             h.update(f"{type(x).__name__}:{x!r};".encode())
         elif isinstance(x, (list, tuple)):
             h.update(f"{type(x).__name__}[{len(x)}".encode())
@@ -154,4 +156,5 @@ def _load(path: Path) -> Callable:
     def run(*args):
         flat = [x for x in pytree.tree_leaves(args) if isinstance(x, torch.Tensor)]
         return pytree.tree_unflatten(loader.boxed_run(flat), out_spec)
+
     return run

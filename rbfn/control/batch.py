@@ -7,6 +7,7 @@ which evaluates the model once for all their environments. The laws themselves
 (`rbfn.control.controllers`) know nothing of batching: a batch hands the sliding-mode law each
 environment's own features (B, M) and observer gain (B, 1).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -29,8 +30,14 @@ class SlidingModeBatch(SlidingMode):
     def __init__(self, parts: list[SlidingMode], sizes: list[int]) -> None:
         first = parts[0]
         feats = [p.features for p in parts if p.features is not None]
-        super().__init__(first.gains, first.dt, first.model, observer=any(p.observer for p in parts),
-                         features=torch.cat(feats, -1) if feats else None, joint_scale=first.scale)
+        super().__init__(
+            first.gains,
+            first.dt,
+            first.model,
+            observer=any(p.observer for p in parts),
+            features=torch.cat(feats, -1) if feats else None,
+            joint_scale=first.scale,
+        )
         self.members = list(zip(parts, sizes))
         # Public, so a compiled chunk's cache key (which leaves features out) sees the column split.
         self.member_columns = [0 if p.features is None else p.features.shape[1] for p in parts]
@@ -57,18 +64,26 @@ class SlidingModeBatch(SlidingMode):
                 own[rows, cols] = 1.0
         self._gain = None if observed is None else observed.to(q0) * self.gains.observer_gain
         self._own = None if own is None else own.to(q0)
-        state = super().init_state(q0, qd0)                    # w: zeros, the batch having no w0
+        state = super().init_state(q0, qd0)  # w: zeros, the batch having no w0
         for part, rows, cols in self._blocks():
             if state.w is not None and part.w0 is not None:
-                state.w[rows, cols] = part.w0.to(state.w)      # each block's own columns hold its w0
+                state.w[rows, cols] = part.w0.to(state.w)  # each block's own columns hold its w0
         return state
 
     def observer_gain(self) -> float | torch.Tensor:
         return self.gains.observer_gain if self._gain is None else self._gain
 
-    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: SlidingState, *,
-               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, SlidingState]:
-        own = None if h is None or self._own is None else h * self._own       # (B, M): each environment's own
+    def torque(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: SlidingState,
+        *,
+        h: torch.Tensor | None = None,
+        alpha: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, SlidingState]:
+        own = None if h is None or self._own is None else h * self._own  # (B, M): each environment's own
         return super().torque(ref, q, qd, state, h=own, alpha=alpha)
 
 
@@ -89,9 +104,10 @@ class Stacked(Controller):
                 runs[-1].append((c, size))
             else:
                 runs.append([(c, size)])
-        self.units = [r[0][0] if len(r) == 1
-                      else SlidingModeBatch([cast(SlidingMode, c) for c, _ in r], [s for _, s in r])
-                      for r in runs]
+        self.units = [
+            r[0][0] if len(r) == 1 else SlidingModeBatch([cast(SlidingMode, c) for c, _ in r], [s for _, s in r])
+            for r in runs
+        ]
         self.unit_sizes = [sum(s for _, s in r) for r in runs]
         feats = [c.features for c in self.units if c.features is not None]
         self.features = torch.cat(feats, -1) if feats else None
@@ -103,20 +119,28 @@ class Stacked(Controller):
             start += m
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> tuple:
-        return tuple(c.init_state(q, qd) for c, q, qd in
-                     zip(self.units, q0.split(self.unit_sizes), qd0.split(self.unit_sizes)))
+        return tuple(
+            c.init_state(q, qd) for c, q, qd in zip(self.units, q0.split(self.unit_sizes), qd0.split(self.unit_sizes))
+        )
 
     def alphas(self, t: torch.Tensor) -> torch.Tensor:
         return torch.stack([c.alphas(t) for c in self.units], -1)
 
-    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: tuple, *,
-               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, tuple]:
-        assert alpha is not None                                    # one column per unit (K,)
+    def torque(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: tuple,
+        *,
+        h: torch.Tensor | None = None,
+        alpha: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, tuple]:
+        assert alpha is not None  # one column per unit (K,)
         taus, states = [], []
         for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
             cols = self.columns[i]
-            tau, st = c.torque(ref, qi, qdi, state[i], h=None if cols is None or h is None else h[cols],
-                               alpha=alpha[i])
+            tau, st = c.torque(ref, qi, qdi, state[i], h=None if cols is None or h is None else h[cols], alpha=alpha[i])
             taus.append(tau)
             states.append(st)
         return torch.cat(taus), tuple(states)
@@ -128,6 +152,7 @@ def _batchable(a: Controller, b: Controller) -> bool:
     if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
         return False
     same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
-    same_model = a.model is b.model or (type(a.model) is type(b.model) is NominalModel
-                                        and vars(a.model) == vars(b.model))
+    same_model = a.model is b.model or (
+        type(a.model) is type(b.model) is NominalModel and vars(a.model) == vars(b.model)
+    )
     return same_scale and same_model

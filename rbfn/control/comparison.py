@@ -6,6 +6,7 @@ x cases), after a pilot run of `smc_obs` without payload that gives the adaptive
 per-operation overhead once instead of once per controller. Pure: tensors and metrics out,
 nothing printed or written.
 """
+
 from __future__ import annotations
 
 import time
@@ -35,10 +36,10 @@ def case_name(payload: float) -> str:
 class ControlRun:
     """One controller's runs: metrics per case, its rollout (B = cases), and the time spent."""
 
-    metrics: dict[str, dict[str, list[float]]]   # case -> rms_err, max_err, ... (lists of n)
+    metrics: dict[str, dict[str, list[float]]]  # case -> rms_err, max_err, ... (lists of n)
     rollout: Rollout
-    sim_seconds: float                             # the whole batch's (every controller's) simulation
-    select_seconds: float | None = None            # the network's centre selection (arbfn_*)
+    sim_seconds: float  # the whole batch's (every controller's) simulation
+    select_seconds: float | None = None  # the network's centre selection (arbfn_*)
 
 
 @dataclass
@@ -52,9 +53,14 @@ class ControlComparison:
     robot: ControlRobot | None = None
 
 
-def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "cpu",
-                        params: ScaraParams = ScaraParams(), robot: RobotConfig | None = None,
-                        setup: ControlRobot | None = None) -> ControlComparison:
+def compare_controllers(
+    cfg: ControlConfig,
+    gains: GainsConfig,
+    device: str = "cpu",
+    params: ScaraParams = ScaraParams(),
+    robot: RobotConfig | None = None,
+    setup: ControlRobot | None = None,
+) -> ControlComparison:
     """Run `cfg.controllers` on the payload cases (kg) along the robot's desired trajectory.
 
     robot: the robot (default: the SCARA); setup: an already checked `control_robot(robot, cfg)`."""
@@ -63,7 +69,7 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
-    ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)       # each (T, n)
+    ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
     plant, model, scale = setup.plant, setup.model, setup.joint_scale(**kw)
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n
@@ -74,30 +80,63 @@ def compare_controllers(cfg: ControlConfig, gains: GainsConfig, device: str = "c
         features = w0 = None
         if name.startswith("arbfn_"):
             if pilot is None:
-                pilot = pilot_residuals(plant, sc, ref, gains, model, stride=PILOT_STRIDE, joint_scale=scale,
-                                        compile=cfg.compile, aot=cfg.aot)
-            net = control_network(name[len("arbfn_"):], pilot[0].double().cpu(), pilot[1].double().cpu(),
-                                  m=cfg.network.num_centers, seed=cfg.network.seed, sample_dt=sc.dt * PILOT_STRIDE,
-                                  aco=cfg.network.aco, warm_start=cfg.network.warm_start)
+                pilot = pilot_residuals(
+                    plant,
+                    sc,
+                    ref,
+                    gains,
+                    model,
+                    stride=PILOT_STRIDE,
+                    joint_scale=scale,
+                    compile=cfg.compile,
+                    aot=cfg.aot,
+                )
+            net = control_network(
+                name[len("arbfn_") :],
+                pilot[0].double().cpu(),
+                pilot[1].double().cpu(),
+                m=cfg.network.num_centers,
+                seed=cfg.network.seed,
+                sample_dt=sc.dt * PILOT_STRIDE,
+                aco=cfg.network.aco,
+                warm_start=cfg.network.warm_start,
+            )
             features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
-        controllers.append(make_controller(name, gains, sc.dt, model, features=features, w0=w0,
-                                           observer=cfg.network.observer, joint_scale=scale))
+        controllers.append(
+            make_controller(
+                name, gains, sc.dt, model, features=features, w0=w0, observer=cfg.network.observer, joint_scale=scale
+            )
+        )
     k = len(controllers)
     ctrl = Stacked(controllers, [b] * k)
     t0 = time.perf_counter()
     try:
-        roll = simulate(plant, ctrl, sc, ref, q0=q0.repeat(k, 1), qd0=qd0.repeat(k, 1), payload=payload.repeat(k),
-                        compile=cfg.compile, aot=cfg.aot)
+        roll = simulate(
+            plant,
+            ctrl,
+            sc,
+            ref,
+            q0=q0.repeat(k, 1),
+            qd0=qd0.repeat(k, 1),
+            payload=payload.repeat(k),
+            compile=cfg.compile,
+            aot=cfg.aot,
+        )
     except SimulationDiverged as e:
         i, j = divmod(e.environment, b)
-        raise SimulationDiverged(f"controller {cfg.controllers[i]}, payload {case_name(setup.payloads[j])}: {e}",
-                                 e.environment) from None
+        raise SimulationDiverged(
+            f"controller {cfg.controllers[i]}, payload {case_name(setup.payloads[j])}: {e}", e.environment
+        ) from None
     seconds = time.perf_counter() - t0
     per_env = control_metrics(roll, ref.q_d, sc)
     runs: dict[str, ControlRun] = {}
     for i, name in enumerate(cfg.controllers):
         envs = slice(i * b, (i + 1) * b)
         part = Rollout(roll.t, roll.q[:, envs], roll.qd[:, envs], roll.tau[:, envs])
-        runs[name] = ControlRun(metrics={case_name(p): m for p, m in zip(setup.payloads, per_env[envs])},
-                                rollout=part, sim_seconds=seconds, select_seconds=select_seconds.get(name))
+        runs[name] = ControlRun(
+            metrics={case_name(p): m for p, m in zip(setup.payloads, per_env[envs])},
+            rollout=part,
+            sim_seconds=seconds,
+            select_seconds=select_seconds.get(name),
+        )
     return ControlComparison(runs, q_des=ref.q_d, scenario=sc, payloads=list(setup.payloads), robot=setup)

@@ -25,6 +25,7 @@ by orders of magnitude. Every controller is called once per control period with 
 Reference and its state (`SlidingState`: observer and weights, per environment). Running several
 controllers as one batch is `rbfn.control.batch`'s business, not the laws'.
 """
+
 from __future__ import annotations
 
 from typing import Any, NamedTuple
@@ -35,8 +36,18 @@ from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Ga
 from .models import ArmModel, NominalModel
 from .trajectory import Reference
 
-__all__ = ["Gains", "NominalModel", "ArmModel", "Reference", "Controller", "PD", "ComputedTorque", "SlidingMode",
-           "SlidingState", "make_controller"]
+__all__ = [
+    "Gains",
+    "NominalModel",
+    "ArmModel",
+    "Reference",
+    "Controller",
+    "PD",
+    "ComputedTorque",
+    "SlidingMode",
+    "SlidingState",
+    "make_controller",
+]
 
 Model = NominalModel | ArmModel
 
@@ -63,8 +74,9 @@ class Controller:
 
     features: torch.Tensor | None = None
 
-    def __init__(self, gains: Gains, dt: float, model: Model | None = None,
-                 joint_scale: torch.Tensor | None = None) -> None:
+    def __init__(
+        self, gains: Gains, dt: float, model: Model | None = None, joint_scale: torch.Tensor | None = None
+    ) -> None:
         self.gains, self.dt, self.model = gains, dt, model or NominalModel()
         self.scale = joint_scale
 
@@ -75,8 +87,16 @@ class Controller:
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> Any:
         return ()
 
-    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: Any, *,
-               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, Any]:
+    def torque(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: Any,
+        *,
+        h: torch.Tensor | None = None,
+        alpha: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, Any]:
         raise NotImplementedError
 
     def alphas(self, t: torch.Tensor) -> torch.Tensor:
@@ -111,9 +131,16 @@ class SlidingMode(Controller):
     State: a SlidingState. Several of them run as one batch through `rbfn.control.batch`.
     """
 
-    def __init__(self, gains: Gains, dt: float, model: Model | None = None,
-                 observer: bool = False, features: torch.Tensor | None = None,
-                 w0: torch.Tensor | None = None, joint_scale: torch.Tensor | None = None) -> None:
+    def __init__(
+        self,
+        gains: Gains,
+        dt: float,
+        model: Model | None = None,
+        observer: bool = False,
+        features: torch.Tensor | None = None,
+        w0: torch.Tensor | None = None,
+        joint_scale: torch.Tensor | None = None,
+    ) -> None:
         super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
 
@@ -130,23 +157,34 @@ class SlidingMode(Controller):
         """K_o: one gain for every environment, or a batch's per environment (B, 1)."""
         return self.gains.observer_gain
 
-    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: SlidingState, *,
-               h: torch.Tensor | None = None, alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, SlidingState]:
+    def torque(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: SlidingState,
+        *,
+        h: torch.Tensor | None = None,
+        alpha: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, SlidingState]:
         """tau (B, n) and the next state at joints q, velocities qd (B, n); h: this period's
         features (M,), or per environment (B, M); alpha: its adaptation step (0-dim)."""
         g, dt = self.gains, self.dt
         e, de = ref.q_d - q, ref.qd_d - qd
-        s = torch.add(de, e, alpha=g.Lambda)        # x + alpha y in one operation: overhead-bound at small B
+        s = torch.add(de, e, alpha=g.Lambda)  # x + alpha y in one operation: overhead-bound at small B
         at = self.model.at(q, qd)
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
-        tau = (at.m_times(torch.add(ref.qdd_d, de, alpha=g.Lambda))
-               + at.c_times(torch.add(ref.qd_d, e, alpha=g.Lambda)) + at.gravity())
+        tau = (
+            at.m_times(torch.add(ref.qdd_d, de, alpha=g.Lambda))
+            + at.c_times(torch.add(ref.qd_d, e, alpha=g.Lambda))
+            + at.gravity()
+        )
         if self.scale is None:
             tau = torch.add(torch.add(tau, s, alpha=g.K), robust, alpha=g.epsilon)
         else:
             tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
         d_hat, integral, p0, w = state
-        tau_m = tau                       # what the nominal model sees: no network, no observer
+        tau_m = tau  # what the nominal model sees: no network, no observer
         if h is not None:
             tau = tau + torch.einsum("m,bmj->bj" if h.dim() == 1 else "bm,bmj->bj", h, w)
         if self.observer:
@@ -159,17 +197,24 @@ class SlidingMode(Controller):
             integral = torch.add(integral, tau_m + at.momentum_rate(), alpha=dt)
         if h is None:
             return tau, SlidingState(d_hat, integral, p0, w)
-        assert w is not None and alpha is not None              # a network has weights and a step
+        assert w is not None and alpha is not None  # a network has weights and a step
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
-        w = w + h[..., None] * step[:, None, :]          # h (M,) or (B, M)
+        w = w + h[..., None] * step[:, None, :]  # h (M,) or (B, M)
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
         return tau, SlidingState(d_hat, integral, p0, w)
 
 
-def make_controller(name: str, gains: Gains, dt: float, model: Model | None = None,
-                    features: torch.Tensor | None = None, w0: torch.Tensor | None = None,
-                    observer: bool = True, joint_scale: torch.Tensor | None = None) -> Controller:
+def make_controller(
+    name: str,
+    gains: Gains,
+    dt: float,
+    model: Model | None = None,
+    features: torch.Tensor | None = None,
+    w0: torch.Tensor | None = None,
+    observer: bool = True,
+    joint_scale: torch.Tensor | None = None,
+) -> Controller:
     """Controller by name: pd, ctc, smc, smc_obs, or arbfn* (needs `features`). `model`: the
     nominal model (default: the SCARA's); `joint_scale` (n,): per-joint factor of the torque gains."""
     if name == "pd":
@@ -184,5 +229,7 @@ def make_controller(name: str, gains: Gains, dt: float, model: Model | None = No
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
         return SlidingMode(gains, dt, model, observer=observer, features=features, w0=w0, joint_scale=joint_scale)
-    raise ValueError(f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
-                     f"arbfn_<{'|'.join(CONTROL_CENTER_METHODS)}>")
+    raise ValueError(
+        f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
+        f"arbfn_<{'|'.join(CONTROL_CENTER_METHODS)}>"
+    )

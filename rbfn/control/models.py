@@ -8,6 +8,7 @@ robot, evaluated at a state (q, qd) (B, n).
 so dM/dt = C + C^T); `NominalModel` is the SCARA's closed form (elementwise, no matrices), which
 `rbfn.robots.registry` chooses for exactly the packaged scara.urdf.
 """
+
 from __future__ import annotations
 
 import torch
@@ -23,8 +24,9 @@ __all__ = ["NominalModel", "ArmModel"]
 class NominalModel:
     """The SCARA's nominal model: scaled M, C and G of the unloaded robot, in closed form."""
 
-    def __init__(self, params: ScaraParams = ScaraParams(), m_scale: float = 0.9, c_scale: float = 0.8,
-                 g_scale: float = 0.85) -> None:
+    def __init__(
+        self, params: ScaraParams = ScaraParams(), m_scale: float = 0.9, c_scale: float = 0.8, g_scale: float = 0.85
+    ) -> None:
         p1, p2, p3, m3 = inertia_params(0.0, params)
         self.n = 3
         self.m_co = (m_scale * p1, m_scale * p2, m_scale * p3, m_scale * m3)
@@ -35,7 +37,7 @@ class NominalModel:
     def gravity(self, q: torch.Tensor) -> torch.Tensor:
         """G_hat (3,): the same at every q (only the prismatic joint carries weight); broadcasts
         against (B, 3). One tensor per dtype and device, made once."""
-        if torch.compiler.is_compiling():          # a constant of the graph; a cache would be a guard
+        if torch.compiler.is_compiling():  # a constant of the graph; a cache would be a guard
             return torch.tensor([0.0, 0.0, self.g3], dtype=q.dtype, device=q.device)
         key = (q.dtype, q.device)
         if key not in self._gravity:
@@ -80,12 +82,11 @@ class _ScaraAt:
 class ArmModel:
     """The nominal model of a URDF arm (`Arm`, or its `ArmTerms`), without payload."""
 
-    def __init__(self, arm: Arm | ArmTerms, m_scale: float = 0.9, c_scale: float = 0.8,
-                 g_scale: float = 0.85) -> None:
+    def __init__(self, arm: Arm | ArmTerms, m_scale: float = 0.9, c_scale: float = 0.8, g_scale: float = 0.85) -> None:
         self.terms = arm if isinstance(arm, ArmTerms) else ArmTerms(arm)
         self.n = self.terms.n
         self.m_scale, self.c_scale, self.g_scale = m_scale, c_scale, g_scale
-        self.scalar_terms = ArmScalarTerms(self.terms)   # built eagerly: tracing stays on tensors of B
+        self.scalar_terms = ArmScalarTerms(self.terms)  # built eagerly: tracing stays on tensors of B
 
     def dynamics_terms(self) -> ArmTerms | ArmScalarTerms:
         """The batch-last terms eagerly; their scalar form while torch.compile traces (it fuses)."""

@@ -7,6 +7,7 @@ torque the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat), against x
 objective picks centres that fit that residual; `cluster` places them on the states alone
 (k-means' objective, searched by ACO); `grid` spaces them evenly in time along one period.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,7 +26,7 @@ from .simulator import Plant, Scenario, simulate
 from .trajectory import Reference
 
 __all__ = ["ControlNet", "desired_states", "pilot_residuals", "control_network"]
-PERIOD = 2 * math.pi          # s: every desired joint repeats with this period
+PERIOD = 2 * math.pi  # s: every desired joint repeats with this period
 
 
 @dataclass
@@ -51,16 +52,33 @@ def desired_states(ref: Reference) -> torch.Tensor:
     return torch.cat([ref.q_d, ref.qd_d], -1)
 
 
-def pilot_residuals(plant: Plant, scenario: Scenario, ref: Reference, gains: Gains, model: Model,
-                    stride: int = 10, joint_scale: torch.Tensor | None = None, compile: bool = False,
-                    aot: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def pilot_residuals(
+    plant: Plant,
+    scenario: Scenario,
+    ref: Reference,
+    gains: Gains,
+    model: Model,
+    stride: int = 10,
+    joint_scale: torch.Tensor | None = None,
+    compile: bool = False,
+    aot: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(x (N, 2n), residual torque (N, n)) every `stride` steps of an `smc_obs` run without payload;
     the residual is what the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat).
     `compile`, `aot`: as `simulate`'s."""
     q0, qd0 = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
     ctrl = make_controller("smc_obs", gains, scenario.dt, model, joint_scale=joint_scale)
-    roll = simulate(plant, ctrl, scenario, ref, q0=q0, qd0=qd0,
-                    payload=torch.zeros(1, dtype=q0.dtype, device=q0.device), compile=compile, aot=aot)
+    roll = simulate(
+        plant,
+        ctrl,
+        scenario,
+        ref,
+        q0=q0,
+        qd0=qd0,
+        payload=torch.zeros(1, dtype=q0.dtype, device=q0.device),
+        compile=compile,
+        aot=aot,
+    )
     q, qd, tau = roll.q[:-1, 0], roll.qd[:-1, 0], roll.tau[:-1, 0]
     qdd = (roll.qd[1:, 0] - qd) / scenario.dt
     at = model.at(q, qd)
@@ -69,8 +87,16 @@ def pilot_residuals(plant: Plant, scenario: Scenario, ref: Reference, gains: Gai
     return x[::stride], resid[::stride]
 
 
-def control_network(method: str, x: torch.Tensor, y: torch.Tensor, m: int, seed: int, sample_dt: float,
-                    aco: ACOConfig | None = None, warm_start: bool = False) -> ControlNet:
+def control_network(
+    method: str,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    m: int,
+    seed: int,
+    sample_dt: float,
+    aco: ACOConfig | None = None,
+    warm_start: bool = False,
+) -> ControlNet:
     """Centres and widths for the controller's network by `method` (CONTROL_CENTER_METHODS) from pilot
     data x (N, 2n), y (N, n) sampled every `sample_dt` s; even samples train, odd ones validate
     (widths, ridge, ACO's fit objective). `warm_start` starts the weights at the ridge fit of y."""
@@ -88,10 +114,14 @@ def control_network(method: str, x: torch.Tensor, y: torch.Tensor, m: int, seed:
         seconds = time.perf_counter() - t0
     else:
         aco = aco or ACOConfig()
-        if method == "aco_cluster":        # a new value: the caller's config is never mutated
+        if method == "aco_cluster":  # a new value: the caller's config is never mutated
             aco = replace(aco, objective=Objective.cluster)
-        cfg = CentersConfig(name=method, method=Method.aco if method.startswith("aco") else Method(method),
-                            width_rule=WidthRule.per_center, aco=aco)
+        cfg = CentersConfig(
+            name=method,
+            method=Method.aco if method.startswith("aco") else Method(method),
+            width_rule=WidthRule.per_center,
+            aco=aco,
+        )
         sel = select(cfg, objective, m, seed, max_width=4.0, generator=g)
         centers, widths, seconds = sel.centers, sel.widths, sel.seconds
     w0 = torch.zeros(m, y.shape[1], dtype=x.dtype)

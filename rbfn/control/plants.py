@@ -17,6 +17,7 @@ step like the torque (zero-order hold).
 Both give `coefficients(payload)` (what a step needs of the payload schedule, each (T, B)),
 `accel(q, qd, tau - tau_d, co)`, `step(...)` and `energy(q, qd, payload)`.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -43,11 +44,18 @@ class Plant:
     """
 
     n: int
-    compile_chunk = 25          # control periods per torch.compile'd call (simulate(compile=True))
+    compile_chunk = 25  # control periods per torch.compile'd call (simulate(compile=True))
 
-    def __init__(self, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
-                 smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
-                 gravity: bool = True) -> None:
+    def __init__(
+        self,
+        viscous: PerJoint = 12.0,
+        coulomb: PerJoint = 0.2,
+        friction: str = "sign",
+        smooth_velocity: float = 0.01,
+        disturbance: PerJoint = 5.0,
+        disturbance_freq: float = 2.0,
+        gravity: bool = True,
+    ) -> None:
         if friction not in tuple(Friction):
             raise ValueError(f"friction={friction!r} is not allowed; choose one of {[str(f) for f in Friction]}")
         if not smooth_velocity > 0:
@@ -56,8 +64,12 @@ class Plant:
             if not isinstance(value, (int, float)) and len(value) != self.n:
                 raise ValueError(f"{key}={list(value)} needs one value per joint ({self.n}) or a single number")
         self.viscous, self.coulomb, self.friction = viscous, coulomb, friction
-        self.smooth_velocity, self.dist, self.dist_freq, self.gravity = (smooth_velocity, disturbance,
-                                                                          disturbance_freq, gravity)
+        self.smooth_velocity, self.dist, self.dist_freq, self.gravity = (
+            smooth_velocity,
+            disturbance,
+            disturbance_freq,
+            gravity,
+        )
         self._joint_values: dict = {}
 
     def _per_joint(self, value: PerJoint, like: torch.Tensor):
@@ -91,6 +103,7 @@ class Plant:
         return self._per_joint(self.dist, t) * s.unsqueeze(-1)
 
     if TYPE_CHECKING:
+
         def coefficients(self, payload: torch.Tensor) -> tuple[torch.Tensor, ...]:
             """What a step needs of the payload schedule (kg, (T, B)), each (T, B); a subclass's."""
 
@@ -98,8 +111,16 @@ class Plant:
         """Joint accelerations (B, n) under r = tau - tau_d (B, n), the torque less the disturbance."""
         raise NotImplementedError
 
-    def step(self, q: torch.Tensor, qd: torch.Tensor, tau: torch.Tensor, dist: torch.Tensor, dt: float, co,
-             method: str = "rk4") -> tuple[torch.Tensor, torch.Tensor]:
+    def step(
+        self,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        tau: torch.Tensor,
+        dist: torch.Tensor,
+        dt: float,
+        co,
+        method: str = "rk4",
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """State (q, qd) after dt seconds, torque and payload held; dist: the disturbance torque at
         the step's start, middle and end, tau_d(t), tau_d(t + dt/2), tau_d(t + dt) (3,) or (3, n)."""
         if method == "euler":
@@ -107,7 +128,7 @@ class Plant:
             return q + dt * qd, qd
         # x + h y as one operation (torch.add's alpha): a step is overhead-bound at small B.
         h = 0.5 * dt
-        r_mid = tau - dist[1]                            # the two middle stages share it
+        r_mid = tau - dist[1]  # the two middle stages share it
         a1 = self.accel(q, qd, tau - dist[0], co)
         v2 = torch.add(qd, a1, alpha=h)
         a2 = self.accel(torch.add(q, qd, alpha=h), v2, r_mid, co)
@@ -125,9 +146,17 @@ class ScaraPlant(Plant):
 
     n = 3
 
-    def __init__(self, params: ScaraParams = ScaraParams(), viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2,
-                 friction: str = "sign", smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0,
-                 disturbance_freq: float = 2.0, gravity: bool = True) -> None:
+    def __init__(
+        self,
+        params: ScaraParams = ScaraParams(),
+        viscous: PerJoint = 12.0,
+        coulomb: PerJoint = 0.2,
+        friction: str = "sign",
+        smooth_velocity: float = 0.01,
+        disturbance: PerJoint = 5.0,
+        disturbance_freq: float = 2.0,
+        gravity: bool = True,
+    ) -> None:
         super().__init__(viscous, coulomb, friction, smooth_velocity, disturbance, disturbance_freq, gravity)
         self.params = params
 
@@ -143,7 +172,7 @@ class ScaraPlant(Plant):
         qd1, qd2, _ = qd.unbind(-1)
         r1, r2, r3 = self.minus_friction(r, qd).unbind(-1)
         r1, r2 = minus_c_qd(torch.sin(q2), co, qd1, qd2, r1, r2)
-        return m_solve_parts(torch.cos(q2), co, r1, r2, r3 + co[4])     # the prismatic joint carries m3 g
+        return m_solve_parts(torch.cos(q2), co, r1, r2, r3 + co[4])  # the prismatic joint carries m3 g
 
     def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
         """Kinetic plus (if gravity is on) potential energy (B,) in J, zero height at q3 = 0."""
@@ -155,18 +184,26 @@ class ScaraPlant(Plant):
 class ArmPlant(Plant):
     """A URDF arm (`Arm`: its chain, inertials, gravity and payload link); see `Plant` for the rest."""
 
-    compile_chunk = 1           # one step is already thousands of fused scalar operations
+    compile_chunk = 1  # one step is already thousands of fused scalar operations
     # While torch.compile traces: solve M qdd = r by the Cholesky factorisation written out in
     # scalars (`rbfn.robots.arm_scalar.ScalarConfig.solve`), fused with the step, rather than torch.linalg's batched
     # LAPACK calls, which run apart and cost as much as the whole fused step (False: keep them).
     fused_solve = True
 
-    def __init__(self, arm: Arm, viscous: PerJoint = 12.0, coulomb: PerJoint = 0.2, friction: str = "sign",
-                 smooth_velocity: float = 0.01, disturbance: PerJoint = 5.0, disturbance_freq: float = 2.0,
-                 gravity: bool = True) -> None:
+    def __init__(
+        self,
+        arm: Arm,
+        viscous: PerJoint = 12.0,
+        coulomb: PerJoint = 0.2,
+        friction: str = "sign",
+        smooth_velocity: float = 0.01,
+        disturbance: PerJoint = 5.0,
+        disturbance_freq: float = 2.0,
+        gravity: bool = True,
+    ) -> None:
         self.arm, self.n = arm, arm.n
         self.terms = ArmTerms(arm)
-        self.scalar_terms = ArmScalarTerms(self.terms)   # built eagerly: tracing stays on tensors of B
+        self.scalar_terms = ArmScalarTerms(self.terms)  # built eagerly: tracing stays on tensors of B
         super().__init__(viscous, coulomb, friction, smooth_velocity, disturbance, disturbance_freq, gravity)
 
     def dynamics_terms(self) -> ArmTerms | ArmScalarTerms:
@@ -184,7 +221,7 @@ class ArmPlant(Plant):
         if self.gravity:
             r = r - cfg.gravity()
         if self.fused_solve and torch.compiler.is_compiling():
-            return cast(ScalarConfig, cfg).solve(r)          # the scalar form while tracing
+            return cast(ScalarConfig, cfg).solve(r)  # the scalar form while tracing
         # cholesky_ex: a matrix that is not positive definite (never, for a physical arm) gives
         # non-finite accelerations, which the simulator reports, without a per-call error check.
         chol = torch.linalg.cholesky_ex(cfg.mass_matrix())[0]

@@ -9,6 +9,7 @@ without them the plant and nominal model are the URDF's. Every joint of the chai
 joints in robot.locked are held at their value (desired amplitude 0). The joint box
 (robot.joint_low/high) and robot.home list the free joints.
 """
+
 from __future__ import annotations
 
 import reprlib
@@ -37,12 +38,12 @@ class ControlRobot:
     prismatic: list[bool]
     plant: Plant
     model: NominalModel | ArmModel
-    scale: list[float] | None        # torque-gain and scenario factor per joint; None: 1 on every joint
+    scale: list[float] | None  # torque-gain and scenario factor per joint; None: 1 on every joint
     trajectory_kind: str
-    home: list[float]                # per joint, rad or m (sinusoid)
-    amplitude: list[float]           # per joint, rad or m (sinusoid)
-    payloads: list[float]            # kg, the payload cases
-    figure_payload: float            # kg
+    home: list[float]  # per joint, rad or m (sinusoid)
+    amplitude: list[float]  # per joint, rad or m (sinusoid)
+    payloads: list[float]  # kg, the payload cases
+    figure_payload: float  # kg
 
     @property
     def n(self) -> int:
@@ -72,8 +73,9 @@ def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]
     return cases, (rated / 2 if cfg.figure_payload is None else cfg.figure_payload)
 
 
-def control_robot(robot: RobotConfig, cfg: ControlConfig, params: Any = None,
-                  urdf_text: str | None = None) -> ControlRobot:
+def control_robot(
+    robot: RobotConfig, cfg: ControlConfig, params: Any = None, urdf_text: str | None = None
+) -> ControlRobot:
     """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key).
     `params`: constants for the robot's closed forms, if it has any (None: theirs, at robot.gravity).
     `urdf_text`: the URDF's text (a checkpoint's robot entry: data, never a file name), used
@@ -83,16 +85,23 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: Any = None,
     arm = _load(robot, cfg, source, urdf_text)
     n, names, prismatic = arm.n, arm.joint_names, arm.prismatic
     known = closed_form(urdf_source(source)[0], robot.end_link, robot.locked, robot.gravity, params)
-    closed = known if cfg.payload_link in ("", robot.end_link) else None   # they carry the payload at the end link
+    closed = known if cfg.payload_link in ("", robot.end_link) else None  # they carry the payload at the end link
     scale = _scale(cfg, robot, None if closed is not None else arm, n)
     home, amplitude = _sinusoid(robot, cfg, names)
     trajectory = cfg.trajectory or (known.trajectory if known is not None else Trajectory.sinusoid)
     if trajectory == Trajectory.paper and n != 3:
-        raise ValueError(f"control.trajectory={str(trajectory)!r} is the SCARA's 3-joint path; the chain to "
-                         f"{robot.end_link!r} has {n} joints: use control.trajectory=sinusoid (or null)")
+        raise ValueError(
+            f"control.trajectory={str(trajectory)!r} is the SCARA's 3-joint path; the chain to "
+            f"{robot.end_link!r} has {n} joints: use control.trajectory=sinusoid (or null)"
+        )
     per = (lambda v: v) if scale is None else (lambda v: [v * s for s in scale])
-    kw: dict[str, Any] = dict(viscous=per(cfg.viscous), coulomb=per(cfg.coulomb), friction=str(cfg.friction),
-              disturbance=per(cfg.disturbance), disturbance_freq=cfg.disturbance_freq)
+    kw: dict[str, Any] = dict(
+        viscous=per(cfg.viscous),
+        coulomb=per(cfg.coulomb),
+        friction=str(cfg.friction),
+        disturbance=per(cfg.disturbance),
+        disturbance_freq=cfg.disturbance_freq,
+    )
     plant: Plant
     model: NominalModel | ArmModel
     if closed is not None:
@@ -100,8 +109,9 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, params: Any = None,
     else:
         plant = ArmPlant(arm, **kw)
         model = ArmModel(plant.terms)
-    return ControlRobot(robot.name, names, prismatic, plant, model, scale, str(trajectory), home, amplitude,
-                        payloads, figure_payload)
+    return ControlRobot(
+        robot.name, names, prismatic, plant, model, scale, str(trajectory), home, amplitude, payloads, figure_payload
+    )
 
 
 def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text: str | None):
@@ -109,9 +119,10 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
     try:
         arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity)
     except (FileNotFoundError, ValueError) as e:
-        urdf = repr(robot.urdf) if urdf_text is None else reprlib.repr(urdf_text)     # a file name, or text
-        raise type(e)(f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link="
-                      f"{robot.end_link!r}): {e}") from None
+        urdf = repr(robot.urdf) if urdf_text is None else reprlib.repr(urdf_text)  # a file name, or text
+        raise type(e)(
+            f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link={robot.end_link!r}): {e}"
+        ) from None
     if cfg.payload_link:
         try:
             arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity, payload_link=cfg.payload_link)
@@ -119,12 +130,15 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
             raise ValueError(f"control.payload_link={cfg.payload_link!r}: {e}") from None
     unknown = [j for j in robot.locked if j not in arm.joint_names]
     if unknown:
-        raise ValueError(f"robot.locked names {unknown}, which are not joints of the chain to "
-                         f"{robot.end_link!r}: {arm.joint_names}")
+        raise ValueError(
+            f"robot.locked names {unknown}, which are not joints of the chain to {robot.end_link!r}: {arm.joint_names}"
+        )
     free = arm.n - len(robot.locked)
     if len(robot.joint_low) != free:
-        raise ValueError(f"robot.joint_low/joint_high give {len(robot.joint_low)} joints; the chain to "
-                         f"{robot.end_link!r} has {free} free joints ({arm.n} in all, {len(robot.locked)} locked)")
+        raise ValueError(
+            f"robot.joint_low/joint_high give {len(robot.joint_low)} joints; the chain to "
+            f"{robot.end_link!r} has {free} free joints ({arm.n} in all, {len(robot.locked)} locked)"
+        )
     return arm
 
 
@@ -145,8 +159,9 @@ def _scale(cfg: ControlConfig, robot: RobotConfig, arm, n: int) -> list[float] |
     """control.joint_scale, else M_jj(home) of the URDF arm, None (ones) for closed forms (arm None)."""
     if cfg.joint_scale:
         if len(cfg.joint_scale) != n:
-            raise ValueError(f"control.joint_scale={list(cfg.joint_scale)} needs one factor per joint of "
-                             f"{robot.name!r} ({n})")
+            raise ValueError(
+                f"control.joint_scale={list(cfg.joint_scale)} needs one factor per joint of {robot.name!r} ({n})"
+            )
         return [float(v) for v in cfg.joint_scale]
     if arm is None:
         return None

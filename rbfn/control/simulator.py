@@ -6,6 +6,7 @@ A scenario is a time grid, an integrator (RK4, or semi-implicit Euler) and a pay
 `simulate` runs it in chunks of fused periods (optionally torch.compile'd) and stops with the
 step, time, environment and state where a run diverges; `control_metrics` scores a rollout.
 """
+
 from __future__ import annotations
 
 import logging
@@ -23,11 +24,26 @@ from .controllers import Controller, SlidingState
 from .plants import ArmPlant, Plant, ScaraPlant
 from .trajectory import Reference
 
-__all__ = ["Plant", "ScaraPlant", "ArmPlant", "Reference", "Scenario", "Rollout", "SimulationDiverged", "Loop",
-           "Periods", "Recorded", "simulate", "control_metrics", "make_chunk", "stage_disturbances", "CHECK_EVERY"]
+__all__ = [
+    "Plant",
+    "ScaraPlant",
+    "ArmPlant",
+    "Reference",
+    "Scenario",
+    "Rollout",
+    "SimulationDiverged",
+    "Loop",
+    "Periods",
+    "Recorded",
+    "simulate",
+    "control_metrics",
+    "make_chunk",
+    "stage_disturbances",
+    "CHECK_EVERY",
+]
 
 log = logging.getLogger(__name__)
-CHECK_EVERY = 100   # steps between finiteness checks (each check synchronises a GPU)
+CHECK_EVERY = 100  # steps between finiteness checks (each check synchronises a GPU)
 
 
 class SimulationDiverged(RuntimeError):
@@ -45,10 +61,10 @@ class Scenario:
 
     duration: float = 10.0
     dt: float = 1e-3
-    integrator: str = "rk4"            # rk4 | euler (semi-implicit)
+    integrator: str = "rk4"  # rk4 | euler (semi-implicit)
     payload_on: float = 1.0
     payload_off: float = 4.0
-    metrics_after: float = 0.5         # errors are measured for t > metrics_after
+    metrics_after: float = 0.5  # errors are measured for t > metrics_after
 
     def validate(self) -> None:
         if not (math.isfinite(self.dt) and self.dt > 0):
@@ -56,11 +72,14 @@ class Scenario:
         if not (math.isfinite(self.duration) and self.duration >= self.dt):
             raise ValueError(f"duration={self.duration} must be finite and >= dt={self.dt}")
         if self.integrator not in tuple(Integrator):
-            raise ValueError(f"integrator={self.integrator!r} is not allowed; choose one of "
-                             f"{[str(i) for i in Integrator]}")
+            raise ValueError(
+                f"integrator={self.integrator!r} is not allowed; choose one of {[str(i) for i in Integrator]}"
+            )
         if not 0 <= self.payload_on < self.payload_off <= self.duration:
-            raise ValueError(f"payload window [{self.payload_on}, {self.payload_off}] s must satisfy "
-                             f"0 <= payload_on < payload_off <= duration={self.duration}")
+            raise ValueError(
+                f"payload window [{self.payload_on}, {self.payload_off}] s must satisfy "
+                f"0 <= payload_on < payload_off <= duration={self.duration}"
+            )
         if not 0 <= self.metrics_after < self.duration:
             raise ValueError(f"metrics_after={self.metrics_after} must be in [0, duration={self.duration})")
 
@@ -87,8 +106,11 @@ def _check(step: int, t: float, q, qd, tau) -> None:
     bad = ~(torch.isfinite(q).all(-1) & torch.isfinite(qd).all(-1) & torch.isfinite(tau).all(-1))
     if bool(bad.any()):
         b = int(bad.nonzero()[0, 0])
-        raise SimulationDiverged(f"simulation diverged by step {step} (t = {t:.4f} s) in environment {b}: "
-                                 f"q = {q[b].tolist()}, qd = {qd[b].tolist()}, tau = {tau[b].tolist()}", b)
+        raise SimulationDiverged(
+            f"simulation diverged by step {step} (t = {t:.4f} s) in environment {b}: "
+            f"q = {q[b].tolist()}, qd = {qd[b].tolist()}, tau = {tau[b].tolist()}",
+            b,
+        )
 
 
 def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
@@ -131,16 +153,23 @@ class Recorded(NamedTuple):
     tau: torch.Tensor
 
 
-def make_chunk(plant: Plant, controller: Controller, dt: float, integrator: str, n: int
-               ) -> Callable[[Loop, Periods], Recorded]:
+def make_chunk(
+    plant: Plant, controller: Controller, dt: float, integrator: str, n: int
+) -> Callable[[Loop, Periods], Recorded]:
     """`n` closed-loop periods as one pure tensor function (what torch.compile fuses):
     run(loop, periods) -> Recorded, `periods` holding n periods' inputs."""
+
     def run(loop: Loop, periods: Periods) -> Recorded:
         q, qd, state = loop
         qs, qds, taus = [], [], []
         hs = periods.h.unbind(0) if periods.h is not None else (None,) * n
-        rows = zip(*(r.unbind(0) for r in periods.ref), hs, periods.alpha.unbind(0), periods.dist.unbind(0),
-                   *(c.unbind(0) for c in periods.co))
+        rows = zip(
+            *(r.unbind(0) for r in periods.ref),
+            hs,
+            periods.alpha.unbind(0),
+            periods.dist.unbind(0),
+            *(c.unbind(0) for c in periods.co),
+        )
         for q_d, qd_d, qdd_d, h, alpha, dist, *co in rows:
             qs.append(q)
             qds.append(qd)
@@ -148,31 +177,68 @@ def make_chunk(plant: Plant, controller: Controller, dt: float, integrator: str,
             q, qd = plant.step(q, qd, tau, dist, dt, co, integrator)
             taus.append(tau)
         return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
+
     return run
 
 
-serializable(Reference, Loop, Periods, Recorded, SlidingState)    # in an AOT package's call spec
+serializable(Reference, Loop, Periods, Recorded, SlidingState)  # in an AOT package's call spec
 
 
 @overload
-def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
-             payload: torch.Tensor, record: Literal[True] = ..., compile: bool = ..., chunk: int = ...,
-             aot: bool = ...) -> Rollout: ...
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    scenario: Scenario,
+    ref: Reference,
+    q0: torch.Tensor,
+    qd0: torch.Tensor,
+    payload: torch.Tensor,
+    record: Literal[True] = ...,
+    compile: bool = ...,
+    chunk: int = ...,
+    aot: bool = ...,
+) -> Rollout: ...
 @overload
-def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
-             payload: torch.Tensor, record: Literal[False], compile: bool = ..., chunk: int = ...,
-             aot: bool = ...) -> tuple[torch.Tensor, torch.Tensor]: ...
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    scenario: Scenario,
+    ref: Reference,
+    q0: torch.Tensor,
+    qd0: torch.Tensor,
+    payload: torch.Tensor,
+    record: Literal[False],
+    compile: bool = ...,
+    chunk: int = ...,
+    aot: bool = ...,
+) -> tuple[torch.Tensor, torch.Tensor]: ...
 @overload
-def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
-             payload: torch.Tensor, record: bool = ..., compile: bool = ..., chunk: int = ...,
-             aot: bool = ...) -> Rollout | tuple[torch.Tensor, torch.Tensor]: ...
-def simulate(plant: Plant, controller: Controller, scenario: Scenario,
-             ref: Reference, q0: torch.Tensor, qd0: torch.Tensor,
-             payload: torch.Tensor, record: bool = True, compile: bool = False, chunk: int = 0,
-             aot: bool = False) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    scenario: Scenario,
+    ref: Reference,
+    q0: torch.Tensor,
+    qd0: torch.Tensor,
+    payload: torch.Tensor,
+    record: bool = ...,
+    compile: bool = ...,
+    chunk: int = ...,
+    aot: bool = ...,
+) -> Rollout | tuple[torch.Tensor, torch.Tensor]: ...
+def simulate(
+    plant: Plant,
+    controller: Controller,
+    scenario: Scenario,
+    ref: Reference,
+    q0: torch.Tensor,
+    qd0: torch.Tensor,
+    payload: torch.Tensor,
+    record: bool = True,
+    compile: bool = False,
+    chunk: int = 0,
+    aot: bool = False,
+) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
     """Run the closed loop from (q0, qd0) (B, n) along the Reference `ref` (q_d, qd_d, qdd_d; a
     plain 3-tuple is taken as one), each (steps + 1, n) on the scenario's time grid; payload (B,)
     kg applies inside the window.
@@ -192,8 +258,10 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
     if ref.q_d.shape[0] < n + 1:
         raise ValueError(f"the reference has {ref.q_d.shape[0]} samples; the scenario needs {n + 1}")
     if q0.dim() != 2 or q0.shape[1] != plant.n or qd0.shape != q0.shape or ref.q_d.shape[-1] != plant.n:
-        raise ValueError(f"the plant has {plant.n} joints: q0, qd0 must be (B, {plant.n}) and the reference "
-                         f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref.q_d.shape)}")
+        raise ValueError(
+            f"the plant has {plant.n} joints: q0, qd0 must be (B, {plant.n}) and the reference "
+            f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref.q_d.shape)}"
+        )
     if not (torch.isfinite(q0).all() and torch.isfinite(qd0).all()):
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
@@ -203,11 +271,13 @@ def simulate(plant: Plant, controller: Controller, scenario: Scenario,
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
     k = torch.arange(n, device=q0.device)
     inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(q0.dtype)
-    periods = Periods(ref=ref.to(**kw),                      # every period's inputs, sliced per chunk below
-                      h=controller.features.to(**kw) if controller.features is not None else None,
-                      alpha=controller.alphas(torch.arange(n, **kw) * dt),
-                      dist=stage_disturbances(plant, n, dt, **kw),                # (n, 3) or (n, 3, joints)
-                      co=tuple(plant.coefficients(inside[:, None] * payload.to(**kw)[None, :])))   # each (n, B)
+    periods = Periods(
+        ref=ref.to(**kw),  # every period's inputs, sliced per chunk below
+        h=controller.features.to(**kw) if controller.features is not None else None,
+        alpha=controller.alphas(torch.arange(n, **kw) * dt),
+        dist=stage_disturbances(plant, n, dt, **kw),  # (n, 3) or (n, 3, joints)
+        co=tuple(plant.coefficients(inside[:, None] * payload.to(**kw)[None, :])),
+    )  # each (n, B)
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
@@ -257,10 +327,10 @@ def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> l
     """Per environment: rms_err, max_err (t > metrics_after), max_err_payload (inside the payload
     window), peak_tau (whole run) and chattering (mean |dtau/dt|), each a list of n (per joint: rad
     or m; N m or N; N m/s or N/s)."""
-    err = (q_des[:, None, :] - roll.q).abs()                      # (T, B, n)
+    err = (q_des[:, None, :] - roll.q).abs()  # (T, B, n)
     after = roll.t > scenario.metrics_after
     window = (roll.t >= scenario.payload_on) & (roll.t <= scenario.payload_off)
-    per_key = {                                                   # each (B, n)
+    per_key = {  # each (B, n)
         "rms_err": err[after].square().mean(0).sqrt(),
         "max_err": err[after].amax(0),
         "max_err_payload": err[window].amax(0),

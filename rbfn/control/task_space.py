@@ -14,6 +14,7 @@ The robot is the one the network was trained for, set up as the closed loop sets
 included, are the closed forms' where they exist (for position targets), else the URDF chain's
 through `rbfn.robots.perturbed`.
 """
+
 from __future__ import annotations
 
 import logging
@@ -40,8 +41,19 @@ from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RealRobot", "OnlineRobot", "desired_path", "online_robot", "record_closed_form", "OnlineRun",
-           "run_online", "perturbation_sizes", "path_name", "check_online", "box_path"]
+__all__ = [
+    "RealRobot",
+    "OnlineRobot",
+    "desired_path",
+    "online_robot",
+    "record_closed_form",
+    "OnlineRun",
+    "run_online",
+    "perturbation_sizes",
+    "path_name",
+    "check_online",
+    "box_path",
+]
 
 
 @dataclass
@@ -55,7 +67,7 @@ class RealRobot:
 
     def fk(self, q: torch.Tensor) -> torch.Tensor:
         """Measured positions (..., B, 3) of joints q (..., B, n)."""
-        return self.closed.fk(q + self.offset, self.link_error.unbind(-1))       # (B,) lengths per link
+        return self.closed.fk(q + self.offset, self.link_error.unbind(-1))  # (B,) lengths per link
 
 
 def record_closed_form(record: dict) -> ClosedForm | None:
@@ -76,12 +88,13 @@ def path_name(cfg: OnlineConfig, record: dict) -> str:
 
 def _padded(values: list[float], n: int, **kw) -> torch.Tensor:
     out = torch.zeros(n, **kw)
-    out[:len(values)] = torch.tensor(values, **kw)
+    out[: len(values)] = torch.tensor(values, **kw)
     return out
 
 
-def perturbation_sizes(cfg: OnlineConfig, sizes: list[float], n_links: int | None = None,
-                       n_joints: int | None = None, **kw) -> tuple[torch.Tensor, torch.Tensor]:
+def perturbation_sizes(
+    cfg: OnlineConfig, sizes: list[float], n_links: int | None = None, n_joints: int | None = None, **kw
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Link errors (S, n_links) and joint offsets (S, n_joints) of each sweep row (default sizes:
     the configured lists' lengths, missing entries 0): the configured perturbation scaled so that
     its link-1 error equals the row's size."""
@@ -99,7 +112,7 @@ def desired_path(name: str, t: torch.Tensor, fk: Callable[[torch.Tensor], torch.
     if name == PathName.paper:
         return fk(paper_trajectory(t)[0])
     centre = fk(torch.tensor([[1.0, 1.15, 1.0]], dtype=t.dtype))[0]
-    w = 2 * math.pi / 5.0                                                  # one loop per 5 s
+    w = 2 * math.pi / 5.0  # one loop per 5 s
     if name == PathName.circle:
         off = torch.stack([0.15 * torch.cos(w * t), 0.15 * torch.sin(w * t), 0.1 * torch.sin(w * t)], -1)
     elif name == PathName.figure8:
@@ -122,17 +135,17 @@ class OnlineRobot:
     rows; `measure` serves 2S environments, [adapted rows, frozen rows]."""
 
     plant: Plant
-    controller: Controller               # smc_obs on the robot's nominal model
-    x_d: torch.Tensor                    # (T, d) desired targets along the path
-    q_nominal: torch.Tensor              # (T, n_free) the nominal model's exact IK along the path
-    measure: Callable                    # chain joints (..., 2S, n) -> (rotations (..., 2S, 3, 3) | None,
-                                         # positions (..., 2S, 3))
-    free: list[int]                      # the chain indices of the network's joints
-    held: torch.Tensor                   # (n,) chain joint values (the locked joints' are used)
-    target: str                          # position | pose
-    link_error: torch.Tensor             # (S, L) each row's link errors
-    offset_error: torch.Tensor           # (S, n) each row's joint offsets
-    q_real: torch.Tensor | None = None   # (T, n_free) the real robot's exact IK of the configured row (closed forms)
+    controller: Controller  # smc_obs on the robot's nominal model
+    x_d: torch.Tensor  # (T, d) desired targets along the path
+    q_nominal: torch.Tensor  # (T, n_free) the nominal model's exact IK along the path
+    measure: Callable  # chain joints (..., 2S, n) -> (rotations (..., 2S, 3, 3) | None,
+    # positions (..., 2S, 3))
+    free: list[int]  # the chain indices of the network's joints
+    held: torch.Tensor  # (n,) chain joint values (the locked joints' are used)
+    target: str  # position | pose
+    link_error: torch.Tensor  # (S, L) each row's link errors
+    offset_error: torch.Tensor  # (S, n) each row's joint offsets
+    q_real: torch.Tensor | None = None  # (T, n_free) the real robot's exact IK of the configured row (closed forms)
 
     @property
     def n(self) -> int:
@@ -151,7 +164,7 @@ class OnlineRobot:
         """The network's inputs (..., d) of measured poses."""
         if self.target != Target.pose:
             return pos
-        assert rot is not None                # poses have rotations
+        assert rot is not None  # poses have rotations
         return torch.cat([pos, unit_quaternions(rot)], -1)
 
     def errors(self, rot: torch.Tensor | None, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -160,7 +173,7 @@ class OnlineRobot:
         e_pos = (pos - self.x_d[:, None, :3]).norm(dim=-1) * 1000.0
         if self.target != Target.pose:
             return e_pos, None
-        assert rot is not None                # poses have rotations
+        assert rot is not None  # poses have rotations
         r_d = tf.quaternion_to_matrix(self.x_d[:, 3:])[:, None].expand_as(rot)
         return e_pos, rotation_error_deg(rot.reshape(-1, 3, 3), r_d.reshape(-1, 3, 3)).view(e_pos.shape)
 
@@ -174,43 +187,64 @@ def check_online(cfg: OnlineConfig, record: dict) -> tuple[int, int]:
         n_links, n_joints, name = closed.links, len(closed.joint_names), closed.label
     else:
         if path != PathName.sinusoid:
-            raise ValueError(f"online.path={path!r} is a path of the SCARA's workspace; the checkpoint's robot "
-                             f"({record.get('name') or record['end_link']}) follows online.path=sinusoid")
+            raise ValueError(
+                f"online.path={path!r} is a path of the SCARA's workspace; the checkpoint's robot "
+                f"({record.get('name') or record['end_link']}) follows online.path=sinusoid"
+            )
         arm = load_arm(record["urdf"], end_link=record["end_link"])
         n_links = n_joints = arm.n
         name = f"the chain to {arm.end_link!r} (joints {arm.joint_names})"
     if len(cfg.link_error) > n_links:
-        raise ValueError(f"online.link_error={list(cfg.link_error)} has {len(cfg.link_error)} entries; "
-                         f"{name} has {n_links} links")
+        raise ValueError(
+            f"online.link_error={list(cfg.link_error)} has {len(cfg.link_error)} entries; {name} has {n_links} links"
+        )
     if len(cfg.offset_error) > n_joints:
-        raise ValueError(f"online.offset_error={list(cfg.offset_error)} has {len(cfg.offset_error)} entries; "
-                         f"{name} has {n_joints} joints")
+        raise ValueError(
+            f"online.offset_error={list(cfg.offset_error)} has {len(cfg.offset_error)} entries; "
+            f"{name} has {n_joints} joints"
+        )
     return n_links, n_joints
 
 
-def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], t: torch.Tensor,
-                 **kw) -> OnlineRobot:
+def online_robot(
+    record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], t: torch.Tensor, **kw
+) -> OnlineRobot:
     """The online scenario of a checkpoint's robot entry on the time grid t (T,) s, for the
     perturbation rows `sizes` (ValueError naming the bad key): the robot set up by `control_robot`
     from the entry's URDF text (closed forms where the registry has them), its kinematics, the
     real robot's included, closed-form or the URDF chain's."""
     check_online(cfg, record)
-    robot = RobotConfig(name=record.get("name") or "urdf", end_link=record["end_link"],
-                        target=record.get("target", "position"), joint_low=list(record["joint_low"]),
-                        joint_high=list(record["joint_high"]), locked=dict(record.get("locked", {})))
+    robot = RobotConfig(
+        name=record.get("name") or "urdf",
+        end_link=record["end_link"],
+        target=record.get("target", "position"),
+        joint_low=list(record["joint_low"]),
+        joint_high=list(record["joint_high"]),
+        locked=dict(record.get("locked", {})),
+    )
     # the entry's dynamics; friction, disturbance scaled per joint
     setup = control_robot(robot, ControlConfig(trajectory=Trajectory.sinusoid), urdf_text=record["urdf"])
     ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=setup.joint_scale(**kw))
-    trained = robot_from_record(record, kw.get("device", "cpu"))      # its chain, free joints, targets
+    trained = robot_from_record(record, kw.get("device", "cpu"))  # its chain, free joints, targets
     closed, n = record_closed_form(record), setup.n
     if closed is None:
         arm = cast(ArmPlant, setup.plant).arm
         link, offset = perturbation_sizes(cfg, sizes, n, n, **kw)
-        q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)   # (T, n_free)
+        q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)  # (T, n_free)
         held = trained.full_joints(q_path[:1])[0]
         real = PerturbedChain(arm, torch.cat([link, link]), torch.cat([offset, offset]))
-        return OnlineRobot(setup.plant, ctrl, trained.targets(q_path).to(**kw), q_path, real.pose, trained.free,
-                           held, str(robot.target), link, offset)
+        return OnlineRobot(
+            setup.plant,
+            ctrl,
+            trained.targets(q_path).to(**kw),
+            q_path,
+            real.pose,
+            trained.free,
+            held,
+            str(robot.target),
+            link,
+            offset,
+        )
     link, offset = perturbation_sizes(cfg, sizes, closed.links, n, **kw)
     path = path_name(cfg, record)
     if path == PathName.sinusoid:
@@ -220,8 +254,19 @@ def online_robot(record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: lis
     real_robot = RealRobot(closed, torch.cat([link, link]), torch.cat([offset, offset]))
     le, oe = perturbation_sizes(cfg, [cfg.link_error[0]], closed.links, n, **kw)
     q_real = closed.ik(x_d, [float(e) for e in le[0]]) - oe[0]
-    return OnlineRobot(setup.plant, ctrl, x_d, closed.ik(x_d), lambda q: (None, real_robot.fk(q)), trained.free,
-                       torch.zeros(n, **kw), str(Target.position), link, offset, q_real)
+    return OnlineRobot(
+        setup.plant,
+        ctrl,
+        x_d,
+        closed.ik(x_d),
+        lambda q: (None, real_robot.fk(q)),
+        trained.free,
+        torch.zeros(n, **kw),
+        str(Target.position),
+        link,
+        offset,
+        q_real,
+    )
 
 
 @dataclass
@@ -229,26 +274,27 @@ class OnlineRun:
     """What `run_online` returns for S perturbation rows, on the control grid of T instants with U
     weight updates; positions in mm, rotations in degrees, joints in rad (m for a prismatic one)."""
 
-    t: torch.Tensor                      # (T,) s
-    err_adapt: torch.Tensor              # (T, S) task-space position error of the adapted network
-    err_frozen: torch.Tensor             # (T, S) of the same network without adaptation
-    err_analytic: torch.Tensor           # (T, S) of the nominal model's exact IK
-    rot_adapt: torch.Tensor | None       # (T, S) rotation errors, for pose targets (else None)
+    t: torch.Tensor  # (T,) s
+    err_adapt: torch.Tensor  # (T, S) task-space position error of the adapted network
+    err_frozen: torch.Tensor  # (T, S) of the same network without adaptation
+    err_analytic: torch.Tensor  # (T, S) of the nominal model's exact IK
+    rot_adapt: torch.Tensor | None  # (T, S) rotation errors, for pose targets (else None)
     rot_frozen: torch.Tensor | None
     rot_analytic: torch.Tensor | None
-    q_adapt: torch.Tensor                # (T, S, n_free) the adapted rows' joints
-    x_d: torch.Tensor                    # (T, d) desired targets along the path
-    q_real: torch.Tensor | None          # (T, n_free) the real robot's exact IK of the configured row, or None
-    dw: torch.Tensor                     # (U, S) norms of the weight change W - W0
-    t_update: torch.Tensor               # (U,) s, the update times
-    weights: torch.Tensor                # (S, P, n_free) the adapted rows' final output weights
-    link_error: torch.Tensor             # (S, L) each row's link errors
-    offset_error: torch.Tensor           # (S, n) each row's joint offsets (rad or m)
-    rejected: int                        # pairs the learner rejected (non-finite)
+    q_adapt: torch.Tensor  # (T, S, n_free) the adapted rows' joints
+    x_d: torch.Tensor  # (T, d) desired targets along the path
+    q_real: torch.Tensor | None  # (T, n_free) the real robot's exact IK of the configured row, or None
+    dw: torch.Tensor  # (U, S) norms of the weight change W - W0
+    t_update: torch.Tensor  # (U,) s, the update times
+    weights: torch.Tensor  # (S, P, n_free) the adapted rows' final output weights
+    link_error: torch.Tensor  # (S, L) each row's link errors
+    offset_error: torch.Tensor  # (S, n) each row's joint offsets (rad or m)
+    rejected: int  # pairs the learner rejected (non-finite)
 
 
-def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float],
-               device: str = "cpu") -> OnlineRun:
+def run_online(
+    net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsConfig, sizes: list[float], device: str = "cpu"
+) -> OnlineRun:
     """Run adapted and frozen networks for every perturbation size in `sizes` (link-1 errors; see
     `perturbation_sizes`) and the nominal model's exact IK, on the robot of the checkpoint entry
     `record`; see OnlineRun for what comes back.
@@ -261,37 +307,39 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
     rob = online_robot(record, cfg, gains, sizes, t, **kw)
     net = net.to(**kw)
     n_s, nj = len(sizes), rob.n
-    b = 2 * n_s                                                       # environments: [adapted (S), frozen (S)]
-    a_path = net.design(rob.x_d)                                      # (T, P)
+    b = 2 * n_s  # environments: [adapted (S), frozen (S)]
+    a_path = net.design(rob.x_d)  # (T, P)
     da = torch.gradient(a_path, spacing=cfg.dt, dim=0)[0]
-    path = torch.stack([a_path, da, torch.gradient(da, spacing=cfg.dt, dim=0)[0]])   # (3, T, P): a, a', a''
+    path = torch.stack([a_path, da, torch.gradient(da, spacing=cfg.dt, dim=0)[0]])  # (3, T, P): a, a', a''
     del a_path, da
     w0 = net.output_weights().to(**kw)
     learner = make_learner(cfg.learner, w0.expand(b, *w0.shape), cfg.alpha0, cfg.decay, cfg.forgetting)
-    frozen = torch.cat([torch.zeros(n_s, dtype=torch.bool, device=device),
-                        torch.ones(n_s, dtype=torch.bool, device=device)])
+    frozen = torch.cat(
+        [torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)]
+    )
     plant, ctrl = rob.plant, rob.controller
-    vel = torch.zeros(nj, **kw)                                       # locked joints: held, at rest
+    vel = torch.zeros(nj, **kw)  # locked joints: held, at rest
     q = rob.full(torch.einsum("p,bpj->bj", path[0, 0], learner.w))
     qd = rob.full(torch.einsum("p,bpj->bj", path[1, 0], learner.w), vel)
     loop = Loop(q, qd, ctrl.init_state(q, qd))
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
-    co = tuple(plant.coefficients(torch.zeros(cfg.update_every, b, **kw)))     # no payload
+    co = tuple(plant.coefficients(torch.zeros(cfg.update_every, b, **kw)))  # no payload
     alpha = torch.zeros(cfg.update_every, **kw)
     run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
     qs = torch.empty(n + 1, b, nj, **kw)
     dw = []
     k = 0
-    with torch.inference_mode():          # no autograd bookkeeping: a fifth of a small batch's step
+    with torch.inference_mode():  # no autograd bookkeeping: a fifth of a small batch's step
         while k < n:
             m = min(cfg.update_every, n - k)
             sl = slice(k, k + m)
-            stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)      # (3, m, B, n_free): q_d, qd_d, qdd_d
+            stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
             ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
             periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], co=tuple(c[:m] for c in co))
-            if cfg.aot and k == 0 and m == cfg.update_every:        # compiled ahead of time, cached on disk
-                run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods),
-                                log.info)
+            if cfg.aot and k == 0 and m == cfg.update_every:  # compiled ahead of time, cached on disk
+                run = aot_chunk(
+                    run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods), log.info
+                )
             fn = run if m == cfg.update_every else make_chunk(plant, ctrl, cfg.dt, "rk4", m)
             out = fn(loop, periods)
             loop, rq = out.loop, out.q
@@ -300,22 +348,33 @@ def run_online(net: RBFNetwork, record: dict, cfg: OnlineConfig, gains: GainsCon
             if not bool(torch.isfinite(loop.q).all()):
                 raise RuntimeError(f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s): q = {loop.q.tolist()}")
             # Pairs (x, q) of this segment; the frozen environments learn nothing.
-            x = rob.targets(*rob.measure(rq))                                   # (m, B, d)
-            a = net.design(x).transpose(0, 1)                                  # (B, m, P)
+            x = rob.targets(*rob.measure(rq))  # (m, B, d)
+            a = net.design(x).transpose(0, 1)  # (B, m, P)
             y = rq[..., rob.free].transpose(0, 1)
             keep = learner.w.clone()
             learner.update(a, y, k * cfg.dt)
             learner.w = torch.where(frozen[:, None, None], keep, learner.w)
             dw.append((learner.w - w0).flatten(1).norm(dim=-1)[:n_s])
     qs[n] = loop.q
-    pos, rot = rob.errors(*rob.measure(qs))                                      # (T, B)
+    pos, rot = rob.errors(*rob.measure(qs))  # (T, B)
     # The nominal model's exact IK on each real robot (a kinematic perturbation: the same joints).
     q_an = rob.full(rob.q_nominal)[:, None, :].expand(-1, b, nj)
     pos_an, rot_an = rob.errors(*rob.measure(q_an))
-    return OnlineRun(t=t, err_adapt=pos[:, :n_s], err_frozen=pos[:, n_s:], err_analytic=pos_an[:, :n_s],
-                     rot_adapt=None if rot is None else rot[:, :n_s], rot_frozen=None if rot is None else rot[:, n_s:],
-                     rot_analytic=None if rot_an is None else rot_an[:, :n_s], q_adapt=qs[:, :n_s, rob.free],
-                     x_d=rob.x_d, q_real=rob.q_real, dw=torch.stack(dw),
-                     t_update=torch.arange(1, len(dw) + 1, **kw) * cfg.update_every * cfg.dt,
-                     weights=learner.w[:n_s], link_error=rob.link_error, offset_error=rob.offset_error,
-                     rejected=learner.rejected)
+    return OnlineRun(
+        t=t,
+        err_adapt=pos[:, :n_s],
+        err_frozen=pos[:, n_s:],
+        err_analytic=pos_an[:, :n_s],
+        rot_adapt=None if rot is None else rot[:, :n_s],
+        rot_frozen=None if rot is None else rot[:, n_s:],
+        rot_analytic=None if rot_an is None else rot_an[:, :n_s],
+        q_adapt=qs[:, :n_s, rob.free],
+        x_d=rob.x_d,
+        q_real=rob.q_real,
+        dw=torch.stack(dw),
+        t_update=torch.arange(1, len(dw) + 1, **kw) * cfg.update_every * cfg.dt,
+        weights=learner.w[:n_s],
+        link_error=rob.link_error,
+        offset_error=rob.offset_error,
+        rejected=learner.rejected,
+    )

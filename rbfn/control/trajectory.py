@@ -1,4 +1,5 @@
 """Desired joint trajectories, precomputed on the whole time grid (no per-step Python work)."""
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -21,6 +22,7 @@ class Reference(NamedTuple):
         """Each tensor `.to(**kw)` (dtype, device)."""
         return Reference(*(r.to(**kw) for r in self))
 
+
 # The paper's frequency pairs (rad/s), joint j takes pair j mod 3: every joint repeats within 2 pi s.
 FREQUENCY_PAIRS = ((1.0, 2.0), (2.0, 3.0), (3.0, 4.0))
 
@@ -32,12 +34,13 @@ def paper_trajectory(t: torch.Tensor) -> Reference:
     (rad, rad, m).
     """
     s, c = torch.sin, torch.cos
-    q = torch.stack([1 + 0.1 * (s(t) + s(2 * t)), 1 + 0.1 * (c(2 * t) + c(3 * t)),
-                     1 + 0.1 * (s(3 * t) + s(4 * t))], -1)
-    qd = torch.stack([0.1 * (c(t) + 2 * c(2 * t)), -0.1 * (2 * s(2 * t) + 3 * s(3 * t)),
-                      0.1 * (3 * c(3 * t) + 4 * c(4 * t))], -1)
-    qdd = torch.stack([-0.1 * (s(t) + 4 * s(2 * t)), -0.1 * (4 * c(2 * t) + 9 * c(3 * t)),
-                       -0.1 * (9 * s(3 * t) + 16 * s(4 * t))], -1)
+    q = torch.stack([1 + 0.1 * (s(t) + s(2 * t)), 1 + 0.1 * (c(2 * t) + c(3 * t)), 1 + 0.1 * (s(3 * t) + s(4 * t))], -1)
+    qd = torch.stack(
+        [0.1 * (c(t) + 2 * c(2 * t)), -0.1 * (2 * s(2 * t) + 3 * s(3 * t)), 0.1 * (3 * c(3 * t) + 4 * c(4 * t))], -1
+    )
+    qdd = torch.stack(
+        [-0.1 * (s(t) + 4 * s(2 * t)), -0.1 * (4 * c(2 * t) + 9 * c(3 * t)), -0.1 * (9 * s(3 * t) + 16 * s(4 * t))], -1
+    )
     return Reference(q, qd, qdd)
 
 
@@ -46,8 +49,8 @@ def sinusoid_trajectory(t: torch.Tensor, home: torch.Tensor, amplitude: torch.Te
     its analytic velocity and acceleration, each (T, n), at times t (T,) s; home, amplitude (n,)
     in rad or m (amplitude 0: the joint is held at home)."""
     n = home.shape[0]
-    w = torch.tensor([FREQUENCY_PAIRS[j % 3] for j in range(n)], dtype=t.dtype, device=t.device)   # (n, 2)
-    wt = t[:, None, None] * w                                                     # (T, n, 2)
+    w = torch.tensor([FREQUENCY_PAIRS[j % 3] for j in range(n)], dtype=t.dtype, device=t.device)  # (n, 2)
+    wt = t[:, None, None] * w  # (T, n, 2)
     a = amplitude.to(t)
     q = home.to(t) + a * torch.sin(wt).sum(-1)
     qd = a * (w * torch.cos(wt)).sum(-1)

@@ -19,6 +19,7 @@ loop's tests.
 A 3-vector is a tuple of 3 scalars, a symmetric 3x3 matrix 6 (xx, yy, zz, xy, xz, yz), a
 rotation 9 (row-major), a spatial vector a pair of 3-vectors (angular or moment; linear or force).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -86,21 +87,26 @@ def _dot(a, b):
 
 
 def _cross(a, b):
-    return (_sub(_mul(a[1], b[2]), _mul(a[2], b[1])), _sub(_mul(a[2], b[0]), _mul(a[0], b[2])),
-            _sub(_mul(a[0], b[1]), _mul(a[1], b[0])))
+    return (
+        _sub(_mul(a[1], b[2]), _mul(a[2], b[1])),
+        _sub(_mul(a[2], b[0]), _mul(a[0], b[2])),
+        _sub(_mul(a[0], b[1]), _mul(a[1], b[0])),
+    )
 
 
 def _rot_vec(r, x):
     """R x for a rotation r (9, row-major) and a vector x."""
-    return tuple(_dot(r[3 * i:3 * i + 3], x) for i in range(3))
+    return tuple(_dot(r[3 * i : 3 * i + 3], x) for i in range(3))
 
 
 def _sym_vec(j, w):
     """J w for a symmetric matrix j (xx, yy, zz, xy, xz, yz)."""
     xx, yy, zz, xy, xz, yz = j
-    return (_sum(_mul(xx, w[0]), _mul(xy, w[1]), _mul(xz, w[2])),
-            _sum(_mul(xy, w[0]), _mul(yy, w[1]), _mul(yz, w[2])),
-            _sum(_mul(xz, w[0]), _mul(yz, w[1]), _mul(zz, w[2])))
+    return (
+        _sum(_mul(xx, w[0]), _mul(xy, w[1]), _mul(xz, w[2])),
+        _sum(_mul(xy, w[0]), _mul(yy, w[1]), _mul(yz, w[2])),
+        _sum(_mul(xz, w[0]), _mul(yz, w[1]), _mul(zz, w[2])),
+    )
 
 
 def _s_add(a, b):
@@ -141,9 +147,9 @@ class ArmScalarTerms:
         c = self.terms._consts(torch.float64, torch.device("cpu"))
 
         def snap(x: torch.Tensor) -> list:
-            return torch.where(x.abs() < 1e-14, 0.0, x).tolist()      # cos(pi/2) = 6e-17 is a zero
+            return torch.where(x.abs() < 1e-14, 0.0, x).tolist()  # cos(pi/2) = 6e-17 is a zero
 
-        self.cols = snap(c["cols"])                                      # (n, 3, 4)
+        self.cols = snap(c["cols"])  # (n, 3, 4)
         self.mass = c["mass"].tolist()
         self.first = snap(c["first"])
         self.inertia = snap(c["inertia"])
@@ -163,7 +169,7 @@ class ScalarConfig:
 
     def __init__(self, t: ArmScalarTerms, q: torch.Tensor, payload: Payload) -> None:
         self.t, self.n, self.like = t, t.n, q
-        qs = q.T.contiguous().unbind(0)                                # rows (B,): contiguous loads
+        qs = q.T.contiguous().unbind(0)  # rows (B,): contiguous loads
         rots, pos, axes = [], [], []
         r = p = None
         for i in range(self.n):
@@ -180,13 +186,20 @@ class ScalarConfig:
                 p = _v_add(p, _v_scale(z, qs[i]))
             else:
                 ci, si = torch.cos(qs[i]), torch.sin(qs[i])
-                r = tuple(e for a in range(3) for e in (_add(_mul(x[a][0], ci), _mul(x[a][1], si)),
-                                                        _sub(_mul(x[a][1], ci), _mul(x[a][0], si)), x[a][2]))
+                r = tuple(
+                    e
+                    for a in range(3)
+                    for e in (
+                        _add(_mul(x[a][0], ci), _mul(x[a][1], si)),
+                        _sub(_mul(x[a][1], ci), _mul(x[a][0], si)),
+                        x[a][2],
+                    )
+                )
             rots.append(r)
             pos.append(p)
             axes.append(z)
         last = pos[-1]
-        pos = [_v_sub(pi, last) for pi in pos]                          # about the last body's origin
+        pos = [_v_sub(pi, last) for pi in pos]  # about the last body's origin
         self.s = [((0.0, 0.0, 0.0), z) if t.prismatic[i] else (z, _cross(pos[i], z)) for i, z in enumerate(axes)]
         self.bodies = [self._body(i, rots[i], pos[i], payload) for i in range(self.n)]
         self._composite = self._m = None
@@ -208,8 +221,10 @@ class ScalarConfig:
             rir = [_add(e, _mul(mp, _sub(rr if a == b else 0.0, _mul(rp[a], rp[b])))) for e, (a, b) in zip(rir, _SYM)]
         h = _v_add(_v_scale(p, m), hb)
         pd = _dot(p, _v_add(h, hb))
-        j = tuple(_sub(_add(e, pd if a == b else 0.0), _add(_mul(p[a], h[b]), _mul(hb[a], p[b])))
-                  for e, (a, b) in zip(rir, _SYM))
+        j = tuple(
+            _sub(_add(e, pd if a == b else 0.0), _add(_mul(p[a], h[b]), _mul(hb[a], p[b])))
+            for e, (a, b) in zip(rir, _SYM)
+        )
         return m, h, j
 
     # ------------------------------------------------------------------ pieces
@@ -227,8 +242,7 @@ class ScalarConfig:
 
     def _rows(self, xs) -> torch.Tensor:
         """(len(xs), B) from scalars (floats broadcast): contiguous stores."""
-        return torch.stack([x if isinstance(x, torch.Tensor) else torch.full_like(self.like[:, 0], x)
-                            for x in xs], 0)
+        return torch.stack([x if isinstance(x, torch.Tensor) else torch.full_like(self.like[:, 0], x) for x in xs], 0)
 
     def _stack(self, xs) -> torch.Tensor:
         """(B, len(xs)) (a transposed view) from scalars."""
@@ -282,11 +296,11 @@ class ScalarConfig:
         solves, written out in scalars so that they fuse with the rest of the step."""
         m, n = self._mass(), self.n
         low = [[None] * n for _ in range(n)]
-        inv: list[Any] = [None] * n                                     # 1 / L_jj
+        inv: list[Any] = [None] * n  # 1 / L_jj
         for j in range(n):
             d = _sub(m[j][j], _sum(*(_mul(low[j][k], low[j][k]) for k in range(j))))
-            inv[j] = torch.rsqrt(d) if isinstance(d, torch.Tensor) else d ** -0.5
-            low[j][j] = _mul(d, inv[j])                                 # sqrt(d)
+            inv[j] = torch.rsqrt(d) if isinstance(d, torch.Tensor) else d**-0.5
+            low[j][j] = _mul(d, inv[j])  # sqrt(d)
             for i in range(j + 1, n):
                 low[i][j] = _mul(_sub(m[i][j], _sum(*(_mul(low[i][k], low[j][k]) for k in range(j)))), inv[j])
         rs = r.T.contiguous().unbind(0)
@@ -311,8 +325,8 @@ class ScalarConfig:
         f = []
         for k in range(self.n):
             du, dw = _s_scale(self.s[k], ys[k]), _s_scale(mo.sd[k], ys[k])
-            u = du if u is None else _s_add(u, du)                       # J_k y
-            w = dw if w is None else _s_add(w, dw)                       # dJ_k/dt y
+            u = du if u is None else _s_add(u, du)  # J_k y
+            w = dw if w is None else _s_add(w, dw)  # dJ_k/dt y
             body, v = self.bodies[k], mo.v[k]
             a = _cross_force(v, _apply(body, u))
             b = _cross_force(u, mo.iv[k])

@@ -19,6 +19,7 @@ C(q, qd) y = sum_k J_k^T (I_k dJ_k/dt y + B_k J_k y), B_k u = (v_k x* I_k u - I_
 `Arm.coriolis` forms as a matrix); C^T qd = dT/dq: (C^T qd)_i = dS_i/dt . sum_{k>=i} I_k v_k.
 Motion and force vectors are pairs (angular or moment (n, 3, B), linear or force (n, 3, B)).
 """
+
 from __future__ import annotations
 
 import operator
@@ -45,8 +46,14 @@ def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         return torch.linalg.cross(a, b, dim=-2)
     a0, a1, a2 = a.unbind(-2)
     b0, b1, b2 = b.unbind(-2)
-    return torch.stack([torch.addcmul(a1 * b2, a2, b1, value=-1), torch.addcmul(a2 * b0, a0, b2, value=-1),
-                        torch.addcmul(a0 * b1, a1, b0, value=-1)], -2)
+    return torch.stack(
+        [
+            torch.addcmul(a1 * b2, a2, b1, value=-1),
+            torch.addcmul(a2 * b0, a0, b2, value=-1),
+            torch.addcmul(a0 * b1, a1, b0, value=-1),
+        ],
+        -2,
+    )
 
 
 def _matvec(a: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -122,9 +129,14 @@ class ArmTerms:
             inertia = qt.transpose(1, 2) @ md.inertia @ qt
             pbody = md.payload_body
             pp = qs[pbody].T @ md.payload_pos if pbody >= 0 else md.payload_pos
-            c: dict[str, Any] = {"cols": torch.cat([rot0, t0.unsqueeze(-1)], -1),        # (n, 3, 4): [R0' | t0']
-                 "mass": md.mass, "first": first, "inertia": inertia, "payload_pos": pp,
-                 "g0": -self.arm.gravity_vector}
+            c: dict[str, Any] = {
+                "cols": torch.cat([rot0, t0.unsqueeze(-1)], -1),  # (n, 3, 4): [R0' | t0']
+                "mass": md.mass,
+                "first": first,
+                "inertia": inertia,
+                "payload_pos": pp,
+                "g0": -self.arm.gravity_vector,
+            }
             c = {k: v.to(dtype=dtype, device=device) for k, v in c.items()}
             prismatic = md.prismatic.tolist()
             c["prismatic"] = prismatic
@@ -153,7 +165,7 @@ class Config:
 
     def __init__(self, n: int, c: dict, q: torch.Tensor, payload: Payload) -> None:
         self.n, self.c = n, c
-        qt = q.T.contiguous()                                             # (n, B)
+        qt = q.T.contiguous()  # (n, B)
         b = qt.shape[1]
         cos, sin = torch.cos(qt), torch.sin(qt)
         cols = c["cols"]
@@ -161,8 +173,8 @@ class Config:
         r_prev = p_prev = None
         for i, prismatic in enumerate(c["prismatic"]):
             if r_prev is None:
-                y = cols[i].unsqueeze(-1)                                 # (3, 4, 1)
-            else:                                                         # R_{i-1} [R0' | t0'] (3, 4, B)
+                y = cols[i].unsqueeze(-1)  # (3, 4, 1)
+            else:  # R_{i-1} [R0' | t0'] (3, 4, B)
                 y = r_prev[:, 0, None] * cols[i, 0, :, None]
                 y = torch.addcmul(y, r_prev[:, 1, None], cols[i, 1, :, None])
                 y = torch.addcmul(y, r_prev[:, 2, None], cols[i, 2, :, None])
@@ -179,33 +191,33 @@ class Config:
             poss.append(p)
             axes.append(z)
             r_prev, p_prev = rot, p
-        rot, z = torch.stack(rots), torch.stack(axes)                     # (n, 3, 3, B), (n, 3, B)
+        rot, z = torch.stack(rots), torch.stack(axes)  # (n, 3, 3, B), (n, 3, B)
         pos = torch.stack(poss)
-        pos = pos - pos[-1]                                               # about the last body's origin
+        pos = pos - pos[-1]  # about the last body's origin
         if c["any_prismatic"]:
             self.s = (z * c["revolute_mask"], torch.where(c["prismatic_mask"], z, _cross(pos, z)))
         else:
-            self.s = (z, _cross(pos, z))                                  # S_i (n, 3, B) x 2
+            self.s = (z, _cross(pos, z))  # S_i (n, 3, B) x 2
         # Body inertias about the reference point; the payload is a point mass on its body, added
         # in world axes (see `rbfn.robots.dynamics` on where the payload model is written).
-        mass = c["mass"].unsqueeze(-1)                                    # (n, 1)
-        hb = _rotate_const(rot, c["first"])                               # R h_b (n, 3, B)
+        mass = c["mass"].unsqueeze(-1)  # (n, 1)
+        hb = _rotate_const(rot, c["first"])  # R h_b (n, 3, B)
         body = c["payload_body"]
-        rir = _sandwich(rot, c["inertia"])                                # R Ibar R^T (n, 3, 3, B)
+        rir = _sandwich(rot, c["inertia"])  # R Ibar R^T (n, 3, 3, B)
         if body >= 0 and not (isinstance(payload, (int, float)) and payload == 0):
-            mp = torch.as_tensor(payload, dtype=q.dtype, device=q.device).reshape(-1)   # (1 or B,)
-            mass = mass + c["onehot"] * mp                                # (n, 1 or B)
-            r = _rotate_const(rot[body:body + 1], c["payload_pos"][None])[0]   # R pp (3, B)
+            mp = torch.as_tensor(payload, dtype=q.dtype, device=q.device).reshape(-1)  # (1 or B,)
+            mass = mass + c["onehot"] * mp  # (n, 1 or B)
+            r = _rotate_const(rot[body : body + 1], c["payload_pos"][None])[0]  # R pp (3, B)
             hb, rir = hb.clone(), rir.clone()
             hb[body] = torch.addcmul(hb[body], r, mp)
             rir[body] += mp * (c["eye"] * (r * r).sum(0) - r.unsqueeze(1) * r.unsqueeze(0))
         self.m = mass
-        self.h = torch.addcmul(hb, mass.unsqueeze(1), pos)                # m p + R h_b (n, 3, B)
+        self.h = torch.addcmul(hb, mass.unsqueeze(1), pos)  # m p + R h_b (n, 3, B)
         j = torch.addcmul(rir, pos.unsqueeze(2), self.h.unsqueeze(1), value=-1)
         j = torch.addcmul(j, hb.unsqueeze(2), pos.unsqueeze(1), value=-1)
-        pdot = (pos * (self.h + hb)).sum(1)                               # (n, B)
+        pdot = (pos * (self.h + hb)).sum(1)  # (n, B)
         j.diagonal(dim1=1, dim2=2).add_(pdot.unsqueeze(-1))
-        self.j = j                                                        # (n, 3, 3, B)
+        self.j = j  # (n, 3, 3, B)
         self._composite: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         self._m: torch.Tensor | None = None
 
@@ -233,8 +245,9 @@ class Config:
         """M (n, n, B) by CRBA: M_ij = S_i . I^c_j S_j for i <= j."""
         if self._m is None:
             f = _apply(*self.composite(), self.s)
-            up = ((self.s[0].unsqueeze(1) * f[0].unsqueeze(0)).sum(2)
-                  + (self.s[1].unsqueeze(1) * f[1].unsqueeze(0)).sum(2))
+            up = (self.s[0].unsqueeze(1) * f[0].unsqueeze(0)).sum(2) + (self.s[1].unsqueeze(1) * f[1].unsqueeze(0)).sum(
+                2
+            )
             self._m = torch.where(self.c["upper"], up, up.transpose(0, 1))
         return self._m
 
@@ -270,8 +283,8 @@ class Config:
         mo = mo or self.motion(qd)
         v, sd = mo.v, mo.sd
         yt = y.T.unsqueeze(1)
-        u = (_prefix_sum(self.s[0] * yt), _prefix_sum(self.s[1] * yt))   # J_k y
-        w = (_prefix_sum(sd[0] * yt), _prefix_sum(sd[1] * yt))           # dJ_k/dt y
+        u = (_prefix_sum(self.s[0] * yt), _prefix_sum(self.s[1] * yt))  # J_k y
+        w = (_prefix_sum(sd[0] * yt), _prefix_sum(sd[1] * yt))  # dJ_k/dt y
         iw, iu, ivu = self.apply(w), self.apply(u), self.apply(_cross_motion(v, u))
         a, b = _cross_force(v, iu), _cross_force(u, mo.iv)
         return self._project((iw[0] + 0.5 * (a[0] - ivu[0] + b[0]), iw[1] + 0.5 * (a[1] - ivu[1] + b[1])))
@@ -287,7 +300,7 @@ class Motion:
     """Body velocities v, axis rates dS/dt (pairs of (n, 3, B)) and momenta I v at joint rates qd."""
 
     def __init__(self, cfg: Config, qd: torch.Tensor) -> None:
-        self.cfg, self.qdt = cfg, qd.T.unsqueeze(1)                      # (n, 1, B)
+        self.cfg, self.qdt = cfg, qd.T.unsqueeze(1)  # (n, 1, B)
         s = cfg.s
         self.v = (_prefix_sum(s[0] * self.qdt), _prefix_sum(s[1] * self.qdt))
         self.sd = _cross_motion(self.v, s)
@@ -304,7 +317,7 @@ def _sandwich(rot: torch.Tensor, inertia: torch.Tensor) -> torch.Tensor:
     """R_k Ibar_k R_k^T (n, 3, 3, B) for rotations (n, 3, 3, B) and constant inertias (n, 3, 3)."""
     ri = rot[:, :, 0].unsqueeze(2) * inertia[:, 0, None, :, None]
     ri = torch.addcmul(ri, rot[:, :, 1].unsqueeze(2), inertia[:, 1, None, :, None])
-    ri = torch.addcmul(ri, rot[:, :, 2].unsqueeze(2), inertia[:, 2, None, :, None])   # R Ibar
+    ri = torch.addcmul(ri, rot[:, :, 2].unsqueeze(2), inertia[:, 2, None, :, None])  # R Ibar
     out = ri[:, :, 0].unsqueeze(2) * rot[:, :, 0].unsqueeze(1)
     out = torch.addcmul(out, ri[:, :, 1].unsqueeze(2), rot[:, :, 1].unsqueeze(1))
     return torch.addcmul(out, ri[:, :, 2].unsqueeze(2), rot[:, :, 2].unsqueeze(1))

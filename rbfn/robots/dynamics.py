@@ -55,6 +55,7 @@ cached per dtype and device; every method follows the dtype and device of its in
 is read and parsed as the kinematics reads it (`rbfn.robots.kinematics.urdf_text`, `parse_urdf`):
 a file only from a `pathlib.Path`, a str is a preset's name or URDF text, never a file name.
 """
+
 from __future__ import annotations
 
 import math
@@ -93,9 +94,12 @@ def _link_inertia(link, to_body: torch.Tensor) -> tuple[float, torch.Tensor, tor
         return zero
     m = float(inertial.mass)
     i = inertial.inertia
-    ic = torch.zeros(3, 3, dtype=torch.float64) if i is None else torch.tensor(
-        [[i.ixx, i.ixy, i.ixz], [i.ixy, i.iyy, i.iyz], [i.ixz, i.iyz, i.izz]], dtype=torch.float64)
-    com = to_body @ _pose(inertial.origin)             # COM frame in the body frame
+    ic = (
+        torch.zeros(3, 3, dtype=torch.float64)
+        if i is None
+        else torch.tensor([[i.ixx, i.ixy, i.ixz], [i.ixy, i.iyy, i.iyz], [i.ixz, i.iyz, i.izz]], dtype=torch.float64)
+    )
+    com = to_body @ _pose(inertial.origin)  # COM frame in the body frame
     rot, c = com[:3, :3], com[:3, 3]
     j = rot @ ic @ rot.T + m * (c.dot(c) * torch.eye(3, dtype=torch.float64) - torch.outer(c, c))
     return m, m * c, j
@@ -108,8 +112,10 @@ def urdf_source(name_or_urdf: str | bytes | os.PathLike, arg: str = "name_or_urd
     if isinstance(name_or_urdf, str) and name_or_urdf in ROBOT_PRESETS:
         return urdf_text(urdf_path(name_or_urdf))
     if isinstance(name_or_urdf, str) and not is_urdf_text(name_or_urdf):
-        raise ValueError(f"{arg}={reprlib.repr(name_or_urdf)} is neither a preset nor URDF text; allowed: "
-                         f"{', '.join(ROBOT_PRESETS)}, the URDF's text or bytes, or a pathlib.Path of a URDF file")
+        raise ValueError(
+            f"{arg}={reprlib.repr(name_or_urdf)} is neither a preset nor URDF text; allowed: "
+            f"{', '.join(ROBOT_PRESETS)}, the URDF's text or bytes, or a pathlib.Path of a URDF file"
+        )
     return urdf_text(name_or_urdf)
 
 
@@ -118,21 +124,21 @@ class _Model:
     """Constants of the lumped chain in float64 (n moving joints, bodies 0..n-1)."""
 
     joint_names: list[str]
-    prismatic: torch.Tensor      # (n,) bool
-    placement: torch.Tensor      # (n, 4, 4): joint i's frame at q_i = 0 in body i-1's frame
-    axis: torch.Tensor           # (n, 3) unit joint axes in the joint frames
-    mass: torch.Tensor           # (n,) kg
-    first_moment: torch.Tensor   # (n, 3) kg m, about body i's origin, body axes
-    inertia: torch.Tensor        # (n, 3, 3) kg m^2, about body i's origin, body axes
-    payload_body: int            # body carrying the payload (-1: fixed to the root)
-    payload_pos: torch.Tensor    # (3,) m, payload point in that body's frame
-    lower: torch.Tensor          # (n,) joint limits, rad or m (+-inf where unlimited)
+    prismatic: torch.Tensor  # (n,) bool
+    placement: torch.Tensor  # (n, 4, 4): joint i's frame at q_i = 0 in body i-1's frame
+    axis: torch.Tensor  # (n, 3) unit joint axes in the joint frames
+    mass: torch.Tensor  # (n,) kg
+    first_moment: torch.Tensor  # (n, 3) kg m, about body i's origin, body axes
+    inertia: torch.Tensor  # (n, 3, 3) kg m^2, about body i's origin, body axes
+    payload_body: int  # body carrying the payload (-1: fixed to the root)
+    payload_pos: torch.Tensor  # (3,) m, payload point in that body's frame
+    lower: torch.Tensor  # (n,) joint limits, rad or m (+-inf where unlimited)
     upper: torch.Tensor
-    end_pose: torch.Tensor       # (4, 4): the end link's frame in body n-1's frame
+    end_pose: torch.Tensor  # (4, 4): the end link's frame in body n-1's frame
 
 
 def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) -> _Model:
-    path = _path_to(robot, source, end_link)             # joints root -> end_link, the URDF one tree
+    path = _path_to(robot, source, end_link)  # joints root -> end_link, the URDF one tree
     payload_link = end_link if payload_link is None else payload_link
     if payload_link not in robot.link_map:
         raise ValueError(f"payload link {payload_link!r} is not a link of the URDF; links: {sorted(robot.link_map)}")
@@ -140,7 +146,7 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
 
     # Walk the chain: body index and pose in its body frame of every chain link.
     eye = torch.eye(4, dtype=torch.float64)
-    where = {root: (-1, eye)}                            # link -> (body, pose in body frame)
+    where = {root: (-1, eye)}  # link -> (body, pose in body frame)
     names, prismatic, placement, axis, lower, upper = [], [], [], [], [], []
     for joint in path:
         jname, child = joint.name, joint.child
@@ -149,11 +155,15 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
             where[child] = (body, pose @ _pose(joint.origin))
             continue
         if joint.type not in _MOVING:
-            raise ValueError(f"joint {jname!r} on the chain to {end_link!r} is {joint.type!r}; "
-                             f"supported: fixed, {', '.join(_MOVING)}")
+            raise ValueError(
+                f"joint {jname!r} on the chain to {end_link!r} is {joint.type!r}; "
+                f"supported: fixed, {', '.join(_MOVING)}"
+            )
         if joint.mimic is not None:
-            raise ValueError(f"joint {jname!r} on the chain mimics {joint.mimic.joint!r}; "
-                             "mimic joints are not supported on the chain")
+            raise ValueError(
+                f"joint {jname!r} on the chain mimics {joint.mimic.joint!r}; "
+                "mimic joints are not supported on the chain"
+            )
         a = torch.tensor([float(v) for v in (joint.axis or (1.0, 0.0, 0.0))], dtype=torch.float64)
         if a.norm() == 0:
             raise ValueError(f"joint {jname!r} has a zero axis")
@@ -191,10 +201,20 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
         first[body] += h
         inertia[body] += j
     pbody, ppose = locate(payload_link)
-    return _Model(names, torch.tensor(prismatic), torch.stack(placement), torch.stack(axis),
-                  mass, first, inertia, pbody, ppose[:3, 3].clone(),
-                  torch.tensor(lower, dtype=torch.float64),
-                  torch.tensor(upper, dtype=torch.float64), where[end_link][1].clone())
+    return _Model(
+        names,
+        torch.tensor(prismatic),
+        torch.stack(placement),
+        torch.stack(axis),
+        mass,
+        first,
+        inertia,
+        pbody,
+        ppose[:3, 3].clone(),
+        torch.tensor(lower, dtype=torch.float64),
+        torch.tensor(upper, dtype=torch.float64),
+        where[end_link][1].clone(),
+    )
 
 
 # ----------------------------------------------------------------------------- chain sums
@@ -213,7 +233,7 @@ class _Bodies:
 
     def __init__(self, rot, pos, mass, first, inertia, eye):
         self.rot, self.pos, self.ibar, self.eye = rot, pos, inertia, eye
-        self.hb = matvec(rot, first)                       # h' (B, n, 3)
+        self.hb = matvec(rot, first)  # h' (B, n, 3)
         self.m = mass.expand(rot.shape[:2])
         self.h = self.m.unsqueeze(-1) * pos + self.hb
         self._j = None
@@ -222,17 +242,24 @@ class _Bodies:
         """I_k v_k (B, n, 6) for v (B, n, 6): `SIX.inertia_times` without forming J."""
         w, v0 = v[..., :3], v[..., 3:]
         p, h, hb, rot = self.pos, self.h, self.hb, self.rot
-        jw = (matvec(rot, matvec(self.ibar, matvec(rot.transpose(-1, -2), w)))
-              + dot(p, h + hb) * w - p * dot(h, w) - hb * dot(p, w))
+        jw = (
+            matvec(rot, matvec(self.ibar, matvec(rot.transpose(-1, -2), w)))
+            + dot(p, h + hb) * w
+            - p * dot(h, w)
+            - hb * dot(p, w)
+        )
         return torch.cat([jw + cross(h, v0), self.m.unsqueeze(-1) * v0 - cross(h, w)], -1)
 
     def j(self) -> torch.Tensor:
         """J (B, n, 3, 3) kg m^2 about the reference point."""
         if self._j is None:
             p, h, hb, rot = self.pos, self.h, self.hb, self.rot
-            self._j = (rot @ self.ibar @ rot.transpose(-1, -2)
-                       + dot(p, h + hb).unsqueeze(-1) * self.eye
-                       - outer(p, h) - outer(hb, p))
+            self._j = (
+                rot @ self.ibar @ rot.transpose(-1, -2)
+                + dot(p, h + hb).unsqueeze(-1) * self.eye
+                - outer(p, h)
+                - outer(hb, p)
+            )
         return self._j
 
 
@@ -245,14 +272,19 @@ class Arm:
     (B,). Any leading batch shape works; outputs keep the dtype and device of q.
     """
 
-    def __init__(self, model: _Model, gravity: float | tuple[float, float, float],
-                 end_link: str, dtype: torch.dtype, device: str | torch.device):
+    def __init__(
+        self,
+        model: _Model,
+        gravity: float | tuple[float, float, float],
+        end_link: str,
+        dtype: torch.dtype,
+        device: str | torch.device,
+    ):
         self._model = model
         self.end_link = end_link
         self.joint_names = list(model.joint_names)
         self.n = len(self.joint_names)
-        g = ([0.0, 0.0, -float(gravity)] if isinstance(gravity, (int, float))
-             else [float(v) for v in gravity])
+        g = [0.0, 0.0, -float(gravity)] if isinstance(gravity, (int, float)) else [float(v) for v in gravity]
         self.gravity_vector = torch.tensor(g, dtype=torch.float64)  # (3,) m/s^2, root frame
         self._cache: dict = {}
         self.dtype, self.device = dtype, torch.device(device)
@@ -294,13 +326,21 @@ class Arm:
             rot0, p0 = md.placement[:, :3, :3], md.placement[:, :3, 3]
             axis0 = matvec(rot0, a)
             pp = md.payload_pos
-            c: dict[str, Any] = {"rot0": rot0, "p0": p0, "axis0": axis0, "rot0_skew": rot0 @ skew,
-                 "rot0_aa": outer(axis0, a), "mass": md.mass, "first": md.first_moment,
-                 "inertia": md.inertia, "payload_pos": pp,
-                 "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - outer(pp, pp),
-                 "eye": torch.eye(3, dtype=torch.float64),
-                 "revolute": (~md.prismatic).to(torch.float64).unsqueeze(-1),
-                 "a_g": torch.cat([torch.zeros(3, dtype=torch.float64), -self.gravity_vector])}
+            c: dict[str, Any] = {
+                "rot0": rot0,
+                "p0": p0,
+                "axis0": axis0,
+                "rot0_skew": rot0 @ skew,
+                "rot0_aa": outer(axis0, a),
+                "mass": md.mass,
+                "first": md.first_moment,
+                "inertia": md.inertia,
+                "payload_pos": pp,
+                "payload_inertia": pp.dot(pp) * torch.eye(3, dtype=torch.float64) - outer(pp, pp),
+                "eye": torch.eye(3, dtype=torch.float64),
+                "revolute": (~md.prismatic).to(torch.float64).unsqueeze(-1),
+                "a_g": torch.cat([torch.zeros(3, dtype=torch.float64), -self.gravity_vector]),
+            }
             c = {k: v.to(dtype=dtype, device=device) for k, v in c.items()}
             c["prismatic"] = md.prismatic.tolist()
             c["upper"] = torch.ones(self.n, self.n, dtype=torch.bool, device=device).triu()
@@ -349,7 +389,7 @@ class Arm:
         rot, pos, z = torch.stack(rots, 1), torch.stack(origins, 1), torch.stack(axes, 1)
         if centred:
             pos = pos - pos[:, -1:]
-        rev = c["revolute"]                                    # (n, 1): 1 revolute, 0 prismatic
+        rev = c["revolute"]  # (n, 1): 1 revolute, 0 prismatic
         s = torch.cat([z * rev, torch.where(rev > 0, cross(pos, z), z)], -1)
         return rot, pos, s
 
@@ -362,19 +402,18 @@ class Arm:
         if self._model.payload_body >= 0 and not none:
             # The payload changes the carrying body's constants: m, m c_b and Ibar about its origin.
             mp = torch.as_tensor(payload, dtype=q.dtype, device=q.device).reshape(-1, 1)
-            mp = mp * c["onehot"]                                                   # (1 or B, n)
+            mp = mp * c["onehot"]  # (1 or B, n)
             mass = mass + mp
             first = first + mp.unsqueeze(-1) * c["payload_pos"]
             inertia = inertia + mp[..., None, None] * c["payload_inertia"]
         return c, s, _Bodies(rot, pos, mass, first, inertia, c["eye"])
 
     def _mass_matrix(self, c: dict, s: torch.Tensor, b: _Bodies) -> torch.Tensor:
-        f = SIX.inertia_times(_rev_cumsum(b.m), _rev_cumsum(b.h), _rev_cumsum(b.j()), s)    # I^c_j S_j
-        up = s @ f.transpose(1, 2)                                               # S_i . F_j
+        f = SIX.inertia_times(_rev_cumsum(b.m), _rev_cumsum(b.h), _rev_cumsum(b.j()), s)  # I^c_j S_j
+        up = s @ f.transpose(1, 2)  # S_i . F_j
         return torch.where(c["upper"], up, up.transpose(1, 2))
 
-    def _rnea(self, c: dict, s: torch.Tensor, b: _Bodies, qd: torch.Tensor,
-              qdd: torch.Tensor | None) -> torch.Tensor:
+    def _rnea(self, c: dict, s: torch.Tensor, b: _Bodies, qd: torch.Tensor, qdd: torch.Tensor | None) -> torch.Tensor:
         v = (s * qd.unsqueeze(-1)).cumsum(1)
         acc = SIX.cross_motion(v, s) * qd.unsqueeze(-1)
         if qdd is not None:
@@ -388,8 +427,9 @@ class Arm:
         shape, (q,) = self._flat(q)
         return self._mass_matrix(*self._bodies(q, payload)).reshape(*shape, self.n, self.n)
 
-    def inverse_dynamics(self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor | None = None,
-                         payload: Payload = 0.0) -> torch.Tensor:
+    def inverse_dynamics(
+        self, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor | None = None, payload: Payload = 0.0
+    ) -> torch.Tensor:
         """Joint torques tau = M qdd + C qd + G (B, n) by RNEA for q, qd, qdd (B, n)."""
         shape, xs = self._flat(q, qd) if qdd is None else self._flat(q, qd, qdd)
         c, s, b = self._bodies(xs[0], payload)
@@ -400,13 +440,14 @@ class Arm:
         """C(q, qd) qd + G(q) (B, n) by RNEA for q, qd (B, n)."""
         return self.inverse_dynamics(q, qd, None, payload)
 
-    def dynamics(self, q: torch.Tensor, qd: torch.Tensor,
-                 payload: Payload = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+    def dynamics(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
         """(M (B, n, n), C qd + G (B, n)) sharing one kinematics pass; for q, qd (B, n)."""
         shape, (q, qd) = self._flat(q, qd)
         c, s, b = self._bodies(q, payload)
-        return (self._mass_matrix(c, s, b).reshape(*shape, self.n, self.n),
-                self._rnea(c, s, b, qd, None).reshape(*shape, self.n))
+        return (
+            self._mass_matrix(c, s, b).reshape(*shape, self.n, self.n),
+            self._rnea(c, s, b, qd, None).reshape(*shape, self.n),
+        )
 
     def gravity(self, q: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
         """Gravity torques G(q) (B, n) for q (B, n)."""
@@ -426,9 +467,8 @@ class Arm:
         j, h = b.j(), b.h
         # d/dt of (h, J) of each body moving with spatial velocity v (m is constant):
         # dh/dt = w x h + m v0, dJ/dt = [w] J - J [w] + 2 (h.v0) 1 - v0 h^T - h v0^T.
-        wj = torch.linalg.cross(w.unsqueeze(-1).expand_as(j), j, dim=-2)    # [w] J
-        jd = (wj + wj.transpose(-1, -2) + 2 * dot(h, v0).unsqueeze(-1) * c["eye"]
-              - outer(v0, h) - outer(h, v0))
+        wj = torch.linalg.cross(w.unsqueeze(-1).expand_as(j), j, dim=-2)  # [w] J
+        jd = wj + wj.transpose(-1, -2) + 2 * dot(h, v0).unsqueeze(-1) * c["eye"] - outer(v0, h) - outer(h, v0)
         hd = cross(w, h) + b.m.unsqueeze(-1) * v0
         mc, hc, jc = _rev_cumsum(b.m), _rev_cumsum(h), _rev_cumsum(j)
         f, e = SIX.inertia_times(mc, hc, jc, s), SIX.inertia_times(mc, hc, jc, sd)
@@ -441,20 +481,18 @@ class Arm:
         for q, qd (B, n): dM/dt - 2C is skew-symmetric and C qd = bias - G."""
         shape, (q, qd) = self._flat(q, qd)
         c, s, sd, f, e, d, x = self._velocity_terms(q, qd, payload)
-        up = s @ (d + e + 0.5 * x).transpose(1, 2)                             # i <= j
-        lo = (d - 0.5 * x) @ s.transpose(1, 2) + f @ sd.transpose(1, 2)        # i > j
+        up = s @ (d + e + 0.5 * x).transpose(1, 2)  # i <= j
+        lo = (d - 0.5 * x) @ s.transpose(1, 2) + f @ sd.transpose(1, 2)  # i > j
         return torch.where(c["upper"], up, lo).reshape(*shape, self.n, self.n)
 
-    def mass_matrix_dot(self, q: torch.Tensor, qd: torch.Tensor,
-                        payload: Payload = 0.0) -> torch.Tensor:
+    def mass_matrix_dot(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
         """Time derivative of M along the motion, dM/dt (B, n, n), for q, qd (B, n)."""
         shape, (q, qd) = self._flat(q, qd)
         c, s, sd, f, e, d, _ = self._velocity_terms(q, qd, payload)
         up = sd @ f.transpose(1, 2) + s @ (2 * d + e).transpose(1, 2)
         return torch.where(c["upper"], up, up.transpose(1, 2)).reshape(*shape, self.n, self.n)
 
-    def kinetic_energy(self, q: torch.Tensor, qd: torch.Tensor,
-                       payload: Payload = 0.0) -> torch.Tensor:
+    def kinetic_energy(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload = 0.0) -> torch.Tensor:
         """Kinetic energy 1/2 qd^T M qd (B,) in J, summed over the bodies."""
         shape, (q, qd) = self._flat(q, qd)
         _, s, b = self._bodies(q, payload)
@@ -469,9 +507,14 @@ class Arm:
 
 
 # ----------------------------------------------------------------------------- loading
-def load_arm(name_or_urdf: str | bytes | os.PathLike, end_link: str | None = None, gravity: float | None = None,
-             dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu",
-             payload_link: str | None = None) -> Arm:
+def load_arm(
+    name_or_urdf: str | bytes | os.PathLike,
+    end_link: str | None = None,
+    gravity: float | None = None,
+    dtype: torch.dtype = torch.float64,
+    device: str | torch.device = "cpu",
+    payload_link: str | None = None,
+) -> Arm:
     """Dynamics of a preset ("scara", "ur5", "panda") or of a URDF: a file (a `pathlib.Path`), its
     text (a str: never taken for a file name) or its bytes, as `urdf_source` reads them.
 

@@ -18,6 +18,7 @@ the kinematics here (`parse_urdf`), the dynamics of `rbfn.robots.dynamics` and M
 with libxml2's limits on entity expansion (a "billion laughs" document is refused); meshes and
 other referenced files (`package://...`) are never opened.
 """
+
 from __future__ import annotations
 
 import codecs
@@ -38,8 +39,19 @@ from pytorch_kinematics.urdf_parser_py.xml_reflection.core import Path as XmlPat
 
 from ..config import ROBOT_PRESETS
 
-__all__ = ["MAX_URDF_BYTES", "forward_kinematics", "forward_kinematics_pose", "is_urdf_text", "joint_limits",
-           "load_serial_chain", "parse_urdf", "read_urdf", "urdf_path", "urdf_text", "urdf_tree"]
+__all__ = [
+    "MAX_URDF_BYTES",
+    "forward_kinematics",
+    "forward_kinematics_pose",
+    "is_urdf_text",
+    "joint_limits",
+    "load_serial_chain",
+    "parse_urdf",
+    "read_urdf",
+    "urdf_path",
+    "urdf_text",
+    "urdf_tree",
+]
 
 MAX_URDF_BYTES = 16 * 2**20
 """Largest URDF read, in bytes (a file, bytes) or characters (text): 16 MiB, 80 times the largest
@@ -47,18 +59,27 @@ URDF example-robot-data ships (tiago_dual.urdf, 0.2 MB). Anything larger is refu
 read whole, so a device such as /dev/zero cannot exhaust memory."""
 
 # Byte-order marks, longest first (UTF-32-LE's begins with UTF-16-LE's), and the codecs that drop them.
-_BOMS = ((codecs.BOM_UTF32_LE, "utf-32"), (codecs.BOM_UTF32_BE, "utf-32"), (codecs.BOM_UTF8, "utf-8-sig"),
-         (codecs.BOM_UTF16_LE, "utf-16"), (codecs.BOM_UTF16_BE, "utf-16"))
+_BOMS = (
+    (codecs.BOM_UTF32_LE, "utf-32"),
+    (codecs.BOM_UTF32_BE, "utf-32"),
+    (codecs.BOM_UTF8, "utf-8-sig"),
+    (codecs.BOM_UTF16_LE, "utf-16"),
+    (codecs.BOM_UTF16_BE, "utf-16"),
+)
 # The encoding named by an XML declaration (group 2).
 _DECLARED = re.compile(r"""<\?xml[^>]*?\sencoding\s*=\s*(["'])([A-Za-z][\w.:-]*)\1""")
 
-_BLANK = "\ufeff \t\r\n"      # what may precede the first "<" of URDF text: a byte-order mark, whitespace
+_BLANK = "\ufeff \t\r\n"  # what may precede the first "<" of URDF text: a byte-order mark, whitespace
 # What a file that is not a regular one is, for messages.
-_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
 
-_JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic",
-                "fixed": "fixed"}
+_JOINT_TYPES = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic", "fixed": "fixed"}
 
 
 def urdf_path(name: str) -> Path:
@@ -71,15 +92,15 @@ def urdf_path(name: str) -> Path:
 
 def _matrix(origin) -> list[list[float]]:
     """4x4 homogeneous transform of a URDF <origin> (None: identity), in Python floats."""
-    x, y, z = (float(v) for v in origin.xyz) if origin is not None and origin.xyz is not None \
-        else (0.0, 0.0, 0.0)
-    r, p, w = (float(v) for v in origin.rpy) if origin is not None and origin.rpy is not None \
-        else (0.0, 0.0, 0.0)
+    x, y, z = (float(v) for v in origin.xyz) if origin is not None and origin.xyz is not None else (0.0, 0.0, 0.0)
+    r, p, w = (float(v) for v in origin.rpy) if origin is not None and origin.rpy is not None else (0.0, 0.0, 0.0)
     cr, sr, cp, sp, cw, sw = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(w), math.sin(w)
-    return [[cw * cp, cw * sp * sr - sw * cr, cw * sp * cr + sw * sr, x],
-            [sw * cp, sw * sp * sr + cw * cr, sw * sp * cr - cw * sr, y],
-            [-sp, cp * sr, cp * cr, z],
-            [0.0, 0.0, 0.0, 1.0]]
+    return [
+        [cw * cp, cw * sp * sr - sw * cr, cw * sp * cr + sw * sr, x],
+        [sw * cp, sw * sp * sr + cw * cr, sw * sp * cr - cw * sr, y],
+        [-sp, cp * sr, cp * cr, z],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
 
 
 def _transform(origin, dtype: torch.dtype) -> pk.Transform3d:
@@ -88,8 +109,9 @@ def _transform(origin, dtype: torch.dtype) -> pk.Transform3d:
 
 
 def _too_large(size: int, source: str) -> ValueError:
-    return ValueError(f"{source}: the URDF has {size} bytes or characters or more; allowed: at most "
-                      f"MAX_URDF_BYTES = {MAX_URDF_BYTES}")
+    return ValueError(
+        f"{source}: the URDF has {size} bytes or characters or more; allowed: at most MAX_URDF_BYTES = {MAX_URDF_BYTES}"
+    )
 
 
 def _decode(data: bytes, source: str) -> str:
@@ -99,17 +121,18 @@ def _decode(data: bytes, source: str) -> str:
     if len(data) > MAX_URDF_BYTES:
         raise _too_large(len(data), source)
     declared = _DECLARED.match(data[:1024].decode("latin-1"))
-    encoding = next((codec for bom, codec in _BOMS if data.startswith(bom)),
-                    declared.group(2) if declared else "utf-8")
+    encoding = next((codec for bom, codec in _BOMS if data.startswith(bom)), declared.group(2) if declared else "utf-8")
     try:
         text = data.decode(encoding)
     except (LookupError, UnicodeDecodeError) as e:
-        raise ValueError(f"{source}: cannot decode the URDF as {encoding!r} ({e}); allowed: an encoding "
-                         f"Python knows, named by a byte-order mark or the XML declaration "
-                         f"(UTF-8 without either)") from None
+        raise ValueError(
+            f"{source}: cannot decode the URDF as {encoding!r} ({e}); allowed: an encoding "
+            f"Python knows, named by a byte-order mark or the XML declaration "
+            f"(UTF-8 without either)"
+        ) from None
     declared = _DECLARED.match(text)
     if declared and declared.group(2).upper() != "UTF-8":
-        text = text[:declared.start(2)] + "UTF-8" + text[declared.end(2):]
+        text = text[: declared.start(2)] + "UTF-8" + text[declared.end(2) :]
     return text
 
 
@@ -153,8 +176,10 @@ def urdf_text(urdf: str | bytes | os.PathLike, source: str | None = None) -> tup
         return _decode(urdf, source or "URDF bytes"), source or "URDF bytes"
     if isinstance(urdf, str):
         return urdf, source or "URDF text"
-    raise TypeError(f"urdf={reprlib.repr(urdf)} is a {type(urdf).__name__}; allowed: a pathlib.Path, "
-                    "the URDF's text (str) or its bytes")
+    raise TypeError(
+        f"urdf={reprlib.repr(urdf)} is a {type(urdf).__name__}; allowed: a pathlib.Path, "
+        "the URDF's text (str) or its bytes"
+    )
 
 
 def urdf_tree(text: str, source: str, inertials: bool = False) -> etree._Element:
@@ -172,12 +197,20 @@ def urdf_tree(text: str, source: str, inertials: bool = False) -> etree._Element
         raise _too_large(len(text), source)
     text = text.lstrip(_BLANK)
     if not text.startswith("<"):
-        from_file = os.path.isfile(str(source))        # the text was read from that file
+        from_file = os.path.isfile(str(source))  # the text was read from that file
         hint = "" if from_file else " (a string is never read as a file name: pass a pathlib.Path for a file)"
-        raise ValueError(f"{source}: {reprlib.repr(text)} is not URDF text; allowed: XML whose root element "
-                         f"is <robot>{hint}")
-    parser = etree.XMLParser(encoding="utf-8", resolve_entities="internal", load_dtd=False, no_network=True,
-                             huge_tree=False, remove_comments=True, remove_pis=True)
+        raise ValueError(
+            f"{source}: {reprlib.repr(text)} is not URDF text; allowed: XML whose root element is <robot>{hint}"
+        )
+    parser = etree.XMLParser(
+        encoding="utf-8",
+        resolve_entities="internal",
+        load_dtd=False,
+        no_network=True,
+        huge_tree=False,
+        remove_comments=True,
+        remove_pis=True,
+    )
     try:
         root = etree.fromstring(text.encode("utf-8"), parser)
     except etree.XMLSyntaxError as e:
@@ -196,8 +229,23 @@ def urdf_tree(text: str, source: str, inertials: bool = False) -> etree._Element
 
 
 # Numeric attributes of the elements `urdf_tree` keeps; lengths (m) beyond MAX_LENGTH are refused.
-_NUMBERS = ("xyz", "rpy", "lower", "upper", "effort", "velocity", "damping", "friction", "value",
-            "ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+_NUMBERS = (
+    "xyz",
+    "rpy",
+    "lower",
+    "upper",
+    "effort",
+    "velocity",
+    "damping",
+    "friction",
+    "value",
+    "ixx",
+    "ixy",
+    "ixz",
+    "iyy",
+    "iyz",
+    "izz",
+)
 MAX_LENGTH = 1e3
 
 
@@ -216,7 +264,7 @@ def _check_numbers(root: etree._Element, source: str) -> None:
             owner = el
             while owner.tag not in ("joint", "link") and owner.getparent() is not None:
                 owner = owner.getparent()
-            where = f"<{el.tag} {key}=\"{text}\"> of {owner.tag} {owner.get('name')!r}"
+            where = f'<{el.tag} {key}="{text}"> of {owner.tag} {owner.get("name")!r}'
             if not all(math.isfinite(v) for v in values):
                 raise ValueError(f"{source}: {where}: allowed are finite numbers")
             if el.tag == "origin" and key == "xyz" and max(map(abs, values), default=0.0) > MAX_LENGTH:
@@ -243,8 +291,7 @@ def _path_to(robot: URDF, source: str, end_link: str) -> list:
     """URDF joints from the single root link down to `end_link`, root first."""
     links = [link.name for link in robot.links]
     if end_link not in robot.link_map:
-        raise ValueError(f"{source}: end_link {end_link!r} is not a link of the URDF; links: "
-                         f"{sorted(links)}")
+        raise ValueError(f"{source}: end_link {end_link!r} is not a link of the URDF; links: {sorted(links)}")
     dup = sorted({n for n in links if links.count(n) > 1})
     if dup:
         raise ValueError(f"{source}: links defined more than once: {dup}")
@@ -252,24 +299,31 @@ def _path_to(robot: URDF, source: str, end_link: str) -> list:
     for j in robot.joints:
         for end in (j.parent, j.child):
             if end not in robot.link_map:
-                raise ValueError(f"{source}: joint {j.name!r} names link {end!r}, which is not "
-                                 f"defined; links: {sorted(links)}")
+                raise ValueError(
+                    f"{source}: joint {j.name!r} names link {end!r}, which is not defined; links: {sorted(links)}"
+                )
         if j.child in parent_joint:
-            raise ValueError(f"{source}: link {j.child!r} is the child of two joints "
-                             f"({parent_joint[j.child].name!r}, {j.name!r}); a URDF is a tree")
+            raise ValueError(
+                f"{source}: link {j.child!r} is the child of two joints "
+                f"({parent_joint[j.child].name!r}, {j.name!r}); a URDF is a tree"
+            )
         parent_joint[j.child] = j
     roots = [n for n in links if n not in parent_joint]
     if len(roots) != 1:
-        what = "no root link (the joints form a cycle)" if not roots else \
-            f"{len(roots)} root links {roots} (links not connected by joints)"
+        what = (
+            "no root link (the joints form a cycle)"
+            if not roots
+            else f"{len(roots)} root links {roots} (links not connected by joints)"
+        )
         raise ValueError(f"{source}: the URDF must be one tree with one root link; it has {what}")
     path, link, seen = [], end_link, {end_link}
     while link != roots[0]:
         joint = parent_joint[link]
         link = joint.parent
         if link in seen:
-            raise ValueError(f"{source}: joints form a cycle through link {link!r}; "
-                             f"no path from root {roots[0]!r} to {end_link!r}")
+            raise ValueError(
+                f"{source}: joints form a cycle through link {link!r}; no path from root {roots[0]!r} to {end_link!r}"
+            )
         seen.add(link)
         path.append(joint)
     return path[::-1]
@@ -277,8 +331,10 @@ def _path_to(robot: URDF, source: str, end_link: str) -> list:
 
 def _joint(j, source: str, dtype: torch.dtype) -> pk.Joint:
     if j.type not in _JOINT_TYPES:
-        raise ValueError(f"{source}: joint {j.name!r} ({j.parent} -> {j.child}) is of type "
-                         f"{j.type!r}; supported on the chain: {sorted(_JOINT_TYPES)}")
+        raise ValueError(
+            f"{source}: joint {j.name!r} ({j.parent} -> {j.child}) is of type "
+            f"{j.type!r}; supported on the chain: {sorted(_JOINT_TYPES)}"
+        )
     axis = [float(v) for v in (j.axis if j.axis is not None else (1.0, 0.0, 0.0))]
     if j.type != "fixed" and not any(axis):
         raise ValueError(f"{source}: joint {j.name!r} has a zero axis")
@@ -287,19 +343,30 @@ def _joint(j, source: str, dtype: torch.dtype) -> pk.Joint:
         if j.type in ("revolute", "prismatic"):
             limits = (float(j.limit.lower), float(j.limit.upper))
             if limits[0] > limits[1]:
-                raise ValueError(f"{source}: joint {j.name!r} has lower limit {limits[0]} > "
-                                 f"upper limit {limits[1]}")
+                raise ValueError(f"{source}: joint {j.name!r} has lower limit {limits[0]} > upper limit {limits[1]}")
         if j.limit.velocity is not None:
             velocity = (-float(j.limit.velocity), float(j.limit.velocity))
         if j.limit.effort is not None:
             effort = (-float(j.limit.effort), float(j.limit.effort))
-    return pk.Joint(j.name, offset=_transform(j.origin, dtype), joint_type=_JOINT_TYPES[j.type],
-                    axis=torch.tensor(axis, dtype=torch.float64), dtype=dtype, limits=limits,
-                    velocity_limits=velocity, effort_limits=effort)
+    return pk.Joint(
+        j.name,
+        offset=_transform(j.origin, dtype),
+        joint_type=_JOINT_TYPES[j.type],
+        axis=torch.tensor(axis, dtype=torch.float64),
+        dtype=dtype,
+        limits=limits,
+        velocity_limits=velocity,
+        effort_limits=effort,
+    )
 
 
-def load_serial_chain(urdf: str | bytes | os.PathLike, end_link: str, dtype: torch.dtype = torch.float64,
-                      device: str | torch.device = "cpu", source: str | None = None) -> pk.SerialChain:
+def load_serial_chain(
+    urdf: str | bytes | os.PathLike,
+    end_link: str,
+    dtype: torch.dtype = torch.float64,
+    device: str | torch.device = "cpu",
+    source: str | None = None,
+) -> pk.SerialChain:
     """Serial chain from the URDF's root link to `end_link`, frames named after the links.
 
     `urdf` and `source` are as `urdf_text` takes them: a file (a `pathlib.Path`), the URDF's text

@@ -7,6 +7,7 @@ of joint 1 (the mounting) is not a link. A link error e_k scales that link's tra
 (1 + e_k) and keeps its rotation; a joint offset is added to the joint's value before the
 transform (rad, or m for a prismatic joint). On the SCARA, links 1 and 2 are l1 and l2.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -34,20 +35,23 @@ class PerturbedChain:
         kw: dict[str, Any] = {"dtype": link_error.dtype, "device": link_error.device}
         n, r = arm.n, link_error.shape[0]
         if link_error.ndim != 2 or link_error.shape[1] > n:
-            raise ValueError(f"link errors of shape {tuple(link_error.shape)}: need (R, L) with L <= {n}, "
-                             f"the links of the chain to {arm.end_link!r}")
+            raise ValueError(
+                f"link errors of shape {tuple(link_error.shape)}: need (R, L) with L <= {n}, "
+                f"the links of the chain to {arm.end_link!r}"
+            )
         if offset.shape != (r, n):
-            raise ValueError(f"joint offsets of shape {tuple(offset.shape)}: need ({r}, {n}), one per joint of "
-                             f"{arm.joint_names}")
+            raise ValueError(
+                f"joint offsets of shape {tuple(offset.shape)}: need ({r}, {n}), one per joint of {arm.joint_names}"
+            )
         scale = torch.ones(r, n, **kw)
-        scale[:, :link_error.shape[1]] += link_error
+        scale[:, : link_error.shape[1]] += link_error
         # Link k is the translation of placement k (k = 1..n-1) and of the end frame (k = n).
-        frames = torch.cat([placement[1:], end[None]]).to(**kw)                 # (n, 4, 4)
+        frames = torch.cat([placement[1:], end[None]]).to(**kw)  # (n, 4, 4)
         self.base_rot, self.base_pos = placement[0, :3, :3].to(**kw), placement[0, :3, 3].to(**kw)
-        self.link_rot = frames[:, :3, :3]                                        # (n, 3, 3)
-        self.link_pos = frames[None, :, :3, 3] * scale[..., None]                # (R, n, 3)
+        self.link_rot = frames[:, :3, :3]  # (n, 3, 3)
+        self.link_pos = frames[None, :, :3, 3] * scale[..., None]  # (R, n, 3)
         self.axis, self.prismatic = axis.to(**kw), prismatic.tolist()
-        self.skew = _skew(self.axis)                                             # Rodrigues: I + s K + (1 - c) K^2
+        self.skew = _skew(self.axis)  # Rodrigues: I + s K + (1 - c) K^2
         self.skew2 = self.skew @ self.skew
         self.eye = torch.eye(3, **kw)
         self.offset, self.n = offset, n

@@ -11,6 +11,7 @@ optional closed forms), NAME one of `rbfn.config.ROBOT_PRESETS`. Its preset valu
 IK box, gravity, home, rated payload) live in conf/robot/NAME.yaml only: `preset` reads that file
 (from the repository's conf/, beside the package, as the Hydra applications do).
 """
+
 from __future__ import annotations
 
 import functools
@@ -44,12 +45,14 @@ def preset(name: str) -> RobotConfig:
         raise ValueError(f"name={name!r} is not a packaged robot; allowed: {list(ROBOT_PRESETS)}")
     path = CONF_ROBOT / f"{name}.yaml"
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file; the presets of the packaged robots are the repository's "
-                                "conf/robot/*.yaml (install from a checkout, or give the robot's values)")
+        raise FileNotFoundError(
+            f"{path}: no such file; the presets of the packaged robots are the repository's "
+            "conf/robot/*.yaml (install from a checkout, or give the robot's values)"
+        )
     raw = OmegaConf.load(path)
     assert isinstance(raw, DictConfig), f"{path}: a mapping of RobotConfig's keys"
     raw.pop("defaults", None)
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RobotConfig), raw))   # type: ignore[return-value]
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RobotConfig), raw))  # type: ignore[return-value]
 
 
 class ClosedForm(Protocol):
@@ -105,8 +108,13 @@ def _packaged_text(path: Path) -> str:
     return read_urdf(path)
 
 
-def closed_form(urdf_text: str, end_link: str, locked: Mapping[str, float] | None = None,
-                gravity: float | None = None, params: Any = None) -> ClosedForm | None:
+def closed_form(
+    urdf_text: str,
+    end_link: str,
+    locked: Mapping[str, float] | None = None,
+    gravity: float | None = None,
+    params: Any = None,
+) -> ClosedForm | None:
     """The closed forms valid for the robot given by its URDF text, end link and locked joints: a
     robot folder's of `WITH_CLOSED_FORMS` for its packaged URDF (text equal), its END_LINK and
     nothing locked (the SCARA's); None for every other robot (its URDF forms serve it). Their

@@ -6,6 +6,7 @@ Targets are positions (B, 3) in m, or poses (B, 7): position in m, then a unit q
 same rotation). Joint vectors given to and returned by the IK are the free joints (B, n) in the
 URDF's order along the chain; `locked` joints are held at their values.
 """
+
 from __future__ import annotations
 
 import reprlib
@@ -37,8 +38,12 @@ def rotation_error_deg(r_hat: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
     """Angle (B,) in degrees of the rotation between rotation matrices r_hat and r (B, 3, 3)."""
     d = r_hat.transpose(-1, -2) @ r
     cos = (d.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0
-    sin = torch.stack([d[..., 2, 1] - d[..., 1, 2], d[..., 0, 2] - d[..., 2, 0], d[..., 1, 0] - d[..., 0, 1]],
-                      -1).norm(dim=-1) / 2.0
+    sin = (
+        torch.stack([d[..., 2, 1] - d[..., 1, 2], d[..., 0, 2] - d[..., 2, 0], d[..., 1, 0] - d[..., 0, 1]], -1).norm(
+            dim=-1
+        )
+        / 2.0
+    )
     return torch.rad2deg(torch.atan2(sin, cos))
 
 
@@ -60,8 +65,9 @@ class Robot:
         names = self.chain.get_joint_parameter_names()
         unknown = [j for j in self.locked if j not in names]
         if unknown:
-            raise ValueError(f"robot.locked names {unknown}, which are not joints of the chain to "
-                             f"{self.end_link!r}: {names}")
+            raise ValueError(
+                f"robot.locked names {unknown}, which are not joints of the chain to {self.end_link!r}: {names}"
+            )
         self.free = [i for i, j in enumerate(names) if j not in self.locked]
         full = torch.zeros(len(names), dtype=torch.float64)
         for j, v in self.locked.items():
@@ -109,24 +115,35 @@ class Robot:
 
     def record(self) -> dict:
         """Plain data for a checkpoint's `robot` entry."""
-        return {"name": self.name, "urdf": self.urdf_text, "end_link": self.end_link, "target": str(self.target),
-                "locked": dict(self.locked), "joint_names": self.joint_names,
-                "joint_low": self.low.tolist(), "joint_high": self.high.tolist()}
+        return {
+            "name": self.name,
+            "urdf": self.urdf_text,
+            "end_link": self.end_link,
+            "target": str(self.target),
+            "locked": dict(self.locked),
+            "joint_names": self.joint_names,
+            "joint_low": self.low.tolist(),
+            "joint_high": self.high.tolist(),
+        }
 
 
 def _check_box(robot: Robot, where: str) -> None:
     names = robot.joint_names
     low, high = robot.low, robot.high
     if len(names) != low.shape[0]:
-        raise ValueError(f"{where}: robot.joint_low/joint_high give {low.shape[0]} joints "
-                         f"({reprlib.repr(low.tolist())}); allowed: one per free joint of the chain to "
-                         f"{robot.end_link!r}, which has {len(names)}: {names}")
+        raise ValueError(
+            f"{where}: robot.joint_low/joint_high give {low.shape[0]} joints "
+            f"({reprlib.repr(low.tolist())}); allowed: one per free joint of the chain to "
+            f"{robot.end_link!r}, which has {len(names)}: {names}"
+        )
     u_low, u_high = (t[robot.free] for t in joint_limits(robot.chain))
     outside = (low < u_low - 1e-12) | (high > u_high + 1e-12)
     if bool(outside.any()):
         j = int(outside.nonzero()[0])
-        raise ValueError(f"{where}: joint range of {names[j]} [{low[j]:.4g}, {high[j]:.4g}] leaves the URDF "
-                         f"limits [{u_low[j]:.4g}, {u_high[j]:.4g}]")
+        raise ValueError(
+            f"{where}: joint range of {names[j]} [{low[j]:.4g}, {high[j]:.4g}] leaves the URDF "
+            f"limits [{u_low[j]:.4g}, {u_high[j]:.4g}]"
+        )
 
 
 def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
@@ -139,14 +156,23 @@ def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
     except (FileNotFoundError, ValueError) as e:
         raise type(e)(f"robot.urdf={cfg.urdf!r}: {e}") from None
     chain = load_serial_chain(text, cfg.end_link, torch.float64, device, source=str(path))
-    robot = Robot(chain, text, cfg.end_link, torch.tensor(cfg.joint_low, dtype=torch.float64),
-                  torch.tensor(cfg.joint_high, dtype=torch.float64), str(cfg.target), dict(cfg.locked), cfg.name)
+    robot = Robot(
+        chain,
+        text,
+        cfg.end_link,
+        torch.tensor(cfg.joint_low, dtype=torch.float64),
+        torch.tensor(cfg.joint_high, dtype=torch.float64),
+        str(cfg.target),
+        dict(cfg.locked),
+        cfg.name,
+    )
     _check_box(robot, str(path))
     return robot
 
 
 def _check_fields(record: dict) -> None:
     """ValueError naming the first field of a checkpoint's robot entry of the wrong type or range."""
+
     def need(ok: bool, key: str, allowed: str) -> None:
         if not ok:
             raise ValueError(f"robot.{key}={reprlib.repr(record.get(key))} is not allowed; allowed: {allowed}")
@@ -155,19 +181,29 @@ def _check_fields(record: dict) -> None:
     need(isinstance(record.get("end_link"), str), "end_link", "the name of a link of the URDF (a str)")
     for key in ("joint_low", "joint_high"):
         value = record.get(key)
-        need(isinstance(value, (list, tuple)) and all(finite(v) for v in value), key,
-             "a list of finite numbers (rad or m), one per free joint")
+        need(
+            isinstance(value, (list, tuple)) and all(finite(v) for v in value),
+            key,
+            "a list of finite numbers (rad or m), one per free joint",
+        )
     low, high = record["joint_low"], record["joint_high"]
     need(len(low) == len(high), "joint_high", f"as many entries as robot.joint_low ({len(low)})")
-    need(all(a < b for a, b in zip(low, high)), "joint_high",
-         f"each entry above robot.joint_low's ({reprlib.repr(low)})")
+    need(
+        all(a < b for a, b in zip(low, high)), "joint_high", f"each entry above robot.joint_low's ({reprlib.repr(low)})"
+    )
     names = record.get("joint_names", [])
-    need(isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names), "joint_names",
-         "a list of joint names (str)")
+    need(
+        isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names),
+        "joint_names",
+        "a list of joint names (str)",
+    )
     need(record.get("target", "position") in list(Target), "target", f"one of {[str(t) for t in Target]}")
     locked = record.get("locked", {})
-    need(isinstance(locked, dict) and all(isinstance(k, str) and finite(v) for k, v in locked.items()), "locked",
-         "a dict from joint name (str) to a finite held value (rad or m)")
+    need(
+        isinstance(locked, dict) and all(isinstance(k, str) and finite(v) for k, v in locked.items()),
+        "locked",
+        "a dict from joint name (str) to a finite held value (rad or m)",
+    )
     need(isinstance(record.get("name", ""), str), "name", "a label (str)")
 
 
@@ -178,16 +214,27 @@ def robot_from_record(record: dict, device: str = "cpu") -> Robot:
     chain, within the URDF's limits; joint_names: the chain's free joints; target: position or
     pose; locked: joints of the chain -> finite values; name: str)."""
     if not isinstance(record, dict):
-        raise TypeError(f"robot={reprlib.repr(record)} is a {type(record).__name__}; allowed: a dict (the "
-                         "checkpoint's robot entry, as Robot.record() writes it)")
+        raise TypeError(
+            f"robot={reprlib.repr(record)} is a {type(record).__name__}; allowed: a dict (the "
+            "checkpoint's robot entry, as Robot.record() writes it)"
+        )
     _check_fields(record)
     chain = load_serial_chain(record["urdf"], record["end_link"], torch.float64, device, source="robot.urdf")
-    robot = Robot(chain, record["urdf"], record["end_link"], torch.tensor(record["joint_low"], dtype=torch.float64),
-                  torch.tensor(record["joint_high"], dtype=torch.float64), str(record.get("target", "position")),
-                  {k: float(v) for k, v in record.get("locked", {}).items()}, record.get("name", ""))
+    robot = Robot(
+        chain,
+        record["urdf"],
+        record["end_link"],
+        torch.tensor(record["joint_low"], dtype=torch.float64),
+        torch.tensor(record["joint_high"], dtype=torch.float64),
+        str(record.get("target", "position")),
+        {k: float(v) for k, v in record.get("locked", {}).items()},
+        record.get("name", ""),
+    )
     _check_box(robot, "robot entry")
     names = record.get("joint_names")
     if names is not None and list(names) != robot.joint_names:
-        raise ValueError(f"robot.joint_names={reprlib.repr(names)} is not allowed; allowed: the free joints of the "
-                         f"chain to {robot.end_link!r}, in chain order: {robot.joint_names}")
+        raise ValueError(
+            f"robot.joint_names={reprlib.repr(names)} is not allowed; allowed: the free joints of the "
+            f"chain to {robot.end_link!r}, in chain order: {robot.joint_names}"
+        )
     return robot

@@ -22,6 +22,7 @@ arithmetic, so each brings its own:
 
 The order of the floating-point operations below is part of every form's numbers.
 """
+
 from __future__ import annotations
 
 import operator
@@ -40,8 +41,13 @@ class Spatial:
     layout stores it; mul_sub(m, v, c): m v - c for a mass m.
     """
 
-    def __init__(self, cross: Callable[[Any, Any], Any], add: Callable[[Any, Any], Any],
-                 matvec: Callable[[Any, Any], Any], mul_sub: Callable[[Any, Any, Any], Any]) -> None:
+    def __init__(
+        self,
+        cross: Callable[[Any, Any], Any],
+        add: Callable[[Any, Any], Any],
+        matvec: Callable[[Any, Any], Any],
+        mul_sub: Callable[[Any, Any, Any], Any],
+    ) -> None:
         self.cross, self.add, self.matvec, self.mul_sub = cross, add, matvec, mul_sub
 
     def cross_motion(self, v, m):

@@ -10,6 +10,7 @@ and inherits the logging handlers, so its log lines reach the same console and l
 its result (or its exception) is pickled back. The child ends with its parent, and SIGTERM or
 SIGHUP stop it after its cleanup (rbfn.studies.stop); a caller that fails or is stopped stops it.
 """
+
 from __future__ import annotations
 
 import multiprocessing
@@ -41,14 +42,19 @@ def _in_child(fn: Callable, args: tuple, conn) -> None:
     try:
         out = (True, fn(*args), "")
     except Stopped:
-        raise                   # the child exits with 128 + the signal's number
+        raise  # the child exits with 128 + the signal's number
     except BaseException as e:  # noqa: BLE001 - every other failure goes back to the parent
         out = (False, e, traceback.format_exc())
     try:
         conn.send(out)
     except Exception as e:  # noqa: BLE001 - an unpicklable result or exception
-        conn.send((False, RuntimeError(f"the forked part's outcome could not be sent back: {e!r}"),
-                   out[2] or traceback.format_exc()))
+        conn.send(
+            (
+                False,
+                RuntimeError(f"the forked part's outcome could not be sent back: {e!r}"),
+                out[2] or traceback.format_exc(),
+            )
+        )
     conn.close()
 
 
@@ -57,7 +63,7 @@ class Beside:
 
     Use as a context manager: leaving it before `result()` (on an error) stops the child."""
 
-    _conn: Any                        # the receiving end of the pipe while a child runs, else None
+    _conn: Any  # the receiving end of the pipe while a child runs, else None
 
     def __init__(self, fn: Callable, *args, fork: bool = True) -> None:
         self._fn, self._args, self._proc, self._conn = fn, args, None, None
@@ -78,10 +84,12 @@ class Beside:
             received = True
         except EOFError:
             self._proc.join()
-            raise RuntimeError(f"the forked part {getattr(self._fn, '__name__', self._fn)} ended without a "
-                               f"result (exit code {self._proc.exitcode})") from None
+            raise RuntimeError(
+                f"the forked part {getattr(self._fn, '__name__', self._fn)} ended without a "
+                f"result (exit code {self._proc.exitcode})"
+            ) from None
         finally:
-            self._stop(wait=received)       # interrupted (stopped) here: no waiting for the child
+            self._stop(wait=received)  # interrupted (stopped) here: no waiting for the child
         if not ok:
             raise value from ChildTraceback(tb)
         return value
@@ -106,4 +114,4 @@ class Beside:
         return self
 
     def __exit__(self, *exc) -> None:
-        self._stop(wait=False)              # result() was not reached: stop the child
+        self._stop(wait=False)  # result() was not reached: stop the child

@@ -7,6 +7,7 @@ the traceback is shown with HYDRA_FULL_ERROR=1 (as Hydra's own errors are). Anyt
 keeps its traceback. In a multirun every error is left to Hydra, which runs the other jobs and
 reports the first failure at the end.
 """
+
 from __future__ import annotations
 
 import os

@@ -1,4 +1,5 @@
 """evaluate.py's `control` part: run the comparison, then its table, figures and TensorBoard scalars."""
+
 from __future__ import annotations
 
 import logging
@@ -25,19 +26,29 @@ def check_control(cfg: ControlConfig, robot: RobotConfig | None = None) -> Contr
     return control_robot(robot or RobotConfig(), cfg)
 
 
-def evaluate_control(cfg: ControlConfig, gains: GainsConfig, device: str, writer, out_dir: Path,
-                     robot: RobotConfig | None = None, parallel: bool = True) -> dict:
+def evaluate_control(
+    cfg: ControlConfig,
+    gains: GainsConfig,
+    device: str,
+    writer,
+    out_dir: Path,
+    robot: RobotConfig | None = None,
+    parallel: bool = True,
+) -> dict:
     """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`;
     `parallel`: half the figures drawn in a forked process where the machine allows."""
     setup = check_control(cfg, robot)
     res = compare_controllers(cfg, gains, device, setup=setup)
     metrics = {name: run.metrics for name, run in res.runs.items()}
-    gain_record: dict[str, Any] = {k: (str(v) if not isinstance(v, (int, float)) else v)
-                                   for k, v in vars(gains).items()}
-    gain_record["joint_scale"] = setup.scale or [1.0] * setup.n      # the torque gains' factor per joint
-    info = {"gains": gain_record,
-            "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
-            "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()}}
+    gain_record: dict[str, Any] = {
+        k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()
+    }
+    gain_record["joint_scale"] = setup.scale or [1.0] * setup.n  # the torque gains' factor per joint
+    info = {
+        "gains": gain_record,
+        "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
+        "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()},
+    }
     for name, cases in metrics.items():
         for case, m in cases.items():
             for key, vals in m.items():
@@ -55,8 +66,9 @@ def evaluate_control(cfg: ControlConfig, gains: GainsConfig, device: str, writer
     return {"control": metrics, "control_info": info}
 
 
-def _figures(res: ControlComparison, names: list[str], cfg: ControlConfig, gains: GainsConfig, out_dir: Path,
-             writer=None) -> None:
+def _figures(
+    res: ControlComparison, names: list[str], cfg: ControlConfig, gains: GainsConfig, out_dir: Path, writer=None
+) -> None:
     """control_<name>.png for each of `names`, also to `writer` (None: a writer of its own)."""
     own = writer is None
     writer = SummaryWriter(log_dir=str(out_dir), filename_suffix=".figures") if own else writer
@@ -70,15 +82,19 @@ def _figures(res: ControlComparison, names: list[str], cfg: ControlConfig, gains
 
 def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsConfig, writer, out_dir: Path) -> None:
     """control_<name>.png: the case whose payload is closest to the figure payload."""
-    assert res.robot is not None              # compare_controllers records it
+    assert res.robot is not None  # compare_controllers records it
     target = res.robot.figure_payload
     i = min(range(len(res.payloads)), key=lambda i: abs(res.payloads[i] - target))
     roll = res.runs[name].rollout
-    fig = tracking_figure(roll.t.cpu().numpy(), roll.q[:, i].cpu().numpy(), res.q_des.cpu().numpy(),
-                          roll.tau[:, i].cpu().numpy(),
-                          f"{res.robot.name}: {name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, "
-                          f"Lambda = {gains.Lambda:g}", window=(cfg.payload_on, cfg.payload_off),
-                          units=res.robot.units)
+    fig = tracking_figure(
+        roll.t.cpu().numpy(),
+        roll.q[:, i].cpu().numpy(),
+        res.q_des.cpu().numpy(),
+        roll.tau[:, i].cpu().numpy(),
+        f"{res.robot.name}: {name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, Lambda = {gains.Lambda:g}",
+        window=(cfg.payload_on, cfg.payload_off),
+        units=res.robot.units,
+    )
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
 

@@ -5,6 +5,7 @@ on the checkpoint's robot), `control` (`control.enabled`, on `robot`). Every set
 before any part starts (`check`); the checkpoint's parts run in a forked process beside the
 control part where that is safe (rbfn.studies.beside).
 """
+
 from __future__ import annotations
 
 import logging
@@ -88,18 +89,20 @@ def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
     no part needs one or none was found."""
     validate_evaluate(cfg)
     if cfg.control.enabled:
-        check_control(cfg.control, cfg.robot)      # the robot's URDF, joints and payload link, before any work
+        check_control(cfg.control, cfg.robot)  # the robot's URDF, joints and payload link, before any work
     if not (cfg.ik or cfg.online.enabled or cfg.control.enabled):
         raise ValueError("nothing to evaluate: ik, online.enabled and control.enabled are all false; enable a part")
     path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
-    ckpt = read_checkpoint(path) if path is not None else None      # a bad file stops before any work
+    ckpt = read_checkpoint(path) if path is not None else None  # a bad file stops before any work
     if ckpt is None and not cfg.control.enabled:
         root = Path(to_absolute_path(cfg.outputs_dir))
         why = "no such directory" if not root.is_dir() else "no checkpoint.pt below it"
-        raise ValueError(f"nothing to evaluate: outputs_dir={cfg.outputs_dir!r} ({root}): {why}, and "
-                         "control.enabled=false; train first, pass checkpoint=PATH, or enable the control part")
+        raise ValueError(
+            f"nothing to evaluate: outputs_dir={cfg.outputs_dir!r} ({root}): {why}, and "
+            "control.enabled=false; train first, pass checkpoint=PATH, or enable the control part"
+        )
     if ckpt is not None and cfg.online.enabled:
-        check_online(cfg.online, ckpt["robot"])     # the path and perturbation suit the checkpoint's robot
+        check_online(cfg.online, ckpt["robot"])  # the path and perturbation suit the checkpoint's robot
     return path, ckpt
 
 
@@ -125,8 +128,12 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
     for part, why in skipped.items():
         log.info("%s part skipped: %s", part, why)
     if len(set(robots.values())) > 1:
-        log.warning("the parts evaluate different robots: %s (the IK and online parts run on the checkpoint's "
-                    "robot, the control part on robot=%s)", robots, cfg.robot.name)
+        log.warning(
+            "the parts evaluate different robots: %s (the IK and online parts run on the checkpoint's "
+            "robot, the control part on robot=%s)",
+            robots,
+            cfg.robot.name,
+        )
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     metrics: dict = {}
@@ -142,8 +149,9 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
             writer = SummaryWriter(log_dir=str(out_dir))
             try:
                 with _timed(seconds, "control"):
-                    control = evaluate_control(cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot,
-                                               cfg.parallel)
+                    control = evaluate_control(
+                        cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot, cfg.parallel
+                    )
             finally:
                 writer.close()
         if ckpt is not None:

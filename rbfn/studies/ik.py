@@ -1,5 +1,6 @@
 """The IK network's outputs: training's checkpoint, exports, metrics.json and TensorBoard curves,
 and evaluate.py's accuracy on a fresh test set with its workspace error map."""
+
 from __future__ import annotations
 
 import logging
@@ -27,8 +28,11 @@ def polished_metrics(model, robot: Robot, x, iterations: int = DEFAULT_ITERATION
     `polished_success_rate` (share within 0.1 mm and 0.1 deg) and the error summary."""
     q, ok = IKSolver(model, robot).solve(x, iterations)
     pos, rot = robot.errors(q, x)
-    out = {"polished_success_rate": float(ok.double().mean()), "polish_iterations": iterations,
-           **{f"polished_{k}": v for k, v in error_summary(pos, rot).items()}}
+    out = {
+        "polished_success_rate": float(ok.double().mean()),
+        "polish_iterations": iterations,
+        **{f"polished_{k}": v for k, v in error_summary(pos, rot).items()},
+    }
     return {f"{prefix}{k}": v for k, v in out.items()}
 
 
@@ -50,20 +54,25 @@ def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: 
     against M, times."""
     acc, _, _ = ik_metrics_both(result.model, robot, data.test.x, data.test.q)
     acc.update(polished_metrics(result.model, robot, data.test.x))
-    return {"num_centers": result.model.num_centers, "selector": cfg.centers.name, "target": str(robot.target),
-            **acc,
-            "val_E": 0.5 * float(result.fit.val_mse), "ridge": _ridge(result.fit.ridge),
-            "output_weights": _weights_from(cfg, result.fit.ridge),
-            "growth": [{"num_centers": m, "val_E": e} for m, e in result.curve],
-            "select_seconds": result.select_seconds, "train_seconds": result.train_seconds}
+    return {
+        "num_centers": result.model.num_centers,
+        "selector": cfg.centers.name,
+        "target": str(robot.target),
+        **acc,
+        "val_E": 0.5 * float(result.fit.val_mse),
+        "ridge": _ridge(result.fit.ridge),
+        "output_weights": _weights_from(cfg, result.fit.ridge),
+        "growth": [{"num_centers": m, "val_E": e} for m, e in result.curve],
+        "select_seconds": result.select_seconds,
+        "train_seconds": result.train_seconds,
+    }
 
 
-def write_training(out_dir: Path, cfg: TrainConfig, robot: Robot, result: TrainResult, metrics: dict,
-                   writer) -> None:
+def write_training(out_dir: Path, cfg: TrainConfig, robot: Robot, result: TrainResult, metrics: dict, writer) -> None:
     """checkpoint.pt, ik.onnx / ik.pt2 (unless `export=false`), metrics.json and TensorBoard events."""
     save_checkpoint(out_dir / "checkpoint.pt", result.model, robot.record(), plain(cfg), metrics)
     if cfg.export:
-        export_all(result.model, out_dir)                 # deploy without this package
+        export_all(result.model, out_dir)  # deploy without this package
     write_json(out_dir / "metrics.json", metrics)
     for m, (best, mean) in result.colonies.items():
         for it, (b, a) in enumerate(zip(best, mean)):
@@ -77,9 +86,12 @@ def write_training(out_dir: Path, cfg: TrainConfig, robot: Robot, result: TrainR
     # One HParams session per job, in the job's own run (run_name="."). Every job writes the same
     # experiment summary (same hparams, metrics and selector domain), so whichever one TensorBoard
     # reads describes the whole sweep.
-    writer.add_hparams({"centers": cfg.centers.name, "num_centers": result.model.num_centers, "seed": cfg.seed},
-                       {f"hparam/{k}": v for k, v in scalars.items()},
-                       hparam_domain_discrete={"centers": list(SELECTORS)}, run_name=".")
+    writer.add_hparams(
+        {"centers": cfg.centers.name, "num_centers": result.model.num_centers, "seed": cfg.seed},
+        {f"hparam/{k}": v for k, v in scalars.items()},
+        hparam_domain_discrete={"centers": list(SELECTORS)},
+        run_name=".",
+    )
 
 
 def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) -> dict:
@@ -92,29 +104,36 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
     acc, err_mm, inside = ik_metrics_both(model, robot, test.x, test.q)
     acc.update(polished_metrics(model, robot, test.x))
     out: dict = {"checkpoint": str(path), "num_centers": model.num_centers, "test_seed": seed, **acc}
-    fig = workspace_error_map(test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(),
-                              f"IK position error, M = {model.num_centers}")
+    fig = workspace_error_map(
+        test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), f"IK position error, M = {model.num_centers}"
+    )
     write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "ik/workspace_error_map")
     for k, v in out.items():
         if isinstance(v, float):
             writer.add_scalar(f"ik/{k}", v)
-    log.info("%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of "
-                            f"seed {seed})", out))
+    log.info(
+        "%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of seed {seed})", out)
+    )
     return out
 
 
 def ik_table(title: str, m: dict) -> str:
-    rows = [("joint RMSE", "test_joint_rmse", 1.0, ""), ("position error median", "test_pos_err_mm_median", 1, "mm"),
-            ("position error p95", "test_pos_err_mm_p95", 1, "mm"),
-            ("position error max", "test_pos_err_mm_max", 1, "mm"),
-            ("rotation error median", "test_rot_err_deg_median", 1, "deg"),
-            ("rotation error p95", "test_rot_err_deg_p95", 1, "deg"),
-            ("flagged in workspace", "test_in_workspace", 100, "%")]
+    rows = [
+        ("joint RMSE", "test_joint_rmse", 1.0, ""),
+        ("position error median", "test_pos_err_mm_median", 1, "mm"),
+        ("position error p95", "test_pos_err_mm_p95", 1, "mm"),
+        ("position error max", "test_pos_err_mm_max", 1, "mm"),
+        ("rotation error median", "test_rot_err_deg_median", 1, "deg"),
+        ("rotation error p95", "test_rot_err_deg_p95", 1, "deg"),
+        ("flagged in workspace", "test_in_workspace", 100, "%"),
+    ]
     lines = [f"\n{title}", f"{'':24s} {'float64':>12s} {'float32':>12s}"]
     for name, key, mul, unit in rows:
         if key in m:
             lines.append(f"{name:24s} {m[key] * mul:12.4g} {m[key + '_float32'] * mul:12.4g} {unit}")
-    lines.append(f"polished ({m['test_polish_iterations']} steps): "
-                 f"{100 * m['test_polished_success_rate']:.2f} % within "
-                 f"0.1 mm / 0.1 deg, median position error {m['test_polished_pos_err_mm_median']:.3g} mm")
+    lines.append(
+        f"polished ({m['test_polish_iterations']} steps): "
+        f"{100 * m['test_polished_success_rate']:.2f} % within "
+        f"0.1 mm / 0.1 deg, median position error {m['test_polished_pos_err_mm_median']:.3g} mm"
+    )
     return "\n".join(lines)

@@ -1,5 +1,6 @@
 """evaluate.py's `online` part: the IK network adapting on a perturbed robot; metrics, figure,
 TensorBoard curves and checkpoint_online.pt."""
+
 from __future__ import annotations
 
 import copy
@@ -24,8 +25,9 @@ def _rms(e: torch.Tensor, mask: torch.Tensor) -> list[float]:
     return e[mask].square().mean(0).sqrt().tolist()
 
 
-def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: str = "cpu",
-                    writer=None, out_dir: Path | None = None) -> dict:
+def evaluate_online(
+    ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: str = "cpu", writer=None, out_dir: Path | None = None
+) -> dict:
     """Metrics for the checkpoint dict `ckpt`: task_err_mm_rms_first_2s / _last_2s (adapted),
     _no_adapt and _analytic_nominal (last 2 s) for the configured perturbation, and the same
     task_rot_err_deg_rms_* for pose targets; `sweep`, one row per size with its real link and
@@ -49,35 +51,59 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
         "joint_err_rms_last_2s": None if jerr is None else float(jerr[last].square().mean().sqrt()),
         "weight_change_norm": float(r.dw[-1, i]),
         "rejected_pairs": r.rejected,
-        "duration_s": cfg.duration, "learner": str(cfg.learner), "path": path_name(cfg, ckpt["robot"]),
+        "duration_s": cfg.duration,
+        "learner": str(cfg.learner),
+        "path": path_name(cfg, ckpt["robot"]),
         "robot": ckpt["robot"].get("name", ""),
-        "sweep": [{"size": s, "link_error": le, "offset_error": oe,
-                   "task_err_mm_rms_first_2s": a0, "task_err_mm_rms_last_2s": a1,
-                   "task_err_mm_rms_no_adapt": f, "task_err_mm_rms_analytic_nominal": an}
-                  for s, le, oe, a0, a1, f, an in zip(sizes, r.link_error.tolist(), r.offset_error.tolist(),
-                                                      adapt_first, adapt_last, frozen, analytic)],
+        "sweep": [
+            {
+                "size": s,
+                "link_error": le,
+                "offset_error": oe,
+                "task_err_mm_rms_first_2s": a0,
+                "task_err_mm_rms_last_2s": a1,
+                "task_err_mm_rms_no_adapt": f,
+                "task_err_mm_rms_analytic_nominal": an,
+            }
+            for s, le, oe, a0, a1, f, an in zip(
+                sizes, r.link_error.tolist(), r.offset_error.tolist(), adapt_first, adapt_last, frozen, analytic
+            )
+        ],
     }
-    if r.rot_adapt is not None:                  # pose targets: the orientation error too
+    if r.rot_adapt is not None:  # pose targets: the orientation error too
         assert r.rot_frozen is not None and r.rot_analytic is not None
-        rot = {"first_2s": _rms(r.rot_adapt, first), "last_2s": _rms(r.rot_adapt, last),
-               "no_adapt": _rms(r.rot_frozen, last), "analytic_nominal": _rms(r.rot_analytic, last)}
+        rot = {
+            "first_2s": _rms(r.rot_adapt, first),
+            "last_2s": _rms(r.rot_adapt, last),
+            "no_adapt": _rms(r.rot_frozen, last),
+            "analytic_nominal": _rms(r.rot_analytic, last),
+        }
         out.update({f"task_rot_err_deg_rms_{k}": v[i] for k, v in rot.items()})
         for j, row in enumerate(out["sweep"]):
             row.update({f"task_rot_err_deg_rms_{k}": v[j] for k, v in rot.items()})
     if writer is not None:
         stride = max(1, round(0.01 / cfg.dt))
         for k in range(0, t.shape[0], stride):
-            step = int(round(float(t[k]) * 1000))      # ms
-            for name, err in (("adapted", r.err_adapt), ("no_adapt", r.err_frozen),
-                              ("analytic_nominal", r.err_analytic)):
+            step = int(round(float(t[k]) * 1000))  # ms
+            for name, err in (
+                ("adapted", r.err_adapt),
+                ("no_adapt", r.err_frozen),
+                ("analytic_nominal", r.err_analytic),
+            ):
                 writer.add_scalar(f"online/task_err_mm/{name}", float(err[k, i]), step)
         for key, v in out.items():
             if isinstance(v, float):
                 writer.add_scalar(f"online/{key}", v)
     if out_dir is not None:
-        fig = online_figure(t.cpu().numpy(), r.err_adapt[:, i].cpu().numpy(), r.err_frozen[:, i].cpu().numpy(),
-                            r.err_analytic[:, i].cpu().numpy(), r.t_update.cpu().numpy(),
-                            r.dw[:, i].cpu().numpy(), f"online {cfg.learner}, path {cfg.path}")
+        fig = online_figure(
+            t.cpu().numpy(),
+            r.err_adapt[:, i].cpu().numpy(),
+            r.err_frozen[:, i].cpu().numpy(),
+            r.err_analytic[:, i].cpu().numpy(),
+            r.t_update.cpu().numpy(),
+            r.dw[:, i].cpu().numpy(),
+            f"online {cfg.learner}, path {cfg.path}",
+        )
         write_figure(fig, out_dir / "online_task_error.png", 110, writer, "online/task_error")
         if cfg.save_checkpoint:
             adapted = copy.deepcopy(net)
@@ -94,12 +120,16 @@ def evaluate_online(ckpt: dict, cfg: OnlineConfig, gains: GainsConfig, device: s
 def online_table(m: dict) -> str:
     rot = "task_rot_err_deg_rms_last_2s" in m
     unit = "position [mm] / rotation [deg]" if rot else "[mm]"
-    lines = [f"\nOnline IK adaptation ({m['learner']}, {m['duration_s']:g} s, path {m['path']}): "
-             f"task-space RMS error {unit}",
-             f"{'link-1 error':>12s} {'first 2 s':>16s} {'last 2 s':>16s} {'no adapt':>16s} {'analytic':>16s}"]
+    lines = [
+        f"\nOnline IK adaptation ({m['learner']}, {m['duration_s']:g} s, path {m['path']}): "
+        f"task-space RMS error {unit}",
+        f"{'link-1 error':>12s} {'first 2 s':>16s} {'last 2 s':>16s} {'no adapt':>16s} {'analytic':>16s}",
+    ]
     keys = ("first_2s", "last_2s", "no_adapt", "analytic_nominal")
     for row in m["sweep"]:
-        cells = [f"{row['task_err_mm_rms_' + k]:.3f}" + (f" / {row['task_rot_err_deg_rms_' + k]:.3f}" if rot else "")
-                 for k in keys]
+        cells = [
+            f"{row['task_err_mm_rms_' + k]:.3f}" + (f" / {row['task_rot_err_deg_rms_' + k]:.3f}" if rot else "")
+            for k in keys
+        ]
         lines.append(f"{row['size'] * 100:11.3g}% " + " ".join(f"{c:>16s}" for c in cells))
     return "\n".join(lines)

@@ -3,6 +3,7 @@
 Built on matplotlib's object-oriented API (`matplotlib.figure.Figure`), not pyplot, so importing
 this module never changes the process's backend and figures need no closing.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +12,7 @@ from matplotlib.figure import Figure
 
 __all__ = ["workspace_error_map", "tracking_figure", "online_figure", "MAX_POINTS"]
 
-MAX_POINTS = 2500      # samples drawn per line of the tracking figure
+MAX_POINTS = 2500  # samples drawn per line of the tracking figure
 
 
 def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, title: str):
@@ -22,9 +23,17 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
     fig = Figure(figsize=(6.4, 5.6), layout="constrained")
     ax = fig.subplots()
     e = np.clip(err_mm, 1e-4, None)
-    sc = ax.scatter(x[inside, 0], x[inside, 1], c=e[inside], s=6, cmap="viridis",
-                    norm=LogNorm(vmin=max(e[inside].min(), 1e-3) if inside.any() else 1e-3,
-                                 vmax=max(e[inside].max(), 1e-2) if inside.any() else 1.0))
+    sc = ax.scatter(
+        x[inside, 0],
+        x[inside, 1],
+        c=e[inside],
+        s=6,
+        cmap="viridis",
+        norm=LogNorm(
+            vmin=max(e[inside].min(), 1e-3) if inside.any() else 1e-3,
+            vmax=max(e[inside].max(), 1e-2) if inside.any() else 1.0,
+        ),
+    )
     if (~inside).any():
         ax.scatter(x[~inside, 0], x[~inside, 1], c="0.6", s=8, marker="x", label="flagged outside")
         ax.legend(loc="lower left")
@@ -36,9 +45,15 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
     return fig
 
 
-def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.ndarray, title: str,
-                    window: tuple[float, float] | None = None,
-                    units: list[tuple[str, str]] | None = None) -> Figure:
+def tracking_figure(
+    t: np.ndarray,
+    q: np.ndarray,
+    q_des: np.ndarray,
+    tau: np.ndarray,
+    title: str,
+    window: tuple[float, float] | None = None,
+    units: list[tuple[str, str]] | None = None,
+) -> Figure:
     """The paper's n x 3 figure: per joint (rows), position vs desired, error, control input.
 
     t (T,) s; q, q_des (T, n); tau (T, n); `units` per joint (position, torque), default the
@@ -47,13 +62,16 @@ def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.nda
     """
     n = q.shape[1]
     units = units or ([("rad", "N m"), ("rad", "N m"), ("m", "N")] if n == 3 else [("rad", "N m")] * n)
-    k = max(1, -(-t.shape[0] // MAX_POINTS))        # every k-th sample: a figure, not a record
+    k = max(1, -(-t.shape[0] // MAX_POINTS))  # every k-th sample: a figure, not a record
     t, q, q_des, tau = t[::k], q[::k], q_des[::k], tau[::k]
     fig = Figure(figsize=(13, 2.7 * n))
     axes = fig.subplots(n, 3, sharex=True, squeeze=False)
     for j in range(n):
-        panels = ((q[:, j], f"q{j + 1} [{units[j][0]}]"), (q_des[:, j] - q[:, j], f"e{j + 1} [{units[j][0]}]"),
-                  (tau[:, j], f"tau{j + 1} [{units[j][1]}]"))
+        panels = (
+            (q[:, j], f"q{j + 1} [{units[j][0]}]"),
+            (q_des[:, j] - q[:, j], f"e{j + 1} [{units[j][0]}]"),
+            (tau[:, j], f"tau{j + 1} [{units[j][1]}]"),
+        )
         for c, (y, label) in enumerate(panels):
             ax = axes[j, c]
             ax.plot(t, y, lw=0.8, label="actual" if c == 0 else None)
@@ -68,19 +86,30 @@ def tracking_figure(t: np.ndarray, q: np.ndarray, q_des: np.ndarray, tau: np.nda
         ax.set_xlabel("t [s]")
     fig.suptitle(title)
     # Fixed margins: tight_layout measured as a third of the figure's cost.
-    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.5 / (2.7 * n), top=1 - 0.65 / (2.7 * n),
-                        wspace=0.28, hspace=0.15)
+    fig.subplots_adjust(
+        left=0.07, right=0.99, bottom=0.5 / (2.7 * n), top=1 - 0.65 / (2.7 * n), wspace=0.28, hspace=0.15
+    )
     return fig
 
 
-def online_figure(t: np.ndarray, adapted: np.ndarray, frozen: np.ndarray, analytic: np.ndarray,
-                  t_update: np.ndarray, dw: np.ndarray, title: str):
+def online_figure(
+    t: np.ndarray,
+    adapted: np.ndarray,
+    frozen: np.ndarray,
+    analytic: np.ndarray,
+    t_update: np.ndarray,
+    dw: np.ndarray,
+    title: str,
+):
     """Task-space error (mm) over time for the adapted and frozen networks and the nominal
     analytic IK, and the norm of the weight change."""
     fig = Figure(figsize=(9, 6))
     a1, a2 = fig.subplots(2, 1, sharex=True)
-    for y, label in ((adapted, "adapted network"), (frozen, "network, no adaptation"),
-                     (analytic, "nominal analytic IK")):
+    for y, label in (
+        (adapted, "adapted network"),
+        (frozen, "network, no adaptation"),
+        (analytic, "nominal analytic IK"),
+    ):
         a1.semilogy(t, np.maximum(y, 1e-6), lw=0.8, label=label)
     a1.set_ylabel("task-space error [mm]")
     a1.legend(fontsize=8)

@@ -13,6 +13,7 @@ sweep's and are never moved (a requeued SLURM job resumes in its own). An entry 
 run directory again when it leaves it empty (a refused or failed run leaves no empty directory),
 and writes .hydra/ itself, after its checks (`hydra_run_files`).
 """
+
 from __future__ import annotations
 
 import fcntl
@@ -33,8 +34,16 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..files import atomic_write_bytes
 
-__all__ = ["RunDir", "RunDirInUse", "hydra_run_dir", "hydra_run_files", "strict_json", "write_figure", "write_json",
-           "write_text"]
+__all__ = [
+    "RunDir",
+    "RunDirInUse",
+    "hydra_run_dir",
+    "hydra_run_files",
+    "strict_json",
+    "write_figure",
+    "write_json",
+    "write_text",
+]
 
 
 class RunDirInUse(RuntimeError):
@@ -75,7 +84,7 @@ class RunDir:
     directory this process holds already is entered without another lock or check.
     """
 
-    _held: ClassVar[dict[str, int]] = {}    # real path -> descriptor holding its lock, in this process
+    _held: ClassVar[dict[str, int]] = {}  # real path -> descriptor holding its lock, in this process
 
     def __init__(self, path: str | Path, fresh: bool = False, own: bool = False, tidy: bool = False) -> None:
         self.path = Path(path)
@@ -84,11 +93,12 @@ class RunDir:
 
     def __enter__(self) -> RunDir:
         if os.path.realpath(self.path) in RunDir._held:
-            return self                 # the caller holds it (the entry point around its library call)
+            return self  # the caller holds it (the entry point around its library call)
         for up in (self.path, *self.path.parents):
             if up.exists() and not up.is_dir():
-                raise RunDirInUse(f"hydra.run.dir={self.path}: {up} is a file, not a directory; give this run "
-                                  "another hydra.run.dir")
+                raise RunDirInUse(
+                    f"hydra.run.dir={self.path}: {up} is a file, not a directory; give this run another hydra.run.dir"
+                )
         self.path, self._fd = self._take_fresh() if self._fresh else self._take(self.path)
         RunDir._held[os.path.realpath(self.path)] = self._fd
         return self
@@ -100,14 +110,18 @@ class RunDir:
             if fd is not None:
                 break
             if path.is_dir():
-                raise RunDirInUse(f"run directory {path} is in use by another process; wait for it to "
-                                  "finish, or give this run another hydra.run.dir")
+                raise RunDirInUse(
+                    f"run directory {path} is in use by another process; wait for it to "
+                    "finish, or give this run another hydra.run.dir"
+                )
         held = sorted(os.listdir(path)) if self._own else []
         if held:
             os.close(fd)
-            raise RunDirInUse(f"hydra.run.dir={path} holds files already ({', '.join(held[:4])}"
-                              f"{', ...' if len(held) > 4 else ''}), which this run would write over; give it a "
-                              "new or empty hydra.run.dir")
+            raise RunDirInUse(
+                f"hydra.run.dir={path} holds files already ({', '.join(held[:4])}"
+                f"{', ...' if len(held) > 4 else ''}), which this run would write over; give it a "
+                "new or empty hydra.run.dir"
+            )
         return path, fd
 
     def _take_fresh(self) -> tuple[Path, int]:
@@ -126,16 +140,17 @@ class RunDir:
             fd = _lock(path)
             if fd is not None:
                 return path, fd
-        raise RunDirInUse(f"run directory {self.path} and its numbered siblings are all taken; "
-                          "give this run another hydra.run.dir")
+        raise RunDirInUse(
+            f"run directory {self.path} and its numbered siblings are all taken; give this run another hydra.run.dir"
+        )
 
     def __exit__(self, *exc) -> None:
         if self._fd is None:
             return
         if self._tidy:
-            with suppress(OSError):     # removed by someone else meanwhile: nothing to tidy
+            with suppress(OSError):  # removed by someone else meanwhile: nothing to tidy
                 if _is_empty(self.path):
-                    self.path.rmdir()   # still under the lock: nobody else is starting in it
+                    self.path.rmdir()  # still under the lock: nobody else is starting in it
         del RunDir._held[os.path.realpath(self.path)]
         fcntl.flock(self._fd, fcntl.LOCK_UN)
         os.close(self._fd)
@@ -166,9 +181,11 @@ def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:
     hc = HydraConfig.get()
     hydra = cast(dict[str, Any], OmegaConf.to_container(hc))
     hydra["runtime"]["output_dir"] = str(out_dir)
-    return {".hydra/config.yaml": OmegaConf.to_yaml(dcfg),
-            ".hydra/hydra.yaml": OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra})),
-            ".hydra/overrides.yaml": OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task)))}
+    return {
+        ".hydra/config.yaml": OmegaConf.to_yaml(dcfg),
+        ".hydra/hydra.yaml": OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra})),
+        ".hydra/overrides.yaml": OmegaConf.to_yaml(OmegaConf.create(list(hc.overrides.task))),
+    }
 
 
 def strict_json(obj) -> dict | list | float | int | str | bool | None:
@@ -178,8 +195,10 @@ def strict_json(obj) -> dict | list | float | int | str | bool | None:
 
     def clean(v, key: str):
         if isinstance(v, float) and not math.isfinite(v):
-            undefined[key] = (f"{v} is not a number JSON can hold: the value is undefined here (a statistic of "
-                              "non-finite outputs or of a diverged run)")
+            undefined[key] = (
+                f"{v} is not a number JSON can hold: the value is undefined here (a statistic of "
+                "non-finite outputs or of a diverged run)"
+            )
             return None
         if isinstance(v, dict):
             return {k: clean(x, f"{key}.{k}" if key else str(k)) for k, x in v.items()}
@@ -220,5 +239,5 @@ def write_figure(fig, path: Path, dpi: int = 110, writer=None, tag: str = "") ->
         if writer.file_writer is None:
             raise ValueError(f"write_figure: the SummaryWriter for {tag!r} is closed")
         width, height = struct.unpack(">II", data[16:24])
-        image = Summary.Image(height=height, width=width, colorspace=4, encoded_image_string=data)   # RGBA
+        image = Summary.Image(height=height, width=width, colorspace=4, encoded_image_string=data)  # RGBA
         writer.file_writer.add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]))

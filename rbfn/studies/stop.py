@@ -17,6 +17,7 @@ parent ended (PR_SET_PDEATHSIG); a pool's worker stopped by a signal ends once i
 (`job`) instead of going back to its pool. A handler some launcher installed (submitit's, under
 SLURM), or a signal the process was started ignoring (nohup), is left as it is.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -33,7 +34,7 @@ from typing import cast
 __all__ = ["Stopped", "job", "stop_on_signals"]
 
 SIGNALS = (signal.SIGTERM, signal.SIGHUP)
-CHILDREN_SECONDS = 10.0       # how long a stopped process waits for its children's cleanup
+CHILDREN_SECONDS = 10.0  # how long a stopped process waits for its children's cleanup
 _PR_SET_PDEATHSIG = 1
 _stopping = False
 
@@ -53,7 +54,7 @@ def _stat(pid: int) -> tuple[str, int] | None:
             text = f.read()
     except OSError:
         return None
-    state, ppid = text[text.rindex(")") + 2:].split()[:2]
+    state, ppid = text[text.rindex(")") + 2 :].split()[:2]
     return state, int(ppid)
 
 
@@ -77,7 +78,7 @@ def _stop_children(signum: int) -> None:
     """Send `signum` to this process's running children that heed it; wait for them to end."""
     try:
         pids = [int(p) for p in os.listdir("/proc") if p.isdigit()]
-    except OSError:                 # no /proc: the children's context managers stop them instead
+    except OSError:  # no /proc: the children's context managers stop them instead
         return
     children = [p for p in pids if _running_child(p) and not _ignores(p, signum)]
     for pid in children:
@@ -115,7 +116,7 @@ def _die_with_parent(parent: int) -> None:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     except (OSError, AttributeError):
         return
-    if os.getppid() != parent and not _exists(parent):     # (a forkserver's child has another parent)
+    if os.getppid() != parent and not _exists(parent):  # (a forkserver's child has another parent)
         os.kill(os.getpid(), signal.SIGTERM)
 
 
@@ -129,7 +130,7 @@ def stop_on_signals() -> None:
             signal.signal(s, _on_signal)
     parent = multiprocessing.parent_process()
     if parent is not None:
-        _die_with_parent(cast(int, parent.pid))      # a started process's pid
+        _die_with_parent(cast(int, parent.pid))  # a started process's pid
 
 
 @contextmanager

@@ -1,5 +1,6 @@
 """Training one IK network into a run directory: train.py's procedure (rbfn.pipeline does the
 fitting), with the run directory's checks, resumable state and outputs around it."""
+
 from __future__ import annotations
 
 import logging
@@ -30,7 +31,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     validate_train(cfg)
     with RunDir(out_dir):
         states = StateFile(out_dir)
-        state = states.load(plain(cfg))       # refuses another config's run before any write
+        state = states.load(plain(cfg))  # refuses another config's run before any write
         if state.finished is not None:
             log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
             return state.finished
@@ -59,8 +60,16 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
             writer.close()
         state.finished = metrics
         states.save(state)
-    log.info("M = %d, test position error median %.3f mm, p95 %.3f mm, max %.3f mm (float32 median %.3f mm); "
-             "selection %.1f s, total %.1f s -> %s", metrics["num_centers"], metrics["test_pos_err_mm_median"],
-             metrics["test_pos_err_mm_p95"], metrics["test_pos_err_mm_max"],
-             metrics["test_pos_err_mm_median_float32"], metrics["select_seconds"], metrics["train_seconds"], out_dir)
+    log.info(
+        "M = %d, test position error median %.3f mm, p95 %.3f mm, max %.3f mm (float32 median %.3f mm); "
+        "selection %.1f s, total %.1f s -> %s",
+        metrics["num_centers"],
+        metrics["test_pos_err_mm_median"],
+        metrics["test_pos_err_mm_p95"],
+        metrics["test_pos_err_mm_max"],
+        metrics["test_pos_err_mm_median_float32"],
+        metrics["select_seconds"],
+        metrics["train_seconds"],
+        out_dir,
+    )
     return metrics

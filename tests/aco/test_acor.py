@@ -42,6 +42,6 @@ def test_resume_from_state_continues_exactly():
         return res, snaps
 
     full, _ = run()
-    _, snaps = run(stop_at=12)               # "interrupted" after 12 iterations
+    _, snaps = run(stop_at=12)  # "interrupted" after 12 iterations
     resumed, _ = run(state=snaps[-1])
     assert resumed.best_history == full.best_history and torch.equal(resumed.best, full.best)

@@ -62,8 +62,9 @@ def test_resume_from_state_continues_exactly():
     def run(iterations, state=None):
         snaps = []
         colony = AntSystem(ants=6, iterations=iterations, rho=0.5)
-        res = colony.minimize(obj, 25, 5, generator=torch.Generator().manual_seed(3), state=state,
-                              on_state=snaps.append)
+        res = colony.minimize(
+            obj, 25, 5, generator=torch.Generator().manual_seed(3), state=state, on_state=snaps.append
+        )
         return res, snaps
 
     full, _ = run(30)

@@ -1,4 +1,5 @@
 """The closed loop's chunk compiled ahead of time and cached on disk."""
+
 import shutil
 
 import pytest
@@ -14,7 +15,7 @@ from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
 
 def test_fingerprint_follows_values_not_identity_or_caches():
     a, b = ScaraPlant(), ScaraPlant()
-    a._joint_values[1] = torch.ones(3)                     # a private cache: not part of the value
+    a._joint_values[1] = torch.ones(3)  # a private cache: not part of the value
     assert fingerprint(a, 1e-3) == fingerprint(b, 1e-3)
     assert fingerprint(a, 1e-3) != fingerprint(ScaraPlant(viscous=11.0), 1e-3)
     assert fingerprint(a, 1e-3) != fingerprint(a, 2e-3)
@@ -26,7 +27,7 @@ def test_fingerprint_follows_values_not_identity_or_caches():
     assert fingerprint(f1, skip=("features",)) == fingerprint(f2, skip=("features",))
     assert fingerprint(f1) != fingerprint(f2)
     assert fingerprint(torch.zeros(2)) != fingerprint(torch.zeros(2, dtype=torch.float64))
-    both = Stacked([c1, f1], [2, 2])                                       # slices of its feature columns
+    both = Stacked([c1, f1], [2, 2])  # slices of its feature columns
     assert fingerprint(both, skip=("features",)) == fingerprint(Stacked([c1, f2], [2, 2]), skip=("features",))
     assert fingerprint(both) != fingerprint(Stacked([c2, f1], [2, 2]))
     with pytest.raises(TypeError, match="cannot fingerprint a"):
@@ -39,18 +40,24 @@ def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
     sc = Scenario(duration=0.01, payload_on=0.0, payload_off=0.005, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     plant, feats = ScaraPlant(), torch.rand(sc.steps + 1, 4, dtype=torch.float64)
-    ctrl = Stacked([make_controller("smc_obs", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt,
-                                                                                 features=feats)], [1, 1])
+    ctrl = Stacked(
+        [make_controller("smc_obs", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt, features=feats)], [1, 1]
+    )
     q, qd = ref.q_d[:2].clone(), ref.qd_d[:2].clone()
     n = sc.steps
-    periods = Periods(ref=ref, h=feats, alpha=ctrl.alphas(sc.times()[:n]), dist=stage_disturbances(plant, n, sc.dt,
-                      dtype=torch.float64), co=plant.coefficients(torch.zeros(n, 2, dtype=torch.float64)))
+    periods = Periods(
+        ref=ref,
+        h=feats,
+        alpha=ctrl.alphas(sc.times()[:n]),
+        dist=stage_disturbances(plant, n, sc.dt, dtype=torch.float64),
+        co=plant.coefficients(torch.zeros(n, 2, dtype=torch.float64)),
+    )
     out = make_chunk(plant, ctrl, sc.dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
     for tree in ((Loop(q, qd, ctrl.init_state(q, qd)), periods), out):
         leaves, spec = pytree.tree_flatten(tree)
         assert all(isinstance(x, torch.Tensor) or x is None for x in leaves)
         assert pytree.treespec_loads(pytree.treespec_dumps(spec)) == spec
-    (state,) = out.loop.controller                         # one batched sliding-mode unit
+    (state,) = out.loop.controller  # one batched sliding-mode unit
     assert isinstance(state, SlidingState) and state.w is not None and state.w.shape == (2, 4, 3)
 
 

@@ -1,5 +1,6 @@
 """The closed loop on URDF arms: the SCARA through its URDF equals its closed form, energy is
 conserved, batches equal single runs, divergence is reported, and bad robots fail early."""
+
 from dataclasses import replace
 
 import pytest
@@ -47,7 +48,7 @@ def test_scara_urdf_path_equals_closed_form(name, integrator):
     urdf = _run(plant, ArmModel(plant.terms), name, sc, ref, payload)
     assert float((closed.q - urdf.q).abs().max()) < 1e-9
     assert float((closed.tau - urdf.tau).abs().max()) < 1e-6
-    assert float((closed.q[-1, 1] - closed.q[-1, 0]).abs().max()) > 1e-6     # the payload mattered
+    assert float((closed.q[-1, 1] - closed.q[-1, 0]).abs().max()) > 1e-6  # the payload mattered
 
 
 @pytest.mark.parametrize("robot", ["ur5", "panda"])
@@ -60,12 +61,12 @@ def test_energy_conserved_without_friction_disturbance_and_gravity(robot):
     co, zero, dist = plant.coefficients(pay), torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
     e0 = plant.energy(q, qd, pay)
     drift = []
-    for dt in (2e-3, 1e-3):                   # 0.2 s each
+    for dt in (2e-3, 1e-3):  # 0.2 s each
         q1, qd1 = q, qd
         for _ in range(round(0.2 / dt)):
             q1, qd1 = plant.step(q1, qd1, zero, dist, dt, co)
         drift.append(float(((plant.energy(q1, qd1, pay) - e0).abs() / e0).max()))
-    assert drift[1] < 1e-7 and drift[0] / drift[1] > 10       # RK4: truncation error of order 4
+    assert drift[1] < 1e-7 and drift[0] / drift[1] > 10  # RK4: truncation error of order 4
 
 
 def test_energy_conserved_with_gravity():
@@ -96,7 +97,7 @@ def test_ur5_batched_run_matches_single_runs(integrator):
     q0, qd0 = ref.q_d[:1].expand(3, 6).clone(), ref.qd_d[:1].expand(3, 6).clone()
     batch = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
     for i in range(3):
-        one = simulate(setup.plant, ctrl, sc, ref, q0[i:i + 1], qd0[i:i + 1], pay[i:i + 1])
+        one = simulate(setup.plant, ctrl, sc, ref, q0[i : i + 1], qd0[i : i + 1], pay[i : i + 1])
         assert torch.allclose(batch.q[:, i], one.q[:, 0], atol=1e-12, rtol=0)
     assert batch.q.shape == (sc.steps + 1, 3, 6)
     k_on = round(0.02 / sc.dt)
@@ -110,8 +111,9 @@ def test_ur5_divergence_stops_with_step_and_state():
     ref = setup.trajectory(sc.times())
     ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, setup.model)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = \["):
-        simulate(setup.plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(),
-                 torch.zeros(1, dtype=torch.float64))
+        simulate(
+            setup.plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+        )
 
 
 def test_sinusoid_trajectory_is_differentiated_exactly():
@@ -163,13 +165,16 @@ def test_unsupported_joint_type_fails_naming_the_urdf_and_joint(tmp_path):
         control_robot(robot, ControlConfig())
 
 
-@pytest.mark.parametrize("robot,change,match", [
-    (UR5, {"payload_link": "ghost"}, r"control.payload_link='ghost': payload link 'ghost' is not a link"),
-    (UR5, {"joint_scale": [1.0, 2.0]}, r"control.joint_scale=\[1.0, 2.0\] needs one factor per joint"),
-    (UR5, {"trajectory": "paper"}, r"control.trajectory='paper' is the SCARA's 3-joint path"),
-    (replace(UR5, locked={"elbow": 0.0}), {}, r"robot.locked names \['elbow'\]"),
-    (replace(UR5, joint_low=[0.0] * 5, joint_high=[1.0] * 5), {}, r"robot.joint_low/joint_high give 5 joints"),
-])
+@pytest.mark.parametrize(
+    "robot,change,match",
+    [
+        (UR5, {"payload_link": "ghost"}, r"control.payload_link='ghost': payload link 'ghost' is not a link"),
+        (UR5, {"joint_scale": [1.0, 2.0]}, r"control.joint_scale=\[1.0, 2.0\] needs one factor per joint"),
+        (UR5, {"trajectory": "paper"}, r"control.trajectory='paper' is the SCARA's 3-joint path"),
+        (replace(UR5, locked={"elbow": 0.0}), {}, r"robot.locked names \['elbow'\]"),
+        (replace(UR5, joint_low=[0.0] * 5, joint_high=[1.0] * 5), {}, r"robot.joint_low/joint_high give 5 joints"),
+    ],
+)
 def test_bad_robot_settings_fail_naming_the_key(robot, change, match):
     with pytest.raises(ValueError, match=match):
         control_robot(robot, ControlConfig(**change))

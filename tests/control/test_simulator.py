@@ -49,7 +49,7 @@ def test_energy_conserved_without_friction_disturbance_and_gravity(payload):
     e0 = plant.energy(q, qd, pay)
     zero, dist = torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
     drift = []
-    for dt in (1e-3, 5e-4, 2.5e-4):           # 1 s each
+    for dt in (1e-3, 5e-4, 2.5e-4):  # 1 s each
         q1, qd1 = q, qd
         for _ in range(round(1.0 / dt)):
             q1, qd1 = plant.step(q1, qd1, zero, dist, dt, co)
@@ -78,9 +78,11 @@ def test_observer_estimates_the_model_gravity_error():
     sc = Scenario(duration=1.0, payload_on=0.0, payload_off=1.0, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("smc_obs", Gains(), sc.dt, model)
-    roll = simulate(plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64))
+    roll = simulate(
+        plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+    )
     err = (ref.q_d[-1] - roll.q[-1, 0]).abs()
-    assert float(err.max()) < 1e-5       # with the bias observed and cancelled, tracking is tight
+    assert float(err.max()) < 1e-5  # with the bias observed and cancelled, tracking is tight
 
 
 @pytest.mark.parametrize("integrator", ["rk4", "euler"])
@@ -93,7 +95,7 @@ def test_batched_run_matches_single_runs(integrator):
     ctrl = make_controller("smc_obs", Gains(), sc.dt)
     batch = simulate(plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
     for i in range(3):
-        one = simulate(plant, ctrl, sc, ref, q0[i:i + 1], qd0[i:i + 1], pay[i:i + 1])
+        one = simulate(plant, ctrl, sc, ref, q0[i : i + 1], qd0[i : i + 1], pay[i : i + 1])
         assert torch.allclose(batch.q[:, i], one.q[:, 0], atol=1e-12)
     assert batch.q.shape == (sc.steps + 1, 3, 3) and batch.t.shape == (sc.steps + 1,)
     # The payload changes the response only inside and after its window.
@@ -115,18 +117,22 @@ def test_stacked_controllers_equal_their_separate_runs():
     w0 = torch.randn(3, 3, generator=gen, dtype=torch.float64)
     # pd alone; then one batched sliding-mode unit of four (two networks of different sizes, one
     # warm-started, with and without the observer); then ctc alone.
-    parts = [make_controller("pd", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt, features=feats),
-             make_controller("smc_obs", Gains(), sc.dt), make_controller("smc", Gains(), sc.dt),
-             make_controller("arbfn", Gains(), sc.dt, features=other, w0=w0, observer=False),
-             make_controller("ctc", Gains(), sc.dt)]
+    parts = [
+        make_controller("pd", Gains(), sc.dt),
+        make_controller("arbfn", Gains(), sc.dt, features=feats),
+        make_controller("smc_obs", Gains(), sc.dt),
+        make_controller("smc", Gains(), sc.dt),
+        make_controller("arbfn", Gains(), sc.dt, features=other, w0=w0, observer=False),
+        make_controller("ctc", Gains(), sc.dt),
+    ]
     stacked = Stacked(parts, [2] * len(parts))
     assert len(stacked.units) == 3 and stacked.unit_sizes == [2, 8, 2]
     k = len(parts)
     both = simulate(plant, stacked, sc, ref, q0.repeat(k, 1), qd0.repeat(k, 1), pay.repeat(k))
     for i, ctrl in enumerate(parts):
         one = simulate(plant, ctrl, sc, ref, q0, qd0, pay)
-        assert torch.allclose(both.q[:, 2 * i:2 * i + 2], one.q, rtol=0, atol=1e-12)
-        assert torch.allclose(both.tau[:, 2 * i:2 * i + 2], one.tau, rtol=0, atol=1e-9)
+        assert torch.allclose(both.q[:, 2 * i : 2 * i + 2], one.q, rtol=0, atol=1e-12)
+        assert torch.allclose(both.tau[:, 2 * i : 2 * i + 2], one.tau, rtol=0, atol=1e-9)
     with pytest.raises(ValueError, match="one batch size per controller"):
         Stacked(parts, [2, 2])
 
@@ -140,8 +146,13 @@ def test_adaptive_law_moves_the_weights():
     ctrl = make_controller("arbfn_x", Gains(), dt, NominalModel(), features=h)
     plant = ScaraPlant()
     q, qd = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
-    periods = Periods(ref=ref, h=h, alpha=ctrl.alphas(t), dist=stage_disturbances(plant, n, dt, dtype=torch.float64),
-                      co=plant.coefficients(torch.full((n, 1), 10.0, dtype=torch.float64)))
+    periods = Periods(
+        ref=ref,
+        h=h,
+        alpha=ctrl.alphas(t),
+        dist=stage_disturbances(plant, n, dt, dtype=torch.float64),
+        co=plant.coefficients(torch.full((n, 1), 10.0, dtype=torch.float64)),
+    )
     out = make_chunk(plant, ctrl, dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
     assert out.q.shape == out.tau.shape == (n, 1, 3)
     w = out.loop.controller.w
@@ -153,15 +164,20 @@ def test_divergence_stops_with_step_and_state():
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = "):
-        simulate(ScaraPlant(), ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64))
+        simulate(
+            ScaraPlant(), ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+        )
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"dt": 0.0}, "dt=0.0 must be a positive"),
-    ({"dt": -1e-3}, "dt=-0.001 must be a positive"),
-    ({"payload_on": 5.0, "payload_off": 12.0}, r"payload window \[5.0, 12.0\]"),
-    ({"integrator": "rk45"}, "integrator='rk45' is not allowed"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"dt": 0.0}, "dt=0.0 must be a positive"),
+        ({"dt": -1e-3}, "dt=-0.001 must be a positive"),
+        ({"payload_on": 5.0, "payload_off": 12.0}, r"payload window \[5.0, 12.0\]"),
+        ({"integrator": "rk45"}, "integrator='rk45' is not allowed"),
+    ],
+)
 def test_bad_scenarios_fail_early(kwargs, match):
     with pytest.raises(ValueError, match=match):
         Scenario(**kwargs).validate()
@@ -173,7 +189,9 @@ def test_bad_inputs_fail_early():
     ctrl = make_controller("smc", Gains(), sc.dt)
     q0 = ref.q_d[:1].clone()
     with pytest.raises(ValueError, match="initial state"):
-        simulate(ScaraPlant(), ctrl, sc, ref, q0 * float("nan"), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64))
+        simulate(
+            ScaraPlant(), ctrl, sc, ref, q0 * float("nan"), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+        )
     with pytest.raises(ValueError, match="payload masses"):
         simulate(ScaraPlant(), ctrl, sc, ref, q0, ref.qd_d[:1].clone(), torch.tensor([-1.0], dtype=torch.float64))
     with pytest.raises(ValueError, match="friction='coulomb' is not allowed"):

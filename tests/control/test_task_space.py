@@ -1,6 +1,7 @@
 """The online scenario on any robot: the SCARA through its URDF agrees with its closed form, a
 URDF arm with a locked joint adapts in the closed loop, and settings that do not suit the
 checkpoint's robot are named before any work."""
+
 from dataclasses import replace
 
 import pytest
@@ -27,22 +28,23 @@ def test_scara_through_its_urdf_equals_its_closed_form():
     t = torch.linspace(0.0, 6.0, 301, **KW)
     closed = online_robot(_record("scara"), cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
     record = _record("scara")
-    copy = record["urdf"].replace('<robot name="scara">', '<robot name="my_scara">')   # not the packaged text
+    copy = record["urdf"].replace('<robot name="scara">', '<robot name="my_scara">')  # not the packaged text
     urdf = online_robot({**record, "urdf": copy}, cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
     assert type(urdf.plant).__name__ == "ArmPlant" and type(closed.plant).__name__ == "ScaraPlant"
     assert torch.allclose(urdf.x_d, closed.x_d, atol=1e-12, rtol=0)
-    q = closed.full(closed.q_nominal)[:, None].expand(-1, 6, 3)          # [adapted, frozen] x 3 sizes
+    q = closed.full(closed.q_nominal)[:, None].expand(-1, 6, 3)  # [adapted, frozen] x 3 sizes
     e_closed, e_urdf = closed.errors(*closed.measure(q)), urdf.errors(*urdf.measure(q))
     assert torch.allclose(e_urdf[0], e_closed[0], atol=1e-9, rtol=0)
-    assert e_closed[0][:, 0].abs().max() < 1e-9 and e_closed[0][:, 2].mean() > 10.0      # mm
+    assert e_closed[0][:, 0].abs().max() < 1e-9 and e_closed[0][:, 2].mean() > 10.0  # mm
 
 
 def test_panda_adapts_online_with_its_locked_joint_held(panda_ckpt):
     """A 3 s closed loop on the Panda (joint 3 locked) with a coarse 40-centre network: pose
     errors reported for the six free joints, the adapted rows far below their frozen twins, the
     size-0 row's nominal IK exact."""
-    cfg = OnlineConfig(duration=3.0, dt=0.002, sizes=[0.0, 0.03], link_error=[0.03, 0.02, -0.02],
-                       offset_error=[0.02, 0.0, 0.0, 0.01])
+    cfg = OnlineConfig(
+        duration=3.0, dt=0.002, sizes=[0.0, 0.03], link_error=[0.03, 0.02, -0.02], offset_error=[0.02, 0.0, 0.0, 0.01]
+    )
     r = run_online(model_from_checkpoint(panda_ckpt), panda_ckpt["robot"], cfg, GainsConfig(), list(cfg.sizes))
     assert r.q_adapt.shape[1:] == (2, 6) and r.rot_adapt is not None and r.q_real is None
     assert r.err_analytic[:, 0].abs().max() < 1e-9 and r.err_analytic[:, 1].mean() > 1.0
@@ -57,7 +59,9 @@ def test_settings_that_do_not_suit_the_robot_are_named():
     ur5 = _record("ur5")
     with pytest.raises(ValueError, match=r"online.path='circle' is a path of the SCARA's workspace.*sinusoid"):
         check_online(OnlineConfig(path="circle"), ur5)
-    with pytest.raises(ValueError, match=r"online.offset_error=.* has 7 entries; the chain to 'ee_link' .* has 6 joints"):
+    with pytest.raises(
+        ValueError, match=r"online.offset_error=.* has 7 entries; the chain to 'ee_link' .* has 6 joints"
+    ):
         check_online(OnlineConfig(offset_error=[0.0] * 7), ur5)
     with pytest.raises(ValueError, match=r"online.link_error=.* has 3 entries; the SCARA .* has 2 links"):
         check_online(OnlineConfig(link_error=[0.03, 0.0, 0.01]), _record("scara"))

@@ -12,6 +12,7 @@ MuJoCo) against `Arm`. The property tests need no Pinocchio: M symmetric positiv
 dM/dt - 2C skew, C the Christoffel matrix of M (by autograd), energy conserved with gravity off,
 G the gradient of the potential energy.
 """
+
 from __future__ import annotations
 
 import importlib.metadata
@@ -106,22 +107,24 @@ def _erd_urdf(rel: str) -> Path:
 
 # example-robot-data's serial arms and chains of its humanoids: test name -> (file under robots/, end link).
 _PANDA, _KINOVA = "panda_description/urdf/panda.urdf", "kinova_description/robots/kinova.urdf"
-ERD = {"erd_ur3": ("ur_description/urdf/ur3_robot.urdf", "ee_link"),
-       "erd_ur5": ("ur_description/urdf/ur5_robot.urdf", "ee_link"),
-       "erd_ur10": ("ur_description/urdf/ur10_robot.urdf", "ee_link"),
-       "erd_panda": (_PANDA, "panda_hand"),
-       "erd_panda_link8": (_PANDA, "panda_link8"),
-       "erd_panda_finger": (_PANDA, "panda_leftfinger"),                   # 8 joints: a finger's prismatic one
-       "erd_kinova": (_KINOVA, "j2s6s200_end_effector"),
-       "erd_kinova_finger_tip": (_KINOVA, "j2s6s200_link_finger_tip_1"),
-       "erd_xarm7": ("xarm_description/urdf/xarm7.urdf", "link_eef"),
-       "erd_z1": ("z1_description/urdf/z1.urdf", "gripperMover"),
-       "erd_so100": ("so_arm_description/urdf/so100.urdf", "jaw"),
-       "erd_so101": ("so_arm_description/urdf/so101.urdf", "moving_jaw_so101_v1_link"),
-       # pytorch-kinematics' URDF parser refuses their visual textures (iCub, Romeo) or transmissions (PR2)
-       "erd_icub": ("icub_description/robots/icub.urdf", "r_hand"),
-       "erd_pr2": ("pr2_description/urdf/pr2.urdf", "r_gripper_palm_link"),
-       "erd_romeo": ("romeo_description/urdf/romeo_laas_small.urdf", "RArm_effector")}
+ERD = {
+    "erd_ur3": ("ur_description/urdf/ur3_robot.urdf", "ee_link"),
+    "erd_ur5": ("ur_description/urdf/ur5_robot.urdf", "ee_link"),
+    "erd_ur10": ("ur_description/urdf/ur10_robot.urdf", "ee_link"),
+    "erd_panda": (_PANDA, "panda_hand"),
+    "erd_panda_link8": (_PANDA, "panda_link8"),
+    "erd_panda_finger": (_PANDA, "panda_leftfinger"),  # 8 joints: a finger's prismatic one
+    "erd_kinova": (_KINOVA, "j2s6s200_end_effector"),
+    "erd_kinova_finger_tip": (_KINOVA, "j2s6s200_link_finger_tip_1"),
+    "erd_xarm7": ("xarm_description/urdf/xarm7.urdf", "link_eef"),
+    "erd_z1": ("z1_description/urdf/z1.urdf", "gripperMover"),
+    "erd_so100": ("so_arm_description/urdf/so100.urdf", "jaw"),
+    "erd_so101": ("so_arm_description/urdf/so101.urdf", "moving_jaw_so101_v1_link"),
+    # pytorch-kinematics' URDF parser refuses their visual textures (iCub, Romeo) or transmissions (PR2)
+    "erd_icub": ("icub_description/robots/icub.urdf", "r_hand"),
+    "erd_pr2": ("pr2_description/urdf/pr2.urdf", "r_gripper_palm_link"),
+    "erd_romeo": ("romeo_description/urdf/romeo_laas_small.urdf", "RArm_effector"),
+}
 
 
 def _source(name: str) -> tuple[str, str]:
@@ -172,7 +175,8 @@ def _pinocchio(name: str, arm, payload: float):
     if payload:
         frame = model.frames[model.getFrameId(end)]
         model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + pin.Inertia(
-            payload, frame.placement.translation, np.zeros((3, 3)))
+            payload, frame.placement.translation, np.zeros((3, 3))
+        )
     free = model.copy()
     free.gravity.setZero()
     return pin, model, free
@@ -192,7 +196,7 @@ def test_matches_pinocchio(name, payload):
     ref = {k: [] for k in ("M", "Cqd", "G", "C", "tau")}
     neutral = pin.neutral(model)
     for qi, qdi, qddi in zip(q.numpy(), qd.numpy(), qdd.numpy()):
-        qp = pin.integrate(model, neutral, qi)        # continuous joints: (cos, sin)
+        qp = pin.integrate(model, neutral, qi)  # continuous joints: (cos, sin)
         m = pin.crba(model, data, qp)
         ref["M"].append(np.triu(m) + np.triu(m, 1).T)
         ref["G"].append(pin.computeGeneralizedGravity(model, data, qp).copy())
@@ -202,13 +206,14 @@ def test_matches_pinocchio(name, payload):
     ref = {k: torch.from_numpy(np.stack(v)) for k, v in ref.items()}
     bias = arm.bias(q, qd, payload)
     g = arm.gravity(q, payload)
-    errors = {"M": _rel(arm.mass_matrix(q, payload), ref["M"]),
-              "Cqd": _rel(bias - g, ref["Cqd"]),
-              "G": _rel(g, ref["G"]),
-              "C": _rel(arm.coriolis(q, qd, payload), ref["C"]),
-              "Cqd from C": _rel((arm.coriolis(q, qd, payload) @ qd.unsqueeze(-1)).squeeze(-1),
-                                 ref["Cqd"]),
-              "tau": _rel(arm.inverse_dynamics(q, qd, qdd, payload), ref["tau"])}
+    errors = {
+        "M": _rel(arm.mass_matrix(q, payload), ref["M"]),
+        "Cqd": _rel(bias - g, ref["Cqd"]),
+        "G": _rel(g, ref["G"]),
+        "C": _rel(arm.coriolis(q, qd, payload), ref["C"]),
+        "Cqd from C": _rel((arm.coriolis(q, qd, payload) @ qd.unsqueeze(-1)).squeeze(-1), ref["Cqd"]),
+        "tau": _rel(arm.inverse_dynamics(q, qd, qdd, payload), ref["tau"]),
+    }
     assert max(errors.values()) <= 1e-9, errors
 
 
@@ -253,7 +258,7 @@ def test_mdot_minus_2c_skew_and_c_is_christoffel(name):
     assert (n + n.transpose(1, 2)).abs().max() <= 1e-12 * scale
     # C is the Christoffel matrix: Gamma_ijk = (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) / 2.
     for qi, qdi in zip(q[:4], qd[:4]):
-        dm = torch.func.jacfwd(lambda x: arm.mass_matrix(x[None], 1.5)[0])(qi)     # (n, n, n)
+        dm = torch.func.jacfwd(lambda x: arm.mass_matrix(x[None], 1.5)[0])(qi)  # (n, n, n)
         gamma = 0.5 * (dm + dm.transpose(1, 2) - dm.permute(2, 0, 1))
         ref = gamma @ qdi
         assert (arm.coriolis(qi[None], qdi[None], 1.5)[0] - ref).abs().max() <= 1e-12 * scale
@@ -272,13 +277,12 @@ def test_energy_conserved_without_gravity(name):
 
     e0 = arm.kinetic_energy(q, qd, 1.0)
     dt, x = 1e-3, (q, qd)
-    for _ in range(500):                               # 0.5 s of RK4
+    for _ in range(500):  # 0.5 s of RK4
         k1 = f(x)
         k2 = f(tuple(a + 0.5 * dt * k for a, k in zip(x, k1)))
         k3 = f(tuple(a + 0.5 * dt * k for a, k in zip(x, k2)))
         k4 = f(tuple(a + dt * k for a, k in zip(x, k3)))
-        x = tuple(a + dt / 6 * (p1 + 2 * p2 + 2 * p3 + p4)
-                  for a, p1, p2, p3, p4 in zip(x, k1, k2, k3, k4))
+        x = tuple(a + dt / 6 * (p1 + 2 * p2 + 2 * p3 + p4) for a, p1, p2, p3, p4 in zip(x, k1, k2, k3, k4))
     drift = ((arm.kinetic_energy(*x, 1.0) - e0).abs() / e0).max()
     assert drift < 1e-8, drift
 
@@ -298,8 +302,7 @@ def test_potential_energy_is_sum_of_m_g_z():
     # The SCARA: links 1 and 2 move in the plane z = 0; m3 plus payload sits at z = -q3.
     arm = load_arm("scara")
     q = torch.tensor([[0.3, -1.0, 0.7]], dtype=torch.float64)
-    assert torch.allclose(arm.potential_energy(q, 2.0), torch.tensor([-(0.5 + 2.0) * 9.8 * 0.7],
-                                                                     dtype=torch.float64))
+    assert torch.allclose(arm.potential_energy(q, 2.0), torch.tensor([-(0.5 + 2.0) * 9.8 * 0.7], dtype=torch.float64))
 
 
 def test_inverse_dynamics_payloads_shapes_and_dtypes():
@@ -314,7 +317,7 @@ def test_inverse_dynamics_payloads_shapes_and_dtypes():
     assert torch.allclose(tau, (m @ qdd.unsqueeze(-1)).squeeze(-1) + b, atol=1e-12, rtol=1e-12)
     # A (B,) payload is the per-state float payload.
     payload = torch.tensor([0.0, 0.5, 1.0, 2.0, 3.0, 4.0], dtype=torch.float64)
-    rows = torch.cat([arm.bias(q[i:i + 1], qd[i:i + 1], float(p)) for i, p in enumerate(payload)])
+    rows = torch.cat([arm.bias(q[i : i + 1], qd[i : i + 1], float(p)) for i, p in enumerate(payload)])
     assert torch.allclose(arm.bias(q, qd, payload), rows, atol=1e-12, rtol=0)
     # Any leading batch shape; float32 inputs give float32 outputs close to float64.
     c2 = arm.coriolis(q.reshape(2, 3, -1), qd.reshape(2, 3, -1))
@@ -347,12 +350,14 @@ def test_loader_errors():
         with pytest.raises(ValueError, match=f"joint 'j2' on the chain.*'{kind}'"):
             load_arm(bad, TEST_END)
     # An unsupported joint off the chain is held at zero like any other.
-    load_arm(text.replace('"finger_a_joint" type="prismatic"', '"finger_a_joint" type="floating"'),
-             TEST_END)
+    load_arm(text.replace('"finger_a_joint" type="prismatic"', '"finger_a_joint" type="floating"'), TEST_END)
     with pytest.raises(ValueError, match="end_link=None is allowed for a preset only; allowed for URDF text: one"):
         load_arm(text)
-    with pytest.raises(ValueError, match=r"name_or_urdf='no_such_robot' is neither a preset nor URDF text; allowed: "
-                                         r"scara, ur5, panda, the URDF's text or bytes, or a pathlib\.Path"):
+    with pytest.raises(
+        ValueError,
+        match=r"name_or_urdf='no_such_robot' is neither a preset nor URDF text; allowed: "
+        r"scara, ur5, panda, the URDF's text or bytes, or a pathlib\.Path",
+    ):
         load_arm("no_such_robot")
     with pytest.raises(TypeError, match=r"urdf=42 is a int; allowed: a pathlib\.Path"):
         load_arm(42, TEST_END)
@@ -367,9 +372,11 @@ def test_a_string_naming_a_file_is_refused_unopened(tmp_path, kind):
         os.mkfifo(path)
     else:
         path.write_text(TEST_URDF)
-    out = run_guarded("from rbfn.robots.dynamics import load_arm\nfrom rbfn.robots.mjcf import arm_model\n"
-                      f"for load in (lambda: load_arm({str(path)!r}, 'flange'), lambda: arm_model({str(path)!r})):\n"
-                      "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n")
+    out = run_guarded(
+        "from rbfn.robots.dynamics import load_arm\nfrom rbfn.robots.mjcf import arm_model\n"
+        f"for load in (lambda: load_arm({str(path)!r}, 'flange'), lambda: arm_model({str(path)!r})):\n"
+        "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n"
+    )
     for arg in ("name_or_urdf", "urdf"):
         refused = f"ValueError: {arg}={reprlib.repr(str(path))} is neither a preset nor URDF text; allowed: scara"
         assert refused in out, out
@@ -378,12 +385,14 @@ def test_a_string_naming_a_file_is_refused_unopened(tmp_path, kind):
 def test_a_fifo_path_is_refused_by_what_it_is(tmp_path):
     fifo = tmp_path / "arm.urdf"
     os.mkfifo(fifo)
-    out = run_guarded("from pathlib import Path\nfrom rbfn.config import ControlConfig, RobotConfig\n"
-                      "from rbfn.control import control_robot\nfrom rbfn.robots.dynamics import load_arm\n"
-                      f"robot = RobotConfig(name='t', urdf={str(fifo)!r}, end_link='flange')\n"
-                      f"for load in (lambda: load_arm(Path({str(fifo)!r}), 'flange'),\n"
-                      "             lambda: control_robot(robot, ControlConfig())):\n"
-                      "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n")
+    out = run_guarded(
+        "from pathlib import Path\nfrom rbfn.config import ControlConfig, RobotConfig\n"
+        "from rbfn.control import control_robot\nfrom rbfn.robots.dynamics import load_arm\n"
+        f"robot = RobotConfig(name='t', urdf={str(fifo)!r}, end_link='flange')\n"
+        f"for load in (lambda: load_arm(Path({str(fifo)!r}), 'flange'),\n"
+        "             lambda: control_robot(robot, ControlConfig())):\n"
+        "    try:\n        load()\n    except ValueError as e:\n        print('ValueError:', e)\n"
+    )
     is_fifo = f"{fifo} is a FIFO, not a regular file; allowed: a regular file"
     assert f"ValueError: {is_fifo}" in out, out
     assert f"ValueError: robot.urdf='{fifo}' (robot.name='t', robot.end_link='flange'): {is_fifo}" in out, out
@@ -400,8 +409,13 @@ def test_the_control_path_loads_what_the_kinematics_loads():
     path = _erd_urdf(rel)
     chain = load_serial_chain(path, end)
     low, high = joint_limits(chain)
-    robot = RobotConfig(name="icub", urdf=str(path), end_link=end, joint_low=(0.75 * low + 0.25 * high).tolist(),
-                        joint_high=(0.25 * low + 0.75 * high).tolist())
+    robot = RobotConfig(
+        name="icub",
+        urdf=str(path),
+        end_link=end,
+        joint_low=(0.75 * low + 0.25 * high).tolist(),
+        joint_high=(0.25 * low + 0.75 * high).tolist(),
+    )
     setup = control_robot(robot, ControlConfig())
     assert setup.joint_names == chain.get_joint_parameter_names() and setup.n == 10
     q, _ = _states(load_arm(path, end), 4, seed=18)

@@ -8,6 +8,7 @@ simulator's batch-last `ArmTerms` (narrow and wide batches take different code),
 `ArmScalarTerms` run eagerly, the SCARA's closed form, Pinocchio and MuJoCo where installed.
 Payloads: none, 2.5 kg, and one per state, at the end link's origin.
 """
+
 from __future__ import annotations
 
 import functools
@@ -21,9 +22,9 @@ from rbfn.robots.arm_scalar import ArmScalarTerms
 from rbfn.robots.arm_terms import ArmTerms
 from tests.robots import test_dynamics as dynamics_tests
 
-BATCH = 600            # above arm_terms.WIDE: its wide code paths
-NARROW = 7             # below it: the narrow ones
-ROBOTS = ["scara", "ur5", "panda", "test_arm"]   # the test arm: everything the loader lumps
+BATCH = 600  # above arm_terms.WIDE: its wide code paths
+NARROW = 7  # below it: the narrow ones
+ROBOTS = ["scara", "ur5", "panda", "test_arm"]  # the test arm: everything the loader lumps
 PAYLOADS = ["none", "2.5 kg", "per state"]
 
 
@@ -54,8 +55,15 @@ def _case(robot: str, payload: str) -> tuple[State, dict[str, torch.Tensor]]:
     y = torch.randn(BATCH, arm.n, generator=g, dtype=torch.float64)
     p = {"none": 0.0, "2.5 kg": 2.5, "per state": 4 * torch.rand(BATCH, generator=g, dtype=torch.float64)}[payload]
     m, c = arm.mass_matrix(q, p), arm.coriolis(q, qd, p)
-    ref = {"M": m, "M y": _mv(m, y), "C qd + G": arm.bias(q, qd, p), "G": arm.gravity(q, p),
-           "C y": _mv(c, y), "C^T qd": _mv(c.transpose(1, 2), qd), "M^-1 y": torch.linalg.solve(m, y)}
+    ref = {
+        "M": m,
+        "M y": _mv(m, y),
+        "C qd + G": arm.bias(q, qd, p),
+        "G": arm.gravity(q, p),
+        "C y": _mv(c, y),
+        "C^T qd": _mv(c.transpose(1, 2), qd),
+        "M^-1 y": torch.linalg.solve(m, y),
+    }
     return State(q, qd, y, p), ref
 
 
@@ -63,7 +71,7 @@ def _case(robot: str, payload: str) -> tuple[State, dict[str, torch.Tensor]]:
 def _arm_routes(robot: str, s: State) -> dict[str, torch.Tensor]:
     """Arm's M from `dynamics`, C qd + G from the matrix C, G as RNEA at rest."""
     arm = _arm(robot)
-    m, _ = arm.dynamics(s.q, s.qd, s.payload)                # M of the one-pass route
+    m, _ = arm.dynamics(s.q, s.qd, s.payload)  # M of the one-pass route
     c, g = arm.coriolis(s.q, s.qd, s.payload), arm.gravity(s.q, s.payload)
     zero = torch.zeros_like(s.q)
     return {"M": m, "C qd + G": _mv(c, s.qd) + g, "G": arm.inverse_dynamics(s.q, zero, zero, s.payload)}
@@ -73,19 +81,27 @@ def _terms(form: type[ArmTerms] | type[ArmScalarTerms]) -> Callable[[str, State]
     def run(robot: str, s: State) -> dict[str, torch.Tensor]:
         cfg = form(_arm(robot)).at(s.q, s.payload)
         mo = cfg.motion(s.qd)
-        out = {"M": cfg.mass_matrix(), "M y": cfg.mass_times(s.y), "C qd + G": cfg.bias(s.qd),
-               "G": cfg.gravity(), "C y": cfg.coriolis_times(s.qd, s.y, mo),
-               "C^T qd": cfg.coriolis_transpose_qd(s.qd, mo)}
-        if hasattr(cfg, "solve"):                       # the scalar form's Cholesky solve (the compiled step's)
+        out = {
+            "M": cfg.mass_matrix(),
+            "M y": cfg.mass_times(s.y),
+            "C qd + G": cfg.bias(s.qd),
+            "G": cfg.gravity(),
+            "C y": cfg.coriolis_times(s.qd, s.y, mo),
+            "C^T qd": cfg.coriolis_transpose_qd(s.qd, mo),
+        }
+        if hasattr(cfg, "solve"):  # the scalar form's Cholesky solve (the compiled step's)
             out["M^-1 y"] = cfg.solve(s.y)
         return out
+
     return run
 
 
 def _narrow(robot: str, s: State) -> dict[str, torch.Tensor]:
     """ArmTerms on NARROW states at a time."""
-    parts = [_terms(ArmTerms)(robot, State(*(x[i:i + NARROW] if torch.is_tensor(x) and x.dim() else x for x in s)))
-             for i in range(0, BATCH, NARROW)]
+    parts = [
+        _terms(ArmTerms)(robot, State(*(x[i : i + NARROW] if torch.is_tensor(x) and x.dim() else x for x in s)))
+        for i in range(0, BATCH, NARROW)
+    ]
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
@@ -94,8 +110,14 @@ def _closed_form(robot: str, s: State) -> dict[str, torch.Tensor]:
     from rbfn.robots.scara.closed_form import coriolis, gravity, mass_matrix
 
     c, g, m = coriolis(s.q, s.qd, s.payload), gravity(s.q, s.payload), mass_matrix(s.q, s.payload)
-    return {"M": m, "M y": _mv(m, s.y), "C qd + G": _mv(c, s.qd) + g, "G": g, "C y": _mv(c, s.y),
-            "C^T qd": _mv(c.transpose(1, 2), s.qd)}
+    return {
+        "M": m,
+        "M y": _mv(m, s.y),
+        "C qd + G": _mv(c, s.qd) + g,
+        "G": g,
+        "C y": _mv(c, s.y),
+        "C^T qd": _mv(c.transpose(1, 2), s.qd),
+    }
 
 
 def _pinocchio(robot: str, s: State) -> dict[str, torch.Tensor]:
@@ -105,7 +127,7 @@ def _pinocchio(robot: str, s: State) -> dict[str, torch.Tensor]:
 
     arm = _arm(robot)
     pin, model, _ = dynamics_tests._pinocchio(robot, arm, 0.0)
-    model.gravity.linear = arm.gravity_vector.numpy()      # the SCARA's 9.8 m/s^2
+    model.gravity.linear = arm.gravity_vector.numpy()  # the SCARA's 9.8 m/s^2
     end = dynamics_tests._source(robot)[1]
     frame = model.frames[model.getFrameId(end)]
     body = model.inertias[frame.parentJoint].copy()
@@ -115,7 +137,7 @@ def _pinocchio(robot: str, s: State) -> dict[str, torch.Tensor]:
     neutral = pin.neutral(model)
     for qi, qdi, pi in zip(s.q.numpy(), s.qd.numpy(), payload.tolist()):
         model.inertias[frame.parentJoint] = body + pin.Inertia(pi, frame.placement.translation, np.zeros((3, 3)))
-        qp = pin.integrate(model, neutral, qi)         # continuous joints: (cos, sin)
+        qp = pin.integrate(model, neutral, qi)  # continuous joints: (cos, sin)
         m = pin.crba(model, data, qp)
         out["M"].append(np.triu(m) + np.triu(m, 1).T)
         out["C qd + G"].append(pin.rnea(model, data, qp, qdi, np.zeros(arm.n)).copy())
@@ -136,7 +158,12 @@ def _mujoco(robot: str, s: State) -> dict[str, torch.Tensor]:
     if torch.is_tensor(s.payload):
         pytest.skip("a MuJoCo model carries one payload")
     arm = _arm(robot)
-    model = arm_model(dynamics_tests._source(robot)[0], payload=s.payload, payload_link=arm.end_link, gravity=-float(arm.gravity_vector[2]))
+    model = arm_model(
+        dynamics_tests._source(robot)[0],
+        payload=s.payload,
+        payload_link=arm.end_link,
+        gravity=-float(arm.gravity_vector[2]),
+    )
     data = mujoco.MjData(model)
     assert [model.joint(i).name for i in range(model.njnt)] == arm.joint_names
     out: dict[str, list] = {k: [] for k in ("M", "C qd + G", "G")}

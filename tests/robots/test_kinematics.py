@@ -2,6 +2,7 @@
 against Pinocchio on example-robot-data's descriptions, URDF documents in any encoding (and the
 files and entities the loader must not read), and every URDF example-robot-data ships against
 Pinocchio (the Pinocchio tests skipped without those packages)."""
+
 import math
 import os
 from pathlib import Path
@@ -15,8 +16,7 @@ from rbfn.robots import forward_kinematics, forward_kinematics_pose, joint_limit
 from rbfn.robots.kinematics import MAX_URDF_BYTES, read_urdf
 from tests.guarded import run_guarded
 
-joints = st.lists(st.tuples(st.floats(-3.1, 3.1), st.floats(-2.5, 2.5), st.floats(0.0, 2.0)),
-                  min_size=1, max_size=16)
+joints = st.lists(st.tuples(st.floats(-3.1, 3.1), st.floats(-2.5, 2.5), st.floats(0.0, 2.0)), min_size=1, max_size=16)
 
 
 @settings(max_examples=30, deadline=None)
@@ -41,13 +41,18 @@ def test_fk_convention():
 
 def test_closed_form_ik_inverts_fk_on_branch():
     g = torch.Generator().manual_seed(0)
-    q = torch.tensor([0.0, 0.3, 0.5]) + torch.rand(500, 3, generator=g, dtype=torch.float64) * torch.tensor([2.0, 1.7, 1.0])
+    q = torch.tensor([0.0, 0.3, 0.5]) + torch.rand(500, 3, generator=g, dtype=torch.float64) * torch.tensor(
+        [2.0, 1.7, 1.0]
+    )
     assert torch.allclose(scara.ik(scara.fk(q)), q, atol=1e-9)
 
 
 def test_bad_end_link_names_links():
-    with pytest.raises(ValueError, match=r"scara\.urdf: end_link 'gripper' is not a link of the URDF; "
-                                         r"links: \['base', 'link1', 'link2', 'quill'\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"scara\.urdf: end_link 'gripper' is not a link of the URDF; "
+        r"links: \['base', 'link1', 'link2', 'quill'\]",
+    ):
         load_serial_chain(scara.URDF_PATH, "gripper")
 
 
@@ -55,14 +60,20 @@ def test_bad_end_link_names_links():
 
 
 def _urdf(joints: str, links=("a", "b", "c", "d")) -> str:
-    return ("<robot name='t'>" + "".join(f"<link name='{n}'/>" for n in links) + joints
-            + "</robot>")
+    return "<robot name='t'>" + "".join(f"<link name='{n}'/>" for n in links) + joints + "</robot>"
 
 
-def _joint(name, parent, child, kind="revolute", extra="<axis xyz='0 0 1'/>"
-           "<limit lower='-1' upper='1' effort='1' velocity='1'/>"):
-    return (f"<joint name='{name}' type='{kind}'><parent link='{parent}'/><child link='{child}'/>"
-            f"<origin xyz='0.1 0 0'/>{extra}</joint>")
+def _joint(
+    name,
+    parent,
+    child,
+    kind="revolute",
+    extra="<axis xyz='0 0 1'/><limit lower='-1' upper='1' effort='1' velocity='1'/>",
+):
+    return (
+        f"<joint name='{name}' type='{kind}'><parent link='{parent}'/><child link='{child}'/>"
+        f"<origin xyz='0.1 0 0'/>{extra}</joint>"
+    )
 
 
 def test_pose_is_position_and_rotation(chain):
@@ -71,8 +82,7 @@ def test_pose_is_position_and_rotation(chain):
     assert pose.shape == (5, 4, 4)
     assert torch.equal(pose[:, :3, 3], forward_kinematics(chain, q))
     rot = pose[:, :3, :3]
-    assert torch.allclose(rot @ rot.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand(5, 3, 3),
-                          atol=1e-15)
+    assert torch.allclose(rot @ rot.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand(5, 3, 3), atol=1e-15)
     # SCARA: rotation about z by q1 + q2.
     c, s = torch.cos(q[:, 0] + q[:, 1]), torch.sin(q[:, 0] + q[:, 1])
     assert torch.allclose(rot[:, 0, 0], c, atol=1e-15) and torch.allclose(rot[:, 1, 0], s, atol=1e-15)
@@ -85,7 +95,7 @@ def test_frames_are_links_and_offsets_exact(chain):
     low, high = joint_limits(chain)
     assert low.tolist() == [-3.14159265358979, -2.6, 0.0] and high.tolist() == [3.14159265358979, 2.6, 2.0]
     q = torch.zeros(1, 3, dtype=torch.float64)
-    assert forward_kinematics(chain, q)[0].tolist() == [1.8, 0.0, 0.0]   # 1.0 + 0.8, exactly
+    assert forward_kinematics(chain, q)[0].tolist() == [1.8, 0.0, 0.0]  # 1.0 + 0.8, exactly
 
 
 def test_malformed_urdf_file_named(tmp_path):
@@ -97,8 +107,11 @@ def test_malformed_urdf_file_named(tmp_path):
     with pytest.raises(ValueError, match=r"broken_arm\.urdf: malformed URDF: .*parent"):
         load_serial_chain(path, "b")
     # A str is the URDF's text, never a file name.
-    with pytest.raises(ValueError, match=r"URDF text: '.*\.urdf' is not URDF text; allowed: XML whose root "
-                                         r"element is <robot> \(a string is never read as a file name"):
+    with pytest.raises(
+        ValueError,
+        match=r"URDF text: '.*\.urdf' is not URDF text; allowed: XML whose root "
+        r"element is <robot> \(a string is never read as a file name",
+    ):
         load_serial_chain(str(path), "b")
 
 
@@ -137,27 +150,40 @@ def test_unsupported_joint_on_path_errors(kind):
 
 
 def test_continuous_joint_unlimited_and_default_axis():
-    text = _urdf(_joint("j1", "a", "b", "continuous", "<limit effort='1' velocity='2'/>")
-                 + _joint("j2", "b", "c", "prismatic", "<limit lower='0' upper='0.5' effort='1' velocity='1'/>"),
-                 links=("a", "b", "c"))
+    text = _urdf(
+        _joint("j1", "a", "b", "continuous", "<limit effort='1' velocity='2'/>")
+        + _joint("j2", "b", "c", "prismatic", "<limit lower='0' upper='0.5' effort='1' velocity='1'/>"),
+        links=("a", "b", "c"),
+    )
     chain = load_serial_chain(text, "c")
     low, high = joint_limits(chain)
     assert low.tolist() == [-math.inf, 0.0] and high.tolist() == [math.inf, 0.5]
     # No <axis>: URDF's default (1, 0, 0); the prismatic joint moves along x.
-    assert torch.allclose(forward_kinematics(chain, torch.tensor([[0.0, 0.3]], dtype=torch.float64)),
-                          torch.tensor([[0.5, 0.0, 0.0]], dtype=torch.float64), atol=1e-15)
+    assert torch.allclose(
+        forward_kinematics(chain, torch.tensor([[0.0, 0.3]], dtype=torch.float64)),
+        torch.tensor([[0.5, 0.0, 0.0]], dtype=torch.float64),
+        atol=1e-15,
+    )
 
 
 def test_shipped_urdfs_load():
-    for name, end, n in (("scara", "quill", 3), ("ur5", "ee_link", 6), ("ur5", "tool0", 6),
-                         ("panda", "panda_link8", 7), ("panda", "panda_hand", 7)):
+    for name, end, n in (
+        ("scara", "quill", 3),
+        ("ur5", "ee_link", 6),
+        ("ur5", "tool0", 6),
+        ("panda", "panda_link8", 7),
+        ("panda", "panda_hand", 7),
+    ):
         chain = load_serial_chain(urdf_path(name), end)
         assert len(chain.get_joint_parameter_names()) == n
         low, high = joint_limits(chain)
         assert bool(torch.isfinite(low).all() and (low < high).all())
     for name in ("kuka", "../robots/ur5", str(urdf_path("ur5"))[:-5]):
-        with pytest.raises(ValueError, match=f"name='{name}' is not a URDF shipped with rbfn.robots; allowed: "
-                                             r"\['panda', 'scara', 'ur5'\]"):
+        with pytest.raises(
+            ValueError,
+            match=f"name='{name}' is not a URDF shipped with rbfn.robots; allowed: "
+            r"\['panda', 'scara', 'ur5'\]",
+        ):
             urdf_path(name)
 
 
@@ -169,10 +195,14 @@ def test_shipped_urdfs_load():
 # link frames are Franka's modified-DH frames in both. example-robot-data's UR5 writes pi/2 to
 # 11 digits: its frames are off by ~1e-11.
 
-REFERENCE = {"ur5": ("ur_description/urdf/ur5_robot.urdf", ["ee_link", "tool0"],
-                     ["base_link", "base", "tool0", "ee_link"]),
-             "panda": ("panda_description/urdf/panda.urdf", ["panda_link8", "panda_hand"],
-                       [f"panda_link{i}" for i in range(9)] + ["panda_hand", "panda_hand_tcp"])}
+REFERENCE = {
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", ["ee_link", "tool0"], ["base_link", "base", "tool0", "ee_link"]),
+    "panda": (
+        "panda_description/urdf/panda.urdf",
+        ["panda_link8", "panda_hand"],
+        [f"panda_link{i}" for i in range(9)] + ["panda_hand", "panda_hand_tcp"],
+    ),
+}
 
 
 @pytest.fixture(scope="module", params=sorted(REFERENCE))
@@ -192,7 +222,7 @@ def _pin_q(pin, model, names, q):
     qp = pin.neutral(model)
     for name, v in zip(names, q):
         joint = model.joints[model.getJointId(name)]
-        qp[joint.idx_q:joint.idx_q + joint.nq] = [math.cos(v), math.sin(v)] if joint.nq == 2 else [v]
+        qp[joint.idx_q : joint.idx_q + joint.nq] = [math.cos(v), math.sin(v)] if joint.nq == 2 else [v]
     return qp
 
 
@@ -227,8 +257,11 @@ def test_frames_match_pinocchio_at_zero(reference):
     ours = []
     for link in frames:
         chain = load_serial_chain(urdf_path(name), link)
-        ours.append(forward_kinematics_pose(chain, torch.zeros(1, len(chain.get_joint_parameter_names()),
-                                                                dtype=torch.float64))[0].numpy())
+        ours.append(
+            forward_kinematics_pose(chain, torch.zeros(1, len(chain.get_joint_parameter_names()), dtype=torch.float64))[
+                0
+            ].numpy()
+        )
     pin.framesForwardKinematics(model, data, pin.neutral(model))
     ref = np.stack([data.oMf[model.getFrameId(link)].homogeneous for link in frames])
     pos, rot = _errors(pin, np.stack(ours), ref)
@@ -242,27 +275,30 @@ def test_jacobian_matches_pinocchio(reference):
     chain = load_serial_chain(urdf_path(name), end)
     names = chain.get_joint_parameter_names()
     low, high = joint_limits(chain)
-    q = low + torch.rand(50, len(names), generator=torch.Generator().manual_seed(2),
-                         dtype=torch.float64) * (high - low)
+    q = low + torch.rand(50, len(names), generator=torch.Generator().manual_seed(2), dtype=torch.float64) * (high - low)
     ours = chain.jacobian(q).numpy()
     cols = [model.joints[model.getJointId(n)].idx_v for n in names]
     for qi, ji in zip(q.numpy(), ours):
-        ref = pin.computeFrameJacobian(model, data, _pin_q(pin, model, names, qi), model.getFrameId(end),
-                                       pin.LOCAL_WORLD_ALIGNED)[:, cols]
+        ref = pin.computeFrameJacobian(
+            model, data, _pin_q(pin, model, names, qi), model.getFrameId(end), pin.LOCAL_WORLD_ALIGNED
+        )[:, cols]
         assert np.abs(ji - ref).max() < 1e-9
 
 
 # --- Every URDF document loads: encodings, BOM, comments, meshes; entities and files stay out -----
 
-_BODY = ("<robot name='t'><!-- café --><?editor keep?>"
-         "<link name='a'><visual><geometry><mesh filename='package://nowhere/a.stl'/></geometry>"
-         "<material name='m'><texture/></material></visual></link>"
-         "<link name='b'><collision><geometry><mesh filename='file:///dev/zero'/></geometry></collision></link>"
-         "<link name='c'/>"
-         "<joint name='j1' type='revolute'><!-- inside --><parent link='a'/><child link='b'/>"
-         "<origin xyz='0.1 0 0.2' rpy='0 0.5 0'/><axis xyz='0 0 1'/>"
-         "<limit lower='-1' upper='1' effort='1' velocity='1'/></joint>"
-         + _joint("j2", "b", "c") + "<transmission name='tr'><joint name='j1'/></transmission></robot>")
+_BODY = (
+    "<robot name='t'><!-- café --><?editor keep?>"
+    "<link name='a'><visual><geometry><mesh filename='package://nowhere/a.stl'/></geometry>"
+    "<material name='m'><texture/></material></visual></link>"
+    "<link name='b'><collision><geometry><mesh filename='file:///dev/zero'/></geometry></collision></link>"
+    "<link name='c'/>"
+    "<joint name='j1' type='revolute'><!-- inside --><parent link='a'/><child link='b'/>"
+    "<origin xyz='0.1 0 0.2' rpy='0 0.5 0'/><axis xyz='0 0 1'/>"
+    "<limit lower='-1' upper='1' effort='1' velocity='1'/></joint>"
+    + _joint("j2", "b", "c")
+    + "<transmission name='tr'><joint name='j1'/></transmission></robot>"
+)
 _DOCUMENTS = {
     "utf-8 declaration": ('<?xml version="1.0" encoding="utf-8"?>\n' + _BODY).encode(),
     "UTF-8 declaration, standalone": ("<?xml version='1.0' encoding='UTF-8' standalone='yes'?>" + _BODY).encode(),
@@ -275,8 +311,12 @@ _DOCUMENTS = {
     "comments first": ("<!-- generated -->\n<!-- by hand -->\n" + _BODY).encode(),
 }
 
-_CODECS = {"latin-1 declaration": "latin-1", "ISO-8859-1 declaration": "latin-1", "cp1252 declaration": "cp1252",
-           "UTF-16 with BOM": "utf-16"}
+_CODECS = {
+    "latin-1 declaration": "latin-1",
+    "ISO-8859-1 declaration": "latin-1",
+    "cp1252 declaration": "cp1252",
+    "UTF-16 with BOM": "utf-16",
+}
 
 
 def _same_chain(chain, ref):
@@ -319,32 +359,42 @@ def test_read_urdf_text_is_utf8_throughout(tmp_path):
 def test_entities_stay_inside_the_document(tmp_path):
     secret = tmp_path / "secret.txt"
     secret.write_text("TOP-SECRET")
-    xxe = (f'<?xml version="1.0"?><!DOCTYPE robot [<!ENTITY s SYSTEM "file://{secret}">]>'
-           "<robot name='&s;'><link name='a'/></robot>")
+    xxe = (
+        f'<?xml version="1.0"?><!DOCTYPE robot [<!ENTITY s SYSTEM "file://{secret}">]>'
+        "<robot name='&s;'><link name='a'/></robot>"
+    )
     for urdf in (xxe, xxe.encode()):
         with pytest.raises(ValueError, match="malformed URDF: Entity 's' not defined") as e:
             load_serial_chain(urdf, "a")
         assert "TOP-SECRET" not in str(e.value)
     # An external DTD is not loaded; internal entities expand.
-    chain = load_serial_chain(f'<!DOCTYPE robot SYSTEM "file://{secret}"><robot name="t"><link name="a"/></robot>',
-                              "a")
+    chain = load_serial_chain(f'<!DOCTYPE robot SYSTEM "file://{secret}"><robot name="t"><link name="a"/></robot>', "a")
     assert chain.get_frame_names(exclude_fixed=False) == ["a"]
     internal = "<!DOCTYPE robot [<!ENTITY e 'b'>]>" + _urdf(_joint("j1", "a", "&e;"), ("a", "b"))
     assert load_serial_chain(internal, "b").get_joint_parameter_names() == ["j1"]
-    lol = "<!DOCTYPE robot [<!ENTITY a0 'ha'>" + "".join(
-        f"<!ENTITY a{i} '{('&a' + str(i - 1) + ';') * 10}'>" for i in range(1, 10)) + "]><robot name='&a9;'/>"
+    lol = (
+        "<!DOCTYPE robot [<!ENTITY a0 'ha'>"
+        + "".join(f"<!ENTITY a{i} '{('&a' + str(i - 1) + ';') * 10}'>" for i in range(1, 10))
+        + "]><robot name='&a9;'/>"
+    )
     with pytest.raises(ValueError, match=r"malformed URDF: .*(amplification|loop|entit)"):
         load_serial_chain(lol, "a")
 
 
 def test_a_string_is_text_and_a_path_a_regular_file(tmp_path):
-    with pytest.raises(ValueError, match=r"URDF text: '/etc/hostname' is not URDF text; allowed: XML whose root element "
-                                         r"is <robot> \(a string is never read as a file name: pass a pathlib\.Path"):
+    with pytest.raises(
+        ValueError,
+        match=r"URDF text: '/etc/hostname' is not URDF text; allowed: XML whose root element "
+        r"is <robot> \(a string is never read as a file name: pass a pathlib\.Path",
+    ):
         load_serial_chain("/etc/hostname", "a")
     with pytest.raises(TypeError, match=r"urdf=42 is a int; allowed: a pathlib\.Path, the URDF's text \(str\) or its"):
         load_serial_chain(42, "a")
-    with pytest.raises(ValueError, match=r"URDF bytes: the URDF has 16777218 bytes or characters or more; allowed: at "
-                                         r"most MAX_URDF_BYTES = 16777216"):
+    with pytest.raises(
+        ValueError,
+        match=r"URDF bytes: the URDF has 16777218 bytes or characters or more; allowed: at "
+        r"most MAX_URDF_BYTES = 16777216",
+    ):
         load_serial_chain(b"<" * (MAX_URDF_BYTES + 2), "a")
     with pytest.raises(FileNotFoundError, match=f"{tmp_path / 'none.urdf'}: no such file; allowed: a regular file"):
         load_serial_chain(tmp_path / "none.urdf", "a")
@@ -362,8 +412,9 @@ def test_devices_and_fifos_are_not_read(tmp_path, target):
     if target == "fifo":
         target = str(tmp_path / "arm.urdf")
         os.mkfifo(target)
-    out = run_guarded(f"from pathlib import Path\nfrom rbfn.robots import load_serial_chain\n"
-                      f"load_serial_chain(Path({target!r}), 'a')")
+    out = run_guarded(
+        f"from pathlib import Path\nfrom rbfn.robots import load_serial_chain\nload_serial_chain(Path({target!r}), 'a')"
+    )
     kind = "a FIFO" if target.endswith("arm.urdf") else "a character device"
     assert f"ValueError: {target} is {kind}, not a regular file; allowed: a regular file" in out, out
 
@@ -371,16 +422,24 @@ def test_devices_and_fifos_are_not_read(tmp_path, target):
 @pytest.mark.parametrize("target", ["/dev/zero", "fifo", "directory", "missing"])
 def test_load_robot_says_what_the_urdf_path_is(tmp_path, target):
     # robot.urdf names no regular file: the message says what is there, the file never read.
-    path = {"/dev/zero": "/dev/zero", "fifo": str(tmp_path / "arm.urdf"), "directory": str(tmp_path),
-            "missing": str(tmp_path / "none.urdf")}[target]
-    what = {"/dev/zero": "ValueError: /dev/zero is a character device, not a regular file",
-            "fifo": f"ValueError: {path} is a FIFO, not a regular file",
-            "directory": f"ValueError: {path} is a directory, not a regular file",
-            "missing": f"FileNotFoundError: {path}: no such file"}[target]
+    path = {
+        "/dev/zero": "/dev/zero",
+        "fifo": str(tmp_path / "arm.urdf"),
+        "directory": str(tmp_path),
+        "missing": str(tmp_path / "none.urdf"),
+    }[target]
+    what = {
+        "/dev/zero": "ValueError: /dev/zero is a character device, not a regular file",
+        "fifo": f"ValueError: {path} is a FIFO, not a regular file",
+        "directory": f"ValueError: {path} is a directory, not a regular file",
+        "missing": f"FileNotFoundError: {path}: no such file",
+    }[target]
     if target == "fifo":
         os.mkfifo(path)
-    out = run_guarded("from rbfn.config import RobotConfig\nfrom rbfn.robots.robot import load_robot\n"
-                      f"load_robot(RobotConfig(name='t', urdf={path!r}, end_link='a'))")
+    out = run_guarded(
+        "from rbfn.config import RobotConfig\nfrom rbfn.robots.robot import load_robot\n"
+        f"load_robot(RobotConfig(name='t', urdf={path!r}, end_link='a'))"
+    )
     error, message = what.split(": ", 1)
     assert f"{error}: robot.urdf={path!r}: {message}; allowed: a regular file" in out, out
 
@@ -391,13 +450,15 @@ def test_load_robot_records_the_decoded_text(tmp_path):
 
     path = tmp_path / "arm.urdf"
     path.write_bytes(_DOCUMENTS["UTF-16 with BOM"])
-    robot = load_robot(RobotConfig(name="t", urdf=str(path), end_link="c", joint_low=[-1.0, -1.0],
-                                   joint_high=[1.0, 1.0]))
+    robot = load_robot(
+        RobotConfig(name="t", urdf=str(path), end_link="c", joint_low=[-1.0, -1.0], joint_high=[1.0, 1.0])
+    )
     again = robot_from_record(robot.record())
     assert again.urdf_text == read_urdf(path) and again.joint_names == ["j1", "j2"]
 
 
 # --- Every URDF example-robot-data ships, against Pinocchio ---------------------------------------
+
 
 def _erd_urdfs() -> dict[str, Path]:
     """example-robot-data's URDFs by path under its robots/ folder (empty without the package)."""
@@ -411,24 +472,36 @@ def _erd_urdfs() -> dict[str, Path]:
     for f in dist.files or ():
         parts = Path(str(f)).parts
         if str(f).endswith(".urdf") and "robots" in parts:
-            found["/".join(parts[parts.index("robots") + 1:])] = Path(str(dist.locate_file(f)))
+            found["/".join(parts[parts.index("robots") + 1 :])] = Path(str(dist.locate_file(f)))
     return found
 
 
 ERD_URDFS = _erd_urdfs()
 # The serial arms among them (all must be there and match Pinocchio; the rest are checked alike).
-ARMS = ("ur_description/urdf/ur3_robot.urdf", "ur_description/urdf/ur3_joint_limited_robot.urdf",
-        "ur_description/urdf/ur3_gripper.urdf", "ur_description/urdf/ur5_robot.urdf",
-        "ur_description/urdf/ur5_joint_limited_robot.urdf", "ur_description/urdf/ur5_gripper.urdf",
-        "ur_description/urdf/ur10_robot.urdf", "ur_description/urdf/ur10_joint_limited_robot.urdf",
-        "panda_description/urdf/panda.urdf", "panda_description/urdf/panda_collision.urdf",
-        "kinova_description/robots/kinova.urdf", "xarm_description/urdf/xarm7.urdf", "z1_description/urdf/z1.urdf",
-        "so_arm_description/urdf/so100.urdf", "so_arm_description/urdf/so101.urdf",
-        "talos_data/robots/talos_left_arm.urdf", "finger_edu_description/robots/finger_edu.urdf",
-        "asr_twodof_description/urdf/TwoDofs.urdf", "double_pendulum_description/urdf/double_pendulum.urdf",
-        "double_pendulum_description/urdf/double_pendulum_continuous.urdf",
-        "double_pendulum_description/urdf/double_pendulum_simple.urdf")
-EMPTY = {"ur_description/urdf/ur3.urdf"}        # a <robot> without links: refused, not a robot
+ARMS = (
+    "ur_description/urdf/ur3_robot.urdf",
+    "ur_description/urdf/ur3_joint_limited_robot.urdf",
+    "ur_description/urdf/ur3_gripper.urdf",
+    "ur_description/urdf/ur5_robot.urdf",
+    "ur_description/urdf/ur5_joint_limited_robot.urdf",
+    "ur_description/urdf/ur5_gripper.urdf",
+    "ur_description/urdf/ur10_robot.urdf",
+    "ur_description/urdf/ur10_joint_limited_robot.urdf",
+    "panda_description/urdf/panda.urdf",
+    "panda_description/urdf/panda_collision.urdf",
+    "kinova_description/robots/kinova.urdf",
+    "xarm_description/urdf/xarm7.urdf",
+    "z1_description/urdf/z1.urdf",
+    "so_arm_description/urdf/so100.urdf",
+    "so_arm_description/urdf/so101.urdf",
+    "talos_data/robots/talos_left_arm.urdf",
+    "finger_edu_description/robots/finger_edu.urdf",
+    "asr_twodof_description/urdf/TwoDofs.urdf",
+    "double_pendulum_description/urdf/double_pendulum.urdf",
+    "double_pendulum_description/urdf/double_pendulum_continuous.urdf",
+    "double_pendulum_description/urdf/double_pendulum_simple.urdf",
+)
+EMPTY = {"ur_description/urdf/ur3.urdf"}  # a <robot> without links: refused, not a robot
 
 
 def _longest_chain_end(path: Path) -> str:
@@ -436,8 +509,10 @@ def _longest_chain_end(path: Path) -> str:
     from lxml import etree
 
     root = etree.parse(str(path)).getroot()
-    up = {j.find("child").get("link"): (j.find("parent").get("link"), j.get("type") != "fixed")
-          for j in root.findall("joint")}
+    up = {
+        j.find("child").get("link"): (j.find("parent").get("link"), j.get("type") != "fixed")
+        for j in root.findall("joint")
+    }
 
     def depth(link):
         moving = total = 0
@@ -471,8 +546,10 @@ def test_example_robot_data_urdf_matches_pinocchio(rel):
     model = pin.buildModelFromUrdf(str(path))
     data = model.createData()
     low, high = joint_limits(chain)
-    low, high = low.clamp(min=-math.pi), high.clamp(max=math.pi)      # continuous joints: one turn
-    q = low + torch.rand(100, len(names), generator=torch.Generator().manual_seed(4), dtype=torch.float64) * (high - low)
+    low, high = low.clamp(min=-math.pi), high.clamp(max=math.pi)  # continuous joints: one turn
+    q = low + torch.rand(100, len(names), generator=torch.Generator().manual_seed(4), dtype=torch.float64) * (
+        high - low
+    )
     ours = forward_kinematics_pose(chain, q).numpy()
     ref = []
     for qi in q.numpy():
@@ -482,11 +559,18 @@ def test_example_robot_data_urdf_matches_pinocchio(rel):
     assert pos < 1e-12 and rot < 1e-12, (rel, end, pos, rot)
 
 
-@pytest.mark.parametrize("old,new,message", [
-    ('<origin xyz="1.0 0 0"', '<origin xyz="nan 0 0"', r'<origin xyz="nan 0 0"> of joint \'joint2\': allowed are finite'),
-    ('<origin xyz="1.0 0 0"', '<origin xyz="0 -inf 0"', r"of joint 'joint2': allowed are finite numbers"),
-    ('<origin xyz="1.0 0 0"', '<origin xyz="1e300 0 0"', r"of joint 'joint2': allowed are offsets within 1000 m"),
-])
+@pytest.mark.parametrize(
+    "old,new,message",
+    [
+        (
+            '<origin xyz="1.0 0 0"',
+            '<origin xyz="nan 0 0"',
+            r'<origin xyz="nan 0 0"> of joint \'joint2\': allowed are finite',
+        ),
+        ('<origin xyz="1.0 0 0"', '<origin xyz="0 -inf 0"', r"of joint 'joint2': allowed are finite numbers"),
+        ('<origin xyz="1.0 0 0"', '<origin xyz="1e300 0 0"', r"of joint 'joint2': allowed are offsets within 1000 m"),
+    ],
+)
 def test_non_finite_or_absurd_urdf_numbers_are_named(old, new, message):
     from rbfn.robots.kinematics import urdf_tree
 
@@ -502,6 +586,6 @@ def test_inertial_numbers_are_checked_where_the_dynamics_read_them():
     from rbfn.robots.kinematics import urdf_tree
 
     text = re.sub(r'<mass value="[^"]*"', '<mass value="-2"', urdf_path("scara").read_text(), count=1)
-    urdf_tree(text, "scara.urdf")                       # kinematics drop the inertials
+    urdf_tree(text, "scara.urdf")  # kinematics drop the inertials
     with pytest.raises(ValueError, match=r"<mass value=\"-2\"> of link '\w+': allowed is a mass >= 0 kg"):
         urdf_tree(text, "scara.urdf", inertials=True)

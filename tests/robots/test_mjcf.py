@@ -1,4 +1,5 @@
 """MuJoCo models of the closed loop's robots are the same arms: M(q) and C(q, qd) qd + G(q) equal ours."""
+
 import pytest
 import torch
 
@@ -25,7 +26,7 @@ def test_mujoco_dynamics_match_closed_form(payload):
         bias = scara.coriolis(q, qd, payload)[0] @ qd[0] + scara.gravity(q, payload)[0]
         assert np.allclose(m, scara.mass_matrix(q, payload)[0].numpy(), atol=1e-8)
         assert np.allclose(data.qfrc_bias, bias.numpy(), atol=1e-8)
-        assert np.allclose(data.qfrc_passive, -12.0 * qd[0].numpy())   # viscous damping 12
+        assert np.allclose(data.qfrc_passive, -12.0 * qd[0].numpy())  # viscous damping 12
 
 
 @pytest.mark.parametrize("payload", [0.0, 2.5])
@@ -51,11 +52,12 @@ def test_mujoco_compiles_the_ur5_urdf_to_the_same_dynamics(payload):
         mujoco.mj_fullM(model, data, m)
         assert np.allclose(m, m_ref[i].numpy(), rtol=1e-10, atol=1e-12)
         assert np.allclose(data.qfrc_bias, b_ref[i].numpy(), rtol=1e-10, atol=1e-10)
-        assert np.allclose(data.qfrc_passive, -2.0 * qd[i].numpy())      # viscous damping 2
+        assert np.allclose(data.qfrc_passive, -2.0 * qd[i].numpy())  # viscous damping 2
 
 
-@pytest.mark.parametrize("name", ["erd_ur3", "erd_ur5", "erd_ur10", "erd_kinova", "erd_xarm7", "erd_z1", "erd_so100",
-                                  "erd_so101"])
+@pytest.mark.parametrize(
+    "name", ["erd_ur3", "erd_ur5", "erd_ur10", "erd_kinova", "erd_xarm7", "erd_z1", "erd_so100", "erd_so101"]
+)
 def test_mujoco_compiles_example_robot_data_arms_to_the_same_dynamics(name):
     """example-robot-data's serial arms (every joint on the chain) from their files: MuJoCo gets their
     joints and inertials only (no mesh file opened) and gives rbfn.robots.dynamics' M and bias."""

@@ -1,6 +1,7 @@
 """The real robot of the online scenario: a chain with scaled links and offset joints, against
 pytorch-kinematics on the URDF (unperturbed, and with the same changes written into the URDF
 text) and against the SCARA's closed form."""
+
 import re
 
 import pytest
@@ -21,7 +22,7 @@ def _joints(robot: str, n: int, seed: int = 0) -> torch.Tensor:
     g = torch.Generator().manual_seed(seed)
     q = low + (high - low) * torch.rand(n, low.shape[0], generator=g, dtype=torch.float64)
     names = load_arm(robot).joint_names
-    full = torch.zeros(n, len(names), dtype=torch.float64)           # locked joints held at their value
+    full = torch.zeros(n, len(names), dtype=torch.float64)  # locked joints held at their value
     free = [i for i, j in enumerate(names) if j not in cfg.locked]
     full[:, free] = q
     for j, v in cfg.locked.items():
@@ -33,8 +34,9 @@ def _joints(robot: str, n: int, seed: int = 0) -> torch.Tensor:
 def test_unperturbed_chain_is_the_urdf(robot, end):
     arm = load_arm(robot)
     q = _joints(robot, 64)
-    rot, pos = PerturbedChain(arm, torch.zeros(64, 0, dtype=torch.float64),
-                              torch.zeros(64, arm.n, dtype=torch.float64)).pose(q)
+    rot, pos = PerturbedChain(
+        arm, torch.zeros(64, 0, dtype=torch.float64), torch.zeros(64, arm.n, dtype=torch.float64)
+    ).pose(q)
     ref = forward_kinematics_pose(load_serial_chain(urdf_path(robot), end, torch.float64), q)
     assert torch.allclose(pos, ref[:, :3, 3], atol=1e-12, rtol=0)
     assert torch.allclose(rot, ref[:, :3, :3], atol=1e-12, rtol=0)
@@ -72,7 +74,7 @@ def test_perturbed_scara_equals_the_closed_form():
     g = torch.Generator().manual_seed(2)
     link = torch.randn(5, 2, generator=g, dtype=torch.float64) * 0.05
     offset = torch.randn(5, 3, generator=g, dtype=torch.float64) * 0.03
-    q = _joints("scara", 7 * 5).view(7, 5, 3)                       # (T, B, n)
+    q = _joints("scara", 7 * 5).view(7, 5, 3)  # (T, B, n)
     _, pos = PerturbedChain(arm, link, offset).pose(q)
     assert torch.allclose(pos, RealRobot(ScaraClosedForm(), link, offset).fk(q), atol=1e-12, rtol=0)
 

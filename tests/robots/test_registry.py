@@ -1,6 +1,7 @@
 """The packaged robots and the closed-form registry: one folder per robot shipped as package data,
 preset values only in conf/robot, the SCARA's closed-form constants those of its URDF, and closed
 forms chosen for exactly the URDF they were written for."""
+
 import re
 from dataclasses import asdict, fields
 from importlib.resources import files
@@ -37,7 +38,7 @@ def test_each_urdf_is_package_data():
 def test_preset_values_come_from_conf_robot():
     for name in ROBOT_PRESETS:
         values = preset(name)
-        arm = load_arm(name)                                       # end link and gravity: the preset's
+        arm = load_arm(name)  # end link and gravity: the preset's
         assert values.name == name and arm.end_link == values.end_link
         assert torch.equal(arm.gravity_vector, torch.tensor([0.0, 0.0, -values.gravity], dtype=torch.float64))
     with pytest.raises(ValueError, match=r"name='kuka' is not a packaged robot; allowed: \['scara', 'ur5', 'panda'\]"):

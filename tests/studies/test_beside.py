@@ -1,5 +1,6 @@
 """A part run in a forked process beside the main one: same result as in this process, its
 errors raised here, and stopped when the caller fails first."""
+
 import os
 import time
 
@@ -30,7 +31,7 @@ def test_forked_part_equals_the_same_part_run_here():
     with Beside(_work, 3, fork=False) as here:
         pid_here, value_here = here.result()
     assert pid != os.getpid() and pid_here == os.getpid() and value == value_here
-    big = torch.arange(10)                     # arguments reach the child by the fork, unpickled
+    big = torch.arange(10)  # arguments reach the child by the fork, unpickled
     with Beside(lambda: float(big.sum())) as lam:
         assert lam.result() == 45.0
 

@@ -1,4 +1,5 @@
 """The closed-loop comparison and its outputs; bad control settings stop before any work."""
+
 import json
 from dataclasses import replace
 
@@ -18,8 +19,14 @@ KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
 
 def _short(**kw):
     net = NetworkConfig(num_centers=8, aco=ACOConfig(iterations=5, ants=6, acor=ACORConfig(archive_size=6)))
-    base = dict(duration=1.2, payload_on=0.3, payload_off=0.9, payloads=[0.0, 10.0], network=net,
-                controllers=["pd", "ctc", "smc", "smc_obs", "arbfn_aco", "arbfn_kmeans"])
+    base = dict(
+        duration=1.2,
+        payload_on=0.3,
+        payload_off=0.9,
+        payloads=[0.0, 10.0],
+        network=net,
+        controllers=["pd", "ctc", "smc", "smc_obs", "arbfn_aco", "arbfn_kmeans"],
+    )
     base.update(kw)
     return ControlConfig(**base)
 
@@ -52,41 +59,47 @@ def test_adaptive_network_learns_and_beats_smc_at_equal_gains():
 
 def test_a_diverging_controller_is_named_with_its_case():
     """All controllers share one batch; the one that diverges is named, with its payload case."""
-    cfg = _short(controllers=["smc", "pd"], dt=0.005, duration=1.0, payload_on=0.5, payload_off=0.8,
-                 integrator="euler")
+    cfg = _short(controllers=["smc", "pd"], dt=0.005, duration=1.0, payload_on=0.5, payload_off=0.8, integrator="euler")
     with pytest.raises(SimulationDiverged, match=r"controller pd, payload 0kg: simulation diverged by step"):
         compare_controllers(cfg, GainsConfig(pd_kp=1e6, pd_kd=1e5))
 
 
 def test_cluster_controller_does_not_change_the_shared_aco_config():
     aco = ACOConfig(iterations=3, ants=4, acor=ACORConfig(archive_size=4))
-    cfg = _short(controllers=["arbfn_aco_cluster", "arbfn_aco"], payloads=[0.0],
-                 network=NetworkConfig(num_centers=6, aco=aco))
+    cfg = _short(
+        controllers=["arbfn_aco_cluster", "arbfn_aco"], payloads=[0.0], network=NetworkConfig(num_centers=6, aco=aco)
+    )
     compare_controllers(cfg, GainsConfig())
     assert cfg.network.aco.objective == Objective.fit and aco.objective == Objective.fit
 
 
-@pytest.mark.parametrize("change,match", [
-    ({"controllers": ["pd", "lqr"]}, "control.controllers='lqr'"),
-    ({"controllers": ["arbfn_magic"]}, "control.controllers='arbfn_magic'"),
-    ({"controllers": ["pd", "pd"]}, "each controller may appear once"),
-    ({"payloads": [-1.0]}, "control.payloads"),
-    ({"payloads": [10.0, 10.0]}, "each payload case may appear once"),
-    ({"dt": 0.0}, "control.dt=0.0"),
-    ({"payload_off": 5.0}, r"control.payload_on/payload_off=\[0.3, 5.0\]"),
-    ({"network": NetworkConfig(num_centers=500)}, "control.network.num_centers=500 .*exceeds the pilot run"),
-    ({"compile": True, "aot": True}, "control.aot=True.*choose one of control.compile and control.aot"),
-])
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        ({"controllers": ["pd", "lqr"]}, "control.controllers='lqr'"),
+        ({"controllers": ["arbfn_magic"]}, "control.controllers='arbfn_magic'"),
+        ({"controllers": ["pd", "pd"]}, "each controller may appear once"),
+        ({"payloads": [-1.0]}, "control.payloads"),
+        ({"payloads": [10.0, 10.0]}, "each payload case may appear once"),
+        ({"dt": 0.0}, "control.dt=0.0"),
+        ({"payload_off": 5.0}, r"control.payload_on/payload_off=\[0.3, 5.0\]"),
+        ({"network": NetworkConfig(num_centers=500)}, "control.network.num_centers=500 .*exceeds the pilot run"),
+        ({"compile": True, "aot": True}, "control.aot=True.*choose one of control.compile and control.aot"),
+    ],
+)
 def test_bad_control_config(change, match):
     with pytest.raises(ValueError, match=match):
         _short(**change).check()
 
 
-@pytest.mark.parametrize("field,value,match", [
-    ("K", float("nan"), "gains.K=nan.*must be finite"),
-    ("Lambda", 0.0, "gains.Lambda=0.0.*must be > 0"),
-    ("gamma", -1.0, "gains.gamma=-1.0.*must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "field,value,match",
+    [
+        ("K", float("nan"), "gains.K=nan.*must be finite"),
+        ("Lambda", 0.0, "gains.Lambda=0.0.*must be > 0"),
+        ("gamma", -1.0, "gains.gamma=-1.0.*must be >= 0"),
+    ],
+)
 def test_bad_gains(field, value, match):
     with pytest.raises(ValueError, match=match):
         replace(GainsConfig(), **{field: value}).check()
@@ -95,7 +108,7 @@ def test_bad_gains(field, value, match):
 def test_bad_choice_fails_at_composition_naming_the_options():
     with pytest.raises(Exception) as e:
         compose_config("evaluate", "gains.robust=tanh")
-    message = f"{e.value} {e.value.__cause__}"       # Hydra shows both on the command line
+    message = f"{e.value} {e.value.__cause__}"  # Hydra shows both on the command line
     assert "gains.robust=tanh" in message and "expected one of [sign, sat]" in message
 
 
@@ -112,9 +125,17 @@ def test_control_gains_preset_composes():
     assert cfg.hydra.sweeper.params["gains.K"] == "15,30,50" and cfg.ik is False
 
 
-UR5_TINY = ["robot=ur5", "ik=false", "online.enabled=false", "control.duration=0.6", "control.dt=0.002",
-            "control.payload_on=0.1", "control.payload_off=0.4", "control.controllers=[smc,arbfn_kmeans]",
-            "control.network.num_centers=4"]
+UR5_TINY = [
+    "robot=ur5",
+    "ik=false",
+    "online.enabled=false",
+    "control.duration=0.6",
+    "control.dt=0.002",
+    "control.payload_on=0.1",
+    "control.payload_off=0.4",
+    "control.controllers=[smc,arbfn_kmeans]",
+    "control.network.num_centers=4",
+]
 
 
 def test_evaluate_ur5_end_to_end(tmp_path):
@@ -138,12 +159,15 @@ def test_evaluate_ur5_end_to_end(tmp_path):
     assert list(tmp_path.glob("events.out.tfevents.*"))
 
 
-@pytest.mark.parametrize("override,match", [
-    ("gains.K=inf", "gains.K=inf is not allowed: must be finite"),
-    ("gains.observer_gain=nan", "gains.observer_gain=nan is not allowed: must be finite"),
-    ("control.payload_link=ghost", "control.payload_link='ghost': payload link 'ghost' is not a link"),
-    ("robot.end_link=nowhere", "robot.end_link='nowhere'.*end_link 'nowhere' is not a link"),
-])
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        ("gains.K=inf", "gains.K=inf is not allowed: must be finite"),
+        ("gains.observer_gain=nan", "gains.observer_gain=nan is not allowed: must be finite"),
+        ("control.payload_link=ghost", "control.payload_link='ghost': payload link 'ghost' is not a link"),
+        ("robot.end_link=nowhere", "robot.end_link='nowhere'.*end_link 'nowhere' is not a link"),
+    ],
+)
 def test_ur5_bad_settings_stop_before_any_work(tmp_path, override, match):
     import evaluate
 

@@ -2,6 +2,7 @@
 another process holds or that holds files is passed over for a numbered sibling, a named one in use
 is refused, evaluate.py never writes into a directory holding files (a training run's), and a
 refused run leaves no directory behind."""
+
 import fcntl
 import json
 import os
@@ -16,8 +17,16 @@ from rbfn.studies.rundir import RunDir, RunDirInUse
 
 from ..conftest import ROOT, compose_config
 
-TINY = ["data.n_train=300", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=10", "centers=kmeans",
-        "progress=false", "export=false", "num_threads=1"]
+TINY = [
+    "data.n_train=300",
+    "data.n_val=200",
+    "data.n_test=200",
+    "rbfn.num_centers=10",
+    "centers=kmeans",
+    "progress=false",
+    "export=false",
+    "num_threads=1",
+]
 
 
 @contextmanager
@@ -42,38 +51,43 @@ def test_a_clock_named_directory_in_use_or_holding_files_is_passed_over(tmp_path
         assert first.path == tmp_path / "12-00-00_1"
         (first.path / "metrics.json").write_text("{}")
     (named / "train.log").write_text("another run's")
-    (tmp_path / "12-00-00_2").mkdir()                     # made by another run, not locked yet
+    (tmp_path / "12-00-00_2").mkdir()  # made by another run, not locked yet
     with RunDir(named, fresh=True) as second:
-        assert second.path == tmp_path / "12-00-00_3"     # the others are another run's
+        assert second.path == tmp_path / "12-00-00_3"  # the others are another run's
     (named / "train.log").unlink()
     with RunDir(named, fresh=True) as third:
-        assert third.path == named                        # free and empty: taken as it is
+        assert third.path == named  # free and empty: taken as it is
 
 
 def test_a_named_directory_in_use_or_holding_files_is_refused(tmp_path):
-    with held_elsewhere(tmp_path), pytest.raises(RunDirInUse, match=f"{tmp_path} is in use by another process"), \
-            RunDir(tmp_path):
+    with (
+        held_elsewhere(tmp_path),
+        pytest.raises(RunDirInUse, match=f"{tmp_path} is in use by another process"),
+        RunDir(tmp_path),
+    ):
         pass
     (tmp_path / "metrics.json").write_text("{}")
-    with pytest.raises(RunDirInUse, match=r"holds files already \(metrics.json\).*new or empty hydra.run.dir"), \
-            RunDir(tmp_path, own=True):
+    with (
+        pytest.raises(RunDirInUse, match=r"holds files already \(metrics.json\).*new or empty hydra.run.dir"),
+        RunDir(tmp_path, own=True),
+    ):
         pass
-    with RunDir(tmp_path) as d:                           # a training run may hold its own files
+    with RunDir(tmp_path) as d:  # a training run may hold its own files
         assert d.path == tmp_path
 
 
 def test_the_lock_is_reentrant_and_an_empty_directory_is_tidied(tmp_path):
     run = tmp_path / "run"
     with RunDir(run, tidy=True):
-        with RunDir(run, own=True):                       # the caller holds it: entered as it is
+        with RunDir(run, own=True):  # the caller holds it: entered as it is
             pass
         with held_elsewhere(tmp_path), pytest.raises(RunDirInUse), RunDir(tmp_path):
             pass
-    assert not run.exists()                               # left empty: removed
+    assert not run.exists()  # left empty: removed
     with RunDir(run, tidy=True):
         (run / "train.log").write_text("x")
     assert (run / "train.log").exists()
-    with RunDir(run):                                     # free again
+    with RunDir(run):  # free again
         pass
 
 
@@ -85,9 +99,13 @@ def trained(tmp_path_factory):
 
 
 def _evaluate(*overrides: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "evaluate.py", "control.enabled=false", "online.enabled=false",
-                             "n_test=200", *overrides], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        [sys.executable, "evaluate.py", "control.enabled=false", "online.enabled=false", "n_test=200", *overrides],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def test_two_evaluations_started_together_keep_both_results(trained, tmp_path):
@@ -107,8 +125,16 @@ def test_two_evaluations_started_together_keep_both_results(trained, tmp_path):
 
 def test_two_trainings_started_together_both_run(tmp_path):
     same = f"hydra.run.dir={tmp_path}/train-${{now:%Y}}"
-    runs = [subprocess.Popen([sys.executable, "train.py", *TINY, same], cwd=ROOT, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    runs = [
+        subprocess.Popen(
+            [sys.executable, "train.py", *TINY, same],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(2)
+    ]
     for r in runs:
         _, err = r.communicate(timeout=120)
         assert r.returncode == 0, err[-3000:]

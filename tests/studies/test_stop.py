@@ -3,6 +3,7 @@ within seconds no process it started is left, its exit status is 143, no tempora
 and no file in its run directory changes afterwards. A forked part ends with its caller however
 the caller ended, and a write stopped in the middle, even by SIGKILL, leaves no temporary file.
 (A joblib multirun stopped the same way: tests/test_sweeps.py.)"""
+
 import multiprocessing
 import os
 import signal
@@ -32,6 +33,7 @@ def _write_slowly(path: str, ready) -> None:
         f.flush()
         ready.send(os.getpid())
         time.sleep(60)
+
     atomic_write_bytes(Path(path), write)
 
 
@@ -85,7 +87,7 @@ def _stat(pid: int):
         text = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
         return None
-    state, ppid, pgrp = text[text.rindex(")") + 2:].split()[:3]
+    state, ppid, pgrp = text[text.rindex(")") + 2 :].split()[:3]
     return state, int(ppid), int(pgrp)
 
 
@@ -112,8 +114,9 @@ def start(args: list[str], log: Path) -> subprocess.Popen:
     """`python ARGS` in the repository root as the leader of a new process group, its output in
     `log` (not a pipe: processes it leaves behind could hold a pipe open)."""
     with open(log, "w") as out:
-        return subprocess.Popen([sys.executable, *args], cwd=ROOT, start_new_session=True, stdout=out,
-                                stderr=subprocess.STDOUT)
+        return subprocess.Popen(
+            [sys.executable, *args], cwd=ROOT, start_new_session=True, stdout=out, stderr=subprocess.STDOUT
+        )
 
 
 def stop_and_check(proc: subprocess.Popen, log: Path, run_dir: Path, started, seconds: float = 120) -> None:
@@ -143,8 +146,20 @@ def stop_and_check(proc: subprocess.Popen, log: Path, run_dir: Path, started, se
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory):
     out = tmp_path_factory.mktemp("train")
-    train.run(compose_config("train", "data.n_train=300", "data.n_val=200", "data.n_test=200", "rbfn.num_centers=10",
-                             "centers=kmeans", "progress=false", "export=false", "num_threads=1"), out)
+    train.run(
+        compose_config(
+            "train",
+            "data.n_train=300",
+            "data.n_val=200",
+            "data.n_test=200",
+            "rbfn.num_centers=10",
+            "centers=kmeans",
+            "progress=false",
+            "export=false",
+            "num_threads=1",
+        ),
+        out,
+    )
     return out / "checkpoint.pt"
 
 
@@ -152,8 +167,19 @@ def ckpt(tmp_path_factory):
 def test_sigterm_to_evaluate_stops_its_forked_part(ckpt, tmp_path):
     run_dir = tmp_path / "eval"
     # Both parts last far longer than the test: the checkpoint's (forked) and the control part.
-    proc = start(["evaluate.py", f"checkpoint={ckpt}", "n_test=300", "online.duration=60", "online.sizes=[0.03]",
-                  "control.duration=60", "control.controllers=[smc]", "control.payloads=[0.0]",
-                  f"hydra.run.dir={run_dir}"], tmp_path / "out.log")
+    proc = start(
+        [
+            "evaluate.py",
+            f"checkpoint={ckpt}",
+            "n_test=300",
+            "online.duration=60",
+            "online.sizes=[0.03]",
+            "control.duration=60",
+            "control.controllers=[smc]",
+            "control.payloads=[0.0]",
+            f"hydra.run.dir={run_dir}",
+        ],
+        tmp_path / "out.log",
+    )
     # The forked part has started once its TensorBoard events file is there.
     stop_and_check(proc, tmp_path / "out.log", run_dir, lambda: any(run_dir.glob("events.*.checkpoint")))

@@ -12,6 +12,7 @@
   chooses it.
 * Preset values (end link, IK branch box, gravity, home, rated payload): conf/robot/scara.yaml.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -46,12 +47,32 @@ if TYPE_CHECKING:
     from ...control.models import NominalModel
     from ...control.plants import ScaraPlant
 
-__all__ = ["ScaraParams", "ScaraClosedForm", "closed_form", "URDF_PATH", "END_LINK", "fk", "ik", "with_link_errors",
-           "inertia_params", "mass_matrix", "mass_matrix_dot", "coriolis", "gravity", "kinetic_energy",
-           "joint_vector", "mass_entries", "m_times", "minus_c_qd", "c_times", "m_solve", "m_solve_parts"]
+__all__ = [
+    "ScaraParams",
+    "ScaraClosedForm",
+    "closed_form",
+    "URDF_PATH",
+    "END_LINK",
+    "fk",
+    "ik",
+    "with_link_errors",
+    "inertia_params",
+    "mass_matrix",
+    "mass_matrix_dot",
+    "coriolis",
+    "gravity",
+    "kinetic_energy",
+    "joint_vector",
+    "mass_entries",
+    "m_times",
+    "minus_c_qd",
+    "c_times",
+    "m_solve",
+    "m_solve_parts",
+]
 
 URDF_PATH: Path = Path(str(files(__name__) / "scara.urdf"))
-END_LINK = "quill"          # the link whose origin `fk` gives: the closed forms hold for this chain only
+END_LINK = "quill"  # the link whose origin `fk` gives: the closed forms hold for this chain only
 
 
 @dataclass(frozen=True)
@@ -67,10 +88,10 @@ class ScaraClosedForm:
     params: ScaraParams = ScaraParams()
     joint_names: list[str] = field(default_factory=lambda: ["joint1", "joint2", "joint3"])
     prismatic: list[bool] = field(default_factory=lambda: [False, False, True])
-    links: int = 2              # link lengths a kinematic perturbation scales: l1, l2
-    path: str = "paper"         # the online part's default desired path: the paper's
-    trajectory: str = "paper"   # the closed loop's default desired joints: the paper's
-    label: str = "the SCARA (links l1, l2)"     # in messages
+    links: int = 2  # link lengths a kinematic perturbation scales: l1, l2
+    path: str = "paper"  # the online part's default desired path: the paper's
+    trajectory: str = "paper"  # the closed loop's default desired joints: the paper's
+    label: str = "the SCARA (links l1, l2)"  # in messages
 
     def _params(self, link_error: Sequence | None) -> ScaraParams:
         return self.params if link_error is None else with_link_errors(self.params, link_error)

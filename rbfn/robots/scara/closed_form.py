@@ -14,6 +14,7 @@ C = [[-p2 s2 qd2, -p2 s2 (qd1 + qd2), 0], [p2 s2 qd1, 0, 0], [0, 0, 0]], G = [0,
 Every function takes `payload` (kg, a float or a (B,) tensor) added to m3, is batched over the
 leading dimension, and keeps the dtype and device of q.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -21,9 +22,25 @@ from dataclasses import dataclass, replace
 
 import torch
 
-__all__ = ["ScaraParams", "with_link_errors", "fk", "ik", "inertia_params", "mass_matrix", "mass_matrix_dot",
-           "coriolis", "gravity", "kinetic_energy", "joint_vector", "mass_entries", "m_times", "minus_c_qd", "c_times",
-           "m_solve", "m_solve_parts"]
+__all__ = [
+    "ScaraParams",
+    "with_link_errors",
+    "fk",
+    "ik",
+    "inertia_params",
+    "mass_matrix",
+    "mass_matrix_dot",
+    "coriolis",
+    "gravity",
+    "kinetic_energy",
+    "joint_vector",
+    "mass_entries",
+    "m_times",
+    "minus_c_qd",
+    "c_times",
+    "m_solve",
+    "m_solve_parts",
+]
 
 
 @dataclass(frozen=True)
@@ -81,52 +98,56 @@ def _full(x, like: torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(x, dtype=like.dtype, device=like.device).expand_as(like)
 
 
-def mass_matrix(q: torch.Tensor, payload: float | torch.Tensor = 0.0,
-                p: ScaraParams = ScaraParams()) -> torch.Tensor:
+def mass_matrix(q: torch.Tensor, payload: float | torch.Tensor = 0.0, p: ScaraParams = ScaraParams()) -> torch.Tensor:
     """Inertia matrix M(q) (B, 3, 3) for joints q (B, 3)."""
     p1, p2, p3, m3 = inertia_params(payload, p)
     c2 = torch.cos(q[..., 1])
     zero = torch.zeros_like(c2)
     m12 = p3 + p2 * c2
-    rows = [torch.stack([p1 + 2 * p2 * c2, m12, zero], -1),
-            torch.stack([m12, _full(p3, c2), zero], -1),
-            torch.stack([zero, zero, _full(m3, c2)], -1)]
+    rows = [
+        torch.stack([p1 + 2 * p2 * c2, m12, zero], -1),
+        torch.stack([m12, _full(p3, c2), zero], -1),
+        torch.stack([zero, zero, _full(m3, c2)], -1),
+    ]
     return torch.stack(rows, -2)
 
 
-def mass_matrix_dot(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0,
-                    p: ScaraParams = ScaraParams()) -> torch.Tensor:
+def mass_matrix_dot(
+    q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0, p: ScaraParams = ScaraParams()
+) -> torch.Tensor:
     """Time derivative of M along the motion, dM/dt (B, 3, 3), for q, qd (B, 3)."""
     _, p2, _, _ = inertia_params(payload, p)
     d = -p2 * torch.sin(q[..., 1]) * qd[..., 1]
     zero = torch.zeros_like(d)
-    rows = [torch.stack([2 * d, d, zero], -1), torch.stack([d, zero, zero], -1),
-            torch.stack([zero, zero, zero], -1)]
+    rows = [torch.stack([2 * d, d, zero], -1), torch.stack([d, zero, zero], -1), torch.stack([zero, zero, zero], -1)]
     return torch.stack(rows, -2)
 
 
-def coriolis(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0,
-             p: ScaraParams = ScaraParams()) -> torch.Tensor:
+def coriolis(
+    q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0, p: ScaraParams = ScaraParams()
+) -> torch.Tensor:
     """Coriolis and centrifugal matrix C(q, qd) (B, 3, 3), with dM/dt - 2C skew-symmetric."""
     _, p2, _, _ = inertia_params(payload, p)
     h = p2 * torch.sin(q[..., 1])
     zero = torch.zeros_like(h)
-    rows = [torch.stack([-h * qd[..., 1], -h * (qd[..., 0] + qd[..., 1]), zero], -1),
-            torch.stack([h * qd[..., 0], zero, zero], -1),
-            torch.stack([zero, zero, zero], -1)]
+    rows = [
+        torch.stack([-h * qd[..., 1], -h * (qd[..., 0] + qd[..., 1]), zero], -1),
+        torch.stack([h * qd[..., 0], zero, zero], -1),
+        torch.stack([zero, zero, zero], -1),
+    ]
     return torch.stack(rows, -2)
 
 
-def gravity(q: torch.Tensor, payload: float | torch.Tensor = 0.0,
-            p: ScaraParams = ScaraParams()) -> torch.Tensor:
+def gravity(q: torch.Tensor, payload: float | torch.Tensor = 0.0, p: ScaraParams = ScaraParams()) -> torch.Tensor:
     """Gravity torques G(q) (B, 3): (0, 0, -m3 g) N m, N m, N (q3 is positive downward)."""
     _, _, _, m3 = inertia_params(payload, p)
     zero = torch.zeros_like(q[..., 0])
     return torch.stack([zero, zero, -_full(m3, zero) * p.g], -1)
 
 
-def kinetic_energy(q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0,
-                   p: ScaraParams = ScaraParams()) -> torch.Tensor:
+def kinetic_energy(
+    q: torch.Tensor, qd: torch.Tensor, payload: float | torch.Tensor = 0.0, p: ScaraParams = ScaraParams()
+) -> torch.Tensor:
     """Kinetic energy 1/2 qd^T M qd (B,) in J."""
     return 0.5 * torch.einsum("bi,bij,bj->b", qd, mass_matrix(q, payload, p), qd)
 
@@ -156,8 +177,9 @@ def m_times(c2, co, v: torch.Tensor, entries: tuple | None = None) -> torch.Tens
     return joint_vector([m11 * v1 + m12 * v2, m12 * v1 + co[2] * v2, co[3] * v3])
 
 
-def minus_c_qd(s2, co, qd1: torch.Tensor, qd2: torch.Tensor, r1: torch.Tensor,
-               r2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def minus_c_qd(
+    s2, co, qd1: torch.Tensor, qd2: torch.Tensor, r1: torch.Tensor, r2: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(r1, r2) minus the two nonzero components (B,) of C(q, qd) qd, -h qd2 (2 qd1 + qd2) and
     h qd1^2 with h = p2 sin q2 (the third is 0): `c_times(s2, co, qd, qd)` without forming vectors."""
     h = co[1] * s2

@@ -9,23 +9,29 @@ positive downward (axis -z), so MuJoCo's M(q), C(q, qd) qd and G(q) are those of
 `frictionloss` (a dry-friction constraint, not sign(qd) itself); torques through one motor of
 gear 1 per joint.
 """
+
 from __future__ import annotations
 
 from .closed_form import ScaraParams
 
 __all__ = ["scara_mjcf"]
 
-_EPS_INERTIA = 1e-9   # kg m^2: MuJoCo needs positive principal inertias; the model's are zero
+_EPS_INERTIA = 1e-9  # kg m^2: MuJoCo needs positive principal inertias; the model's are zero
 
 
 def _rod(mass: float, length: float) -> str:
     i = mass * length**2 / 12
-    return (f'<inertial pos="{length / 2!r} 0 0" mass="{mass!r}" '
-            f'diaginertia="{_EPS_INERTIA!r} {i!r} {i!r}"/>')
+    return f'<inertial pos="{length / 2!r} 0 0" mass="{mass!r}" diaginertia="{_EPS_INERTIA!r} {i!r} {i!r}"/>'
 
 
-def scara_mjcf(p: ScaraParams = ScaraParams(), payload: float = 0.0, viscous: float = 12.0,
-               coulomb: float = 0.2, dt: float = 1e-3, integrator: str = "RK4") -> str:
+def scara_mjcf(
+    p: ScaraParams = ScaraParams(),
+    payload: float = 0.0,
+    viscous: float = 12.0,
+    coulomb: float = 0.2,
+    dt: float = 1e-3,
+    integrator: str = "RK4",
+) -> str:
     """MJCF text of the SCARA with a payload (kg) on the quill; dt in s, friction in SI units."""
     joint = f'damping="{viscous!r}" frictionloss="{coulomb!r}"'
     e = repr(_EPS_INERTIA)

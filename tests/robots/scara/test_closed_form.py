@@ -4,6 +4,7 @@ Their M, C and G equal the URDF's (`rbfn.robots.dynamics.Arm`, itself checked ag
 in tests/robots/test_dynamics_backends.py; here: float32 in, float32 out with M symmetric positive
 definite, dM/dt by autograd and dM/dt - 2C skew, and the design's inertia parameters.
 """
+
 import torch
 
 from rbfn.robots.scara.closed_form import ScaraParams, coriolis, inertia_params, mass_matrix, mass_matrix_dot
@@ -11,7 +12,9 @@ from rbfn.robots.scara.closed_form import ScaraParams, coriolis, inertia_params,
 
 def _states(n, seed):
     g = torch.Generator().manual_seed(seed)
-    q = torch.rand(n, 3, generator=g, dtype=torch.float64) * torch.tensor([6.0, 5.0, 2.0]) - torch.tensor([3.0, 2.5, 0.0])
+    q = torch.rand(n, 3, generator=g, dtype=torch.float64) * torch.tensor([6.0, 5.0, 2.0]) - torch.tensor(
+        [3.0, 2.5, 0.0]
+    )
     qd = torch.randn(n, 3, generator=g, dtype=torch.float64) * 2.0
     return q, qd
 
