@@ -219,14 +219,25 @@ def test_commands_are_found():
 
 
 def test_python_examples_name_existing_functions():
+    """Every `from rbfn... import a, b` of a python block imports, and every `rbfn.name` it writes is
+    an attribute or a submodule of the package."""
+    import importlib
+
     import rbfn
 
     for page in PAGES:
         blocks, _ = _split(page.read_text(encoding="utf-8"))
         for info, body in blocks:
-            if info == "python":
-                for name in re.findall(r"\brbfn\.(\w+)", body):
-                    assert hasattr(rbfn, name), f"{_rel(page)}: rbfn.{name} does not exist"
+            if info != "python":
+                continue
+            imports = re.findall(r"^\s*from\s+(rbfn[\w.]*)\s+import\s+(?:\(([^)]*)\)|([^\n(]+))", body, re.M)
+            for module, *names in ((m, *(a or b).replace("\\", " ").split(",")) for m, a, b in imports):
+                mod = importlib.import_module(module)
+                for name in (n.split(" as ")[0].strip() for n in names):
+                    assert not name or hasattr(mod, name), f"{_rel(page)}: {module}.{name} does not exist"
+            for name in re.findall(r"\brbfn\.(\w+)", body):
+                found = hasattr(rbfn, name) or importlib.util.find_spec(f"rbfn.{name}") is not None
+                assert found, f"{_rel(page)}: rbfn.{name} does not exist"
 
 
 def test_readme_is_a_front_page_with_ci_test_command():
