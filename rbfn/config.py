@@ -59,6 +59,7 @@ __all__ = [
     "NetworkConfig",
     "ControlConfig",
     "OnlineConfig",
+    "LoopConfig",
     "EvalConfig",
     "validate_train",
     "validate_evaluate",
@@ -215,6 +216,10 @@ class RobotConfig:
     gravity: Optional[float] = None  # m/s^2 along -z of the root; null: the preset's (name), else 9.81
     home: list[float] = field(default_factory=list)  # a nominal pose per free joint; empty: the box centre
     rated_payload: float = 20.0  # kg: control payload cases default to 0, half and all of it
+    control_rate: Optional[float] = None  # Hz: the maker's controller cycle (the realistic loop's rate)
+    # per chain joint: counts per revolution (per metre, prismatic) of the joint-side position
+    # measurement (the realistic loop's encoders); empty: exact
+    encoder_counts: list[float] = field(default_factory=list)
 
     def check(self, key: str = "robot") -> None:
         """The URDF itself is checked when it is loaded."""
@@ -262,6 +267,18 @@ class RobotConfig:
             f"{key}.rated_payload",
             self.rated_payload,
             "must be >= 0 kg",
+        )
+        _need(
+            self.control_rate is None or (finite(self.control_rate) and self.control_rate > 0),
+            f"{key}.control_rate",
+            self.control_rate,
+            "must be a positive rate in Hz or null",
+        )
+        _need(
+            all(finite(c) and c >= 1 for c in self.encoder_counts),
+            f"{key}.encoder_counts",
+            list(self.encoder_counts),
+            "counts per revolution (per metre for a prismatic joint) >= 1, one per chain joint, or empty (exact)",
         )
 
 
@@ -571,6 +588,7 @@ class GainsConfig:
     leakage: float = 0.0  # 1/s: sigma-modification
     pd_kp: float = 0.0  # PD gains; 0: K Lambda and K, the same feedback as smc's K s
     pd_kd: float = 0.0
+    dead_zone: float = 0.0  # rad/s (m/s) per joint: the adaptation ignores |s| below it (measurement noise)
 
     def check(self, key: str = "gains") -> None:
         for k, v in vars(self).items():
@@ -578,7 +596,7 @@ class GainsConfig:
                 _need(math.isfinite(v), f"{key}.{k}", v, "must be finite")
         for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay"):
             _need(getattr(self, k) > 0, f"{key}.{k}", getattr(self, k), "must be > 0")
-        for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd"):
+        for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd", "dead_zone"):
             _need(getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
 
 
@@ -803,6 +821,70 @@ class OnlineConfig:
 
 
 @dataclass
+class LoopConfig:
+    """How real the closed loop is (group `loop`: `ideal`, today's exact loop, every value off;
+    `realistic`, what a real arm has). Times in control periods of 1 / control_rate s.
+
+    The controller reads the positions measured `sensing_delay` periods ago, quantised by the
+    encoders and with Gaussian noise, and velocities from their filtered finite differences; it
+    acts every 1 / control_rate s (zero-order hold; the plant integrates at control.dt), and its
+    torque acts `actuation_delay` periods later, saturated at the URDF's effort limits, with
+    Gaussian noise. The observer and the adaptation are told the torque actually applied.
+    """
+
+    name: str = "ideal"  # the preset's label
+    control_rate: Optional[float] = None  # Hz; null: the controller acts every control.dt
+    sensing_delay: int = 0  # periods between a measurement and its use
+    actuation_delay: int = 0  # periods between a command and its torque
+    encoder_counts: list[float] = field(default_factory=list)  # per joint (robot.encoder_counts); empty: exact
+    position_noise: float = 0.0  # rad (m): standard deviation on the measured positions
+    velocity_cutoff: Optional[float] = None  # Hz: first-order filter on position differences; null: exact velocity
+    torque_limits: bool = False  # saturate the torques at the URDF's effort limits
+    torque_noise: float = 0.0  # N m (N) per unit joint scale: standard deviation on the applied torque
+    noise_seed: int = 0  # the sensor and torque noise streams
+
+    @property
+    def ideal(self) -> bool:
+        """Every part off: the loop is today's exact one, bit for bit."""
+        return (
+            self.control_rate is None
+            and self.sensing_delay == 0
+            and self.actuation_delay == 0
+            and not self.encoder_counts
+            and self.position_noise == 0
+            and self.velocity_cutoff is None
+            and not self.torque_limits
+            and self.torque_noise == 0
+        )
+
+    def check(self, dt: float, key: str = "loop") -> None:
+        """dt: the integration step (control.dt), s."""
+        rate = self.control_rate
+        _need(rate is None or (finite(rate) and rate > 0), f"{key}.control_rate", rate, "must be > 0 Hz or null")
+        if rate is not None:
+            sub = 1.0 / (rate * dt)
+            _need(
+                sub >= 1 - 1e-9 and abs(sub - round(sub)) < 1e-6,
+                f"{key}.control_rate",
+                rate,
+                f"its period must be a whole number of integration steps control.dt={dt} s",
+            )
+        for k in ("sensing_delay", "actuation_delay"):
+            _need(0 <= getattr(self, k) <= 100, f"{key}.{k}", getattr(self, k), "must be in [0, 100] periods")
+        _need(
+            all(finite(c) and c >= 1 for c in self.encoder_counts),
+            f"{key}.encoder_counts",
+            list(self.encoder_counts),
+            "counts per revolution (per metre) >= 1 per joint, or empty (exact)",
+        )
+        for k in ("position_noise", "torque_noise"):
+            _need(finite(getattr(self, k)) and getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
+        cut = self.velocity_cutoff
+        _need(cut is None or (finite(cut) and cut > 0), f"{key}.velocity_cutoff", cut, "must be > 0 Hz or null")
+        _seed(f"{key}.noise_seed", self.noise_seed)
+
+
+@dataclass
 class EvalConfig:
     checkpoint: Optional[str] = None  # null: the newest checkpoint.pt under outputs_dir
     outputs_dir: str = "outputs"
@@ -818,6 +900,7 @@ class EvalConfig:
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     online: OnlineConfig = field(default_factory=OnlineConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
 
     def check(self) -> None:
         """Every value of every enabled part, then whether the parts fit in memory."""
@@ -829,6 +912,7 @@ class EvalConfig:
         if self.control.enabled:
             self.control.check()
             self.gains.check()
+            self.loop.check(self.control.dt)
         if self.online.enabled:
             self.online.check()
         self._check_fits()
@@ -933,3 +1017,4 @@ def register_configs() -> None:
     cs.store(name="evaluate_schema", node=EvalConfig)
     cs.store(group="gains", name="gains_schema", node=GainsConfig)
     cs.store(group="robot", name="robot_schema", node=RobotConfig)
+    cs.store(group="loop", name="loop_schema", node=LoopConfig)

@@ -134,6 +134,7 @@ class _Model:
     payload_pos: torch.Tensor  # (3,) m, payload point in that body's frame
     lower: torch.Tensor  # (n,) joint limits, rad or m (+-inf where unlimited)
     upper: torch.Tensor
+    effort: torch.Tensor  # (n,) the URDF's effort limits, N m or N (inf where not given)
     end_pose: torch.Tensor  # (4, 4): the end link's frame in body n-1's frame
 
 
@@ -147,7 +148,7 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
     # Walk the chain: body index and pose in its body frame of every chain link.
     eye = torch.eye(4, dtype=torch.float64)
     where = {root: (-1, eye)}  # link -> (body, pose in body frame)
-    names, prismatic, placement, axis, lower, upper = [], [], [], [], [], []
+    names, prismatic, placement, axis, lower, upper, effort = [], [], [], [], [], [], []
     for joint in path:
         jname, child = joint.name, joint.child
         body, pose = where[joint.parent]
@@ -176,6 +177,8 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
         high = None if limit is None else limit.upper
         lower.append(-math.inf if low is None else float(low))
         upper.append(math.inf if high is None else float(high))
+        given = None if joint.limit is None else joint.limit.effort
+        effort.append(math.inf if given is None or float(given) <= 0 else float(given))
         where[child] = (len(names) - 1, eye)
 
     # Every other link hangs, through joints held at zero, from its nearest chain ancestor.
@@ -213,6 +216,7 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
         ppose[:3, 3].clone(),
         torch.tensor(lower, dtype=torch.float64),
         torch.tensor(upper, dtype=torch.float64),
+        torch.tensor(effort, dtype=torch.float64),
         where[end_link][1].clone(),
     )
 
@@ -306,6 +310,11 @@ class Arm:
     def joint_limits(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(lower, upper) (n,) float64 in rad or m; -inf, inf for continuous joints."""
         return self._model.lower.clone(), self._model.upper.clone()
+
+    def effort_limits(self) -> torch.Tensor:
+        """The URDF's effort limits (n,) float64 in N m (N for a prismatic joint); inf where a
+        joint gives none (or 0, which URDFs use for "not given")."""
+        return self._model.effort.clone()
 
     def frames(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The lumped chain's kinematics, float64: joint i's frame at q_i = 0 in body i-1's frame

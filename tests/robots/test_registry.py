@@ -46,11 +46,14 @@ def test_preset_values_come_from_conf_robot():
 
 
 def test_robot_config_defaults_are_the_scara_preset():
-    """RobotConfig() is the SCARA of conf/robot/scara.yaml, but for the two values left to resolve:
-    gravity (null: the preset's, 9.8) and home (empty: the paper trajectory has none)."""
+    """RobotConfig() is the SCARA of conf/robot/scara.yaml, but for the values left to resolve:
+    gravity (null: the preset's, 9.8) and home (empty: the paper trajectory has none), and the
+    realistic loop's controller rate and encoders (unknown for an arbitrary URDF: null, empty)."""
     default, scara_yaml = asdict(RobotConfig()), asdict(preset("scara"))
     differ = {f.name for f in fields(RobotConfig) if default[f.name] != scara_yaml[f.name]}
-    assert differ == {"gravity", "home"} and default["gravity"] is None and default["home"] == []
+    assert differ == {"gravity", "home", "control_rate", "encoder_counts"}
+    assert default["gravity"] is None and default["home"] == [] and default["control_rate"] is None
+    assert default["encoder_counts"] == []
 
 
 def test_scara_constants_are_its_urdf_and_preset():
