@@ -73,7 +73,8 @@ def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
     for cases in on_disk["control"].values():
         assert set(cases) == {"0kg", "10kg"}
         assert all(set(c) == CONTROL_KEYS and all(len(v) == 3 for v in c.values()) for c in cases.values())
-    assert set(on_disk["control_info"]) == {"gains", "select_seconds", "sim_seconds"}
+    assert set(on_disk["control_info"]) == {"loop", "gains", "select_seconds", "sim_seconds"}
+    assert on_disk["control_info"]["loop"]["name"] == "ideal"
     assert on_disk["online"]["task_err_mm_rms_last_2s"] < on_disk["online"]["task_err_mm_rms_no_adapt"]
     for name in (
         "workspace_error_map.png",

@@ -16,6 +16,7 @@ from typing import cast
 import torch
 
 from .controllers import Controller, NominalModel, Reference, SlidingMode, SlidingState
+from .loop import Applied
 
 __all__ = ["Stacked", "SlidingModeBatch"]
 
@@ -82,9 +83,10 @@ class SlidingModeBatch(SlidingMode):
         *,
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
+        applied: Applied | None = None,
     ) -> tuple[torch.Tensor, SlidingState]:
         own = None if h is None or self._own is None else h * self._own  # (B, M): each environment's own
-        return super().torque(ref, q, qd, state, h=own, alpha=alpha)
+        return super().torque(ref, q, qd, state, h=own, alpha=alpha, applied=applied)
 
 
 class Stacked(Controller):
@@ -135,15 +137,25 @@ class Stacked(Controller):
         *,
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
+        applied: Applied | None = None,
     ) -> tuple[torch.Tensor, tuple]:
         assert alpha is not None  # one column per unit (K,)
         taus, states = [], []
+        parts = (
+            [None] * len(self.units)
+            if applied is None
+            else [Applied(*a) for a in zip(*(x.split(self.unit_sizes) for x in applied))]
+        )
         for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
             cols = self.columns[i]
-            tau, st = c.torque(ref, qi, qdi, state[i], h=None if cols is None or h is None else h[cols], alpha=alpha[i])
+            hi = None if cols is None or h is None else h[cols]
+            tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i])
             taus.append(tau)
             states.append(st)
         return torch.cat(taus), tuple(states)
+
+    def share(self, state: tuple, like: torch.Tensor) -> torch.Tensor:
+        return torch.cat([c.share(st, x) for c, st, x in zip(self.units, state, like.split(self.unit_sizes))])
 
 
 def _batchable(a: Controller, b: Controller) -> bool:

@@ -15,10 +15,11 @@ from typing import Any
 
 import torch
 
-from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, RobotConfig
+from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, LoopConfig, RobotConfig
 from ..robots.scara import ScaraParams
 from .batch import Stacked
 from .controllers import make_controller
+from .loop import RealLoop, real_loop
 from .network import control_network, desired_states, pilot_residuals
 from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
@@ -60,10 +61,13 @@ def compare_controllers(
     params: ScaraParams = ScaraParams(),
     robot: RobotConfig | None = None,
     setup: ControlRobot | None = None,
+    loop: LoopConfig | None = None,
 ) -> ControlComparison:
     """Run `cfg.controllers` on the payload cases (kg) along the robot's desired trajectory.
 
-    robot: the robot (default: the SCARA); setup: an already checked `control_robot(robot, cfg)`."""
+    robot: the robot (default: the SCARA); setup: an already checked `control_robot(robot, cfg)`;
+    loop: how real the loop is (None: ideal). In the realistic loop the controllers act every
+    control period (their adaptation steps gamma times it), the pilot run stays ideal."""
     setup = setup or control_robot(robot or RobotConfig(), cfg, params)
     dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
@@ -71,6 +75,11 @@ def compare_controllers(
     sc.validate()
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
     plant, model, scale = setup.plant, setup.model, setup.joint_scale(**kw)
+    real: RealLoop | None = None
+    if loop is not None:
+        effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)
+        real = real_loop(loop, sc.dt, setup.prismatic, effort, scale)
+    period = sc.dt if real is None else real.period  # the controllers' time step, s
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n
     q0, qd0 = ref.q_d[:1].expand(b, n).clone(), ref.qd_d[:1].expand(b, n).clone()
@@ -104,7 +113,7 @@ def compare_controllers(
             features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
         controllers.append(
             make_controller(
-                name, gains, sc.dt, model, features=features, w0=w0, observer=cfg.network.observer, joint_scale=scale
+                name, gains, period, model, features=features, w0=w0, observer=cfg.network.observer, joint_scale=scale
             )
         )
     k = len(controllers)
@@ -121,6 +130,7 @@ def compare_controllers(
             payload=payload.repeat(k),
             compile=cfg.compile,
             aot=cfg.aot,
+            loop=real,
         )
     except SimulationDiverged as e:
         i, j = divmod(e.environment, b)
@@ -128,15 +138,17 @@ def compare_controllers(
             f"controller {cfg.controllers[i]}, payload {case_name(setup.payloads[j])}: {e}", e.environment
         ) from None
     seconds = time.perf_counter() - t0
-    per_env = control_metrics(roll, ref.q_d, sc)
+    q_des = ref.q_d if real is None else ref.q_d[:: real.substeps][: roll.t.shape[0]]  # at the rollout's rows
+    per_env = control_metrics(roll, q_des, sc)
     runs: dict[str, ControlRun] = {}
     for i, name in enumerate(cfg.controllers):
         envs = slice(i * b, (i + 1) * b)
-        part = Rollout(roll.t, roll.q[:, envs], roll.qd[:, envs], roll.tau[:, envs])
+        sat = None if roll.saturated is None else roll.saturated[envs]
+        part = Rollout(roll.t, roll.q[:, envs], roll.qd[:, envs], roll.tau[:, envs], sat)
         runs[name] = ControlRun(
             metrics={case_name(p): m for p, m in zip(setup.payloads, per_env[envs])},
             rollout=part,
             sim_seconds=seconds,
             select_seconds=select_seconds.get(name),
         )
-    return ControlComparison(runs, q_des=ref.q_d, scenario=sc, payloads=list(setup.payloads), robot=setup)
+    return ControlComparison(runs, q_des=q_des, scenario=sc, payloads=list(setup.payloads), robot=setup)

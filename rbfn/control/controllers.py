@@ -33,6 +33,7 @@ from typing import Any, NamedTuple
 import torch
 
 from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
+from .loop import Applied
 from .models import ArmModel, NominalModel
 from .trajectory import Reference
 
@@ -56,12 +57,16 @@ class SlidingState(NamedTuple):
     """A sliding-mode controller's state, each per environment: the observer's estimate d_hat
     (B, n) of the torque the nominal model misses, its integral (B, n) of (tau_m + beta) dt, the
     initial momentum p0 = M_hat(q0) qd0 (B, n), and the network's weights w (B, M, n) (None
-    without a network). N m (N), N m s (N s)."""
+    without a network); for the realistic loop (`rbfn.control.loop`) also the last period's known
+    momentum rate beta and the share of the last command that is not the nominal law's. N m (N),
+    N m s (N s)."""
 
     d_hat: torch.Tensor
     integral: torch.Tensor
     p0: torch.Tensor
     w: torch.Tensor | None = None
+    beta: torch.Tensor | None = None  # the realistic loop: the last period's dM_hat/dt qd - C_hat qd - G_hat
+    share: torch.Tensor | None = None  # the realistic loop: the observer's and network's share of the command
 
 
 class Controller:
@@ -96,8 +101,15 @@ class Controller:
         *,
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
+        applied: Applied | None = None,
     ) -> tuple[torch.Tensor, Any]:
         raise NotImplementedError
+
+    def share(self, state: Any, like: torch.Tensor) -> torch.Tensor:
+        """The part of the last command (B, n) that is not the nominal law's (observer, network):
+        what the realistic loop subtracts from the applied torque to tell the observer its
+        nominal share. Zeros (like `like`) for a controller without either."""
+        return torch.zeros_like(like)
 
     def alphas(self, t: torch.Tensor) -> torch.Tensor:
         """Adaptation step per control period alpha(t) = Gamma(t) dt at times t (s)."""
@@ -107,7 +119,7 @@ class Controller:
 class PD(Controller):
     """tau = Kp e + Kd de (no model)."""
 
-    def torque(self, ref, q, qd, state, *, h=None, alpha=None):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None):
         g = self.gains
         kp, kd = self._scaled(g.pd_kp or g.K * g.Lambda), self._scaled(g.pd_kd or g.K)
         return kp * (ref.q_d - q) + kd * (ref.qd_d - qd), state
@@ -116,7 +128,7 @@ class PD(Controller):
 class ComputedTorque(Controller):
     """tau = M_hat (qdd_d + 2 Lambda de + Lambda^2 e) + C_hat qd + G_hat: critically damped at Lambda."""
 
-    def torque(self, ref, q, qd, state, *, h=None, alpha=None):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None):
         lam, at = self.gains.Lambda, self.model.at(q, qd)
         e, de = ref.q_d - q, ref.qd_d - qd
         v = ref.qdd_d + 2 * lam * de + lam * lam * e
@@ -148,10 +160,14 @@ class SlidingMode(Controller):
         z = torch.zeros_like(q0)
         p0 = self.model.at(q0, qd0).m_times(qd0)
         if self.features is None:
-            return SlidingState(z, z.clone(), p0)
+            return SlidingState(z, z.clone(), p0, None, z.clone(), z.clone())
         m, n = self.features.shape[1], q0.shape[1]
         w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
-        return SlidingState(z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone())
+        return SlidingState(z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone(), z.clone(), z.clone())
+
+    def share(self, state: SlidingState, like: torch.Tensor) -> torch.Tensor:
+        assert state.share is not None
+        return state.share
 
     def observer_gain(self) -> float | torch.Tensor:
         """K_o: one gain for every environment, or a batch's per environment (B, 1)."""
@@ -166,9 +182,13 @@ class SlidingMode(Controller):
         *,
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
+        applied: Applied | None = None,
     ) -> tuple[torch.Tensor, SlidingState]:
         """tau (B, n) and the next state at joints q, velocities qd (B, n); h: this period's
-        features (M,), or per environment (B, M); alpha: its adaptation step (0-dim)."""
+        features (M,), or per environment (B, M); alpha: its adaptation step (0-dim); applied:
+        the realistic loop's account of the last period's torque (`_torque_applied`)."""
+        if applied is not None:
+            return self._torque_applied(ref, q, qd, state, h, alpha, applied)
         g, dt = self.gains, self.dt
         e, de = ref.q_d - q, ref.qd_d - qd
         s = torch.add(de, e, alpha=g.Lambda)  # x + alpha y in one operation: overhead-bound at small B
@@ -183,7 +203,7 @@ class SlidingMode(Controller):
             tau = torch.add(torch.add(tau, s, alpha=g.K), robust, alpha=g.epsilon)
         else:
             tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
-        d_hat, integral, p0, w = state
+        d_hat, integral, p0, w = state[:4]
         tau_m = tau  # what the nominal model sees: no network, no observer
         if h is not None:
             tau = tau + torch.einsum("m,bmj->bj" if h.dim() == 1 else "bm,bmj->bj", h, w)
@@ -196,13 +216,56 @@ class SlidingMode(Controller):
             tau = tau + d_hat
             integral = torch.add(integral, tau_m + at.momentum_rate(), alpha=dt)
         if h is None:
-            return tau, SlidingState(d_hat, integral, p0, w)
+            return tau, state._replace(d_hat=d_hat, integral=integral)
         assert w is not None and alpha is not None  # a network has weights and a step
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
         w = w + h[..., None] * step[:, None, :]  # h (M,) or (B, M)
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
-        return tau, SlidingState(d_hat, integral, p0, w)
+        return tau, state._replace(d_hat=d_hat, integral=integral, w=w)
+
+    def _torque_applied(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: SlidingState,
+        h: torch.Tensor | None,
+        alpha: torch.Tensor | None,
+        applied: Applied,
+    ) -> tuple[torch.Tensor, SlidingState]:
+        """The same law in the realistic loop, where the torque that acts is not the command:
+        the observer integrates the last period with the nominal share of the torque actually
+        applied (`applied.known`, known after the fact: the command delayed and saturated) rather
+        than with this period's command, so it does not wind up against saturation and delay; the
+        adaptation ignores |s_j| below `gains.dead_zone` (a noise floor, Peterson and Narendra's
+        dead zone: measurement noise alone cannot drift the weights) and joints whose torque was
+        saturated (it cannot learn what the actuator did not apply)."""
+        g, dt = self.gains, self.dt
+        e, de = ref.q_d - q, ref.qd_d - qd
+        s = de + g.Lambda * e
+        at = self.model.at(q, qd)
+        robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
+        tau = at.m_times(ref.qdd_d + g.Lambda * de) + at.c_times(ref.qd_d + g.Lambda * e) + at.gravity()
+        tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
+        d_hat, integral, p0, w, beta, _ = state
+        assert beta is not None
+        tau_m = tau
+        if h is not None:
+            tau = tau + torch.einsum("m,bmj->bj" if h.dim() == 1 else "bm,bmj->bj", h, w)
+        if self.observer:
+            integral = integral + dt * (applied.known + beta)  # the last period, as it was applied
+            d_hat = self.observer_gain() * (integral + p0 - at.m_times(qd))
+            beta = at.momentum_rate()
+            tau = tau + d_hat
+        if h is not None:
+            assert w is not None and alpha is not None
+            active = (s.abs() > g.dead_zone).to(s) * (1.0 - applied.saturated)
+            step = alpha * (s * active) if self.scale is None else alpha * (self.scale * s * active)
+            w = w + h[..., None] * step[:, None, :]
+            if g.leakage:
+                w = w * (1.0 - g.leakage * dt)
+        return tau, SlidingState(d_hat, integral, p0, w, beta, tau - tau_m)
 
 
 def make_controller(

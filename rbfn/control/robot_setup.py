@@ -44,6 +44,7 @@ class ControlRobot:
     amplitude: list[float]  # per joint, rad or m (sinusoid)
     payloads: list[float]  # kg, the payload cases
     figure_payload: float  # kg
+    effort: list[float] | None = None  # per joint, the URDF's effort limits, N m (N); inf where none
 
     @property
     def n(self) -> int:
@@ -110,7 +111,18 @@ def control_robot(
         plant = ArmPlant(arm, **kw)
         model = ArmModel(plant.terms)
     return ControlRobot(
-        robot.name, names, prismatic, plant, model, scale, str(trajectory), home, amplitude, payloads, figure_payload
+        robot.name,
+        names,
+        prismatic,
+        plant,
+        model,
+        scale,
+        str(trajectory),
+        home,
+        amplitude,
+        payloads,
+        figure_payload,
+        arm.effort_limits().tolist(),
     )
 
 

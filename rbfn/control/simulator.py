@@ -21,6 +21,7 @@ import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (s
 from ..config import Integrator
 from .aot import aot_chunk, chunk_key, serializable
 from .controllers import Controller, SlidingState
+from .loop import Actuation, Applied, RealLoop, Sensing, filtered_velocity, quantise, saturate
 from .plants import ArmPlant, Plant, ScaraPlant
 from .trajectory import Reference
 
@@ -94,12 +95,15 @@ class Scenario:
 
 @dataclass
 class Rollout:
-    """Recorded run: t (T,), q, qd, tau (T, B, n) with T = steps + 1 (tau[-1] repeats tau[-2])."""
+    """Recorded run: t (T,), q, qd, tau (T, B, n) with T = steps + 1 (tau[-1] repeats tau[-2]); in
+    the realistic loop one row per control period, and `saturated` (B, n) the fraction of periods
+    each joint's torque was saturated (None in the ideal loop)."""
 
     t: torch.Tensor
     q: torch.Tensor
     qd: torch.Tensor
     tau: torch.Tensor
+    saturated: torch.Tensor | None = None
 
 
 def _check(step: int, t: float, q, qd, tau) -> None:
@@ -144,10 +148,11 @@ class Periods(NamedTuple):
 
 
 class Recorded(NamedTuple):
-    """What a chunk of m periods returns: the loop after them, and per period the joints q and
-    velocities qd at its start and the torque tau applied during it (m, B, n)."""
+    """What a chunk of m periods returns: the loop after them (a `Loop`, or in the realistic loop a
+    `RealState`), and per period the joints q and velocities qd at its start and the torque tau
+    applied during it (m, B, n)."""
 
-    loop: Loop
+    loop: Any
     q: torch.Tensor
     qd: torch.Tensor
     tau: torch.Tensor
@@ -181,9 +186,6 @@ def make_chunk(
     return run
 
 
-serializable(Reference, Loop, Periods, Recorded, SlidingState)  # in an AOT package's call spec
-
-
 @overload
 def simulate(
     plant: Plant,
@@ -197,6 +199,7 @@ def simulate(
     compile: bool = ...,
     chunk: int = ...,
     aot: bool = ...,
+    loop: RealLoop | None = ...,
 ) -> Rollout: ...
 @overload
 def simulate(
@@ -211,6 +214,7 @@ def simulate(
     compile: bool = ...,
     chunk: int = ...,
     aot: bool = ...,
+    loop: RealLoop | None = ...,
 ) -> tuple[torch.Tensor, torch.Tensor]: ...
 @overload
 def simulate(
@@ -225,6 +229,7 @@ def simulate(
     compile: bool = ...,
     chunk: int = ...,
     aot: bool = ...,
+    loop: RealLoop | None = ...,
 ) -> Rollout | tuple[torch.Tensor, torch.Tensor]: ...
 def simulate(
     plant: Plant,
@@ -238,6 +243,7 @@ def simulate(
     compile: bool = False,
     chunk: int = 0,
     aot: bool = False,
+    loop: RealLoop | None = None,
 ) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
     """Run the closed loop from (q0, qd0) (B, n) along the Reference `ref` (q_d, qd_d, qdd_d; a
     plain 3-tuple is taken as one), each (steps + 1, n) on the scenario's time grid; payload (B,)
@@ -251,6 +257,11 @@ def simulate(
     chunks compiled ahead of time and cached on disk (`rbfn.control.aot`): minutes the first time
     for a configuration, milliseconds to load after that. Raises SimulationDiverged naming the
     first non-finite step (checked every CHECK_EVERY steps, rounded up to chunks, and at the end).
+
+    `loop` (`rbfn.control.loop.RealLoop`; None: the ideal loop) runs the realistic loop instead:
+    the controller acts every `loop.substeps` integration steps on measured state, its torque
+    delayed and saturated; the Rollout then holds one row per control period (its `tau` the
+    torque applied, its `saturated` the fraction of periods each joint spent saturated).
     """
     scenario.validate()
     n, dt = scenario.steps, scenario.dt
@@ -266,6 +277,8 @@ def simulate(
         raise ValueError("initial state q0/qd0 must be finite")
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
+    if loop is not None:
+        return _simulate_real(plant, controller, scenario, ref, q0, qd0, payload, loop, record, compile, chunk)
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     b = q0.shape[0]
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
@@ -285,9 +298,9 @@ def simulate(
     # models' joint vectors have: elementwise results keep it, each joint's component is a
     # contiguous row, and compiled loops vectorise over environments.
     q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
-    loop = Loop(q, qd, controller.init_state(q, qd))
+    state = Loop(q, qd, controller.init_state(q, qd))
     if aot and n >= chunk:
-        example = (loop, _rows(periods, slice(0, chunk)))
+        example = (state, _rows(periods, slice(0, chunk)))
         key = chunk_key(plant, controller, dt, scenario.integrator, chunk, example)
         run = aot_chunk(run, key, example, log.info)
     if record:
@@ -298,44 +311,227 @@ def simulate(
     # into ordinary tensors; the final state is copied out of inference mode. The state enters as
     # inference tensors, so that every chunk a compiled step sees is of one kind (no recompiling).
     with torch.inference_mode():
-        loop = pytree.tree_map_only(torch.Tensor, torch.clone, loop)
+        state = pytree.tree_map_only(torch.Tensor, torch.clone, state)
         while k0 < n:
             m = min(chunk, n - k0)
             fn = run if m == chunk else make_chunk(plant, controller, dt, scenario.integrator, m)
             sl = slice(k0, k0 + m)
-            out = fn(loop, _rows(periods, sl))
-            loop = out.loop
+            out = fn(state, _rows(periods, sl))
+            state = out.loop
             if record:
                 qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
             k0 += m
             if k0 - checked >= CHECK_EVERY or k0 == n:
-                _check(k0, k0 * dt, loop.q, loop.qd, out.tau[-1])
+                _check(k0, k0 * dt, state.q, state.qd, out.tau[-1])
                 checked = k0
-    q, qd = loop.q, loop.qd
+    q, qd = state.q, state.qd
     if not record:
         return q.clone(), qd.clone()
     qs[n], qds[n], taus[n] = q, qd, taus[n - 1]
     return Rollout(scenario.times(q.dtype, q.device), qs, qds, taus)
 
 
-def _rows(periods: Periods, sl: slice) -> Periods:
+def _rows(periods: Any, sl: slice) -> Any:
     """The periods `sl` of every input (views)."""
     return pytree.tree_map_only(torch.Tensor, lambda x: x[sl], periods)
+
+
+class RealState(NamedTuple):
+    """The realistic loop's state: the plant's q, qd (B, n), the controller's state, the sensors'
+    and the actuators'."""
+
+    q: torch.Tensor
+    qd: torch.Tensor
+    controller: Any
+    sensing: Sensing
+    actuation: Actuation
+
+
+class RealPeriods(NamedTuple):
+    """The inputs of m consecutive control periods (first dimension m): the reference at each
+    period's start, features h (m, M) or None, adaptation steps alpha, the disturbance torque at
+    each integration step's start, middle and end dist (m, substeps, 3[, n]), the payload
+    coefficients co (each (m, substeps, B)), and the noise: positions (m, B, n) rad (m) and
+    torques (m, B, n) N m (N), or None."""
+
+    ref: Reference
+    h: torch.Tensor | None
+    alpha: torch.Tensor
+    dist: torch.Tensor
+    co: tuple[torch.Tensor, ...]
+    position_noise: torch.Tensor | None
+    torque_noise: torch.Tensor | None
+
+
+def make_real_chunk(
+    plant: Plant, controller: Controller, loop: RealLoop, dt: float, integrator: str, m: int
+) -> Callable[[RealState, RealPeriods], Recorded]:
+    """`m` periods of the realistic loop as one pure tensor function: sense, control, actuate,
+    then `loop.substeps` integration steps of dt with the applied torque held."""
+
+    def run(state: RealState, periods: RealPeriods) -> Recorded:
+        q, qd, cstate, sensing, act = state
+        limit = None if loop.torque_limit is None else loop.torque_limit.to(q)
+        resolution = None if loop.resolution is None else loop.resolution.to(q)
+        qs, qds, taus = [], [], []
+        for k in range(m):
+            qs.append(q)
+            qds.append(qd)
+            # Sense: the position measured now (noise, then the encoder's count), used
+            # sensing_delay periods later; velocity from filtered differences of what is used.
+            y = q if periods.position_noise is None else q + periods.position_noise[k]
+            if resolution is not None:
+                y = quantise(y, resolution)
+            history = torch.cat([sensing.history[1:], y[None]])
+            q_hat = history[0]
+            if loop.velocity_gain is None:
+                qd_hat, velocity = qd, sensing.velocity
+            else:
+                velocity = filtered_velocity(sensing.velocity, q_hat, sensing.previous, loop.period, loop.velocity_gain)
+                qd_hat = velocity
+            sensing = Sensing(history, q_hat, velocity)
+            # Control, told what the last period applied.
+            ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
+            h = None if periods.h is None else periods.h[k]
+            cmd, cstate = controller.torque(
+                ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied
+            )
+            share = controller.share(cstate, cmd)
+            # Actuate: the command of actuation_delay periods ago, saturated, with noise.
+            if loop.actuation_delay:
+                commands, shares = torch.cat([act.commands, cmd[None]]), torch.cat([act.shares, share[None]])
+                u, u_share, commands, shares = commands[0], shares[0], commands[1:], shares[1:]
+            else:
+                u, u_share, commands, shares = cmd, share, act.commands, act.shares
+            if limit is not None:
+                clipped = saturate(u, limit)
+                saturated = (clipped != u).to(u)
+                u = clipped
+            else:
+                saturated = torch.zeros_like(u)
+            applied = Applied(u - u_share, saturated)
+            act = Actuation(commands, shares, applied, act.saturated_periods + saturated)
+            if periods.torque_noise is not None:
+                u = u + periods.torque_noise[k]
+            for j in range(loop.substeps):
+                q, qd = plant.step(q, qd, u, periods.dist[k, j], dt, tuple(c[k, j] for c in periods.co), integrator)
+            taus.append(u)
+        return Recorded(RealState(q, qd, cstate, sensing, act), torch.stack(qs), torch.stack(qds), torch.stack(taus))
+
+    return run
+
+
+def _simulate_real(
+    plant: Plant,
+    controller: Controller,
+    scenario: Scenario,
+    ref: Reference,
+    q0: torch.Tensor,
+    qd0: torch.Tensor,
+    payload: torch.Tensor,
+    loop: RealLoop,
+    record: bool,
+    compile: bool,
+    chunk: int,
+) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
+    """`simulate` in the realistic loop (see there)."""
+    dt, sub = scenario.dt, loop.substeps
+    periods = scenario.steps // sub
+    if periods < 1:
+        raise ValueError(f"the scenario's {scenario.steps} steps hold no control period of {sub} steps")
+    n_steps = periods * sub
+    b, nj = q0.shape
+    kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
+    k = torch.arange(n_steps, device=q0.device)
+    inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(q0.dtype)
+    co = tuple(c.reshape(periods, sub, b) for c in plant.coefficients(inside[:, None] * payload.to(**kw)[None, :]))
+    dist = stage_disturbances(plant, n_steps, dt, **kw)
+    dist = dist.reshape(periods, sub, *dist.shape[1:])
+    starts = slice(0, n_steps, sub)  # each period's first integration step
+    feats = controller.features
+    inputs = RealPeriods(
+        ref=Reference(*(r[starts].to(**kw) for r in ref)),
+        h=None if feats is None else feats[starts].to(**kw),
+        alpha=controller.alphas(torch.arange(periods, **kw) * loop.period),
+        dist=dist,
+        co=co,
+        position_noise=None,
+        torque_noise=None,
+    )
+    g = torch.Generator().manual_seed(loop.seed)
+
+    def noise(rows: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """This chunk's noise, drawn on the CPU (the same numbers on every device)."""
+        pos = None
+        if loop.position_noise:
+            pos = (loop.position_noise * torch.randn(rows, b, nj, generator=g, dtype=torch.float64)).to(**kw)
+        tau = None
+        if loop.torque_noise is not None:
+            tau = (loop.torque_noise * torch.randn(rows, b, nj, generator=g, dtype=torch.float64)).to(**kw)
+        return pos, tau
+
+    q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
+    y0 = q if loop.resolution is None else quantise(q, loop.resolution.to(q))
+    z = torch.zeros_like(q)
+    wait = torch.zeros(loop.actuation_delay, b, nj, **kw)
+    state = RealState(
+        q,
+        qd,
+        controller.init_state(q, qd),
+        Sensing(y0[None].repeat(loop.sensing_delay + 1, 1, 1), y0.clone(), qd.clone()),
+        Actuation(wait, wait.clone(), Applied(z.clone(), z.clone()), z.clone()),
+    )
+    chunk = chunk or 100
+    run = make_real_chunk(plant, controller, loop, dt, scenario.integrator, chunk)
+    if compile:
+        run = torch.compile(run, dynamic=False)
+    if record:
+        qs = torch.empty(periods + 1, b, nj, **kw)
+        qds, taus = torch.empty_like(qs), torch.empty_like(qs)
+    k0 = 0
+    with torch.inference_mode():
+        state = pytree.tree_map_only(torch.Tensor, torch.clone, state)
+        while k0 < periods:
+            m = min(chunk, periods - k0)
+            fn = run if m == chunk else make_real_chunk(plant, controller, loop, dt, scenario.integrator, m)
+            sl = slice(k0, k0 + m)
+            pos, tau = noise(m)
+            rows = _rows(inputs, sl)
+            out = fn(state, rows._replace(position_noise=pos, torque_noise=tau))
+            state = out.loop
+            if record:
+                qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
+            k0 += m
+            _check(k0 * sub, k0 * loop.period, state.q, state.qd, out.tau[-1])
+    q, qd = state.q, state.qd
+    if not record:
+        return q.clone(), qd.clone()
+    qs[periods], qds[periods], taus[periods] = q, qd, taus[periods - 1]
+    t = torch.arange(periods + 1, dtype=q.dtype, device=q.device) * loop.period
+    return Rollout(t, qs, qds, taus, saturated=state.actuation.saturated_periods.clone() / periods)
+
+
+# in an AOT package's call spec
+serializable(Reference, Loop, Periods, Recorded, SlidingState, RealState, RealPeriods, Sensing, Actuation, Applied)
 
 
 def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> list[dict]:
     """Per environment: rms_err, max_err (t > metrics_after), max_err_payload (inside the payload
     window), peak_tau (whole run) and chattering (mean |dtau/dt|), each a list of n (per joint: rad
-    or m; N m or N; N m/s or N/s)."""
+    or m; N m or N; N m/s or N/s); in the realistic loop also `saturated`, the fraction of control
+    periods the joint's torque was at its limit. q_des: the desired joints at the rollout's rows."""
     err = (q_des[:, None, :] - roll.q).abs()  # (T, B, n)
     after = roll.t > scenario.metrics_after
     window = (roll.t >= scenario.payload_on) & (roll.t <= scenario.payload_off)
+    step = scenario.dt if roll.saturated is None else float(roll.t[1] - roll.t[0])  # a row's time, s
     per_key = {  # each (B, n)
         "rms_err": err[after].square().mean(0).sqrt(),
         "max_err": err[after].amax(0),
         "max_err_payload": err[window].amax(0),
         "peak_tau": roll.tau[:-1].abs().amax(0),
-        "chattering": (roll.tau[1:-1] - roll.tau[:-2]).abs().mean(0) / scenario.dt,
+        "chattering": (roll.tau[1:-1] - roll.tau[:-2]).abs().mean(0) / step,
     }
+    if roll.saturated is not None:
+        per_key["saturated"] = roll.saturated
     lists = {k: v.tolist() for k, v in per_key.items()}
     return [{k: v[i] for k, v in lists.items()} for i in range(roll.q.shape[1])]

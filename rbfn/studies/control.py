@@ -8,7 +8,7 @@ from typing import Any
 
 from torch.utils.tensorboard import SummaryWriter
 
-from ..config import ControlConfig, GainsConfig, RobotConfig
+from ..config import ControlConfig, GainsConfig, LoopConfig, RobotConfig, plain
 from ..control.comparison import ControlComparison, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
 from .beside import Beside, can_fork
@@ -34,17 +34,19 @@ def evaluate_control(
     out_dir: Path,
     robot: RobotConfig | None = None,
     parallel: bool = True,
+    loop: LoopConfig | None = None,
 ) -> dict:
     """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`;
     `parallel`: half the figures drawn in a forked process where the machine allows."""
     setup = check_control(cfg, robot)
-    res = compare_controllers(cfg, gains, device, setup=setup)
+    res = compare_controllers(cfg, gains, device, setup=setup, loop=loop)
     metrics = {name: run.metrics for name, run in res.runs.items()}
     gain_record: dict[str, Any] = {
         k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()
     }
     gain_record["joint_scale"] = setup.scale or [1.0] * setup.n  # the torque gains' factor per joint
     info = {
+        "loop": plain(loop) if loop is not None else {"name": "ideal"},
         "gains": gain_record,
         "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
         "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()},

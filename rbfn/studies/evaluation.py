@@ -150,7 +150,7 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
             try:
                 with _timed(seconds, "control"):
                     control = evaluate_control(
-                        cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot, cfg.parallel
+                        cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot, cfg.parallel, cfg.loop
                     )
             finally:
                 writer.close()

@@ -1,0 +1,162 @@
+"""The realistic loop's sensor and actuator models, each on its own (rbfn.control.loop) and inside
+the simulator: quantisation steps, the velocity filter's response, delays in whole periods,
+saturation and the time spent saturated; with every part off it is the ideal loop."""
+
+import math
+
+import pytest
+import torch
+
+from rbfn.config import GainsConfig, LoopConfig
+from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
+from rbfn.control.controllers import Controller
+from rbfn.control.loop import RealLoop, filter_gain, filtered_velocity, quantise, real_loop, saturate
+
+from ..conftest import compose_config
+
+
+class Echo(Controller):
+    """Commands what it is asked to test: the reference's q_d (a sequence of known values), or
+    the measured positions it was given (mode "measured")."""
+
+    def __init__(self, mode: str = "reference") -> None:
+        super().__init__(GainsConfig(), 1e-3)
+        self.mode = mode
+
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None):
+        return (ref.q_d.expand_as(q) if self.mode == "reference" else q).clone(), state
+
+
+def _run(loop: RealLoop, ctrl: Controller, steps: int = 20, dt: float = 1e-3, ref=None, q0=None):
+    sc = Scenario(duration=steps * dt, dt=dt, payload_on=0.0, payload_off=steps * dt, metrics_after=0.0)
+    t = sc.times()
+    if ref is None:  # q_d = k, the step's index, on every joint: a command names its period
+        k = torch.arange(t.shape[0], dtype=torch.float64)[:, None].expand(-1, 3)
+        ref = (k, torch.zeros_like(k), torch.zeros_like(k))
+    q0 = torch.tensor([[1.0, 1.0, 1.0]], dtype=torch.float64) if q0 is None else q0
+    return simulate(
+        ScaraPlant(), ctrl, sc, ref, q0, torch.zeros_like(q0), torch.zeros(1, dtype=torch.float64), loop=loop
+    )
+
+
+def test_quantise_rounds_to_whole_counts():
+    res = torch.tensor([2 * math.pi / 4096, 1e-3], dtype=torch.float64)
+    q = torch.tensor([[0.12345, 0.5004], [-1.0, -0.0004]], dtype=torch.float64)
+    y = quantise(q, res)
+    counts = y / res
+    assert torch.allclose(counts, counts.round(), atol=1e-9)
+    assert ((y - q).abs() <= res / 2 + 1e-15).all()
+
+
+def test_encoder_counts_are_per_revolution_or_per_metre():
+    loop = real_loop(LoopConfig(encoder_counts=[4096, 1000]), 1e-3, [False, True], torch.tensor([1.0, 1.0]), None)
+    assert loop is not None and loop.resolution is not None
+    assert loop.resolution.tolist() == pytest.approx([2 * math.pi / 4096, 1e-3])
+
+
+def test_the_velocity_filter_is_first_order_at_its_cutoff():
+    period, cutoff = 1e-4, 50.0
+    a = filter_gain(cutoff, period)
+    assert a == pytest.approx(1 - math.exp(-2 * math.pi * cutoff * period))
+    # A ramp of 1 rad/s: the filtered difference rises as 1 - (1 - a)^k, reaching 63 % in one time constant.
+    v, prev = torch.zeros(1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
+    out = []
+    for k in range(1, 2000):
+        y = torch.tensor([k * period], dtype=torch.float64)
+        v = filtered_velocity(v, y, prev, period, a)
+        prev = y
+        out.append(float(v))
+    assert out[0] == pytest.approx(a)
+    assert out[49] == pytest.approx(1 - (1 - a) ** 50, rel=1e-12)
+    tau_periods = 1 / (2 * math.pi * cutoff * period)  # the time constant in periods
+    assert out[round(tau_periods) - 1] == pytest.approx(1 - math.exp(-1), abs=0.05)
+    assert out[-1] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_saturate_clips_each_joint_at_its_own_limit():
+    limit = torch.tensor([1.0, 10.0, math.inf])
+    tau = torch.tensor([[5.0, -50.0, 1e9], [-0.5, 3.0, -1e9]])
+    assert saturate(tau, limit).tolist() == [[1.0, -10.0, 1e9], [-0.5, 3.0, -1e9]]
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_a_command_acts_after_the_actuation_delay(delay):
+    roll = _run(RealLoop(actuation_delay=delay), Echo())
+    applied = roll.tau[:-1, 0, 0]  # per period: the torque applied during it
+    expected = torch.clamp(torch.arange(applied.shape[0], dtype=torch.float64) - delay, min=0)
+    expected[:delay] = 0.0  # nothing was commanded before the start
+    assert torch.equal(applied, expected)
+
+
+@pytest.mark.parametrize("delay", [0, 2])
+def test_the_controller_sees_positions_sensing_delay_periods_old(delay):
+    ref = paper_trajectory(torch.arange(21, dtype=torch.float64) * 1e-3)
+    roll = _run(RealLoop(sensing_delay=delay), Echo("measured"), ref=ref, q0=ref.q_d[:1].clone())
+    seen = roll.tau[:-1, 0]  # what the controller measured, commanded back
+    true = roll.q[:-1, 0]
+    assert torch.equal(seen[delay:], true[: true.shape[0] - delay])
+    assert torch.equal(seen[:delay], true[:1].expand(delay, -1))  # before that: the initial position
+
+
+def test_the_control_period_holds_the_torque_over_its_substeps():
+    roll = _run(RealLoop(substeps=4, period=4e-3), Echo(), steps=40)
+    assert roll.t.shape[0] == 11 and torch.allclose(roll.t[1:] - roll.t[:-1], torch.full((10,), 4e-3, dtype=torch.float64))
+    assert roll.tau[:-1, 0, 0].tolist() == [4.0 * k for k in range(10)]  # q_d at each period's first step
+
+
+def test_saturation_clips_and_counts_the_time_at_the_limit():
+    limit = torch.tensor([5.0, 5.0, 1e9], dtype=torch.float64)
+    roll = _run(RealLoop(torque_limit=limit), Echo(), steps=20)  # commands 0, 1, ..., 19
+    assert roll.tau[:-1, 0, 0].tolist() == [min(k, 5.0) for k in range(20)]
+    assert roll.saturated is not None
+    assert roll.saturated[0].tolist() == pytest.approx([14 / 20, 14 / 20, 0.0])  # k = 6 .. 19
+
+
+def test_noise_is_seeded_and_encoders_quantise_what_the_controller_sees():
+    res = torch.tensor([1e-3, 1e-3, 1e-3], dtype=torch.float64)
+    loop = RealLoop(resolution=res, position_noise=1e-3, seed=7)
+    a, b = _run(loop, Echo("measured")), _run(loop, Echo("measured"))
+    assert torch.equal(a.tau, b.tau)
+    counts = a.tau[:-1, 0] / 1e-3
+    assert torch.allclose(counts, counts.round(), atol=1e-9)
+    assert not torch.equal(a.tau, _run(RealLoop(resolution=res, position_noise=1e-3, seed=8), Echo("measured")).tau)
+
+
+def test_with_every_part_off_the_realistic_loop_is_the_ideal_one():
+    """A RealLoop that senses exactly and acts at once every step reproduces the ideal loop (the
+    same law, told the torque it applied; the operations' order differs: to rounding)."""
+    cfg = compose_config("evaluate")
+    assert real_loop(cfg.loop, 1e-3, [False] * 3, torch.ones(3)) is None  # loop=ideal: the ideal path
+    sc = Scenario(duration=1.0, dt=1e-3, payload_on=0.2, payload_off=0.8)
+    ref = paper_trajectory(sc.times())
+    q0, qd0 = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
+    payload = torch.tensor([10.0], dtype=torch.float64)
+    runs = []
+    for loop in (None, RealLoop()):
+        ctrl = make_controller("smc_obs", cfg.gains, sc.dt)
+        runs.append(simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, loop=loop))
+    ideal, real = runs
+    assert torch.allclose(ideal.q, real.q, rtol=0, atol=1e-10)
+    assert torch.allclose(ideal.tau, real.tau, rtol=1e-9, atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    "override,key",
+    [
+        ("loop.control_rate=300", "loop.control_rate"),
+        ("loop.actuation_delay=-1", "loop.actuation_delay"),
+        ("loop.velocity_cutoff=0", "loop.velocity_cutoff"),
+        ("loop.encoder_counts=[0.5]", "loop.encoder_counts"),
+    ],
+)
+def test_bad_loop_settings_are_refused_by_key(override, key):
+    cfg = compose_config("evaluate", override)
+    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+        cfg.check()
+
+
+def test_the_realistic_preset_takes_the_robots_rate_and_encoders():
+    cfg = compose_config("evaluate", "robot=ur5", "loop=realistic")
+    assert cfg.loop.control_rate == cfg.robot.control_rate == 500.0
+    assert cfg.loop.encoder_counts == cfg.robot.encoder_counts and len(cfg.loop.encoder_counts) == 6
+    assert cfg.loop.torque_limits and cfg.loop.actuation_delay == 1 and not cfg.loop.ideal
