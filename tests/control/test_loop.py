@@ -100,7 +100,9 @@ def test_the_controller_sees_positions_sensing_delay_periods_old(delay):
 
 def test_the_control_period_holds_the_torque_over_its_substeps():
     roll = _run(RealLoop(substeps=4, period=4e-3), Echo(), steps=40)
-    assert roll.t.shape[0] == 11 and torch.allclose(roll.t[1:] - roll.t[:-1], torch.full((10,), 4e-3, dtype=torch.float64))
+    assert roll.t.shape[0] == 11 and torch.allclose(
+        roll.t[1:] - roll.t[:-1], torch.full((10,), 4e-3, dtype=torch.float64)
+    )
     assert roll.tau[:-1, 0, 0].tolist() == [4.0 * k for k in range(10)]  # q_d at each period's first step
 
 
