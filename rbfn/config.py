@@ -177,7 +177,7 @@ class Trajectory(Choice):  # the desired joint path of the closed loop
 # Presets of the `centers` group (conf/centers/NAME.yaml); a label, recorded with every run.
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
 # Controllers by name; the adaptive RBFN is arbfn_<one of CONTROL_CENTER_METHODS>.
-BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs")
+BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs", "smc_exact")
 CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
 # The packaged robots: folders rbfn/robots/NAME/ (NAME.urdf, optional closed forms), presets
 # conf/robot/NAME.yaml (tests/robots/test_registry.py checks that the three lists agree).

@@ -15,7 +15,7 @@ from typing import cast
 
 import torch
 
-from .controllers import Controller, NominalModel, Reference, SlidingMode, SlidingState
+from .controllers import Controller, Forces, NominalModel, Reference, SlidingMode, SlidingState
 from .loop import Applied
 
 __all__ = ["Stacked", "SlidingModeBatch"]
@@ -84,6 +84,7 @@ class SlidingModeBatch(SlidingMode):
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
         applied: Applied | None = None,
+        forces: Forces | None = None,
     ) -> tuple[torch.Tensor, SlidingState]:
         own = None if h is None or self._own is None else h * self._own  # (B, M): each environment's own
         return super().torque(ref, q, qd, state, h=own, alpha=alpha, applied=applied)
@@ -111,6 +112,7 @@ class Stacked(Controller):
             for r in runs
         ]
         self.unit_sizes = [sum(s for _, s in r) for r in runs]
+        self.needs_forces = any(c.needs_forces for c in self.units)
         feats = [c.features for c in self.units if c.features is not None]
         self.features = torch.cat(feats, -1) if feats else None
         self.columns: list[slice | None] = []
@@ -138,8 +140,10 @@ class Stacked(Controller):
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
         applied: Applied | None = None,
+        forces: Forces | None = None,
     ) -> tuple[torch.Tensor, tuple]:
         assert alpha is not None  # one column per unit (K,)
+        rows = [Forces(co, forces.dist) for co in zip(*(c.split(self.unit_sizes) for c in forces.co))] if forces else []
         taus, states = [], []
         parts = (
             [None] * len(self.units)
@@ -149,7 +153,10 @@ class Stacked(Controller):
         for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
             cols = self.columns[i]
             hi = None if cols is None or h is None else h[cols]
-            tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i])
+            if c.needs_forces:
+                tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i], forces=rows[i])
+            else:
+                tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i])
             taus.append(tau)
             states.append(st)
         return torch.cat(taus), tuple(states)

@@ -25,7 +25,7 @@ from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import Reference
 
-__all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name"]
+__all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name", "gap_closure"]
 
 
 def case_name(payload: float) -> str:
@@ -113,7 +113,15 @@ def compare_controllers(
             features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
         controllers.append(
             make_controller(
-                name, gains, period, model, features=features, w0=w0, observer=cfg.network.observer, joint_scale=scale
+                name,
+                gains,
+                period,
+                model,
+                features=features,
+                w0=w0,
+                observer=cfg.network.observer,
+                joint_scale=scale,
+                plant=plant,
             )
         )
     k = len(controllers)
@@ -151,4 +159,19 @@ def compare_controllers(
             sim_seconds=seconds,
             select_seconds=select_seconds.get(name),
         )
+    if "smc" in runs and "smc_exact" in runs:
+        for run in runs.values():
+            for case, m in run.metrics.items():
+                m["gap_closure"] = gap_closure(runs["smc"].metrics[case], m, runs["smc_exact"].metrics[case])
     return ControlComparison(runs, q_des=q_des, scenario=sc, payloads=list(setup.payloads), robot=setup)
+
+
+def gap_closure(smc: dict, run: dict, exact: dict) -> list[float]:
+    """Per joint, the share of the gap between `smc` and the perfect-knowledge `smc_exact` that a
+    run closes: (rms_smc - rms) / (rms_smc - rms_exact); 1 reaches the ceiling, 0 is no better than
+    smc, negative is worse. NaN where smc is already at the ceiling (no gap to close)."""
+    out = []
+    for s, c, e in zip(smc["rms_err"], run["rms_err"], exact["rms_err"]):
+        gap = s - e
+        out.append((s - c) / gap if gap > 0 else float("nan"))
+    return out

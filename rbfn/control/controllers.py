@@ -47,6 +47,8 @@ __all__ = [
     "ComputedTorque",
     "SlidingMode",
     "SlidingState",
+    "ExactSliding",
+    "Forces",
     "make_controller",
 ]
 
@@ -69,6 +71,15 @@ class SlidingState(NamedTuple):
     share: torch.Tensor | None = None  # the realistic loop: the observer's and network's share of the command
 
 
+class Forces(NamedTuple):
+    """What only the perfect-knowledge controller is told each period: the plant's payload
+    coefficients (`Plant.coefficients`, each (B,)) and the disturbance torque now ((), or (n,)),
+    N m (N)."""
+
+    co: tuple[torch.Tensor, ...]
+    dist: torch.Tensor
+
+
 class Controller:
     """A pure function of tensors, so the whole closed-loop step can be compiled and batched:
     `init_state(q0, qd0)` -> its state (a pytree of tensors; () for PD and computed torque);
@@ -78,6 +89,7 @@ class Controller:
     """
 
     features: torch.Tensor | None = None
+    needs_forces = False  # True: torque() takes forces=Forces (the perfect-knowledge ceiling only)
 
     def __init__(
         self, gains: Gains, dt: float, model: Model | None = None, joint_scale: torch.Tensor | None = None
@@ -102,6 +114,7 @@ class Controller:
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
         applied: Applied | None = None,
+        forces: Forces | None = None,
     ) -> tuple[torch.Tensor, Any]:
         raise NotImplementedError
 
@@ -119,7 +132,7 @@ class Controller:
 class PD(Controller):
     """tau = Kp e + Kd de (no model)."""
 
-    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None, forces=None):
         g = self.gains
         kp, kd = self._scaled(g.pd_kp or g.K * g.Lambda), self._scaled(g.pd_kd or g.K)
         return kp * (ref.q_d - q) + kd * (ref.qd_d - qd), state
@@ -128,7 +141,7 @@ class PD(Controller):
 class ComputedTorque(Controller):
     """tau = M_hat (qdd_d + 2 Lambda de + Lambda^2 e) + C_hat qd + G_hat: critically damped at Lambda."""
 
-    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None, forces=None):
         lam, at = self.gains.Lambda, self.model.at(q, qd)
         e, de = ref.q_d - q, ref.qd_d - qd
         v = ref.qdd_d + 2 * lam * de + lam * lam * e
@@ -183,6 +196,7 @@ class SlidingMode(Controller):
         h: torch.Tensor | None = None,
         alpha: torch.Tensor | None = None,
         applied: Applied | None = None,
+        forces: Forces | None = None,
     ) -> tuple[torch.Tensor, SlidingState]:
         """tau (B, n) and the next state at joints q, velocities qd (B, n); h: this period's
         features (M,), or per environment (B, M); alpha: its adaptation step (0-dim); applied:
@@ -268,6 +282,37 @@ class SlidingMode(Controller):
         return tau, SlidingState(d_hat, integral, p0, w, beta, tau - tau_m)
 
 
+class ExactSliding(Controller):
+    """`smc_exact`, the perfect-knowledge ceiling: the sliding-mode feedback with every force known
+    exactly, the plant's own M, C qd, G with the payload, friction and the disturbance:
+
+        tau = M (qdd_d + Lambda de) + C qd + G + F(qd) + tau_d(t) + K s + epsilon sgn(s),
+
+    so that M ds/dt = -K s - epsilon sgn(s) with exact state: what is left of its error is what
+    sensing, timing and actuation allow. M and the rest come from the plant's forward dynamics
+    (n + 1 evaluations of `Plant.accel` and one solve), at the state the controller measures."""
+
+    needs_forces = True
+
+    def __init__(self, gains: Gains, dt: float, plant: Any, joint_scale: torch.Tensor | None = None) -> None:
+        super().__init__(gains, dt, None, joint_scale)
+        self.plant = plant
+
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None, forces=None):
+        assert forces is not None  # the simulator passes them to a controller that needs_forces
+        g, n = self.gains, q.shape[-1]
+        e, de = ref.q_d - q, ref.qd_d - qd
+        s = de + g.Lambda * e
+        robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
+        zero = torch.zeros_like(q)
+        a0 = self.plant.accel(q, qd, zero, forces.co)  # -M^-1 (C qd + G + F)
+        eye = torch.eye(n, dtype=q.dtype, device=q.device)
+        m_inv = torch.stack([self.plant.accel(q, qd, eye[j].expand_as(q), forces.co) - a0 for j in range(n)], -1)
+        feedforward = torch.linalg.solve(m_inv, ref.qdd_d + g.Lambda * de - a0)  # M (qr'' ) + C qd + G + F
+        tau = feedforward + forces.dist + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
+        return tau, state
+
+
 def make_controller(
     name: str,
     gains: Gains,
@@ -277,9 +322,11 @@ def make_controller(
     w0: torch.Tensor | None = None,
     observer: bool = True,
     joint_scale: torch.Tensor | None = None,
+    plant: Any = None,
 ) -> Controller:
-    """Controller by name: pd, ctc, smc, smc_obs, or arbfn* (needs `features`). `model`: the
-    nominal model (default: the SCARA's); `joint_scale` (n,): per-joint factor of the torque gains."""
+    """Controller by name: pd, ctc, smc, smc_obs, smc_exact (needs the `plant`), or arbfn* (needs
+    `features`). `model`: the nominal model (default: the SCARA's); `joint_scale` (n,): per-joint
+    factor of the torque gains."""
     if name == "pd":
         return PD(gains, dt, model, joint_scale)
     if name == "ctc":
@@ -288,6 +335,10 @@ def make_controller(
         return SlidingMode(gains, dt, model, joint_scale=joint_scale)
     if name == "smc_obs":
         return SlidingMode(gains, dt, model, observer=True, joint_scale=joint_scale)
+    if name == "smc_exact":
+        if plant is None:
+            raise ValueError("controller 'smc_exact' needs the plant (it knows every force exactly)")
+        return ExactSliding(gains, dt, plant, joint_scale)
     if name.startswith("arbfn"):
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")

@@ -20,7 +20,7 @@ import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (s
 
 from ..config import Integrator
 from .aot import aot_chunk, chunk_key, serializable
-from .controllers import Controller, SlidingState
+from .controllers import Controller, Forces, SlidingState
 from .loop import Actuation, Applied, RealLoop, Sensing, filtered_velocity, quantise, saturate
 from .plants import ArmPlant, Plant, ScaraPlant
 from .trajectory import Reference
@@ -178,7 +178,13 @@ def make_chunk(
         for q_d, qd_d, qdd_d, h, alpha, dist, *co in rows:
             qs.append(q)
             qds.append(qd)
-            tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha)
+            if controller.needs_forces:  # the perfect-knowledge ceiling: the payload and disturbance now
+                forces = Forces(tuple(co), dist[0])
+                tau, state = controller.torque(
+                    Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha, forces=forces
+                )
+            else:
+                tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha)
             q, qd = plant.step(q, qd, tau, dist, dt, co, integrator)
             taus.append(tau)
         return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
@@ -393,8 +399,11 @@ def make_real_chunk(
             # Control, told what the last period applied.
             ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
             h = None if periods.h is None else periods.h[k]
+            extra = {}
+            if controller.needs_forces:  # the perfect-knowledge ceiling: the payload and disturbance now
+                extra["forces"] = Forces(tuple(c[k, 0] for c in periods.co), periods.dist[k, 0][0])
             cmd, cstate = controller.torque(
-                ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied
+                ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, **extra
             )
             share = controller.share(cstate, cmd)
             # Actuate: the command of actuation_delay periods ago, saturated, with noise.

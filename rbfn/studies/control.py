@@ -101,16 +101,25 @@ def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsC
 
 
 def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> str:
-    """RMS error per joint (t > 0.5 s), max error of the last joint in the payload window, peak torques."""
+    """RMS error per joint (t > 0.5 s), max error of the last joint in the payload window, peak
+    torques; in the realistic loop the largest share of time a joint spent saturated, and where
+    `smc_exact` ran the smallest share of the smc -> smc_exact gap closed over the joints."""
     units = units or [("rad", "N m"), ("rad", "N m"), ("m", "N")]
     n = len(units)
     pos = ", ".join(f"e{j + 1}" for j in range(n)) + " [" + ", ".join(u for u, _ in units) + "]"
     tq = "peak |tau| [" + ", ".join(u for _, u in units) + "]"
     last = f"max e{n} window [{units[-1][0]}]"
-    lines = [f"{'controller':14s} {'case':>6s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}"]
+    first = next(iter(next(iter(metrics.values())).values()), {}) if metrics else {}
+    extra = ("  sat max" if "saturated" in first else "") + ("  gap min" if "gap_closure" in first else "")
+    lines = [f"{'controller':14s} {'case':>6s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}{extra}"]
     for name, cases in metrics.items():
         for case, m in cases.items():
             rms = " ".join(f"{v:9.2e}" for v in m["rms_err"])
             peak = " ".join(f"{v:8.1f}" for v in m["peak_tau"])
-            lines.append(f"{name:14s} {case:>6s}  {rms:>{10 * n}s}  {m['max_err_payload'][-1]:17.3e}  {peak:>{9 * n}s}")
+            row = f"{name:14s} {case:>6s}  {rms:>{10 * n}s}  {m['max_err_payload'][-1]:17.3e}  {peak:>{9 * n}s}"
+            if "saturated" in m:
+                row += f"  {100 * max(m['saturated']):6.2f}%"
+            if "gap_closure" in m:
+                row += f"  {min(m['gap_closure']):7.2f}"
+            lines.append(row)
     return "\nClosed loop\n" + "\n".join(lines)

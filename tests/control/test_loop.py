@@ -162,3 +162,31 @@ def test_the_realistic_preset_takes_the_robots_rate_and_encoders():
     assert cfg.loop.control_rate == cfg.robot.control_rate == 500.0
     assert cfg.loop.encoder_counts == cfg.robot.encoder_counts and len(cfg.loop.encoder_counts) == 6
     assert cfg.loop.torque_limits and cfg.loop.actuation_delay == 1 and not cfg.loop.ideal
+
+
+def test_the_perfect_knowledge_ceiling_and_the_gap_each_controller_closes():
+    """smc_exact knows every force: with exact state it tracks far better than smc, and in the
+    realistic loop it sets the ceiling each controller's gap closure is read against (smc 0,
+    smc_exact 1 on every joint)."""
+    from rbfn.control.comparison import compare_controllers
+    from rbfn.studies.control import check_control, control_table
+
+    for loop in ("ideal", "realistic"):
+        cfg = compose_config(
+            "evaluate",
+            f"loop={loop}",
+            "control.duration=2.0",
+            "control.payload_off=1.5",
+            "control.payloads=[0.0,10.0]",
+            "control.controllers=[smc,smc_obs,smc_exact]",
+            "gains.observer_gain=30",
+        )
+        setup = check_control(cfg.control, cfg.robot)
+        res = compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop)
+        for case in ("0kg", "10kg"):
+            smc, exact = res.runs["smc"].metrics[case], res.runs["smc_exact"].metrics[case]
+            assert all(e < s / 5 for e, s in zip(exact["rms_err"], smc["rms_err"])), (loop, case)
+            assert smc["gap_closure"] == [0.0] * 3 and exact["gap_closure"] == [1.0] * 3
+            assert all(0 < g <= 1.5 for g in res.runs["smc_obs"].metrics[case]["gap_closure"])
+        table = control_table({k: r.metrics for k, r in res.runs.items()}, setup.units)
+        assert "gap min" in table and ("sat max" in table) == (loop == "realistic")
