@@ -913,6 +913,12 @@ class EvalConfig:
             self.control.check()
             self.gains.check()
             self.loop.check(self.control.dt)
+            _need(
+                self.loop.ideal or not self.control.aot,
+                "control.aot",
+                self.control.aot,
+                f"the ahead-of-time step serves the ideal loop only (loop={self.loop.name}); use control.compile",
+            )
         if self.online.enabled:
             self.online.check()
         self._check_fits()

@@ -284,6 +284,8 @@ def simulate(
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
     if loop is not None:
+        if aot:
+            raise ValueError("aot=True serves the ideal loop only (loop is set); use compile=True")
         return _simulate_real(plant, controller, scenario, ref, q0, qd0, payload, loop, record, compile, chunk)
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     b = q0.shape[0]

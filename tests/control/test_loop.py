@@ -149,10 +149,11 @@ def test_with_every_part_off_the_realistic_loop_is_the_ideal_one():
         ("loop.actuation_delay=-1", "loop.actuation_delay"),
         ("loop.velocity_cutoff=0", "loop.velocity_cutoff"),
         ("loop.encoder_counts=[0.5]", "loop.encoder_counts"),
+        ("loop=realistic control.aot=true", "control.aot"),
     ],
 )
 def test_bad_loop_settings_are_refused_by_key(override, key):
-    cfg = compose_config("evaluate", override)
+    cfg = compose_config("evaluate", *override.split())
     with pytest.raises(ValueError, match=key.replace(".", r"\.")):
         cfg.check()
 
