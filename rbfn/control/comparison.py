@@ -10,7 +10,7 @@ nothing printed or written.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
@@ -79,6 +79,8 @@ def compare_controllers(
     if loop is not None:
         effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)
         real = real_loop(loop, sc.dt, setup.prismatic, effort, scale)
+        if real is not None:  # every controller meets the same noise in each payload case
+            real = replace(real, noise_envs=len(setup.payloads))
     period = sc.dt if real is None else real.period  # the controllers' time step, s
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n

@@ -72,7 +72,9 @@ class RealLoop:
     substeps: integration steps per control period; period: its length, s; resolution (n,): rad
     (m) per encoder count; position_noise: rad (m), standard deviation; velocity_gain: the
     first-order filter's gain per period (None: the exact velocity); torque_limit (n,): N m (N);
-    torque_noise (n,): N m (N), standard deviation; seed: the noise streams'.
+    torque_noise (n,): N m (N), standard deviation; seed: the noise streams'; noise_envs: the
+    period of the environments' noise (B a multiple of it), so that every controller of a
+    comparison meets the same noise in the same case (common random numbers); 0: each its own.
     """
 
     substeps: int = 1
@@ -85,6 +87,7 @@ class RealLoop:
     torque_limit: torch.Tensor | None = None
     torque_noise: torch.Tensor | None = None
     seed: int = 0
+    noise_envs: int = 0  # environments b and b + noise_envs share noise draws (0: each its own)
 
 
 def quantise(q: torch.Tensor, resolution: torch.Tensor) -> torch.Tensor:

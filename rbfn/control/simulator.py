@@ -471,14 +471,21 @@ def _simulate_real(
     )
     g = torch.Generator().manual_seed(loop.seed)
 
+    envs = loop.noise_envs or b
+    if b % envs:
+        raise ValueError(f"loop.noise_envs={envs} must divide the {b} environments")
+
     def noise(rows: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """This chunk's noise, drawn on the CPU (the same numbers on every device)."""
+        """This chunk's noise, drawn on the CPU (the same numbers on every device), every
+        `envs`-th environment alike."""
         pos = None
         if loop.position_noise:
-            pos = (loop.position_noise * torch.randn(rows, b, nj, generator=g, dtype=torch.float64)).to(**kw)
+            draw = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
+            pos = (loop.position_noise * draw).repeat(1, b // envs, 1).to(**kw)
         tau = None
         if loop.torque_noise is not None:
-            tau = (loop.torque_noise * torch.randn(rows, b, nj, generator=g, dtype=torch.float64)).to(**kw)
+            draw = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
+            tau = (loop.torque_noise * draw).repeat(1, b // envs, 1).to(**kw)
         return pos, tau
 
     q, qd = q0.T.contiguous().T, qd0.T.contiguous().T

@@ -109,7 +109,7 @@ def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> 
     pos = ", ".join(f"e{j + 1}" for j in range(n)) + " [" + ", ".join(u for u, _ in units) + "]"
     tq = "peak |tau| [" + ", ".join(u for _, u in units) + "]"
     last = f"max e{n} window [{units[-1][0]}]"
-    first = next(iter(next(iter(metrics.values())).values()), {}) if metrics else {}
+    first: dict = next(iter(next(iter(metrics.values())).values()), {}) if metrics else {}
     extra = ("  sat max" if "saturated" in first else "") + ("  gap min" if "gap_closure" in first else "")
     lines = [f"{'controller':14s} {'case':>6s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}{extra}"]
     for name, cases in metrics.items():

@@ -191,3 +191,18 @@ def test_the_perfect_knowledge_ceiling_and_the_gap_each_controller_closes():
             assert all(0 < g <= 1.5 for g in res.runs["smc_obs"].metrics[case]["gap_closure"])
         table = control_table({k: r.metrics for k, r in res.runs.items()}, setup.units)
         assert "gap min" in table and ("sat max" in table) == (loop == "realistic")
+
+
+def test_every_controller_meets_the_same_noise_in_a_case():
+    """noise_envs = the payload cases: environment b and b + noise_envs see the same measurement
+    noise (common random numbers), so controllers are compared on equal terms."""
+    loop = RealLoop(position_noise=1e-3, noise_envs=2, seed=3)
+    sc = Scenario(duration=0.01, dt=1e-3, payload_on=0.0, payload_off=0.01, metrics_after=0.0)
+    k = torch.arange(11, dtype=torch.float64)[:, None].expand(-1, 3)
+    q0 = torch.tensor([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5]] * 2, dtype=torch.float64)
+    roll = simulate(
+        ScaraPlant(), Echo("measured"), sc, (k, 0 * k, 0 * k), q0, torch.zeros_like(q0), torch.zeros(4), loop=loop
+    )
+    noise = roll.tau[:-1] - roll.q[:-1]  # what the controller saw less the truth
+    assert torch.equal(noise[:, 0], noise[:, 2]) and torch.equal(noise[:, 1], noise[:, 3])
+    assert not torch.equal(noise[:, 0], noise[:, 1])
