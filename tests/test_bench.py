@@ -68,3 +68,10 @@ def test_select_time_command_sets_and_reports_threads(capsys):
     assert [r["method"].split(" ")[0] for r in rows] == list(select_time.COLONIES)
     assert all(r["threads"] == 1 and r["iterations"] == 2 and r["x_kmeans"] > 0 for r in rows)
     assert "1 thread(s)" in capsys.readouterr().out
+
+
+def test_loop_throughput_measures_both_loops():
+    from bench.loop_throughput import measure
+
+    rates = measure(batch=4, repeats=1, device="cpu")
+    assert set(rates) == {"ideal", "realistic"} and all(r > 0 for r in rates.values())
