@@ -589,6 +589,7 @@ class GainsConfig:
     pd_kp: float = 0.0  # PD gains; 0: K Lambda and K, the same feedback as smc's K s
     pd_kd: float = 0.0
     dead_zone: float = 0.0  # rad/s (m/s) per joint: the adaptation ignores |s| below it (measurement noise)
+    nominal_payload: float = 0.0  # kg: the payload the nominal model carries (0: the unloaded robot, the paper's)
 
     def check(self, key: str = "gains") -> None:
         for k, v in vars(self).items():
@@ -596,7 +597,7 @@ class GainsConfig:
                 _need(math.isfinite(v), f"{key}.{k}", v, "must be finite")
         for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay"):
             _need(getattr(self, k) > 0, f"{key}.{k}", getattr(self, k), "must be > 0")
-        for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd", "dead_zone"):
+        for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd", "dead_zone", "nominal_payload"):
             _need(getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
 
 

@@ -74,7 +74,7 @@ def compare_controllers(
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
-    plant, model, scale = setup.plant, setup.model, setup.joint_scale(**kw)
+    plant, model, scale = setup.plant, setup.nominal_model(gains.nominal_payload), setup.joint_scale(**kw)
     real: RealLoop | None = None
     if loop is not None:
         effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)

@@ -22,12 +22,18 @@ __all__ = ["NominalModel", "ArmModel"]
 
 
 class NominalModel:
-    """The SCARA's nominal model: scaled M, C and G of the unloaded robot, in closed form."""
+    """The SCARA's nominal model: scaled M, C and G of the robot carrying `payload` kg (0: the
+    unloaded robot, the paper's), in closed form."""
 
     def __init__(
-        self, params: ScaraParams = ScaraParams(), m_scale: float = 0.9, c_scale: float = 0.8, g_scale: float = 0.85
+        self,
+        params: ScaraParams = ScaraParams(),
+        m_scale: float = 0.9,
+        c_scale: float = 0.8,
+        g_scale: float = 0.85,
+        payload: float = 0.0,
     ) -> None:
-        p1, p2, p3, m3 = inertia_params(0.0, params)
+        p1, p2, p3, m3 = inertia_params(payload, params)
         self.n = 3
         self.m_co = (m_scale * p1, m_scale * p2, m_scale * p3, m_scale * m3)
         self.c_co = (0.0, c_scale * p2, 0.0, 0.0)
@@ -80,12 +86,20 @@ class _ScaraAt:
 
 
 class ArmModel:
-    """The nominal model of a URDF arm (`Arm`, or its `ArmTerms`), without payload."""
+    """The nominal model of a URDF arm (`Arm`, or its `ArmTerms`), carrying `payload` kg (0: none)."""
 
-    def __init__(self, arm: Arm | ArmTerms, m_scale: float = 0.9, c_scale: float = 0.8, g_scale: float = 0.85) -> None:
+    def __init__(
+        self,
+        arm: Arm | ArmTerms,
+        m_scale: float = 0.9,
+        c_scale: float = 0.8,
+        g_scale: float = 0.85,
+        payload: float = 0.0,
+    ) -> None:
         self.terms = arm if isinstance(arm, ArmTerms) else ArmTerms(arm)
         self.n = self.terms.n
         self.m_scale, self.c_scale, self.g_scale = m_scale, c_scale, g_scale
+        self.payload = payload  # kg at the arm's payload link (0: the unloaded robot)
         self.scalar_terms = ArmScalarTerms(self.terms)  # built eagerly: tracing stays on tensors of B
 
     def dynamics_terms(self) -> ArmTerms | ArmScalarTerms:
@@ -99,7 +113,7 @@ class ArmModel:
 class _ArmAt:
     def __init__(self, model: ArmModel, q: torch.Tensor, qd: torch.Tensor) -> None:
         self.model, self.qd = model, qd
-        self.cfg = model.dynamics_terms().at(q)
+        self.cfg = model.dynamics_terms().at(q, model.payload) if model.payload else model.dynamics_terms().at(q)
         self._mo = None
 
     def _motion(self):

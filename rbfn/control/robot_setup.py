@@ -15,7 +15,7 @@ from __future__ import annotations
 import reprlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 
@@ -45,10 +45,20 @@ class ControlRobot:
     payloads: list[float]  # kg, the payload cases
     figure_payload: float  # kg
     effort: list[float] | None = None  # per joint, the URDF's effort limits, N m (N); inf where none
+    closed: Any = None  # the robot's closed forms where the registry has them (rbfn.robots.registry)
 
     @property
     def n(self) -> int:
         return len(self.joint_names)
+
+    def nominal_model(self, payload: float = 0.0) -> NominalModel | ArmModel:
+        """The controllers' nominal model carrying `payload` kg (`gains.nominal_payload`; 0: the
+        unloaded robot's, `model`), closed-form where the robot has one."""
+        if not payload:
+            return self.model
+        if self.closed is not None:
+            return self.closed.model(payload)
+        return ArmModel(cast(ArmPlant, self.plant).terms, payload=payload)
 
     @property
     def units(self) -> list[tuple[str, str]]:
@@ -123,6 +133,7 @@ def control_robot(
         payloads,
         figure_payload,
         arm.effort_limits().tolist(),
+        closed,
     )
 
 

@@ -206,3 +206,20 @@ def test_every_controller_meets_the_same_noise_in_a_case():
     noise = roll.tau[:-1] - roll.q[:-1]  # what the controller saw less the truth
     assert torch.equal(noise[:, 0], noise[:, 2]) and torch.equal(noise[:, 1], noise[:, 3])
     assert not torch.equal(noise[:, 0], noise[:, 1])
+
+
+@pytest.mark.parametrize("robot", ["scara", "ur5"])
+def test_the_nominal_model_can_carry_a_payload(robot):
+    """gains.nominal_payload: 0 is the unloaded model itself; a payload adds its inertia (the
+    closed form's and the URDF model's alike)."""
+    cfg = compose_config("evaluate", f"robot={robot}")
+    from rbfn.studies.control import check_control
+
+    setup = check_control(cfg.control, cfg.robot)
+    assert setup.nominal_model(0.0) is setup.model
+    q = torch.tensor([setup.home], dtype=torch.float64)
+    qd = torch.zeros_like(q)
+    v = torch.ones_like(q)
+    light, heavy = (setup.nominal_model(p).at(q, qd) for p in (0.0, 5.0))
+    assert (heavy.m_times(v) - light.m_times(v)).abs().max() > 1e-3
+    assert (heavy.gravity() - light.gravity()).abs().max() > 1e-3

@@ -108,11 +108,12 @@ class ScaraClosedForm:
 
         return ScaraPlant(self.params, **kw)
 
-    def model(self) -> NominalModel:
-        """The controllers' nominal model (scaled M, C, G of the unloaded robot)."""
+    def model(self, payload: float = 0.0) -> NominalModel:
+        """The controllers' nominal model (scaled M, C, G of the robot carrying `payload` kg; 0:
+        unloaded)."""
         from ...control.models import NominalModel
 
-        return NominalModel(self.params)
+        return NominalModel(self.params, payload=payload)
 
 
 def closed_form(gravity: float | None = None, params: ScaraParams | None = None) -> ScaraClosedForm:
