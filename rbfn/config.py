@@ -914,12 +914,13 @@ class EvalConfig:
             self.control.check()
             self.gains.check()
             self.loop.check(self.control.dt)
-            _need(
-                self.loop.ideal or not self.control.aot,
-                "control.aot",
-                self.control.aot,
-                f"the ahead-of-time step serves the ideal loop only (loop={self.loop.name}); use control.compile",
-            )
+            for k in ("aot", "compile"):  # the realistic chunk: not compiled yet (eager only)
+                _need(
+                    self.loop.ideal or not getattr(self.control, k),
+                    f"control.{k}",
+                    getattr(self.control, k),
+                    f"the compiled step serves the ideal loop only (loop={self.loop.name} runs eagerly)",
+                )
         if self.online.enabled:
             self.online.check()
         self._check_fits()
