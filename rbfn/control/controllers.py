@@ -199,10 +199,16 @@ class SlidingMode(Controller):
         forces: Forces | None = None,
     ) -> tuple[torch.Tensor, SlidingState]:
         """tau (B, n) and the next state at joints q, velocities qd (B, n); h: this period's
-        features (M,), or per environment (B, M); alpha: its adaptation step (0-dim); applied:
-        the realistic loop's account of the last period's torque (`_torque_applied`)."""
-        if applied is not None:
-            return self._torque_applied(ref, q, qd, state, h, alpha, applied)
+        features (M,), or per environment (B, M); alpha: its adaptation step (0-dim).
+
+        applied: the realistic loop's account of the last period's torque (`rbfn.control.loop`),
+        where the torque that acts is not the command. The observer then integrates the last
+        period with the nominal share of the torque actually applied (`applied.known`, known after
+        the fact: the command delayed and saturated) rather than with this period's command, so
+        it does not wind up against saturation and delay; the adaptation ignores |s_j| below
+        `gains.dead_zone` (a noise floor, Peterson and Narendra's dead zone: measurement noise
+        alone cannot drift the weights) and joints whose torque was saturated (it cannot learn
+        what the actuator did not apply)."""
         g, dt = self.gains, self.dt
         e, de = ref.q_d - q, ref.qd_d - qd
         s = torch.add(de, e, alpha=g.Lambda)  # x + alpha y in one operation: overhead-bound at small B
@@ -217,7 +223,7 @@ class SlidingMode(Controller):
             tau = torch.add(torch.add(tau, s, alpha=g.K), robust, alpha=g.epsilon)
         else:
             tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
-        d_hat, integral, p0, w = state[:4]
+        d_hat, integral, p0, w, beta, share = state
         tau_m = tau  # what the nominal model sees: no network, no observer
         if h is not None:
             tau = tau + torch.einsum("m,bmj->bj" if h.dim() == 1 else "bm,bmj->bj", h, w)
@@ -226,60 +232,27 @@ class SlidingMode(Controller):
             # nominal model sees (the network's share removed) and beta = dM_hat/dt qd - C_hat qd
             # - G_hat, d_hat = K_o (p0 + int (tau_m + beta - d_hat) dt - p) obeys
             # d(d_hat)/dt = K_o (miss - d_hat): it tracks what the model (nominal + network) misses.
+            if applied is not None:  # the last period, as it was applied
+                assert beta is not None
+                integral = integral + dt * (applied.known + beta)
             d_hat = self.observer_gain() * (integral + p0 - at.m_times(qd))
             tau = tau + d_hat
-            integral = torch.add(integral, tau_m + at.momentum_rate(), alpha=dt)
+            if applied is None:
+                integral = torch.add(integral, tau_m + at.momentum_rate(), alpha=dt)
+            else:
+                beta = at.momentum_rate()
+        if applied is not None:
+            share = tau - tau_m
         if h is None:
-            return tau, state._replace(d_hat=d_hat, integral=integral)
+            return tau, SlidingState(d_hat, integral, p0, w, beta, share)
         assert w is not None and alpha is not None  # a network has weights and a step
+        if applied is not None:  # a 0/1 mask: exact
+            s = s * ((s.abs() > g.dead_zone).to(s) * (1.0 - applied.saturated))
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
         w = w + h[..., None] * step[:, None, :]  # h (M,) or (B, M)
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
-        return tau, state._replace(d_hat=d_hat, integral=integral, w=w)
-
-    def _torque_applied(
-        self,
-        ref: Reference,
-        q: torch.Tensor,
-        qd: torch.Tensor,
-        state: SlidingState,
-        h: torch.Tensor | None,
-        alpha: torch.Tensor | None,
-        applied: Applied,
-    ) -> tuple[torch.Tensor, SlidingState]:
-        """The same law in the realistic loop, where the torque that acts is not the command:
-        the observer integrates the last period with the nominal share of the torque actually
-        applied (`applied.known`, known after the fact: the command delayed and saturated) rather
-        than with this period's command, so it does not wind up against saturation and delay; the
-        adaptation ignores |s_j| below `gains.dead_zone` (a noise floor, Peterson and Narendra's
-        dead zone: measurement noise alone cannot drift the weights) and joints whose torque was
-        saturated (it cannot learn what the actuator did not apply)."""
-        g, dt = self.gains, self.dt
-        e, de = ref.q_d - q, ref.qd_d - qd
-        s = de + g.Lambda * e
-        at = self.model.at(q, qd)
-        robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
-        tau = at.m_times(ref.qdd_d + g.Lambda * de) + at.c_times(ref.qd_d + g.Lambda * e) + at.gravity()
-        tau = tau + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
-        d_hat, integral, p0, w, beta, _ = state
-        assert beta is not None
-        tau_m = tau
-        if h is not None:
-            tau = tau + torch.einsum("m,bmj->bj" if h.dim() == 1 else "bm,bmj->bj", h, w)
-        if self.observer:
-            integral = integral + dt * (applied.known + beta)  # the last period, as it was applied
-            d_hat = self.observer_gain() * (integral + p0 - at.m_times(qd))
-            beta = at.momentum_rate()
-            tau = tau + d_hat
-        if h is not None:
-            assert w is not None and alpha is not None
-            active = (s.abs() > g.dead_zone).to(s) * (1.0 - applied.saturated)
-            step = alpha * (s * active) if self.scale is None else alpha * (self.scale * s * active)
-            w = w + h[..., None] * step[:, None, :]
-            if g.leakage:
-                w = w * (1.0 - g.leakage * dt)
-        return tau, SlidingState(d_hat, integral, p0, w, beta, tau - tau_m)
+        return tau, SlidingState(d_hat, integral, p0, w, beta, share)
 
 
 class ExactSliding(Controller):
