@@ -153,10 +153,8 @@ class Stacked(Controller):
         for i, (c, qi, qdi) in enumerate(zip(self.units, q.split(self.unit_sizes), qd.split(self.unit_sizes))):
             cols = self.columns[i]
             hi = None if cols is None or h is None else h[cols]
-            if c.needs_forces:
-                tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i], forces=rows[i])
-            else:
-                tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i])
+            fi = rows[i] if c.needs_forces else None
+            tau, st = c.torque(ref, qi, qdi, state[i], h=hi, alpha=alpha[i], applied=parts[i], forces=fi)
             taus.append(tau)
             states.append(st)
         return torch.cat(taus), tuple(states)

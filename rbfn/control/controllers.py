@@ -83,13 +83,14 @@ class Forces(NamedTuple):
 class Controller:
     """A pure function of tensors, so the whole closed-loop step can be compiled and batched:
     `init_state(q0, qd0)` -> its state (a pytree of tensors; () for PD and computed torque);
-    `torque(ref, q, qd, state, h=, alpha=)` -> (tau (B, n), state), with ref this period's
-    Reference (each (n,) or (B, n)), h the features (M,) or None and alpha the adaptation step
-    (0-dim).
+    `torque(ref, q, qd, state, h=, alpha=, applied=, forces=)` -> (tau (B, n), state), with ref
+    this period's Reference (each (n,) or (B, n)), h the features (M,) or None, alpha the
+    adaptation step (0-dim), applied the realistic loop's `Applied` (None in the ideal loop) and
+    forces the true payload and disturbance (`Forces`, given only where `needs_forces`; else None).
     """
 
     features: torch.Tensor | None = None
-    needs_forces = False  # True: torque() takes forces=Forces (the perfect-knowledge ceiling only)
+    needs_forces = False  # True: the simulator passes forces= (the perfect-knowledge ceiling only)
 
     def __init__(
         self, gains: Gains, dt: float, model: Model | None = None, joint_scale: torch.Tensor | None = None

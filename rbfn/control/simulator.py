@@ -40,6 +40,7 @@ __all__ = [
     "control_metrics",
     "make_chunk",
     "stage_disturbances",
+    "payload_coefficients",
     "CHECK_EVERY",
 ]
 
@@ -124,6 +125,15 @@ def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
     return torch.stack([d[0:-1:2], d[1::2], d[2::2]], 1)
 
 
+def payload_coefficients(plant: Plant, scenario: Scenario, steps: int, payload: torch.Tensor, **kw) -> tuple:
+    """The plant's payload coefficients at each of `steps` integration steps, each (steps, B): the
+    payload (B,) kg inside the scenario's window, none outside (`Plant.coefficients`)."""
+    k = torch.arange(steps, device=kw.get("device"))
+    dt = scenario.dt
+    inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(kw["dtype"])
+    return tuple(plant.coefficients(inside[:, None] * payload.to(**kw)[None, :]))
+
+
 class Loop(NamedTuple):
     """The closed loop's state: joints q and velocities qd (B, n) (rad or m, per s) and the
     controller's state."""
@@ -158,6 +168,13 @@ class Recorded(NamedTuple):
     tau: torch.Tensor
 
 
+def _forces(controller: Controller, co: tuple, dist: torch.Tensor) -> Forces | None:
+    """What the perfect-knowledge ceiling is told this step (`Controller.needs_forces`): the payload
+    coefficients (each (B,)) and the disturbance at the step's start (dist[0] of the step's (3,)
+    or (3, n)); None for every other controller."""
+    return Forces(co, dist[0]) if controller.needs_forces else None
+
+
 def make_chunk(
     plant: Plant, controller: Controller, dt: float, integrator: str, n: int
 ) -> Callable[[Loop, Periods], Recorded]:
@@ -178,13 +195,8 @@ def make_chunk(
         for q_d, qd_d, qdd_d, h, alpha, dist, *co in rows:
             qs.append(q)
             qds.append(qd)
-            if controller.needs_forces:  # the perfect-knowledge ceiling: the payload and disturbance now
-                forces = Forces(tuple(co), dist[0])
-                tau, state = controller.torque(
-                    Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha, forces=forces
-                )
-            else:
-                tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha)
+            forces = _forces(controller, tuple(co), dist)
+            tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha, forces=forces)
             q, qd = plant.step(q, qd, tau, dist, dt, co, integrator)
             taus.append(tau)
         return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
@@ -290,14 +302,12 @@ def simulate(
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     b = q0.shape[0]
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
-    k = torch.arange(n, device=q0.device)
-    inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(q0.dtype)
     periods = Periods(
         ref=ref.to(**kw),  # every period's inputs, sliced per chunk below
         h=controller.features.to(**kw) if controller.features is not None else None,
         alpha=controller.alphas(torch.arange(n, **kw) * dt),
         dist=stage_disturbances(plant, n, dt, **kw),  # (n, 3) or (n, 3, joints)
-        co=tuple(plant.coefficients(inside[:, None] * payload.to(**kw)[None, :])),
+        co=payload_coefficients(plant, scenario, n, payload, **kw),
     )  # each (n, B)
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
@@ -401,11 +411,9 @@ def make_real_chunk(
             # Control, told what the last period applied.
             ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
             h = None if periods.h is None else periods.h[k]
-            extra = {}
-            if controller.needs_forces:  # the perfect-knowledge ceiling: the payload and disturbance now
-                extra["forces"] = Forces(tuple(c[k, 0] for c in periods.co), periods.dist[k, 0][0])
+            forces = _forces(controller, tuple(c[k, 0] for c in periods.co), periods.dist[k, 0])
             cmd, cstate = controller.torque(
-                ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, **extra
+                ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, forces=forces
             )
             share = controller.share(cstate, cmd)
             # Actuate: the command of actuation_delay periods ago, saturated, with noise.
@@ -453,9 +461,7 @@ def _simulate_real(
     n_steps = periods * sub
     b, nj = q0.shape
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
-    k = torch.arange(n_steps, device=q0.device)
-    inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(q0.dtype)
-    co = tuple(c.reshape(periods, sub, b) for c in plant.coefficients(inside[:, None] * payload.to(**kw)[None, :]))
+    co = tuple(c.reshape(periods, sub, b) for c in payload_coefficients(plant, scenario, n_steps, payload, **kw))
     dist = stage_disturbances(plant, n_steps, dt, **kw)
     dist = dist.reshape(periods, sub, *dist.shape[1:])
     starts = slice(0, n_steps, sub)  # each period's first integration step

@@ -23,7 +23,7 @@ class Echo(Controller):
         super().__init__(GainsConfig(), 1e-3)
         self.mode = mode
 
-    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None):
+    def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None, forces=None):
         return (ref.q_d.expand_as(q) if self.mode == "reference" else q).clone(), state
 
 
