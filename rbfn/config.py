@@ -268,18 +268,7 @@ class RobotConfig:
             self.rated_payload,
             "must be >= 0 kg",
         )
-        _need(
-            self.control_rate is None or (finite(self.control_rate) and self.control_rate > 0),
-            f"{key}.control_rate",
-            self.control_rate,
-            "must be a positive rate in Hz or null",
-        )
-        _need(
-            all(finite(c) and c >= 1 for c in self.encoder_counts),
-            f"{key}.encoder_counts",
-            list(self.encoder_counts),
-            "counts per revolution (per metre for a prismatic joint) >= 1, one per chain joint, or empty (exact)",
-        )
+        _check_sensing(self.control_rate, self.encoder_counts, key)
 
 
 @dataclass
@@ -861,7 +850,7 @@ class LoopConfig:
     def check(self, dt: float, key: str = "loop") -> None:
         """dt: the integration step (control.dt), s."""
         rate = self.control_rate
-        _need(rate is None or (finite(rate) and rate > 0), f"{key}.control_rate", rate, "must be > 0 Hz or null")
+        _check_sensing(rate, self.encoder_counts, key)
         if rate is not None:
             sub = 1.0 / (rate * dt)
             _need(
@@ -872,12 +861,6 @@ class LoopConfig:
             )
         for k in ("sensing_delay", "actuation_delay"):
             _need(0 <= getattr(self, k) <= 100, f"{key}.{k}", getattr(self, k), "must be in [0, 100] periods")
-        _need(
-            all(finite(c) and c >= 1 for c in self.encoder_counts),
-            f"{key}.encoder_counts",
-            list(self.encoder_counts),
-            "counts per revolution (per metre) >= 1 per joint, or empty (exact)",
-        )
         for k in ("position_noise", "torque_noise"):
             _need(finite(getattr(self, k)) and getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
         cut = self.velocity_cutoff
@@ -955,6 +938,17 @@ def validate_train(cfg: TrainConfig) -> None:
 def validate_evaluate(cfg: EvalConfig) -> None:
     """Raise ValueError naming the first bad value of an evaluation config (`EvalConfig.check`)."""
     cfg.check()
+
+
+def _check_sensing(rate: float | None, counts: list[float], key: str) -> None:
+    """`key`.control_rate (Hz or null) and `key`.encoder_counts, the robot's facts and the loop's."""
+    _need(rate is None or (finite(rate) and rate > 0), f"{key}.control_rate", rate, "must be > 0 Hz or null")
+    _need(
+        all(finite(c) and c >= 1 for c in counts),
+        f"{key}.encoder_counts",
+        list(counts),
+        "counts per revolution (per metre for a prismatic joint) >= 1, one per chain joint, or empty (exact)",
+    )
 
 
 def _need(ok: bool, key: str, value: Any, allowed: str) -> None:

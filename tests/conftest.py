@@ -85,3 +85,16 @@ def error_line(capsys, main, prog: str, *argv, status: int = 2) -> str:
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(f"{prog}: error: "), err
     return err
+
+
+# A training run of a few seconds (k-means, M = 10, one thread, no export): the studies' tests.
+TINY_TRAIN = [
+    "data.n_train=300",
+    "data.n_val=200",
+    "data.n_test=200",
+    "rbfn.num_centers=10",
+    "centers=kmeans",
+    "progress=false",
+    "export=false",
+    "num_threads=1",
+]

@@ -15,18 +15,9 @@ import pytest
 import train
 from rbfn.studies.rundir import RunDir, RunDirInUse
 
-from ..conftest import ROOT, compose_config
+from ..conftest import ROOT, TINY_TRAIN, compose_config
 
-TINY = [
-    "data.n_train=300",
-    "data.n_val=200",
-    "data.n_test=200",
-    "rbfn.num_centers=10",
-    "centers=kmeans",
-    "progress=false",
-    "export=false",
-    "num_threads=1",
-]
+TINY = TINY_TRAIN
 
 
 @contextmanager

@@ -19,7 +19,7 @@ from rbfn.files import atomic_write_bytes
 from rbfn.studies.beside import Beside, can_fork
 from rbfn.studies.stop import stop_on_signals
 
-from ..conftest import ROOT, compose_config
+from ..conftest import ROOT, TINY_TRAIN, compose_config
 
 fork = multiprocessing.get_context("fork")
 
@@ -147,17 +147,7 @@ def stop_and_check(proc: subprocess.Popen, log: Path, run_dir: Path, started, se
 def ckpt(tmp_path_factory):
     out = tmp_path_factory.mktemp("train")
     train.run(
-        compose_config(
-            "train",
-            "data.n_train=300",
-            "data.n_val=200",
-            "data.n_test=200",
-            "rbfn.num_centers=10",
-            "centers=kmeans",
-            "progress=false",
-            "export=false",
-            "num_threads=1",
-        ),
+        compose_config("train", *TINY_TRAIN),
         out,
     )
     return out / "checkpoint.pt"
