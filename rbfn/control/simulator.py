@@ -300,7 +300,6 @@ def simulate(
             raise ValueError("aot=True serves the ideal loop only (loop is set); use compile=True")
         return _simulate_real(plant, controller, scenario, ref, q0, qd0, payload, loop, record, compile, chunk)
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
-    b = q0.shape[0]
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
     periods = Periods(
         ref=ref.to(**kw),  # every period's inputs, sliced per chunk below
@@ -321,8 +320,40 @@ def simulate(
         example = (state, _rows(periods, slice(0, chunk)))
         key = chunk_key(plant, controller, dt, scenario.integrator, chunk, example)
         run = aot_chunk(run, key, example, log.info)
+    state, rec = _run_chunks(
+        run,
+        lambda m: make_chunk(plant, controller, dt, scenario.integrator, m),
+        state,
+        lambda sl: _rows(periods, sl),
+        n,
+        chunk,
+        record,
+        CHECK_EVERY,
+        lambda k: (k, k * dt),
+    )
+    if rec is None:
+        return state.q.clone(), state.qd.clone()
+    return Rollout(scenario.times(state.q.dtype, state.q.device), *rec)
+
+
+def _run_chunks(
+    run: Callable,
+    make: Callable[[int], Callable],
+    state: Any,
+    rows: Callable[[slice], Any],
+    n: int,
+    chunk: int,
+    record: bool,
+    every: int,
+    when: Callable[[int], tuple[int, float]],
+) -> tuple[Any, tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]:
+    """Run n periods from `state` in chunks of `chunk` (`run`; a shorter last one `make(m)`), each
+    fed `rows(periods' slice)`; check finiteness every `every` periods (0: every chunk) and at the
+    end, naming the step and time `when(period)`. Returns the final state and, with `record`, the
+    rows q, qd, tau (n + 1, B, nj) (the last row: the final state, tau repeated)."""
+    q0 = state.q
     if record:
-        qs = torch.empty(n + 1, b, plant.n, **kw)
+        qs = torch.empty(n + 1, *q0.shape, dtype=q0.dtype, device=q0.device)
         qds, taus = torch.empty_like(qs), torch.empty_like(qs)
     k0, checked = 0, 0
     # No autograd bookkeeping (a fifth of a small batch's step): the records are written in place
@@ -332,21 +363,20 @@ def simulate(
         state = pytree.tree_map_only(torch.Tensor, torch.clone, state)
         while k0 < n:
             m = min(chunk, n - k0)
-            fn = run if m == chunk else make_chunk(plant, controller, dt, scenario.integrator, m)
+            fn = run if m == chunk else make(m)
             sl = slice(k0, k0 + m)
-            out = fn(state, _rows(periods, sl))
+            out = fn(state, rows(sl))
             state = out.loop
             if record:
                 qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
             k0 += m
-            if k0 - checked >= CHECK_EVERY or k0 == n:
-                _check(k0, k0 * dt, state.q, state.qd, out.tau[-1])
+            if k0 - checked >= every or k0 == n:
+                _check(*when(k0), state.q, state.qd, out.tau[-1])
                 checked = k0
-    q, qd = state.q, state.qd
     if not record:
-        return q.clone(), qd.clone()
-    qs[n], qds[n], taus[n] = q, qd, taus[n - 1]
-    return Rollout(scenario.times(q.dtype, q.device), qs, qds, taus)
+        return state, None
+    qs[n], qds[n], taus[n] = state.q, state.qd, taus[n - 1]
+    return state, (qs, qds, taus)
 
 
 def _rows(periods: Any, sl: slice) -> Any:
@@ -509,30 +539,26 @@ def _simulate_real(
     run = make_real_chunk(plant, controller, loop, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
-    if record:
-        qs = torch.empty(periods + 1, b, nj, **kw)
-        qds, taus = torch.empty_like(qs), torch.empty_like(qs)
-    k0 = 0
-    with torch.inference_mode():
-        state = pytree.tree_map_only(torch.Tensor, torch.clone, state)
-        while k0 < periods:
-            m = min(chunk, periods - k0)
-            fn = run if m == chunk else make_real_chunk(plant, controller, loop, dt, scenario.integrator, m)
-            sl = slice(k0, k0 + m)
-            pos, tau = noise(m)
-            rows = _rows(inputs, sl)
-            out = fn(state, rows._replace(position_noise=pos, torque_noise=tau))
-            state = out.loop
-            if record:
-                qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
-            k0 += m
-            _check(k0 * sub, k0 * loop.period, state.q, state.qd, out.tau[-1])
-    q, qd = state.q, state.qd
-    if not record:
-        return q.clone(), qd.clone()
-    qs[periods], qds[periods], taus[periods] = q, qd, taus[periods - 1]
-    t = torch.arange(periods + 1, dtype=q.dtype, device=q.device) * loop.period
-    return Rollout(t, qs, qds, taus, saturated=state.actuation.saturated_periods.clone() / periods)
+
+    def rows(sl: slice) -> RealPeriods:
+        pos, tau = noise(sl.stop - sl.start)
+        return _rows(inputs, sl)._replace(position_noise=pos, torque_noise=tau)
+
+    state, rec = _run_chunks(
+        run,
+        lambda m: make_real_chunk(plant, controller, loop, dt, scenario.integrator, m),
+        state,
+        rows,
+        periods,
+        chunk,
+        record,
+        0,
+        lambda k: (k * sub, k * loop.period),
+    )
+    if rec is None:
+        return state.q.clone(), state.qd.clone()
+    t = torch.arange(periods + 1, dtype=state.q.dtype, device=state.q.device) * loop.period
+    return Rollout(t, *rec, saturated=state.actuation.saturated_periods.clone() / periods)
 
 
 # in an AOT package's call spec
