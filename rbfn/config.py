@@ -579,6 +579,11 @@ class GainsConfig:
     pd_kd: float = 0.0
     dead_zone: float = 0.0  # rad/s (m/s) per joint: the adaptation ignores |s| below it (measurement noise)
     nominal_payload: float = 0.0  # kg: the payload the nominal model carries (0: the unloaded robot, the paper's)
+    # Per joint j, for the robot's rated payload (robot.rated_payload): the observer no faster than
+    # the feedback's bandwidth K s_j / M_hat_jj and the adaptation rate divided by M_hat_jj's growth,
+    # M_hat_jj at home carrying the rated payload (rbfn.control.robot_setup.ControlRobot.joint_rates).
+    # The realistic sets' choice: their integrators stay stable whatever the arm carries.
+    inertia_scaling: bool = False
 
     def check(self, key: str = "gains") -> None:
         for k, v in vars(self).items():

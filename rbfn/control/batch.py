@@ -38,12 +38,14 @@ class SlidingModeBatch(SlidingMode):
             observer=any(p.observer for p in parts),
             features=torch.cat(feats, -1) if feats else None,
             joint_scale=first.scale,
+            rates=first.rates,
         )
         self.members = list(zip(parts, sizes))
         # Public, so a compiled chunk's cache key (which leaves features out) sees the column split.
         self.member_columns = [0 if p.features is None else p.features.shape[1] for p in parts]
-        # Per environment, set by init_state: observer gain (B, 1) (None: every part has the
-        # observer) and mask of its own feature columns (B, M) (None: no features).
+        # Per environment, set by init_state: observer gain (B, 1), or (B, n) with per-joint rates
+        # (None: every part has the observer), and mask of its own feature columns (B, M) (None:
+        # no features).
         self._gain: torch.Tensor | None = None
         self._own: torch.Tensor | None = None
 
@@ -63,7 +65,8 @@ class SlidingModeBatch(SlidingMode):
                 observed[rows] = float(part.observer)
             if own is not None:
                 own[rows, cols] = 1.0
-        self._gain = None if observed is None else observed.to(q0) * self.gains.observer_gain
+        gain = super().observer_gain()
+        self._gain = None if observed is None else observed.to(q0) * (gain.to(q0) if isinstance(gain, torch.Tensor) else gain)
         self._own = None if own is None else own.to(q0)
         state = super().init_state(q0, qd0)  # w: zeros, the batch having no w0
         for part, rows, cols in self._blocks():
@@ -72,7 +75,7 @@ class SlidingModeBatch(SlidingMode):
         return state
 
     def observer_gain(self) -> float | torch.Tensor:
-        return self.gains.observer_gain if self._gain is None else self._gain
+        return super().observer_gain() if self._gain is None else self._gain
 
     def torque(
         self,
@@ -165,11 +168,14 @@ class Stacked(Controller):
 
 def _batchable(a: Controller, b: Controller) -> bool:
     """Whether sliding-mode controllers a and b can run as one: equal gains, time step, joint
-    scale and model (the same object, or the SCARA's with the same coefficients)."""
+    scale, joint rates and model (the same object, or the SCARA's with the same coefficients)."""
     if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
         return False
     same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
+    same_rates = a.rates is b.rates or (
+        a.rates is not None and b.rates is not None and all(map(torch.equal, a.rates, b.rates))
+    )
     same_model = a.model is b.model or (
         type(a.model) is type(b.model) is NominalModel and vars(a.model) == vars(b.model)
     )
-    return same_scale and same_model
+    return same_scale and same_rates and same_model

@@ -75,6 +75,7 @@ def compare_controllers(
     sc.validate()
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
     plant, model, scale = setup.plant, setup.nominal_model(gains.nominal_payload), setup.joint_scale(**kw)
+    rates = setup.joint_rates(gains, **kw)
     real: RealLoop | None = None
     if loop is not None:
         effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)
@@ -124,6 +125,7 @@ def compare_controllers(
                 observer=cfg.network.observer,
                 joint_scale=scale,
                 plant=plant,
+                rates=rates,
             )
         )
     k = len(controllers)

@@ -49,6 +49,7 @@ __all__ = [
     "SlidingState",
     "ExactSliding",
     "Forces",
+    "JointRates",
     "make_controller",
 ]
 
@@ -78,6 +79,14 @@ class Forces(NamedTuple):
 
     co: tuple[torch.Tensor, ...]
     dist: torch.Tensor
+
+
+class JointRates(NamedTuple):
+    """Per-joint factors (n,) of the sliding-mode law's integrators (`gains.inertia_scaling`): of
+    the observer's gain K_o and of the adaptation rate Gamma. Dimensionless."""
+
+    observer: torch.Tensor
+    gamma: torch.Tensor
 
 
 class Controller:
@@ -166,9 +175,11 @@ class SlidingMode(Controller):
         features: torch.Tensor | None = None,
         w0: torch.Tensor | None = None,
         joint_scale: torch.Tensor | None = None,
+        rates: JointRates | None = None,
     ) -> None:
         super().__init__(gains, dt, model, joint_scale)
         self.observer, self.features, self.w0 = observer, features, w0
+        self.rates = rates  # None: K_o and Gamma on every joint
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> SlidingState:
         z = torch.zeros_like(q0)
@@ -184,8 +195,10 @@ class SlidingMode(Controller):
         return state.share
 
     def observer_gain(self) -> float | torch.Tensor:
-        """K_o: one gain for every environment, or a batch's per environment (B, 1)."""
-        return self.gains.observer_gain
+        """K_o: one gain for every joint, or per joint (n,) (`rates`); a batch's per environment
+        (B, 1) or (B, n)."""
+        k = self.gains.observer_gain
+        return k if self.rates is None else k * self.rates.observer
 
     def torque(
         self,
@@ -250,6 +263,8 @@ class SlidingMode(Controller):
         if applied is not None:  # a 0/1 mask: exact
             s = s * ((s.abs() > g.dead_zone).to(s) * (1.0 - applied.saturated))
         step = alpha * s if self.scale is None else alpha * (self.scale * s)
+        if self.rates is not None:
+            step = step * self.rates.gamma
         w = w + h[..., None] * step[:, None, :]  # h (M,) or (B, M)
         if g.leakage:
             w = w * (1.0 - g.leakage * dt)
@@ -297,18 +312,20 @@ def make_controller(
     observer: bool = True,
     joint_scale: torch.Tensor | None = None,
     plant: Any = None,
+    rates: JointRates | None = None,
 ) -> Controller:
     """Controller by name: pd, ctc, smc, smc_obs, smc_exact (needs the `plant`), or arbfn* (needs
     `features`). `model`: the nominal model (default: the SCARA's); `joint_scale` (n,): per-joint
-    factor of the torque gains."""
+    factor of the torque gains; `rates`: per-joint factors of the sliding-mode law's observer gain
+    and adaptation rate (None: 1)."""
     if name == "pd":
         return PD(gains, dt, model, joint_scale)
     if name == "ctc":
         return ComputedTorque(gains, dt, model, joint_scale)
     if name == "smc":
-        return SlidingMode(gains, dt, model, joint_scale=joint_scale)
+        return SlidingMode(gains, dt, model, joint_scale=joint_scale, rates=rates)
     if name == "smc_obs":
-        return SlidingMode(gains, dt, model, observer=True, joint_scale=joint_scale)
+        return SlidingMode(gains, dt, model, observer=True, joint_scale=joint_scale, rates=rates)
     if name == "smc_exact":
         if plant is None:
             raise ValueError("controller 'smc_exact' needs the plant (it knows every force exactly)")
@@ -316,7 +333,9 @@ def make_controller(
     if name.startswith("arbfn"):
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
-        return SlidingMode(gains, dt, model, observer=observer, features=features, w0=w0, joint_scale=joint_scale)
+        return SlidingMode(
+            gains, dt, model, observer=observer, features=features, w0=w0, joint_scale=joint_scale, rates=rates
+        )
     raise ValueError(
         f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
         f"arbfn_<{'|'.join(CONTROL_CENTER_METHODS)}>"

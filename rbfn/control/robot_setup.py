@@ -19,9 +19,10 @@ from typing import Any, cast
 
 import torch
 
-from ..config import ControlConfig, RobotConfig, Trajectory
+from ..config import ControlConfig, GainsConfig, RobotConfig, Trajectory
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
+from .controllers import JointRates
 from .models import ArmModel, NominalModel
 from .plants import ArmPlant, Plant
 from .trajectory import paper_trajectory, sinusoid_trajectory
@@ -46,6 +47,7 @@ class ControlRobot:
     figure_payload: float  # kg
     effort: list[float] | None = None  # per joint, the URDF's effort limits, N m (N); inf where none
     closed: Any = None  # the robot's closed forms where the registry has them (rbfn.robots.registry)
+    rated_payload: float = 0.0  # kg, the most the arm is meant to carry (robot.rated_payload)
 
     @property
     def n(self) -> int:
@@ -59,6 +61,34 @@ class ControlRobot:
         if self.closed is not None:
             return self.closed.model(payload)
         return ArmModel(cast(ArmPlant, self.plant).terms, payload=payload)
+
+    def joint_rates(self, gains: GainsConfig, **kw) -> JointRates | None:
+        """Per-joint factors of the observer gain and the adaptation rate (`gains.inertia_scaling`;
+        None where it is off), from the nominal model's inertia diagonal at home, M0_jj unloaded (or
+        carrying gains.nominal_payload) and Mr_jj carrying the rated payload:
+
+            observer_j = min(1, K s_j / (K_o Mr_jj)),   gamma_j = M0_jj / Mr_jj.
+
+        With the observer no faster than the feedback's bandwidth K s_j / Mr_jj at the heaviest
+        the joint may be, the observer's lag band (where it holds the inertia at the model's while
+        the joint is heavier) stays below the feedback's crossover, which a fixed-bandwidth observer
+        on an arm carrying many times its model's inertia crosses and then oscillates against the
+        delay; dividing Gamma by the inertia's growth keeps the adaptation's integral action below
+        the crossover likewise. Dimensionless (n,), dtype and device from kw."""
+        if not gains.inertia_scaling:
+            return None
+        home = torch.tensor([self.home], dtype=torch.float64)
+        eye = torch.eye(self.n, dtype=torch.float64)
+
+        def diagonal(payload: float) -> torch.Tensor:
+            at = self.nominal_model(payload).at(home.expand(self.n, -1), torch.zeros_like(eye))
+            return at.m_times(eye).diagonal()
+
+        base = diagonal(gains.nominal_payload)
+        rated = diagonal(max(self.rated_payload, gains.nominal_payload))
+        scale = torch.ones(self.n, dtype=torch.float64) if self.scale is None else torch.tensor(self.scale)
+        observer = (gains.K * scale / (gains.observer_gain * rated)).clamp(max=1.0)
+        return JointRates(observer.to(**kw), (base / rated).clamp(max=1.0).to(**kw))
 
     @property
     def units(self) -> list[tuple[str, str]]:
@@ -134,6 +164,7 @@ def control_robot(
         figure_payload,
         arm.effort_limits().tolist(),
         closed,
+        robot.rated_payload,
     )
 
 

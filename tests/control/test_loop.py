@@ -224,3 +224,60 @@ def test_the_nominal_model_can_carry_a_payload(robot):
     light, heavy = (setup.nominal_model(p).at(q, qd) for p in (0.0, 5.0))
     assert (heavy.m_times(v) - light.m_times(v)).abs().max() > 1e-3
     assert (heavy.gravity() - light.gravity()).abs().max() > 1e-3
+
+
+def test_inertia_scaling_slows_each_joints_integrators_by_its_rated_inertia():
+    """gains.inertia_scaling: per joint, the observer no faster than K / Mr_jj and Gamma divided by
+    Mr_jj / M0_jj (the nominal inertia at home carrying the rated payload, and unloaded). On the
+    SCARA's prismatic joint M_33 is 0.9 times the quill's mass, so its factor is the masses' ratio."""
+    from rbfn.robots.scara import ScaraParams, inertia_params
+    from rbfn.studies.control import check_control
+
+    cfg = compose_config("evaluate", "loop=realistic", "gains=realistic")
+    assert cfg.gains.inertia_scaling and not compose_config("evaluate").gains.inertia_scaling
+    setup = check_control(cfg.control, cfg.robot)
+    rates = setup.joint_rates(cfg.gains, dtype=torch.float64)
+    assert rates is not None and rates.observer.shape == rates.gamma.shape == (3,)
+    m3, m3_rated = (inertia_params(p, ScaraParams())[3] for p in (0.0, cfg.robot.rated_payload))
+    assert rates.gamma[2].item() == pytest.approx(m3 / m3_rated, rel=1e-12)
+    k_over = cfg.gains.K / (cfg.gains.observer_gain * 0.9 * m3_rated)
+    assert rates.observer[2].item() == pytest.approx(min(1.0, k_over), rel=1e-12)
+    assert bool(((rates.observer > 0) & (rates.observer <= 1) & (rates.gamma > 0) & (rates.gamma <= 1)).all())
+    off = compose_config("evaluate", "loop=realistic", "gains=realistic", "gains.inertia_scaling=false")
+    assert setup.joint_rates(off.gains) is None
+
+
+def test_joint_rates_scale_the_observer_and_the_adaptation_per_joint_alone_and_batched():
+    """A controller with JointRates: d_hat and the weights' step are the unscaled ones times each
+    joint's factor, and a batch of such controllers (SlidingModeBatch) does exactly what each does."""
+    from rbfn.control.batch import Stacked
+    from rbfn.control.controllers import JointRates
+    from rbfn.control.trajectory import Reference
+
+    gains, dt = GainsConfig(observer_gain=30.0, gamma=100.0), 1e-3
+    rates = JointRates(torch.tensor([0.5, 1.0, 0.1], dtype=torch.float64), torch.tensor([1.0, 0.25, 0.5]).double())
+    feats = torch.rand(5, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    ref = Reference(*(torch.tensor(v, dtype=torch.float64) for v in ([0.3, 0.2, 0.1], [0.1, 0.0, 0.2], [0.0] * 3)))
+    q0, qd0 = torch.zeros(2, 3, dtype=torch.float64), torch.zeros(2, 3, dtype=torch.float64)
+    q, qd = torch.tensor([[0.1, -0.2, 0.05]] * 2).double(), torch.tensor([[0.3, 0.1, -0.2]] * 2).double()
+    alpha = torch.tensor(gains.gamma * dt, dtype=torch.float64)
+
+    def step(r):
+        c = make_controller("arbfn_x", gains, dt, features=feats, rates=r)
+        st = c.init_state(q0, qd0)
+        _, st = c.torque(ref, q0, qd0, st, h=feats[0], alpha=alpha)  # the observer integrates a period
+        return c.torque(ref, q, qd, st, h=feats[1], alpha=alpha)[1]
+
+    plain, scaled = step(None), step(rates)
+    assert torch.allclose(scaled.d_hat, plain.d_hat * rates.observer, rtol=1e-12, atol=0)
+    w0 = torch.zeros_like(plain.w)
+    assert torch.allclose(scaled.w - w0, (plain.w - w0) * rates.gamma, rtol=1e-12, atol=1e-15)
+    parts = [make_controller(f"arbfn_{k}", gains, dt, features=feats, rates=rates) for k in ("a", "b")]
+    batch = Stacked(parts, [2, 2])
+    assert len(batch.units) == 1  # one SlidingModeBatch
+    st = batch.init_state(q0.repeat(2, 1), qd0.repeat(2, 1))
+    h = torch.cat([feats, feats], -1)
+    _, st = batch.torque(ref, q0.repeat(2, 1), qd0.repeat(2, 1), st, h=h[0], alpha=alpha[None])
+    _, st = batch.torque(ref, q.repeat(2, 1), qd.repeat(2, 1), st, h=h[1], alpha=alpha[None])
+    assert torch.allclose(st[0].d_hat, scaled.d_hat.repeat(2, 1), rtol=1e-12, atol=1e-15)
+    assert not torch.equal(batch.units[0].rates.observer, torch.ones(3).double())
