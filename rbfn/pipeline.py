@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, cast
 
@@ -31,7 +32,7 @@ from .widths import check_max_width
 if TYPE_CHECKING:
     from .robots.robot import Robot
 
-__all__ = ["TrainResult", "fit_weights", "task_jacobians", "train_ik"]
+__all__ = ["TrainResult", "check_ik_is_function", "fit_weights", "task_jacobians", "train_ik"]
 
 log = logging.getLogger(__name__)
 
@@ -97,9 +98,34 @@ def task_jacobians(cfg: TrainConfig, robot: Robot, data: Dataset) -> tuple[torch
     return jacs
 
 
+def check_ik_is_function(target: Target | str, joints: Sequence[str], locked: Mapping[str, float]) -> None:
+    """Refuse an arm whose free joints `joints` (the IK's outputs, by name, `locked` ones excluded)
+    outnumber the degrees of freedom of its targets: 3 for `position`, 6 for `pose`.
+
+    Many joint vectors then reach each target: the training data is no function of the target,
+    and a network fitted to it learns their average (a task Jacobian, 3 or 6 rows, has fewer rows
+    than joints: the same condition). ValueError naming robot.target, the free joints and
+    robot.locked, whatever the refinement mode; train_ik and rbfn.studies.training.run (train.py)
+    check it before any work."""
+    dof, n = (6 if target == Target.pose else 3), len(joints)
+    if n <= dof:
+        return
+    ways = (
+        f"lock {n - dof} of them with robot.locked (on the command line +robot.locked.NAME=VALUE, one per "
+        "joint) and drop their entries from robot.joint_low/joint_high"
+    )
+    if target != Target.pose and n <= 6:  # pose targets fix 6: an arm with at most 6 free joints
+        ways += ", or use robot.target=pose (position and orientation, 6 degrees of freedom)"
+    raise ValueError(
+        f"robot.target={target} has {dof} degrees of freedom but the arm has {n} free joints {list(joints)} "
+        f"(robot.locked={dict(locked)}): many joint vectors reach each target, so the IK map is not a "
+        f"function and the network would learn their average; {ways}"
+    )
+
+
 def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot | None) -> bool:
-    """Whether mini-batch refinement at M = num_centers (`features` inputs d) takes the task loss;
-    refuses one that cannot, before any work."""
+    """Whether mini-batch refinement at M = num_centers (`features` inputs d) takes the task loss
+    (its Jacobian sees every joint: check_ik_is_function); refuses it without the robot."""
     r = cfg.centers.refine
     p = cfg.rbfn.num_centers + (features + 1 if cfg.rbfn.tail else 0)
     task = r.enabled and r.minibatch.loss == RefineLoss.task
@@ -108,14 +134,6 @@ def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot
     if robot is None:
         raise ValueError(
             "centers.refine.minibatch.loss=task needs the robot (train_ik(..., robot=ROBOT)) for its Jacobian"
-        )
-    rows, joints = (6 if cfg.robot.target == Target.pose else 3), data.train.q.shape[1]
-    if rows < joints:
-        raise ValueError(
-            f"centers.refine.minibatch.loss=task weighs joint errors by the task Jacobian, which has "
-            f"{rows} rows for robot.target={cfg.robot.target} and the robot has {joints} free joints "
-            f"({robot.joint_names}): errors in the joints it cannot see would go untrained. "
-            "Use centers.refine.minibatch.loss=joint, or hold joints with robot.locked"
         )
     return True
 
@@ -132,8 +150,12 @@ def train_ik(
     With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
     the running colony's snapshots) and an interrupted run continues where it stopped, ending with
     exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
-    mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`).
+    mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`). An arm with more
+    free joints than its targets' degrees of freedom is refused first (check_ik_is_function).
     """
+    n_q = data.train.q.shape[1]
+    joints = robot.joint_names if robot is not None else [f"joint {i + 1}" for i in range(n_q)]
+    check_ik_is_function(cfg.robot.target, joints, cfg.robot.locked)
     t_start = time.perf_counter()
     state = state or TrainState(config={})
     elapsed_before = state.elapsed

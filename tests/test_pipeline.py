@@ -1,5 +1,6 @@
 """Training's library path: the task Jacobians, the choice of output weights after mini-batch
-refinement, and the task loss refused where it cannot see every joint."""
+refinement, and an arm with more free joints than its targets' degrees of freedom refused in every
+refinement mode before any work."""
 
 import math
 
@@ -7,14 +8,17 @@ import pytest
 import torch
 
 import train
+from rbfn import pipeline
+from rbfn.config import ROBOT_PRESETS
 from rbfn.data import input_scaling, make_dataset
 from rbfn.fit import design_matrix
-from rbfn.pipeline import fit_weights, task_jacobians
+from rbfn.pipeline import check_ik_is_function, fit_weights, task_jacobians, train_ik
 from rbfn.refine import Refined
 from rbfn.robots.robot import load_robot
+from rbfn.studies import training
 from rbfn.targets import TargetFeatures
 
-from .conftest import compose_config
+from .conftest import TINY_TRAIN, compose_config
 
 UR5_SMALL = [
     "robot=ur5",
@@ -110,11 +114,61 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
     assert torch.equal(stable.weights, other)
 
 
-def test_task_loss_is_refused_where_the_jacobian_misses_joints(tmp_path):
-    cfg = compose_config("train", *UR5_SMALL, "robot.target=position")
-    with pytest.raises(ValueError, match=r"centers.refine.minibatch.loss=task .* 3 rows .* 6 free joints"):
-        train.run(cfg, tmp_path)
-    assert not (tmp_path / "checkpoint.pt").exists()
+# The UR5's six free joints for position targets (3 degrees of freedom): many joint vectors per target.
+UR5_POSITION = ["robot=ur5", "robot.target=position", *(o for o in TINY_TRAIN if not o.startswith("centers="))]
+REFINE_MODES = {
+    "full": ["centers=kmeans_refine", "centers.refine.mode=full", "centers.refine.full.steps=5"],
+    "minibatch": ["centers=kmeans_refine", "centers.refine.mode=minibatch", "centers.refine.minibatch.epochs=2"],
+    "disabled": ["centers=kmeans"],
+}
+REDUNDANT = (
+    r"^robot\.target=position has 3 degrees of freedom but the arm has 6 free joints \['shoulder_pan_joint', "
+    r"'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint', 'wrist_3_joint'\] "
+    r"\(robot\.locked=\{\}\): .* not a function .*; lock 3 of them with robot\.locked "
+    r"\(on the command line \+robot\.locked\.NAME=VALUE, one per joint\) and drop their entries from "
+    r"robot\.joint_low/joint_high, or use robot\.target=pose \(position and orientation, 6 degrees of freedom\)$"
+)
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("work started before the check")
+
+
+@pytest.mark.parametrize("mode", list(REFINE_MODES))
+def test_more_free_joints_than_target_dof_is_refused_before_any_work(tmp_path, monkeypatch, mode):
+    cfg = compose_config("train", *UR5_POSITION, *REFINE_MODES[mode])
+    monkeypatch.setattr(training, "make_dataset", _no_work)
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match=REDUNDANT):
+        train.run(cfg, out)
+    assert not out.exists()  # not even the run directory
+    # The library call refuses it too, with the robot or without, before selecting any centre.
+    robot = load_robot(cfg.robot)
+    data = make_dataset(robot, (20, 10, 10), seed=0)
+    monkeypatch.setattr(pipeline, "select", _no_work)
+    with pytest.raises(ValueError, match=REDUNDANT):
+        train_ik(cfg, data, robot=robot)
+    with pytest.raises(ValueError, match=r"has 6 free joints \['joint 1', .*'joint 6'\] .* lock 3 of them"):
+        train_ik(cfg, data)
+
+
+def test_a_redundant_pose_arm_is_told_to_lock_joints_only():
+    with pytest.raises(ValueError, match=r"robot\.target=pose has 6 .* 7 free joints .* lock 1 of them .*joint_high$"):
+        check_ik_is_function("pose", [f"j{i}" for i in range(7)], {})
+
+
+@pytest.mark.parametrize("name", ROBOT_PRESETS)
+def test_every_shipped_robot_passes(name):
+    cfg = compose_config("train", f"robot={name}")
+    check_ik_is_function(cfg.robot.target, load_robot(cfg.robot).joint_names, cfg.robot.locked)
+
+
+def test_locking_the_extra_joints_trains(tmp_path):
+    """The way out: the UR5's wrist held at its home pose, three free joints for three coordinates."""
+    wrist = ["+robot.locked.wrist_1_joint=-1.9", "+robot.locked.wrist_2_joint=-1.57", "+robot.locked.wrist_3_joint=0.0"]
+    box = ["robot.joint_low=[-1.0,-2.2,0.5]", "robot.joint_high=[1.0,-0.2,2.5]", "robot.home=[]"]
+    m = train.run(compose_config("train", *UR5_POSITION, *REFINE_MODES["minibatch"], *wrist, *box), tmp_path)
+    assert (tmp_path / "checkpoint.pt").exists() and math.isfinite(m["test_pos_err_mm_median"])
 
 
 def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):

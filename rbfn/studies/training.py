@@ -11,7 +11,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from ..config import TrainConfig, plain, validate_train
 from ..data import check_finite, make_dataset
-from ..pipeline import train_ik
+from ..pipeline import check_ik_is_function, train_ik
 from ..resume import StateFile
 from ..robots.robot import load_robot
 from .ik import training_metrics, write_training
@@ -29,6 +29,8 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     written; `run_files` (relative path -> text, e.g. the composed config) are written after them.
     """
     validate_train(cfg)
+    robot = load_robot(cfg.robot, cfg.device)
+    check_ik_is_function(cfg.robot.target, robot.joint_names, cfg.robot.locked)
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write
@@ -42,7 +44,6 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         torch.manual_seed(cfg.seed)
 
         # 1. Data: seeded joint samples in the branch's box, FK positions from the URDF.
-        robot = load_robot(cfg.robot, cfg.device)
         data = make_dataset(robot, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test), cfg.seed)
         for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
             check_finite(f"{name} positions", split.x)
