@@ -12,7 +12,7 @@ from ..config import ControlConfig, GainsConfig, LoopConfig, RobotConfig, plain
 from ..control.comparison import ControlComparison, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
 from .beside import Beside, can_fork
-from .plots import tracking_figure
+from .plots import robot_label, tracking_figure
 from .rundir import write_figure
 
 __all__ = ["check_control", "evaluate_control", "control_table"]
@@ -38,7 +38,9 @@ def evaluate_control(
 ) -> dict:
     """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`;
     `parallel`: half the figures drawn in a forked process where the machine allows."""
+    robot = robot or RobotConfig()
     setup = check_control(cfg, robot)
+    label = robot_label(robot.name, Path(robot.urdf) if robot.urdf else robot.name)
     res = compare_controllers(cfg, gains, device, setup=setup, loop=loop)
     metrics = {name: run.metrics for name, run in res.runs.items()}
     gain_record: dict[str, Any] = {
@@ -61,28 +63,37 @@ def evaluate_control(
     names = list(metrics)
     half = len(names) // 2
     fork = parallel and half > 0 and can_fork(device)
-    with Beside(_figures, res, names[half:], cfg, gains, out_dir, None if fork else writer, fork=fork) as other:
-        _figures(res, names[:half], cfg, gains, out_dir, writer)
+    with Beside(_figures, res, names[half:], label, cfg, gains, out_dir, None if fork else writer, fork=fork) as other:
+        _figures(res, names[:half], label, cfg, gains, out_dir, writer)
         other.result()
     log.info("%s", control_table(metrics, setup.units))
     return {"control": metrics, "control_info": info}
 
 
 def _figures(
-    res: ControlComparison, names: list[str], cfg: ControlConfig, gains: GainsConfig, out_dir: Path, writer=None
+    res: ControlComparison,
+    names: list[str],
+    label: str,
+    cfg: ControlConfig,
+    gains: GainsConfig,
+    out_dir: Path,
+    writer=None,
 ) -> None:
-    """control_<name>.png for each of `names`, also to `writer` (None: a writer of its own)."""
+    """control_<name>.png for each of `names`, titled with the robot's `label` (robot_label), also
+    to `writer` (None: a writer of its own)."""
     own = writer is None
     writer = SummaryWriter(log_dir=str(out_dir), filename_suffix=".figures") if own else writer
     try:
         for name in names:
-            _figure(res, name, cfg, gains, writer, out_dir)
+            _figure(res, name, label, cfg, gains, writer, out_dir)
     finally:
         if own:
             writer.close()
 
 
-def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsConfig, writer, out_dir: Path) -> None:
+def _figure(
+    res: ControlComparison, name: str, label: str, cfg: ControlConfig, gains: GainsConfig, writer, out_dir: Path
+) -> None:
     """control_<name>.png: the case whose payload is closest to the figure payload."""
     assert res.robot is not None  # compare_controllers records it
     target = res.robot.figure_payload
@@ -93,7 +104,8 @@ def _figure(res: ControlComparison, name: str, cfg: ControlConfig, gains: GainsC
         roll.q[:, i].cpu().numpy(),
         res.q_des.cpu().numpy(),
         roll.tau[:, i].cpu().numpy(),
-        f"{res.robot.name}: {name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, Lambda = {gains.Lambda:g}",
+        robot=label,
+        detail=f"{name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, Lambda = {gains.Lambda:g}",
         window=(cfg.payload_on, cfg.payload_off),
         units=res.robot.units,
     )

@@ -23,6 +23,7 @@ from .beside import Beside, can_fork
 from .control import check_control, evaluate_control
 from .ik import evaluate_ik
 from .online import check_online, evaluate_online
+from .plots import robot_label
 from .rundir import RunDir, write_json, write_text
 
 __all__ = ["check", "checkpoint_parts", "evaluate_parts", "evaluated_robots", "find_checkpoint", "run"]
@@ -171,12 +172,13 @@ def evaluated_robots(cfg: EvalConfig, ckpt: dict | None) -> tuple[dict[str, str]
     robots, skipped = {}, {}
     if ckpt is not None:
         r = ckpt["robot"]
-        label = f"{r.get('name') or 'unnamed'} ({r['end_link']}, {len(r['joint_low'])} joints)"
+        label = f"{robot_label(r.get('name', ''), r['urdf'])} ({r['end_link']}, {len(r['joint_low'])} joints)"
         robots.update({part: label for part, on in (("ik", cfg.ik), ("online", cfg.online.enabled)) if on})
     else:
         why = f"no checkpoint.pt under outputs_dir={cfg.outputs_dir!r} (train first, or pass checkpoint=PATH)"
         skipped.update({part: why for part, on in (("ik", cfg.ik), ("online", cfg.online.enabled)) if on})
     if cfg.control.enabled:
         r = cfg.robot
-        robots["control"] = f"{r.name} ({r.end_link}, {len(r.joint_low)} joints)"
+        name = robot_label(r.name, Path(r.urdf) if r.urdf else r.name)
+        robots["control"] = f"{name} ({r.end_link}, {len(r.joint_low)} joints)"
     return robots, skipped

@@ -8,14 +8,14 @@ import math
 from pathlib import Path
 
 from ..checkpoint import model_from_checkpoint, save_checkpoint
-from ..config import SELECTORS, EvalConfig, TrainConfig, plain
+from ..config import SELECTORS, EvalConfig, Target, TrainConfig, plain
 from ..data import Dataset, evaluation_split
 from ..export import export_all
 from ..metrics import error_summary, ik_metrics_both
 from ..pipeline import TrainResult
 from ..robots.robot import Robot, robot_from_record
 from ..solver import DEFAULT_ITERATIONS, IKSolver
-from .plots import workspace_error_map
+from .plots import pose_error_figure, robot_label, workspace_error_map
 from .rundir import write_figure, write_json
 
 __all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table"]
@@ -104,8 +104,8 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
     acc, err_mm, inside = ik_metrics_both(model, robot, test.x, test.q)
     acc.update(polished_metrics(model, robot, test.x))
     out: dict = {"checkpoint": str(path), "num_centers": model.num_centers, "test_seed": seed, **acc}
-    fig = workspace_error_map(
-        test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), f"IK position error, M = {model.num_centers}"
+    fig = _error_figure(
+        robot, test.q.cpu().numpy(), test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), model.num_centers
     )
     write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "ik/workspace_error_map")
     for k, v in out.items():
@@ -115,6 +115,16 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
         "%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of seed {seed})", out)
     )
     return out
+
+
+def _error_figure(robot: Robot, q, x, err_mm, inside, num_centers: int):
+    """workspace_error_map.png's figure: the x-y map of position targets x (N, 3), or for pose
+    targets the error against the joints q (N, n) in the box; err_mm (N,), inside (N,)."""
+    label = robot_label(robot.name, robot.urdf_text)
+    if robot.target == Target.pose:
+        low, high = robot.low.cpu().numpy(), robot.high.cpu().numpy()
+        return pose_error_figure(q, low, high, err_mm, inside, robot=label, num_centers=num_centers)
+    return workspace_error_map(x, err_mm, inside, robot=label, num_centers=num_centers)
 
 
 def ik_table(title: str, m: dict) -> str:

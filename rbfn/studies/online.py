@@ -13,7 +13,7 @@ import torch
 from ..checkpoint import model_from_checkpoint, save_sealed
 from ..config import GainsConfig, OnlineConfig
 from ..control.task_space import check_online, path_name, run_online
-from .plots import online_figure
+from .plots import online_figure, robot_label
 from .rundir import write_figure
 
 __all__ = ["evaluate_online", "online_table", "check_online"]
@@ -54,7 +54,7 @@ def evaluate_online(
         "duration_s": cfg.duration,
         "learner": str(cfg.learner),
         "path": path_name(cfg, ckpt["robot"]),
-        "robot": ckpt["robot"].get("name", ""),
+        "robot": robot_label(ckpt["robot"].get("name", ""), ckpt["robot"]["urdf"]),
         "sweep": [
             {
                 "size": s,
@@ -102,7 +102,10 @@ def evaluate_online(
             r.err_analytic[:, i].cpu().numpy(),
             r.t_update.cpu().numpy(),
             r.dw[:, i].cpu().numpy(),
-            f"online {cfg.learner}, path {cfg.path}",
+            robot=out["robot"],
+            learner=str(cfg.learner),
+            path=out["path"],
+            link_error=sizes[i],
         )
         write_figure(fig, out_dir / "online_task_error.png", 110, writer, "online/task_error")
         if cfg.save_checkpoint:

@@ -1,4 +1,11 @@
-"""Figures: the IK workspace error map, the closed loop's 3x3 figure, the online error curve.
+"""Figures: the IK error figure, the closed loop's n x 3 figure, the online error curve.
+
+The IK figure is a map over the x-y workspace for position targets (`workspace_error_map`) and,
+for pose targets, the error against how far the sample lies toward the edge of the trained joint
+box (`pose_error_figure`): a map of a 6-joint arm's poses is a cloud no one can read. Every title
+starts with the robot the figure shows (`robot_label`), passed in by the caller from the data it
+draws. Layouts are matplotlib's constrained layout, sized by the joint count, so tick labels and
+axis labels of neighbouring panels never overlap, for 3 joints as for 7.
 
 Built on matplotlib's object-oriented API (`matplotlib.figure.Figure`), not pyplot, so importing
 this module never changes the process's backend and figures need no closing.
@@ -6,23 +13,60 @@ this module never changes the process's backend and figures need no closing.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
-__all__ = ["workspace_error_map", "tracking_figure", "online_figure", "MAX_POINTS"]
+from ..config import ROBOT_PRESETS
+from ..robots.dynamics import urdf_source
+from ..robots.kinematics import urdf_tree
+
+__all__ = [
+    "robot_label",
+    "workspace_error_map",
+    "pose_error_figure",
+    "tracking_figure",
+    "online_figure",
+    "MAX_POINTS",
+    "PAYLOAD_LABEL",
+]
 
 MAX_POINTS = 2500  # samples drawn per line of the tracking figure
+PAYLOAD_LABEL = "payload on"  # the legend entry of the shaded payload interval
+FLOOR_MM = 1e-4  # errors below this are drawn at it (a log axis has no 0)
 
 
-def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, title: str):
-    """Figure of position error (mm, log colour) over the x-y workspace; x (N, 3) in m.
-
-    Points the network flags as outside its trained workspace are drawn as grey crosses.
+def robot_label(name: str, urdf: str | os.PathLike) -> str:
+    """The robot's name as figures and metrics.json's `robots` give it: `name` (robot.name, or a
+    checkpoint's robot `name`), unless that is a shipped preset's name beside another URDF
+    (robot.name keeps its default "scara" when only robot.urdf is given): then the URDF's own
+    `<robot name="...">`. `urdf`: the URDF's text, a preset's name or a `pathlib.Path` of the file.
     """
+    text, source = urdf_source(urdf, "urdf")
+    own = urdf_tree(text, source).get("name") or ""
+    if not name or (name in ROBOT_PRESETS and own != name):
+        return own or "unnamed robot"
+    return name
+
+
+def _title(robot: str, *parts: str | None) -> str:
+    """ "robot: part, part, ..." with the empty and None parts left out; `robot` must be named."""
+    if not robot or robot == "None":
+        raise ValueError(f"robot={robot!r}: a figure names the robot it shows (robot_label)")
+    return f"{robot}: " + ", ".join(p for p in parts if p)
+
+
+def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, *, robot: str, num_centers: int):
+    """Figure of position error (mm, log colour) over the x-y workspace; x (N, 3) in m, err_mm
+    (N,), inside (N,) bool. Points the network flags as outside its trained workspace are drawn as
+    grey crosses."""
     fig = Figure(figsize=(6.4, 5.6), layout="constrained")
     ax = fig.subplots()
-    e = np.clip(err_mm, 1e-4, None)
+    e = np.clip(err_mm, FLOOR_MM, None)
     sc = ax.scatter(
         x[inside, 0],
         x[inside, 1],
@@ -41,7 +85,50 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, t
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
-    ax.set_title(title)
+    ax.set_title(_title(robot, f"IK position error, M = {num_centers}"))
+    return fig
+
+
+def pose_error_figure(
+    q: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    err_mm: np.ndarray,
+    inside: np.ndarray,
+    *,
+    robot: str,
+    num_centers: int,
+    bins: int = 10,
+) -> Figure:
+    """Position error (mm, log) against each sample's distance from the centre c of the trained
+    joint box, d = max_j |q_j - c_j| / h_j (h: the half-widths; 0 at the centre, 1 on a face), with
+    the median and 95th percentile of each of `bins` bins of d holding 5 samples or more.
+
+    q (N, n) the true joints in the URDF's units, low and high (n,) the box, err_mm (N,), inside
+    (N,) bool: points flagged outside the trained workspace are grey crosses. Reads the same for
+    any joint count, where a map of the targets does not.
+    """
+    c, h = (high + low) / 2, (high - low) / 2
+    d = np.abs((q - c) / h).max(axis=1)
+    e = np.clip(err_mm, FLOOR_MM, None)
+    fig = Figure(figsize=(7.0, 4.8), layout="constrained")
+    ax = fig.subplots()
+    ax.scatter(d[inside], e[inside], s=4, alpha=0.3, lw=0, color="C0", label="test sample")
+    if (~inside).any():
+        ax.scatter(d[~inside], e[~inside], c="0.5", s=10, marker="x", label="flagged outside")
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.digitize(d, edges) - 1, 0, bins - 1)
+    full = [b for b in range(bins) if (which == b).sum() >= 5]
+    mids = (edges[:-1] + edges[1:])[full] / 2
+    ax.plot(mids, [np.median(e[which == b]) for b in full], "o-", color="C1", label="median per bin")
+    ax.plot(mids, [np.quantile(e[which == b], 0.95) for b in full], "s--", color="C3", label="95th percentile")
+    ax.set_yscale("log")
+    ax.set_xlim(0.0, 1.0)
+    ax.set_xlabel(r"distance from the joint box's centre, $\max_j\,|q_j - c_j| / h_j$ (1: on its edge)")
+    ax.set_ylabel("FK position error (mm)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(_title(robot, f"IK position error against the joint box, M = {num_centers}, {q.shape[1]} joints"))
     return fig
 
 
@@ -50,21 +137,26 @@ def tracking_figure(
     q: np.ndarray,
     q_des: np.ndarray,
     tau: np.ndarray,
-    title: str,
+    *,
+    robot: str,
+    detail: str,
     window: tuple[float, float] | None = None,
     units: list[tuple[str, str]] | None = None,
 ) -> Figure:
     """The paper's n x 3 figure: per joint (rows), position vs desired, error, control input.
 
-    t (T,) s; q, q_des (T, n); tau (T, n); `units` per joint (position, torque), default the
-    SCARA's (rad, N m), (rad, N m), (m, N) for 3 joints, else (rad, N m) on every joint; `window`
-    shades the payload interval. Lines show every k-th sample, at most MAX_POINTS per line.
+    t (T,) s; q, q_des (T, n); tau (T, n); title "robot: detail"; `units` per joint (position,
+    torque), default the SCARA's (rad, N m), (rad, N m), (m, N) for 3 joints, else (rad, N m) on
+    every joint; `window` (s) shades the payload interval, named in the legend. Lines show every
+    k-th sample, at most MAX_POINTS per line. Rows are shorter, with fewer ticks and smaller
+    labels, past 3 joints.
     """
     n = q.shape[1]
     units = units or ([("rad", "N m"), ("rad", "N m"), ("m", "N")] if n == 3 else [("rad", "N m")] * n)
     k = max(1, -(-t.shape[0] // MAX_POINTS))  # every k-th sample: a figure, not a record
     t, q, q_des, tau = t[::k], q[::k], q_des[::k], tau[::k]
-    fig = Figure(figsize=(13, 2.7 * n))
+    many = n > 3
+    fig = Figure(figsize=(13, (2.1 if many else 2.7) * n + 0.6), layout="constrained")
     axes = fig.subplots(n, 3, sharex=True, squeeze=False)
     for j in range(n):
         panels = (
@@ -74,21 +166,26 @@ def tracking_figure(
         )
         for c, (y, label) in enumerate(panels):
             ax = axes[j, c]
-            ax.plot(t, y, lw=0.8, label="actual" if c == 0 else None)
+            ax.plot(t, y, lw=0.8, color="C0")
             if c == 0:
-                ax.plot(t, q_des[:, j], "--", lw=0.8, label="desired")
-                ax.legend(loc="upper right", fontsize=7)
+                ax.plot(t, q_des[:, j], "--", lw=0.8, color="C1")
             if window is not None:
                 ax.axvspan(*window, color="0.9", zorder=0)
-            ax.set_ylabel(label)
+            ax.set_ylabel(label, fontsize=9 if many else None)
             ax.grid(alpha=0.3)
+            if many:
+                ax.yaxis.set_major_locator(MaxNLocator(4))
+                ax.tick_params(labelsize=8)
+                ax.yaxis.get_offset_text().set_fontsize(8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
-    fig.suptitle(title)
-    # Fixed margins: tight_layout measured as a third of the figure's cost.
-    fig.subplots_adjust(
-        left=0.07, right=0.99, bottom=0.5 / (2.7 * n), top=1 - 0.65 / (2.7 * n), wspace=0.28, hspace=0.15
-    )
+    handles = [axes[0, 0].lines[0], axes[0, 0].lines[1]]
+    names = ["actual", "desired"]
+    if window is not None:
+        handles.append(Patch(color="0.9", label=PAYLOAD_LABEL))
+        names.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
+    fig.legend(handles, names, loc="outside upper right", ncols=len(names), fontsize=8, frameon=False)
+    fig.suptitle(_title(robot, detail))
     return fig
 
 
@@ -99,11 +196,17 @@ def online_figure(
     analytic: np.ndarray,
     t_update: np.ndarray,
     dw: np.ndarray,
-    title: str,
+    *,
+    robot: str,
+    learner: str,
+    path: str | None = None,
+    link_error: float | None = None,
 ):
     """Task-space error (mm) over time for the adapted and frozen networks and the nominal
-    analytic IK, and the norm of the weight change."""
-    fig = Figure(figsize=(9, 6))
+    analytic IK, and the norm of the weight change; t (T,) s, errors (T,) mm, t_update (U,) s,
+    dw (U,). Title: the robot, the learner, the path and the link-1 error (fraction), each left
+    out where None."""
+    fig = Figure(figsize=(9, 6), layout="constrained")
     a1, a2 = fig.subplots(2, 1, sharex=True)
     for y, label in (
         (adapted, "adapted network"),
@@ -118,6 +221,12 @@ def online_figure(
     a2.set_ylabel("|W - W0|")
     a2.set_xlabel("t [s]")
     a2.grid(alpha=0.3)
-    fig.suptitle(title)
-    fig.tight_layout()
+    fig.suptitle(
+        _title(
+            robot,
+            f"online adaptation ({learner})",
+            None if path is None else f"path {path}",
+            None if link_error is None else f"link-1 error {100 * link_error:g} %",
+        )
+    )
     return fig

@@ -1,0 +1,140 @@
+"""The figures read well for any arm: titles name the robot drawn, 6- and 7-joint layouts do not
+overlap, the payload band is named, and a pose network's IK figure is a readable curve."""
+
+import io
+import itertools
+
+import numpy as np
+import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+from rbfn.config import EvalConfig, RobotConfig
+from rbfn.robots.kinematics import read_urdf, urdf_path
+from rbfn.studies.evaluation import evaluated_robots
+from rbfn.studies.plots import (
+    PAYLOAD_LABEL,
+    online_figure,
+    pose_error_figure,
+    robot_label,
+    tracking_figure,
+    workspace_error_map,
+)
+
+OTHERS = ("scara", "ur5", "panda", "None")
+
+
+def _z1_text() -> str:
+    """The UR5's URDF under another robot name: a 6-joint arm the project does not ship."""
+    return read_urdf(urdf_path("ur5")).replace('<robot name="ur5"', '<robot name="z1"', 1)
+
+
+def _tracking(n: int, seed: int = 0, **kw):
+    """The tracking figure of n joints with synthetic signals whose scales span 1e-6 to 1e4."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 4.0, 3000)
+    q_des = 0.5 * np.sin(t[:, None] * np.arange(1, n + 1))
+    q_des[:, 1] = 1.5708  # a joint held still: offset tick labels
+    q = q_des + 1e-4 * rng.standard_normal((t.size, n)) * np.geomspace(1e-2, 1e3, n)
+    tau = rng.standard_normal((t.size, n)) * np.geomspace(0.5, 2e4, n)
+    return tracking_figure(t, q, q_des, tau, robot="z1", detail="smc, payload 2 kg", **kw)
+
+
+def _titles(fig) -> list[str]:
+    out = [ax.get_title() for ax in fig.axes]
+    return out + ([fig._suptitle.get_text()] if fig._suptitle is not None else [])
+
+
+def _no_other_robot(fig, robot: str) -> str:
+    text = " | ".join(_titles(fig))
+    assert robot in text, text
+    assert not any(o in text for o in OTHERS), text
+    return text
+
+
+def test_robot_label_is_the_robots_own_name_never_a_leftover_default(tmp_path):
+    path = tmp_path / "z1.urdf"
+    path.write_text(_z1_text())
+    assert robot_label("scara", "scara") == "scara"  # a preset and its URDF
+    assert robot_label("ur5", read_urdf(urdf_path("ur5"))) == "ur5"
+    # robot.urdf given, robot.name left at its default: the URDF's own name, file or checkpoint text
+    assert robot_label("scara", path) == "z1" and robot_label("scara", _z1_text()) == "z1"
+    assert robot_label("", _z1_text()) == "z1"
+    assert robot_label("my_z1", path) == "my_z1"  # a name the user chose
+    cfg = EvalConfig(robot=RobotConfig(urdf=str(path), end_link="ee_link", joint_low=[-1.0] * 6, joint_high=[1.0] * 6))
+    record = {"name": "scara", "urdf": _z1_text(), "end_link": "ee_link", "joint_low": [-1.0] * 6}
+    robots, _ = evaluated_robots(cfg, {"robot": record})
+    assert robots == dict.fromkeys(("ik", "online", "control"), "z1 (ee_link, 6 joints)")
+
+
+def test_titles_name_the_robot_passed_in_and_no_none():
+    rng = np.random.default_rng(1)
+    x, err, inside = rng.uniform(-1, 1, (200, 3)), rng.uniform(0.01, 5, 200), rng.uniform(size=200) < 0.9
+    q = rng.uniform(-1, 1, (200, 6))
+    _no_other_robot(workspace_error_map(x, err, inside, robot="z1", num_centers=40), "z1")
+    _no_other_robot(pose_error_figure(q, -np.ones(6), np.ones(6), err, inside, robot="z1", num_centers=40), "z1")
+    _no_other_robot(_tracking(6), "z1")
+    t = np.linspace(0, 3, 300)
+    e = np.abs(np.sin(t)) + 0.1
+    unnamed_path = online_figure(t, e, e, e, t[::10], t[::10], robot="z1", learner="rls", path=None)
+    assert "path" not in _no_other_robot(unnamed_path, "z1")
+    named = online_figure(t, e, e, e, t[::10], t[::10], robot="z1", learner="rls", path="sinusoid", link_error=0.05)
+    assert "path sinusoid" in _no_other_robot(named, "z1")
+    for bad in ("", "None", None):
+        with pytest.raises(ValueError, match="names the robot"):
+            workspace_error_map(x, err, inside, robot=bad, num_centers=40)
+
+
+def _boxes(ax, renderer) -> list:
+    """Window boxes of the axes' drawn texts: tick labels within its view, axis labels, offset texts."""
+    out = []
+    for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+        lo, hi = min(lo, hi), max(lo, hi)
+        tol = 1e-9 * (hi - lo)
+        for tick in axis.get_major_ticks():
+            if tick.label1.get_visible() and tick.label1.get_text() and lo - tol <= tick.get_loc() <= hi + tol:
+                out.append(tick.label1.get_window_extent(renderer))
+        for text in (axis.label, axis.get_offset_text()):
+            if text.get_visible() and text.get_text():
+                out.append(text.get_window_extent(renderer))
+    return out
+
+
+@pytest.mark.parametrize("n", [3, 6, 7])
+def test_many_joint_tracking_figure_lays_out_without_overlap(n):
+    fig = _tracking(n, window=(1.0, 3.0))
+    assert len(fig.axes) == 3 * n
+    canvas = FigureCanvasAgg(fig)  # the figures are backend-free; Agg measures the text
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    boxes = {ax: _boxes(ax, renderer) for ax in fig.axes}
+    for a, b in itertools.permutations(fig.axes, 2):
+        for box in boxes[a]:
+            assert not box.overlaps(b.bbox), (a.get_ylabel(), "text in the panel of", b.get_ylabel())
+            hit = [other for other in boxes[b] if box.overlaps(other)]
+            assert not hit, (a.get_ylabel(), b.get_ylabel())
+    suptitle = fig._suptitle.get_window_extent(renderer)
+    assert not any(suptitle.overlaps(ax.bbox) for ax in fig.axes)
+
+
+def test_the_payload_band_is_named_in_the_legend():
+    legend = _tracking(6, window=(1.0, 3.0)).legends[0]
+    assert any(t.get_text().startswith(PAYLOAD_LABEL) for t in legend.get_texts())
+    legend = _tracking(6).legends[0]
+    assert not any(PAYLOAD_LABEL in t.get_text() for t in legend.get_texts())
+
+
+def test_pose_error_figure_draws_the_error_against_the_distance_from_the_box_centre():
+    rng = np.random.default_rng(2)
+    low, high = -np.ones(7), np.full(7, 3.0)
+    q = rng.uniform(low, high, (3000, 7))
+    d = np.abs(q - 1.0).max(axis=1) / 2.0
+    err = 0.1 + 10 * d**8  # mm: worse toward the box's edge
+    fig = pose_error_figure(q, low, high, err, d < 0.98, robot="z1", num_centers=2000)
+    (ax,) = fig.axes
+    assert ax.get_yscale() == "log" and ax.get_xlim() == (0.0, 1.0)
+    median = next(line for line in ax.lines if line.get_label() == "median per bin")
+    x, y = median.get_data()
+    assert np.all((x > 0) & (x < 1)) and np.all(np.diff(y) > 0)  # the rise toward the edge shows
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=60)
+    assert buf.getvalue()[:4] == b"\x89PNG"
