@@ -43,7 +43,8 @@ def evaluate_online(
     frozen, analytic = _rms(r.err_frozen, last), _rms(r.err_analytic, last)
     # Joint error against the real robot's exact IK (same branch), where it is known.
     jerr = None if r.q_real is None else (r.q_adapt[:, i] - r.q_real).norm(dim=-1)
-    out = {
+    robot, path = robot_label(ckpt["robot"].get("name", ""), ckpt["robot"]["urdf"]), path_name(cfg, ckpt["robot"])
+    out: dict = {
         "task_err_mm_rms_first_2s": adapt_first[i],
         "task_err_mm_rms_last_2s": adapt_last[i],
         "task_err_mm_rms_no_adapt": frozen[i],
@@ -53,8 +54,8 @@ def evaluate_online(
         "rejected_pairs": r.rejected,
         "duration_s": cfg.duration,
         "learner": str(cfg.learner),
-        "path": path_name(cfg, ckpt["robot"]),
-        "robot": robot_label(ckpt["robot"].get("name", ""), ckpt["robot"]["urdf"]),
+        "path": path,
+        "robot": robot,
         "sweep": [
             {
                 "size": s,
@@ -102,9 +103,9 @@ def evaluate_online(
             r.err_analytic[:, i].cpu().numpy(),
             r.t_update.cpu().numpy(),
             r.dw[:, i].cpu().numpy(),
-            robot=out["robot"],
+            robot=robot,
             learner=str(cfg.learner),
-            path=out["path"],
+            path=path,
             link_error=sizes[i],
         )
         write_figure(fig, out_dir / "online_task_error.png", 110, writer, "online/task_error")

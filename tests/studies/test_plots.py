@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from rbfn.config import EvalConfig, RobotConfig
+from rbfn.config import EvalConfig, RobotConfig, Target
 from rbfn.robots.kinematics import read_urdf, urdf_path
 from rbfn.studies.evaluation import evaluated_robots
 from rbfn.studies.plots import (
@@ -138,3 +138,28 @@ def test_pose_error_figure_draws_the_error_against_the_distance_from_the_box_cen
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=60)
     assert buf.getvalue()[:4] == b"\x89PNG"
+
+
+def test_ik_figure_of_a_urdf_pose_arm_names_it_from_its_urdf(tmp_path):
+    """robot.urdf given, robot.name left at "scara": the IK figure is the pose figure, titled "z1"."""
+    from rbfn.robots.robot import load_robot
+    from rbfn.studies.ik import _error_figure
+
+    path = tmp_path / "z1.urdf"
+    path.write_text(_z1_text())
+    home = [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]
+    robot = load_robot(
+        RobotConfig(
+            urdf=str(path),
+            end_link="ee_link",
+            target=Target.pose,
+            joint_low=[h - 0.5 for h in home],
+            joint_high=[h + 0.5 for h in home],
+        )
+    )
+    assert robot.name == "scara"  # the default, which no figure may show
+    rng = np.random.default_rng(3)
+    q = rng.uniform(robot.low.numpy(), robot.high.numpy(), (300, 6))
+    err, inside = rng.uniform(0.01, 5.0, 300), np.ones(300, bool)
+    fig = _error_figure(robot, q, np.zeros((300, 7)), err, inside, num_centers=40)
+    assert _no_other_robot(fig, "z1").startswith("z1: IK position error against the joint box")
