@@ -2,8 +2,14 @@
 
     python -m rbfn.export CHECKPOINT [--out-dir DIR] [--force]
 
-Both take positions (B, 3) float32 in m (B dynamic) and return joints (B, 3) float32 (rad, rad,
-m) and in_workspace (B,) bool. The ONNX graph runs large batches in blocks, as the module's eager
+Both take the network's targets, B dynamic: a position network's input is named "positions", (B, 3)
+float32 in m; a pose network's "poses", (B, 7) float32: position in m, then the end link's
+orientation in the root frame as a unit quaternion (w, x, y, z) (q and -q give the same answer).
+Both return joints (B, n) float32 (the free joints in URDF order and units: rad, or m for a
+prismatic joint) and in_workspace (B,) bool. Both carry the same metadata (`metadata`: the target
+kind, the input's layout and, given the robot, its joint names and a few example joint vectors
+inside the trained box with the targets they reach): the ONNX model's metadata_props, and the
+.pt2 file's extra file "rbfn.json". The ONNX graph runs large batches in blocks, as the module's eager
 calls do (above `RBFNetwork.rows_per_block` rows, one Scan over equal blocks, so that a block's
 (rows, M) intermediates stay in cache); the .pt2 program is one pass over all B rows. TorchScript is
 deprecated in current torch and is not used.
@@ -22,6 +28,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import logging
 import warnings
 from pathlib import Path
@@ -32,16 +39,41 @@ import torch
 from onnx import helper, numpy_helper
 from torch import nn
 
-from .checkpoint import load_model
+from .checkpoint import model_from_checkpoint, read_checkpoint
+from .data import sample_joints
 from .files import unwritable, write_files
 from .layer import RBFNetwork
+from .robots.robot import Robot, robot_from_record
 from .scripts import fail
 
-__all__ = ["DeployedIK", "export_all", "export_onnx", "export_pt2", "main", "onnx_bytes", "pt2_bytes"]
+__all__ = [
+    "INPUTS",
+    "DeployedIK",
+    "DeployedPoseIK",
+    "deployed",
+    "export_all",
+    "export_onnx",
+    "export_pt2",
+    "main",
+    "metadata",
+    "onnx_bytes",
+    "pt2_bytes",
+]
+
+# The exported input's name and layout by the network's target kind ("positions": the name since the first export).
+INPUTS = {
+    "position": ("positions", "positions (B, 3) float32 in m"),
+    "pose": (
+        "poses",
+        "poses (B, 7) float32: position in m, then the end link's orientation in the root frame "
+        "as a unit quaternion (w, x, y, z)",
+    ),
+}
+EXAMPLE_TARGETS = 4  # how many example joint vectors and their targets the metadata holds
 
 
 class DeployedIK(nn.Module):
-    """The IK network in float32: positions (B, 3) in m -> (joints (B, 3), in_workspace (B,)).
+    """The IK network in float32: positions (B, 3) in m -> (joints (B, n), in_workspace (B,)).
 
     One graph for any B: the rows are not split into blocks as in the network's eager calls
     (`export_onnx` wraps the graph in a loop over blocks). What it takes of the network is its
@@ -57,6 +89,20 @@ class DeployedIK(nn.Module):
         return self.net.solve_rows(positions)
 
 
+class DeployedPoseIK(DeployedIK):
+    """`DeployedIK` of a pose network: poses (B, 7) (position in m, then a unit quaternion (w, x,
+    y, z)) -> (joints (B, n), in_workspace (B,)). Its own class so the exported input is named
+    "poses" (torch.export names it after `forward`'s argument)."""
+
+    def forward(self, poses: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.net.solve_rows(poses)
+
+
+def deployed(net: RBFNetwork) -> DeployedIK:
+    """The exporters' module for `net`, in eval mode: its input named for the network's targets."""
+    return (DeployedPoseIK if net.target == "pose" else DeployedIK)(net).eval()
+
+
 def _example(net: RBFNetwork) -> torch.Tensor:
     """Example inputs (4, 3) positions, or (4, 7) poses with the identity quaternion."""
     x = torch.zeros(4, net.in_features, dtype=torch.float32)
@@ -65,19 +111,47 @@ def _example(net: RBFNetwork) -> torch.Tensor:
     return x
 
 
-def pt2_bytes(net: RBFNetwork) -> bytes:
-    """A torch.export program with a dynamic batch dimension, as the bytes of a .pt2 file."""
+def metadata(net: RBFNetwork, robot: Robot | None = None) -> dict[str, str]:
+    """What the exports say about themselves, as strings: "target" ("position" or "pose"), "input"
+    (the input's name and layout) and, given the network's `robot`, "robot" (its name),
+    "joint_names" (a JSON list: the free joints, the outputs' order), "example_joints" (a JSON (4, n)
+    list: joint vectors inside the robot's sampled box, rad or m, seeded) and "example_targets" (a
+    JSON (4, 3) or (4, 7) list: the targets they reach, the robot's forward kinematics, float64)."""
+    meta = {"target": net.target, "input": INPUTS[net.target][1]}
+    if robot is None:
+        return meta
+    if robot.target != net.target or len(robot.joint_names) != net.out_features:
+        raise ValueError(
+            f"robot {robot.name!r} ({robot.target} targets, {len(robot.joint_names)} free joints) is not the "
+            f"network's ({net.target} targets, {net.out_features} joints)"
+        )
+    low, high = robot.low.cpu(), robot.high.cpu()
+    inner = 0.2 * (high - low)  # well inside the box, away from its edges
+    q = sample_joints(low + inner, high - inner, EXAMPLE_TARGETS, torch.Generator().manual_seed(0))
+    return {
+        **meta,
+        "robot": robot.name,
+        "joint_names": json.dumps(robot.joint_names),
+        "example_joints": json.dumps(q.tolist()),
+        "example_targets": json.dumps(robot.targets(q.to(robot.chain.device)).cpu().tolist()),
+    }
+
+
+def pt2_bytes(net: RBFNetwork, *, robot: Robot | None = None) -> bytes:
+    """A torch.export program with a dynamic batch dimension, as the bytes of a .pt2 file; its
+    `metadata` in the extra file "rbfn.json"."""
     batch = torch.export.Dim("batch", min=1)
+    name = INPUTS[net.target][0]
     buf = io.BytesIO()
     with _quiet_exporter():
-        prog = torch.export.export(DeployedIK(net).eval(), (_example(net),), dynamic_shapes={"positions": {0: batch}})
-        torch.export.save(prog, buf)
+        prog = torch.export.export(deployed(net), (_example(net),), dynamic_shapes={name: {0: batch}})
+        torch.export.save(prog, buf, extra_files={"rbfn.json": json.dumps(metadata(net, robot))})
     return buf.getvalue()
 
 
-def export_pt2(net: RBFNetwork, path: str | Path) -> Path:
+def export_pt2(net: RBFNetwork, path: str | Path, *, robot: Robot | None = None) -> Path:
     """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
-    write_files({Path(path): pt2_bytes(net)})
+    write_files({Path(path): pt2_bytes(net, robot=robot)})
     return Path(path)
 
 
@@ -102,29 +176,38 @@ def _quiet_exporter():
             lg.setLevel(level)
 
 
-def export_onnx(net: RBFNetwork, path: str | Path, block_rows: int | None = None) -> Path:
-    """Write a single-file ONNX model (input "positions", outputs "joints", "in_workspace") that
-    runs the rows in blocks of `block_rows` (default `net.rows_per_block`), atomically."""
-    write_files({Path(path): onnx_bytes(net, block_rows)})
+def export_onnx(
+    net: RBFNetwork, path: str | Path, block_rows: int | None = None, *, robot: Robot | None = None
+) -> Path:
+    """Write a single-file ONNX model (input "positions" (B, 3) or "poses" (B, 7), outputs "joints",
+    "in_workspace") that runs the rows in blocks of `block_rows` (default `net.rows_per_block`),
+    atomically; its `metadata(net, robot)` in the model's metadata_props."""
+    write_files({Path(path): onnx_bytes(net, block_rows, robot=robot)})
     return Path(path)
 
 
-def onnx_bytes(net: RBFNetwork, block_rows: int | None = None) -> bytes:
+def onnx_bytes(net: RBFNetwork, block_rows: int | None = None, *, robot: Robot | None = None) -> bytes:
     """The single-file ONNX model of `export_onnx`, as bytes."""
     batch = torch.export.Dim("batch", min=1)
+    name, layout = INPUTS[net.target]
     with _quiet_exporter():
         prog = torch.onnx.export(
-            DeployedIK(net).eval(),
+            deployed(net),
             (_example(net),),
             dynamo=True,
             external_data=False,
-            input_names=["positions"],
+            input_names=[name],
             output_names=["joints", "in_workspace"],
-            dynamic_shapes={"positions": {0: batch}},
+            dynamic_shapes={name: {0: batch}},
             verbose=False,
         )
     assert prog is not None  # dynamo=True: always an ONNXProgram
     model = _in_row_blocks(prog.model_proto, block_rows or net.rows_per_block)
+    model.graph.input[0].doc_string = layout
+    joints, inside = model.graph.output
+    joints.doc_string = "joints (B, n) float32: the free joints in URDF order and units (rad, or m if prismatic)"
+    inside.doc_string = "in_workspace (B,) bool: the target lies in the trained workspace"
+    helper.set_model_props(model, metadata(net, robot))
     onnx.checker.check_model(model)
     return model.SerializeToString()
 
@@ -202,11 +285,15 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
     return result
 
 
-def export_all(net: RBFNetwork, out_dir: str | Path, stem: str = "ik") -> list[Path]:
-    """Write `stem`.onnx and `stem`.pt2 into `out_dir`: both are built before either is written, and
+def export_all(net: RBFNetwork, out_dir: str | Path, stem: str = "ik", *, robot: Robot | None = None) -> list[Path]:
+    """Write `stem`.onnx and `stem`.pt2 into `out_dir`, with `metadata(net, robot)` (pass the
+    network's robot for the example targets): both are built before either is written, and
     written all or none, so a failure leaves the old files as they were."""
     out_dir = Path(out_dir)
-    files = {out_dir / f"{stem}.onnx": onnx_bytes(net), out_dir / f"{stem}.pt2": pt2_bytes(net)}
+    files = {
+        out_dir / f"{stem}.onnx": onnx_bytes(net, robot=robot),
+        out_dir / f"{stem}.pt2": pt2_bytes(net, robot=robot),
+    }
     write_files(files)
     return list(files)
 
@@ -256,14 +343,15 @@ def main(argv: list[str] | None = None) -> None:
     if problem:
         fail(p, f"{where}: {problem}")
     try:
-        net = load_model(a.checkpoint)
+        ckpt = read_checkpoint(a.checkpoint)
+        net, robot = model_from_checkpoint(ckpt), robot_from_record(ckpt["robot"])
     except (OSError, ValueError) as e:
         message = str(e) if isinstance(e, ValueError) else _first_line(e)
         fail(p, f"CHECKPOINT: {message}" if str(a.checkpoint) in message else f"CHECKPOINT {a.checkpoint}: {message}")
     except Exception as e:  # noqa: BLE001 (a checkpoint that passes its checks but does not build: a bug)
         fail(p, f"CHECKPOINT {a.checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
     try:
-        paths = export_all(net, out_dir)
+        paths = export_all(net, out_dir, robot=robot)
     except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
         fail(
             p,

@@ -27,10 +27,12 @@ def test_pt2_and_onnx_match_module(net, small_data, tmp_path, batch):
         y_ref, in_ref = net.float().solve(x)
     net.double()
     prog = torch.export.load(str(export_pt2(net, tmp_path / "ik.pt2")))
+    assert prog.graph_signature.user_inputs == ("positions",)  # the name position networks always had
     y, inside = prog.module()(x)
     assert torch.allclose(y, y_ref, atol=1e-5) and torch.equal(inside, in_ref)
     ort = pytest.importorskip("onnxruntime")
     sess = ort.InferenceSession(str(export_onnx(net, tmp_path / "ik.onnx")), providers=["CPUExecutionProvider"])
+    assert [(i.name, i.shape) for i in sess.get_inputs()] == [("positions", ["batch", 3])]
     y_onnx, in_onnx = sess.run(None, {"positions": x.numpy()})
     assert abs(y_onnx - y_ref.numpy()).max() < 1e-5
     assert (in_onnx == in_ref.numpy()).all()
@@ -109,3 +111,79 @@ def test_onnx_runs_rows_in_blocks_row_for_row_as_one_pass(net, small_data, tmp_p
     (y8, in8), (y, inside) = blocked.run(None, {"positions": x}), whole.run(None, {"positions": x})
     assert y8.shape == (batch, 3) and in8.shape == (batch,) and in8.dtype == bool
     assert (y8 == y).all() and (in8 == inside).all()
+
+
+@pytest.fixture(scope="module")
+def pose_run(tmp_path_factory):
+    """A tiny UR5 pose network trained with its exports: the run directory."""
+    import train
+
+    from .conftest import TINY_TRAIN, compose_config
+
+    out = tmp_path_factory.mktemp("ur5")
+    tiny = [o for o in TINY_TRAIN if not o.startswith("export=")]
+    train.run(compose_config("train", "robot=ur5", *tiny), out)
+    return out
+
+
+def test_a_pose_network_is_solved_through_its_poses_input(pose_run):
+    """Training's ik.onnx and ik.pt2 of a pose network take "poses" (B, 7), reproduce the float32
+    module to 1e-5 and carry the same metadata: example targets the robot's joints reach."""
+    ort = pytest.importorskip("onnxruntime")
+    import json
+
+    from rbfn.checkpoint import load_model, read_checkpoint
+    from rbfn.data import make_split
+    from rbfn.robots.robot import robot_from_record
+
+    robot = robot_from_record(read_checkpoint(pose_run / "checkpoint.pt")["robot"])
+    x = make_split(robot, 50, seed=5).x.float()
+    with torch.no_grad():
+        y_ref, in_ref = load_model(pose_run / "checkpoint.pt").solve(x)
+    assert in_ref.any() and y_ref.shape == (50, 6)
+
+    sess = ort.InferenceSession(str(pose_run / "ik.onnx"), providers=["CPUExecutionProvider"])
+    (inp,) = sess.get_inputs()
+    assert (inp.name, inp.shape) == ("poses", ["batch", 7])
+    y_onnx, in_onnx = sess.run(["joints", "in_workspace"], {"poses": x.numpy()})
+    assert abs(y_onnx - y_ref.numpy()).max() < 1e-5 and (in_onnx == in_ref.numpy()).all()
+
+    files = {"rbfn.json": ""}
+    prog = torch.export.load(str(pose_run / "ik.pt2"), extra_files=files)
+    assert prog.graph_signature.user_inputs == ("poses",)
+    with torch.no_grad():
+        y_pt2, in_pt2 = prog.module()(x)
+    assert float((y_pt2 - y_ref).abs().max()) < 1e-5 and torch.equal(in_pt2, in_ref)
+
+    meta = sess.get_modelmeta().custom_metadata_map
+    assert json.loads(files["rbfn.json"]) == meta
+    assert meta["target"] == "pose" and meta["input"].startswith("poses (B, 7)") and meta["robot"] == "ur5"
+    assert json.loads(meta["joint_names"]) == robot.joint_names
+    q = torch.tensor(json.loads(meta["example_joints"]), dtype=torch.float64)
+    assert q.shape == (4, 6) and ((q > robot.low) & (q < robot.high)).all()
+    assert torch.equal(torch.tensor(json.loads(meta["example_targets"]), dtype=torch.float64), robot.targets(q))
+
+
+def _run_example(path, capsys) -> list[str]:
+    """What examples/deploy_onnx.py prints for the model at `path`, line by line."""
+    import runpy
+
+    from .conftest import ROOT
+
+    runpy.run_path(str(ROOT / "examples" / "deploy_onnx.py"))["main"](str(path))
+    return capsys.readouterr().out.splitlines()
+
+
+def test_the_deploy_example_runs_on_position_and_pose_networks(net, scara_robot, pose_run, tmp_path, capsys):
+    """examples/deploy_onnx.py reads the input's name and width from the file and solves its
+    example targets (in the workspace) and one 10 m away (flagged), for either kind of network."""
+    pytest.importorskip("onnxruntime")
+    lines = _run_example(export_onnx(net, tmp_path / "ik.onnx", robot=scara_robot), capsys)
+    assert lines[0].startswith(f"{scara_robot.name}: input 'positions' ['batch', 3]")
+    pose_lines = _run_example(pose_run / "ik.onnx", capsys)
+    assert pose_lines[0].startswith("ur5: input 'poses' ['batch', 7], outputs the joints ['shoulder_pan_joint',")
+    for out in (lines, pose_lines):
+        assert len(out) == 6 and all("in workspace True" in line for line in out[1:5])
+        assert out[5].endswith("max joint error -- (10 m away)  in workspace False")
+    with pytest.raises(SystemExit, match=r"holds no example targets: export it again with python -m rbfn\.export"):
+        _run_example(export_onnx(net, tmp_path / "bare.onnx"), capsys)  # no robot given: no examples

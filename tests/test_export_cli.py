@@ -1,5 +1,6 @@
 """`python -m rbfn.export` on bad inputs: one-line errors, and no good file destroyed or half written."""
 
+import json
 import os
 import shutil
 
@@ -7,7 +8,7 @@ import pytest
 import torch
 
 import rbfn.export
-from rbfn.checkpoint import save_checkpoint
+from rbfn.checkpoint import read_checkpoint, save_checkpoint
 from rbfn.export import main
 from rbfn.layer import RBFNetwork
 
@@ -25,10 +26,27 @@ def ckpt(tmp_path, scara_robot):
 
 
 @pytest.fixture()
+def pose_ckpt(tmp_path):
+    """A checkpoint of a small UR5 pose network (random weights), alone in tmp_path/pose."""
+    from rbfn.robots.robot import load_robot
+    from rbfn.targets import TargetFeatures
+
+    from .conftest import compose_config
+
+    path = tmp_path / "pose" / "checkpoint.pt"
+    path.parent.mkdir()
+    net = RBFNetwork(
+        torch.randn(5, 9, dtype=torch.float64), torch.ones(5, dtype=torch.float64), 6, inputs=TargetFeatures(pose=True)
+    )
+    save_checkpoint(path, net, load_robot(compose_config("train", "robot=ur5").robot).record(), {"seed": 0}, {})
+    return path
+
+
+@pytest.fixture()
 def fake_export(monkeypatch):
     """Exports that take no time: the files' bytes name their format."""
-    monkeypatch.setattr(rbfn.export, "onnx_bytes", lambda net: b"onnx")
-    monkeypatch.setattr(rbfn.export, "pt2_bytes", lambda net: b"pt2")
+    monkeypatch.setattr(rbfn.export, "onnx_bytes", lambda net, robot: b"onnx")
+    monkeypatch.setattr(rbfn.export, "pt2_bytes", lambda net, robot: b"pt2")
 
 
 def _error_line(capsys, *argv, status=2):
@@ -92,7 +110,7 @@ def test_a_write_protected_output_is_kept_unless_forced(ckpt, capsys, fake_expor
 def test_an_export_that_fails_writes_nothing(ckpt, capsys, monkeypatch, fake_export, failing):
     (ckpt.parent / "ik.onnx").write_bytes(b"old onnx")
 
-    def fail(net):
+    def fail(net, robot):
         raise RuntimeError("the exporter broke\nwith a long story")
 
     monkeypatch.setattr(rbfn.export, failing, fail)
@@ -116,11 +134,19 @@ def test_a_failed_write_replaces_neither_file(ckpt, capsys, monkeypatch, fake_ex
     assert not any((ckpt.parent / "new").iterdir())
 
 
-def test_the_command_exports_for_real(ckpt, tmp_path, capsys):
+@pytest.mark.parametrize("which,name,width", [("ckpt", "positions", 3), ("pose_ckpt", "poses", 7)])
+def test_the_command_exports_for_real(request, which, name, width, tmp_path):
+    """Both files take the input named for the network's targets ("positions" (B, 3) or "poses"
+    (B, 7)), agree, and carry the checkpoint's robot and its example targets."""
     ort = pytest.importorskip("onnxruntime")
-    main([str(ckpt), "--out-dir", str(tmp_path / "deploy")])
+    path = request.getfixturevalue(which)
+    main([str(path), "--out-dir", str(tmp_path / "deploy")])
     assert sorted(p.name for p in (tmp_path / "deploy").iterdir()) == ["ik.onnx", "ik.pt2"]
-    x = torch.zeros(2, 3)
     sess = ort.InferenceSession(str(tmp_path / "deploy" / "ik.onnx"), providers=["CPUExecutionProvider"])
+    assert [(i.name, i.shape) for i in sess.get_inputs()] == [(name, ["batch", width])]
+    meta = sess.get_modelmeta().custom_metadata_map
+    assert meta["robot"] == read_checkpoint(path)["robot"]["name"]
+    x = torch.tensor(json.loads(meta["example_targets"]), dtype=torch.float32)
+    assert x.shape == (4, width)
     joints = torch.export.load(str(tmp_path / "deploy" / "ik.pt2")).module()(x)[0]
-    assert torch.allclose(torch.from_numpy(sess.run(None, {"positions": x.numpy()})[0]), joints, atol=1e-5)
+    assert torch.allclose(torch.from_numpy(sess.run(None, {name: x.numpy()})[0]), joints, atol=1e-5)

@@ -104,7 +104,7 @@ def test_pose_export_matches_the_module(ur5_run, tmp_path):
     x = split.x.float()
     q, inside = load_model(out / "checkpoint.pt").solve(x)
     sess = ort.InferenceSession(str(out / "ik.onnx"), providers=["CPUExecutionProvider"])
-    q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
+    q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"poses": x.numpy()})
     assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-4)
     assert inside_onnx.tolist() == inside.tolist()
 

@@ -72,7 +72,7 @@ def write_training(out_dir: Path, cfg: TrainConfig, robot: Robot, result: TrainR
     """checkpoint.pt, ik.onnx / ik.pt2 (unless `export=false`), metrics.json and TensorBoard events."""
     save_checkpoint(out_dir / "checkpoint.pt", result.model, robot.record(), plain(cfg), metrics)
     if cfg.export:
-        export_all(result.model, out_dir)  # deploy without this package
+        export_all(result.model, out_dir, robot=robot)  # deploy without this package
     write_json(out_dir / "metrics.json", metrics)
     for m, (best, mean) in result.colonies.items():
         for it, (b, a) in enumerate(zip(best, mean)):
