@@ -8,9 +8,12 @@ disturbance at 3 rad/s (evaluation: 2 rad/s), payloads of 0.3 and
 0.8 times the rated payload (evaluation: 0, 0.5 and 1), sensor-noise seed 1 (evaluation: 0).
 Controllers scored: `smc_obs` and `arbfn_kmeans` (the ACO controller is left out, so that the
 gains cannot favour it). A set is admissible when no scored controller diverges or spends more
-than 1 % of the time at a torque limit on any joint; among those, the one with the smallest worst
-ratio (over controllers, payloads and joints) of RMS error to `smc`'s RMS wins. Where none is
-admissible, the one with the least time saturated.
+than 1 % of the time at a torque limit on any joint. Among those, the sets whose worst ratio (over
+controllers, payloads and joints) of RMS error to `smc`'s RMS is within 5 % of the smallest are
+tied (with per-joint rates, `gains.inertia_scaling`, a joint whose rates are capped is the same under
+many sets), and the one with the smallest mean ratio wins; sets equal in that too (every joint's
+observer capped) go to the K_o nearest the derived one in conf/gains/robot/<robot>_realistic.yaml.
+Where none is admissible, the one with the least time saturated.
 
     python -m bench.tune_gains --robot scara [--observer 5,10,25,50,100] [--gamma 50,100,200,500]
 """
@@ -61,22 +64,22 @@ def tuning_config(robot: str):
     return cfg
 
 
-def score(cfg, observer: float, gamma: float) -> tuple[float, float]:
-    """(worst RMS / smc's RMS over the scored controllers, payloads and joints; worst share of
-    time at a torque limit); (inf, inf) where the loop diverges."""
+def score(cfg, observer: float, gamma: float) -> tuple[float, float, float]:
+    """(worst and mean RMS / smc's RMS over the scored controllers, payloads and joints; worst share
+    of time at a torque limit); (inf, inf, inf) where the loop diverges."""
     gains = replace(cfg.gains, observer_gain=observer, gamma=gamma)
     setup = check_control(cfg.control, cfg.robot)
     try:
         res = compare_controllers(cfg.control, gains, "cpu", setup=setup, loop=cfg.loop)
     except SimulationDiverged:
-        return math.inf, math.inf
+        return math.inf, math.inf, math.inf
     smc = res.runs["smc"].metrics
-    worst, saturated = 0.0, 0.0
+    ratios, saturated = [], 0.0
     for name in SCORED:
         for case, m in res.runs[name].metrics.items():
-            worst = max(worst, *(c / s for c, s in zip(m["rms_err"], smc[case]["rms_err"])))
+            ratios += [c / s for c, s in zip(m["rms_err"], smc[case]["rms_err"])]
             saturated = max(saturated, *m["saturated"])
-    return worst, saturated
+    return max(ratios), sum(ratios) / len(ratios), saturated
 
 
 def main() -> None:
@@ -91,15 +94,21 @@ def main() -> None:
     rows = []
     for ko, gm in itertools.product(map(float, args.observer.split(",")), map(float, args.gamma.split(","))):
         t0 = time.perf_counter()
-        worst, sat = score(cfg, ko, gm)
-        rows.append((ko, gm, worst, sat))
+        worst, mean, sat = score(cfg, ko, gm)
+        rows.append((ko, gm, worst, sat, mean))
         print(
-            f"K_o {ko:7.1f}  Gamma {gm:7.1f}  worst RMS/smc {worst:9.3g}  saturated {100 * sat:6.2f} %"
-            f"  ({time.perf_counter() - t0:.0f} s)",
+            f"K_o {ko:7.1f}  Gamma {gm:7.1f}  RMS/smc worst {worst:9.3g} mean {mean:9.3g}"
+            f"  saturated {100 * sat:6.2f} %  ({time.perf_counter() - t0:.0f} s)",
             flush=True,
         )
     admissible = [r for r in rows if r[3] <= 0.01 and math.isfinite(r[2])]
-    best = min(admissible, key=lambda r: r[2]) if admissible else min(rows, key=lambda r: (r[3], r[2]))
+    if admissible:
+        least = min(r[2] for r in admissible)
+        derived = cfg.gains.observer_gain
+        tied = [r for r in admissible if r[2] <= 1.05 * least]
+        best = min(tied, key=lambda r: (r[4], abs(math.log(r[0] / derived))))
+    else:
+        best = min(rows, key=lambda r: (r[3], r[2]))
     print(
         f"chosen for {args.robot}: observer_gain {best[0]}, gamma {best[1]} "
         f"({'admissible' if admissible else 'none admissible: least saturated'})"

@@ -72,9 +72,10 @@ def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
     assert set(on_disk["control"]) == {"smc", "smc_obs", "arbfn_kmeans"}
     for cases in on_disk["control"].values():
         assert set(cases) == {"0kg", "10kg"}
-        assert all(set(c) == CONTROL_KEYS and all(len(v) == 3 for v in c.values()) for c in cases.values())
+        keys = CONTROL_KEYS | {"saturated"}  # the default realistic loop
+        assert all(set(c) == keys and all(len(v) == 3 for v in c.values()) for c in cases.values())
     assert set(on_disk["control_info"]) == {"loop", "gains", "select_seconds", "sim_seconds"}
-    assert on_disk["control_info"]["loop"]["name"] == "ideal"
+    assert on_disk["control_info"]["loop"]["name"] == "realistic"
     assert on_disk["online"]["task_err_mm_rms_last_2s"] < on_disk["online"]["task_err_mm_rms_no_adapt"]
     for name in (
         "workspace_error_map.png",

@@ -127,7 +127,7 @@ def test_noise_is_seeded_and_encoders_quantise_what_the_controller_sees():
 def test_with_every_part_off_the_realistic_loop_is_the_ideal_one():
     """A RealLoop that senses exactly and acts at once every step reproduces the ideal loop (the
     same law, told the torque it applied; the operations' order differs: to rounding)."""
-    cfg = compose_config("evaluate")
+    cfg = compose_config("evaluate", "loop=ideal")
     assert real_loop(cfg.loop, 1e-3, [False] * 3, torch.ones(3)) is None  # loop=ideal: the ideal path
     sc = Scenario(duration=1.0, dt=1e-3, payload_on=0.2, payload_off=0.8)
     ref = paper_trajectory(sc.times())
@@ -157,6 +157,25 @@ def test_bad_loop_settings_are_refused_by_key(override, key):
     cfg = compose_config("evaluate", *override.split())
     with pytest.raises(ValueError, match=key.replace(".", r"\.")):
         cfg.check()
+
+
+@pytest.mark.parametrize("robot", ["scara", "ur5", "panda"])
+def test_the_default_loop_is_realistic_with_its_gains_and_ideal_keeps_the_tuned_set(robot):
+    """evaluate.py's default: loop=realistic with the robot's realistic gains; loop=ideal is one
+    override back to the tuned set; an explicit gains= wins in either loop."""
+    default, ideal = (
+        compose_config("evaluate", f"robot={robot}"),
+        compose_config("evaluate", f"robot={robot}", "loop=ideal"),
+    )
+    assert default.loop.name == "realistic" and not default.loop.ideal
+    assert default.gains == compose_config("evaluate", f"robot={robot}", "loop=realistic", "gains=realistic").gains
+    assert ideal.loop.ideal and ideal.gains == compose_config("evaluate", f"robot={robot}", "gains=tuned").gains
+    assert ideal.gains != default.gains
+    paper = compose_config("evaluate", f"robot={robot}", "gains=paper")
+    assert (
+        paper.loop.name == "realistic"
+        and paper.gains == compose_config("evaluate", f"robot={robot}", "loop=ideal", "gains=paper").gains
+    )
 
 
 def test_the_realistic_preset_takes_the_robots_rate_and_encoders():
@@ -233,8 +252,12 @@ def test_inertia_scaling_slows_each_joints_integrators_by_its_rated_inertia():
     from rbfn.robots.scara import ScaraParams, inertia_params
     from rbfn.studies.control import check_control
 
-    cfg = compose_config("evaluate", "loop=realistic", "gains=realistic")
-    assert cfg.gains.inertia_scaling and not compose_config("evaluate").gains.inertia_scaling
+    cfg = compose_config("evaluate")  # the default: loop=realistic, its gains
+    assert (
+        cfg.loop.name == "realistic"
+        and cfg.gains.inertia_scaling
+        and not compose_config("evaluate", "loop=ideal").gains.inertia_scaling
+    )
     setup = check_control(cfg.control, cfg.robot)
     rates = setup.joint_rates(cfg.gains, dtype=torch.float64)
     assert rates is not None and rates.observer.shape == rates.gamma.shape == (3,)

@@ -123,6 +123,7 @@ def test_gains_group_composes(gains, k):
 def test_control_gains_preset_composes():
     cfg = compose_config("evaluate", "experiment=control_gains", hydra=True)
     assert cfg.hydra.sweeper.params["gains.K"] == "15,30,50" and cfg.ik is False
+    assert cfg.loop.name == "ideal" and cfg.gains.observer_gain == 1000.0  # the ideal loop's gains it sweeps
 
 
 UR5_TINY = [
@@ -139,19 +140,21 @@ UR5_TINY = [
 
 
 def test_evaluate_ur5_end_to_end(tmp_path):
-    """python evaluate.py robot=ur5 (tiny settings): the UR5's tuned gains, payload cases 0, 2.5 and
-    5 kg, metrics as lists of 6 per joint, a 6 x 3 figure per controller, TensorBoard events."""
+    """python evaluate.py robot=ur5 (tiny settings): the realistic loop with the UR5's realistic
+    gains, payload cases 0, 2.5 and 5 kg, metrics as lists of 6 per joint (the time saturated
+    among them), a 6 x 3 figure per controller, TensorBoard events."""
     import evaluate
 
     cfg = compose_config("evaluate", *UR5_TINY)
-    assert cfg.gains.K == compose_config("evaluate", "robot=ur5", "gains=tuned").gains.K
+    assert cfg.loop.name == "realistic"
+    assert cfg.gains == compose_config("evaluate", "robot=ur5", "gains=realistic").gains
     m = evaluate.run(cfg, tmp_path)
     on_disk = json.loads((tmp_path / "metrics.json").read_text())
     assert on_disk["control"] == m["control"] and set(on_disk["control"]) == {"smc", "arbfn_kmeans"}
     for cases in on_disk["control"].values():
         assert list(cases) == ["0kg", "2.5kg", "5kg"]
         for c in cases.values():
-            assert set(c) == KEYS and all(len(v) == 6 for v in c.values())
+            assert set(c) == KEYS | {"saturated"} and all(len(v) == 6 for v in c.values())
             assert all(torch.isfinite(torch.tensor(v)).all() for v in c.values())
     assert len(on_disk["control_info"]["gains"]["joint_scale"]) == 6
     for name in ("control_smc.png", "control_arbfn_kmeans.png"):
