@@ -196,10 +196,14 @@ PILOT_STRIDE = 10  # the control network's pilot run is sampled every 10 control
 # ----------------------------------------------------------------------------------------- train
 @dataclass
 class RobotConfig:
-    """The robot (group `robot`: scara, ur5, panda; or any serial URDF with `urdf` and `end_link`):
+    """The robot (group `robot`: scara, ur5, panda; or `urdf`, any serial URDF with `urdf` and `end_link`):
     its chain, the box of joints its IK answers in and the kind of target, and its physical facts.
     The defaults are the SCARA's preset, conf/robot/scara.yaml, but for gravity (null: the
     preset's) and home (empty: the box centre; the SCARA's paper trajectory has none).
+    With `derive` (robot=urdf, conf/robot/urdf.yaml) the keys left at its markers (name "",
+    target null, joint_low/joint_high/home/encoder_counts empty, gravity/control_rate null,
+    rated_payload < 0) are derived from the URDF by `rbfn.robots.derive.derive_robot`, which
+    train.py and evaluate.py call first; given keys win.
 
     Joint values are in the URDF's units (rad, or m for prismatic joints), in the URDF's joint
     order along the chain root -> end link, `locked` joints excluded from the box and the IK output.
@@ -208,21 +212,31 @@ class RobotConfig:
     name: str = "scara"  # the preset's label; with `urdf` empty, its packaged URDF
     urdf: str = ""  # a URDF file; empty: the packaged URDF of `name`
     end_link: str = "quill"
-    target: Target = Target.position  # position (B, 3) | pose (B, 7)
+    target: Optional[Target] = Target.position  # position (B, 3) | pose (B, 7); null: derived (robot=urdf)
     joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])  # the IK branch's box
     joint_high: list[float] = field(default_factory=lambda: [2.0, 2.0, 1.5])
     locked: dict[str, float] = field(default_factory=dict)  # joint name -> held value (redundant arms)
     rotation_scale: float = 0.3  # m per unit of the rotation features (pose targets)
     gravity: Optional[float] = None  # m/s^2 along -z of the root; null: the preset's (name), else 9.81
     home: list[float] = field(default_factory=list)  # a nominal pose per free joint; empty: the box centre
-    rated_payload: float = 20.0  # kg: control payload cases default to 0, half and all of it
+    rated_payload: float = 20.0  # kg: control payload cases default to 0, half and all of it; < 0: derived
     control_rate: Optional[float] = None  # Hz: the maker's controller cycle (the realistic loop's rate)
     # per chain joint: counts per revolution (per metre, prismatic) of the joint-side position
     # measurement (the realistic loop's encoders); empty: exact
     encoder_counts: list[float] = field(default_factory=list)
+    derive: bool = False  # robot=urdf: fill the keys left at their markers from the URDF (see above)
+    box_halfwidth: float = 0.5  # rad (m, prismatic): the derived box, home +- this, clipped to the limits
 
     def check(self, key: str = "robot") -> None:
         """The URDF itself is checked when it is loaded."""
+        derived = "(robot=urdf derives it from the URDF, rbfn.robots.derive, before this check)"
+        _need(self.target is not None, f"{key}.target", self.target, f"position or pose {derived}")
+        _need(
+            finite(self.box_halfwidth) and self.box_halfwidth > 0,
+            f"{key}.box_halfwidth",
+            self.box_halfwidth,
+            "must be > 0 (rad, or m for a prismatic joint)",
+        )
         lo, hi = self.joint_low, self.joint_high
         _need(
             len(lo) == len(hi) and len(lo) > 0,
@@ -266,7 +280,7 @@ class RobotConfig:
             finite(self.rated_payload) and self.rated_payload >= 0,
             f"{key}.rated_payload",
             self.rated_payload,
-            "must be >= 0 kg",
+            f"must be >= 0 kg; < 0: derived {derived}",
         )
         _check_sensing(self.control_rate, self.encoder_counts, key)
 

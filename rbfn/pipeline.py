@@ -155,7 +155,7 @@ def train_ik(
     """
     n_q = data.train.q.shape[1]
     joints = robot.joint_names if robot is not None else [f"joint {i + 1}" for i in range(n_q)]
-    check_ik_is_function(cfg.robot.target, joints, cfg.robot.locked)
+    check_ik_is_function(str(cfg.robot.target), joints, cfg.robot.locked)
     t_start = time.perf_counter()
     state = state or TrainState(config={})
     elapsed_before = state.elapsed

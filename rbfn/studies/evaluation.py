@@ -19,6 +19,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from ..checkpoint import read_checkpoint
 from ..config import EvalConfig, validate_evaluate
+from ..robots.derive import derive_evaluate
 from .beside import Beside, can_fork
 from .control import check_control, evaluate_control
 from .ik import evaluate_ik
@@ -110,7 +111,9 @@ def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
 def run(cfg: EvalConfig, out_dir: Path, run_files: dict[str, str] | None = None) -> dict:
     """Evaluate every enabled part into `out_dir`, a new or empty directory held for the run
     (rbfn.studies.rundir); return metrics.json's content. Nothing is written before every check
-    passed; `run_files` (relative path -> text, e.g. the composed config) are written first then."""
+    passed; `run_files` (relative path -> text, e.g. the composed config) are written first then.
+    robot=urdf's keys left to derive are filled from the URDF first (rbfn.robots.derive)."""
+    cfg = derive_evaluate(cfg)
     path, ckpt = check(cfg)
     with RunDir(out_dir, own=True):
         for rel, text in (run_files or {}).items():

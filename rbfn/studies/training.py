@@ -13,6 +13,7 @@ from ..config import TrainConfig, plain, validate_train
 from ..data import check_finite, make_dataset
 from ..pipeline import check_ik_is_function, train_ik
 from ..resume import StateFile
+from ..robots.derive import derive_train
 from ..robots.robot import load_robot
 from .ik import training_metrics, write_training
 from .rundir import RunDir, write_text
@@ -27,10 +28,12 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
 
     Every check (config, robot, data, a run already in the directory) happens before anything is
     written; `run_files` (relative path -> text, e.g. the composed config) are written after them.
+    robot=urdf's keys left to derive are filled from the URDF first (rbfn.robots.derive).
     """
+    cfg = derive_train(cfg)
     validate_train(cfg)
     robot = load_robot(cfg.robot, cfg.device)
-    check_ik_is_function(cfg.robot.target, robot.joint_names, cfg.robot.locked)
+    check_ik_is_function(robot.target, robot.joint_names, cfg.robot.locked)
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write

@@ -1,0 +1,332 @@
+"""robot=urdf: every robot key a user's arm leaves out, derived from its URDF, in one place.
+
+    python train.py robot=urdf robot.urdf=PATH robot.end_link=LINK [+robot.locked.JOINT=VALUE ...]
+
+conf/robot/urdf.yaml sets `robot.derive` and leaves the keys below at their markers;
+`derive_robot` fills each from the arm (root -> end_link, `rbfn.robots.dynamics.Arm`) and logs one
+line per key, saying what it chose and why ("given" for a key the user gave, which always wins):
+
+* name: the URDF's <robot name="...">.
+* target: `pose` for 6 free joints (the chain less robot.locked), `position` for 3; other counts
+  are refused (`rbfn.pipeline.check_ik_is_function`, or too few joints), naming the way out.
+* home: the middle of each free joint's limits (0 for a joint without limits, e.g. continuous).
+* joint_low / joint_high: home +- robot.box_halfwidth (rad, or m for a prismatic joint), clipped to
+  the limits; given a box without a home, home is the box centre.
+* gravity: 9.81 m/s^2 (standard gravity).
+* rated_payload: the largest point mass (kg, 2 significant digits, rounded down) at the end link
+  whose static gravity torque at home stays within PAYLOAD_MARGIN of every joint's URDF effort
+  limit; the control part's payload cases are 0, half and all of it.
+* control_rate, encoder_counts: 500 Hz and 2^20 counts per revolution (per metre, prismatic) on
+  every chain joint, typical values, for the realistic loop.
+
+`derive_sizes` fills the training sizes conf/sizing/urdf.yaml leaves at its markers (by the target
+kind), `derive_train` / `derive_evaluate` apply both to a whole config: rbfn.studies.training and
+rbfn.studies.evaluation call them before any check. Robots without `robot.derive` (the presets)
+pass through unchanged.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ..config import EvalConfig, RobotConfig, Target, TrainConfig, Trajectory
+from .dynamics import Arm, load_arm, urdf_source
+from .kinematics import parse_urdf
+from .registry import closed_form
+
+__all__ = [
+    "CONTROL_RATE",
+    "ENCODER_COUNTS",
+    "GRAVITY",
+    "PAYLOAD_MARGIN",
+    "SIZES",
+    "Sizes",
+    "derive_evaluate",
+    "derive_robot",
+    "derive_sizes",
+    "derive_train",
+    "load_urdf_arm",
+    "rated_payload",
+]
+
+log = logging.getLogger(__name__)
+
+GRAVITY = 9.81  # m/s^2, standard gravity
+PAYLOAD_MARGIN = 0.5  # the rated payload's gravity torque at home: at most this share of each effort limit
+CONTROL_RATE = 500.0  # Hz: a typical controller cycle (the UR e-Series' 500 Hz)
+ENCODER_COUNTS = 2**20  # per revolution (per metre, prismatic): a typical 20-bit joint encoder
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """Training sizes: centres, the first M of the growth (0: none), samples per split."""
+
+    num_centers: int
+    growth_start: int
+    n_train: int
+    n_val: int
+    n_test: int
+
+
+# By target kind: the UR5's sizes (conf/sizing/ur5.yaml) for pose arms (6 free joints at most),
+# the SCARA's (conf/sizing/scara.yaml) for position arms (3 at most). tests/robots/test_derive.py
+# checks they equal those files.
+SIZES = {
+    Target.pose: Sizes(num_centers=2000, growth_start=0, n_train=20000, n_val=5000, n_test=10000),
+    Target.position: Sizes(num_centers=80, growth_start=10, n_train=2000, n_val=1000, n_test=5000),
+}
+
+
+def load_urdf_arm(cfg: RobotConfig) -> tuple[Arm, str]:
+    """(the arm root -> cfg.end_link of the file cfg.urdf, the URDF's <robot name>); ValueError
+    naming robot.urdf / robot.end_link when either is missing or wrong."""
+    if not cfg.urdf:
+        raise ValueError("robot.urdf='' is not allowed: robot=urdf needs the arm's URDF file, robot.urdf=PATH")
+    path = Path(cfg.urdf)
+    try:
+        text, source = urdf_source(path)
+        robot = parse_urdf(text, source)
+    except (FileNotFoundError, ValueError) as e:
+        raise type(e)(f"robot.urdf={cfg.urdf!r}: {e}") from None
+    if not cfg.end_link:
+        raise ValueError(
+            "robot.end_link='' is not allowed: robot=urdf needs the chain's last link, robot.end_link=LINK, "
+            f"one of the links of {cfg.urdf}: {sorted(robot.link_map)}"
+        )
+    try:
+        arm = load_arm(path, end_link=cfg.end_link, gravity=GRAVITY if cfg.gravity is None else cfg.gravity)
+    except ValueError as e:
+        raise ValueError(f"robot.end_link={cfg.end_link!r} (robot.urdf={cfg.urdf!r}): {e}") from None
+    return arm, str(robot.name or path.stem)
+
+
+def rated_payload(arm: Arm, home: torch.Tensor, margin: float = PAYLOAD_MARGIN) -> tuple[float, str]:
+    """(the largest point mass in kg at the arm's end link whose static gravity torque at `home`
+    (n,) stays within `margin` of every joint's effort limit, 2 significant digits rounded down;
+    the joint that bounds it, in words). G(q, m) = G0 + m G1 is affine in the mass m, so per joint
+    |G0_j + m G1_j| <= margin e_j holds up to m_j = (margin e_j - sign(G1_j) G0_j) / |G1_j|.
+    ValueError where the URDF gives no effort limit on the joints gravity loads."""
+    q = home.to(torch.float64).reshape(1, -1)
+    g0, g1 = arm.gravity(q)[0], arm.gravity(q, 1.0)[0] - arm.gravity(q)[0]  # N m (N), N m per kg
+    bound = margin * arm.effort_limits()
+    loaded = (g1.abs() > 1e-9) & torch.isfinite(bound)
+    if not bool(loaded.any()):
+        raise ValueError(
+            "robot.rated_payload: the URDF gives no effort limit on the joints a payload loads "
+            f"(effort {arm.effort_limits().tolist()}); give robot.rated_payload=KG"
+        )
+    per = torch.where(loaded, (bound - g1.sign() * g0) / g1.abs(), torch.full_like(g1, math.inf))
+    j = int(per.argmin())
+    m = max(float(per[j]), 0.0)
+    if m > 0:
+        step = 10.0 ** (math.floor(math.log10(m)) - 1)
+        m = math.floor(m / step + 1e-9) * step
+        m = float(f"{m:.2g}")
+    why = (
+        f"{arm.joint_names[j]} at home holds {abs(float(g0[j])):.3g} {'N' if arm.prismatic[j] else 'N m'} "
+        f"unloaded and {abs(float(g0[j] + m * g1[j])):.3g} with it, of its effort limit "
+        f"{float(arm.effort_limits()[j]):.3g}; at most {margin:.0%} of every joint's limit"
+    )
+    return m, why
+
+
+def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
+    """`cfg` with every key left at its robot=urdf marker filled from `arm` (the chain root ->
+    cfg.end_link) and `urdf_name` (the URDF's <robot name>), one log line per key; `cfg` itself
+    unchanged when it does not ask to derive (`cfg.derive` false)."""
+    if not cfg.derive:
+        return cfg
+    from ..pipeline import check_ik_is_function  # the training library's rule, not a robot's
+
+    def said(key: str, value: Any, why: str) -> None:
+        log.info("robot.%s = %s (%s)", key, value, why)
+
+    name = cfg.name or urdf_name
+    said("name", name, "given" if cfg.name else "the URDF's <robot name>")
+    unknown = [j for j in cfg.locked if j not in arm.joint_names]
+    if unknown:
+        raise ValueError(
+            f"robot.locked names {unknown}, which are not joints of the chain to {cfg.end_link!r}: {arm.joint_names}"
+        )
+    free = [i for i, j in enumerate(arm.joint_names) if j not in cfg.locked]
+    joints = [arm.joint_names[i] for i in free]
+    said("free joints", joints, f"the chain {arm.joint_names} to {cfg.end_link!r} less robot.locked {dict(cfg.locked)}")
+
+    target = cfg.target
+    if target is None:
+        if len(joints) < 3:
+            raise ValueError(
+                f"robot.target=null: the chain to {cfg.end_link!r} has {len(joints)} free joint(s) {joints}, "
+                "too few to span positions (3) or poses (6); choose a link further out with robot.end_link, "
+                "or give robot.target=position"
+            )
+        target = Target.pose if len(joints) >= 6 else Target.position
+        check_ik_is_function(target, joints, cfg.locked)  # 4, 5 or 7+ free joints: the ways out
+        said(
+            "target",
+            str(target),
+            f"{len(joints)} free joints: {'pose (6 dof)' if target == Target.pose else 'position (3 dof)'}",
+        )
+    else:
+        said("target", str(target), "given")
+
+    lo_all, hi_all = arm.joint_limits()
+    lo, hi = lo_all[free], hi_all[free]
+    home, low, high = _home_and_box(cfg, joints, lo, hi)
+
+    gravity = GRAVITY if cfg.gravity is None else cfg.gravity
+    said("gravity", gravity, "given" if cfg.gravity is not None else "standard gravity, m/s^2")
+
+    payload = cfg.rated_payload
+    if payload < 0:
+        full = torch.zeros(arm.n, dtype=torch.float64)
+        for j, v in cfg.locked.items():
+            full[arm.joint_names.index(j)] = v
+        full[free] = torch.tensor(home, dtype=torch.float64)
+        payload, why = rated_payload(arm, full)
+        said("rated_payload", f"{payload:g} kg", why)
+        if payload == 0:
+            log.warning("robot.rated_payload = 0 kg: the arm holds itself at home near its effort limits")
+    else:
+        said("rated_payload", f"{payload:g} kg", "given")
+
+    rate = CONTROL_RATE if cfg.control_rate is None else cfg.control_rate
+    said("control_rate", f"{rate:g} Hz", "given" if cfg.control_rate is not None else "typical, for the realistic loop")
+    counts = list(cfg.encoder_counts) or [float(ENCODER_COUNTS)] * arm.n
+    said(
+        "encoder_counts",
+        f"{counts[0]:.0f} x {len(counts)}" if len(set(counts)) == 1 else counts,
+        "given" if cfg.encoder_counts else "2^20 per revolution (per metre, prismatic) on every joint: typical",
+    )
+    return replace(
+        cfg,
+        name=name,
+        target=target,
+        home=home,
+        joint_low=low,
+        joint_high=high,
+        gravity=gravity,
+        rated_payload=payload,
+        control_rate=rate,
+        encoder_counts=counts,
+    )
+
+
+def _home_and_box(
+    cfg: RobotConfig, joints: list[str], lo: torch.Tensor, hi: torch.Tensor
+) -> tuple[list[float], list[float], list[float]]:
+    """(home, joint_low, joint_high) per free joint, in rad (m): given ones kept, the rest derived
+    from the limits lo, hi (n,) (-inf, inf where none), logged."""
+    n, w = len(joints), cfg.box_halfwidth
+    if not (isinstance(w, (int, float)) and math.isfinite(w) and w > 0):
+        raise ValueError(f"robot.box_halfwidth={w!r} is not allowed: must be > 0 (rad, or m for a prismatic joint)")
+    for key, v in (("home", cfg.home), ("joint_low", cfg.joint_low), ("joint_high", cfg.joint_high)):
+        if v and len(v) != n:
+            raise ValueError(
+                f"robot.{key}={list(v)} is not allowed: one value per free joint of the chain to "
+                f"{cfg.end_link!r}, which has {n}: {joints}"
+            )
+    fixed = [j for j, a, b in zip(joints, lo.tolist(), hi.tolist()) if not a < b]
+    if fixed:
+        raise ValueError(f"joints {fixed} have no range in the URDF (lower >= upper): hold them with robot.locked")
+    box = bool(cfg.joint_low) and bool(cfg.joint_high)
+    if cfg.home:
+        home, why = [float(v) for v in cfg.home], "given"
+        outside = [j for j, v, a, b in zip(joints, home, lo.tolist(), hi.tolist()) if not a <= v <= b]
+        if outside:
+            raise ValueError(f"robot.home={home} is not allowed: joints {outside} lie outside their URDF limits")
+    elif box:
+        home = [(a + b) / 2 for a, b in zip(cfg.joint_low, cfg.joint_high)]
+        why = "the given box's centre"
+    else:
+        finite = torch.isfinite(lo) & torch.isfinite(hi)
+        home = torch.where(finite, (lo + hi) / 2, torch.zeros_like(lo)).tolist()
+        why = "the middle of each joint's URDF limits; 0 without limits"
+    log.info("robot.home = %s (%s)", [round(v, 4) for v in home], why)
+    if box:
+        low, high = [float(v) for v in cfg.joint_low], [float(v) for v in cfg.joint_high]
+        log.info("robot.joint_low, joint_high = %s, %s (given)", low, high)
+    else:
+        h = torch.tensor(home, dtype=torch.float64)
+        low = torch.maximum(h - w, lo).tolist()
+        high = torch.minimum(h + w, hi).tolist()
+        log.info(
+            "robot.joint_low, joint_high = %s, %s (home +- robot.box_halfwidth=%g, clipped to the URDF limits)",
+            [round(v, 4) for v in low],
+            [round(v, 4) for v in high],
+            w,
+        )
+    return home, low, high
+
+
+def derive_sizes(cfg: TrainConfig) -> TrainConfig:
+    """`cfg` with the training sizes conf/sizing/urdf.yaml leaves at its markers (rbfn.num_centers,
+    data.n_train/n_val/n_test 0; rbfn.growth.start -1) taken from SIZES by the (filled) robot's
+    target kind, one log line each; unchanged without robot.derive."""
+    if not cfg.robot.derive:
+        return cfg
+    assert cfg.robot.target is not None, "derive_robot first"
+    sizes = SIZES[cfg.robot.target]
+    why = f"{cfg.robot.target} targets: the {'UR5' if cfg.robot.target == Target.pose else 'SCARA'}'s size"
+
+    def pick(key: str, value: int, marker: int, derived: int) -> int:
+        out = derived if value == marker else value
+        log.info("%s = %d (%s)", key, out, why if value == marker else "given")
+        return out
+
+    growth = replace(cfg.rbfn.growth, start=pick("rbfn.growth.start", cfg.rbfn.growth.start, -1, sizes.growth_start))
+    rbfn = replace(
+        cfg.rbfn, num_centers=pick("rbfn.num_centers", cfg.rbfn.num_centers, 0, sizes.num_centers), growth=growth
+    )
+    data = replace(
+        cfg.data,
+        n_train=pick("data.n_train", cfg.data.n_train, 0, sizes.n_train),
+        n_val=pick("data.n_val", cfg.data.n_val, 0, sizes.n_val),
+        n_test=pick("data.n_test", cfg.data.n_test, 0, sizes.n_test),
+    )
+    return replace(cfg, rbfn=rbfn, data=data)
+
+
+def _filled(robot: RobotConfig) -> RobotConfig:
+    """The robot with its robot=urdf keys derived (unchanged without robot.derive)."""
+    if not robot.derive:
+        return robot
+    arm, name = load_urdf_arm(robot)
+    return derive_robot(robot, arm, name)
+
+
+def derive_train(cfg: TrainConfig) -> TrainConfig:
+    """train.py's config with the robot's and the sizes' robot=urdf keys derived (the presets:
+    unchanged)."""
+    return derive_sizes(replace(cfg, robot=_filled(cfg.robot)))
+
+
+def derive_evaluate(cfg: EvalConfig) -> EvalConfig:
+    """evaluate.py's config with the control robot's robot=urdf keys derived (the presets:
+    unchanged). The loop's sensing follows the robot's as conf/loop/realistic.yaml interpolates it:
+    loop.control_rate and loop.encoder_counts composed equal to the robot's markers take the
+    derived values, unless the loop is the ideal one."""
+    robot = _filled(cfg.robot)
+    if robot is cfg.robot:
+        return cfg
+    loop = cfg.loop
+    if not loop.ideal:
+        rate = robot.control_rate if loop.control_rate == cfg.robot.control_rate else loop.control_rate
+        counts = (
+            robot.encoder_counts if list(loop.encoder_counts) == list(cfg.robot.encoder_counts) else loop.encoder_counts
+        )
+        loop = replace(loop, control_rate=rate, encoder_counts=list(counts))
+    if cfg.control.enabled and cfg.control.trajectory is None:
+        text = urdf_source(Path(robot.urdf))[0]
+        known = closed_form(text, robot.end_link, robot.locked, robot.gravity)
+        if known is None:
+            log.info("control.trajectory = %s (no closed form: about robot.home)", Trajectory.sinusoid)
+        else:
+            log.info("control.trajectory = %s (the closed form's own)", known.trajectory)
+    return replace(cfg, robot=robot, loop=loop)

@@ -1,0 +1,149 @@
+"""robot=urdf: a user's arm works from its URDF and end link alone (rbfn.robots.derive), and the
+shipped presets pass through unchanged. Arms from example-robot-data (skipped without it)."""
+
+import logging
+import math
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from rbfn.config import ROBOT_PRESETS, Target
+from rbfn.robots.derive import ENCODER_COUNTS, PAYLOAD_MARGIN, SIZES, derive_evaluate, derive_train, load_urdf_arm
+from tests.conftest import CONF, TINY_TRAIN, compose_config
+
+
+def _erd(rel: str) -> Path:
+    """example-robot-data's robots/`rel`, or skip."""
+    try:
+        path = Path(str(metadata.distribution("example-robot-data").locate_file(""))) / "cmeel.prefix"
+    except metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    found = path / "share" / "example-robot-data" / "robots" / rel
+    if not found.is_file():
+        pytest.skip(f"example-robot-data ships no {rel}")
+    return found
+
+
+def _urdf(rel: str, end_link: str, *more: str) -> list[str]:
+    return ["robot=urdf", f"robot.urdf={_erd(rel)}", f"robot.end_link={end_link}", *more]
+
+
+Z1 = ("z1_description/urdf/z1.urdf", "link06")  # Unitree Z1: 6 joints, effort limits 30-60 N m
+
+
+def test_a_6_joint_arm_gets_every_key_from_its_urdf():
+    cfg = derive_train(compose_config("train", *_urdf(*Z1)))
+    cfg.check()
+    r = cfg.robot
+    arm, _ = load_urdf_arm(r)
+    assert r.name == "z1_description" and r.target == Target.pose and r.gravity == 9.81
+    lo, hi = (v.tolist() for v in arm.joint_limits())
+    for j in range(arm.n):  # home inside its box, the box inside the URDF limits, at most +-box_halfwidth
+        assert lo[j] <= r.joint_low[j] <= r.home[j] <= r.joint_high[j] <= hi[j]
+        assert r.joint_high[j] - r.joint_low[j] <= 2 * r.box_halfwidth + 1e-12
+    # The rated payload: its gravity torque at home within the margin of every effort limit, and
+    # 15 % more (past the rounding down to 2 digits) leaves it on some joint.
+    home, effort = torch.tensor([r.home], dtype=torch.float64), arm.effort_limits()
+    assert r.rated_payload > 0
+    assert bool((arm.gravity(home, r.rated_payload)[0].abs() <= PAYLOAD_MARGIN * effort + 1e-9).all())
+    assert not bool((arm.gravity(home, 1.15 * r.rated_payload)[0].abs() <= PAYLOAD_MARGIN * effort).all())
+    assert r.control_rate == 500.0 and r.encoder_counts == [float(ENCODER_COUNTS)] * 6
+    s = SIZES[Target.pose]
+    assert (cfg.rbfn.num_centers, cfg.rbfn.growth.start) == (s.num_centers, s.growth_start)
+    assert (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test) == (s.n_train, s.n_val, s.n_test)
+
+
+def test_the_sizes_are_the_presets():
+    for target, name in ((Target.pose, "ur5"), (Target.position, "scara")):
+        raw = OmegaConf.load(Path(CONF) / "sizing" / f"{name}.yaml")
+        s = SIZES[target]
+        assert (raw.rbfn.num_centers, raw.rbfn.growth.start) == (s.num_centers, s.growth_start)
+        assert (raw.data.n_train, raw.data.n_val, raw.data.n_test) == (s.n_train, s.n_val, s.n_test)
+
+
+def test_given_keys_win_and_each_key_is_logged(caplog):
+    home = [0.1, 1.2, -1.5, 0.0, 0.2, 0.0]
+    over = ["robot.name=my_z1", "robot.rated_payload=1.5", f"robot.home={home}", "robot.box_halfwidth=0.2"]
+    with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
+        cfg = derive_train(compose_config("train", *_urdf(*Z1), *over, "rbfn.num_centers=50"))
+    r = cfg.robot
+    assert (r.name, r.rated_payload, r.home, cfg.rbfn.num_centers) == ("my_z1", 1.5, home, 50)
+    assert r.joint_low == pytest.approx([v - 0.2 for v in home]) and r.joint_high == pytest.approx(
+        [v + 0.2 for v in home]
+    )
+    lines = {m.split(" = ")[0]: m for m in caplog.messages}
+    for key in ("robot.name", "robot.rated_payload", "robot.home", "rbfn.num_centers"):
+        assert lines[key].endswith("(given)"), lines[key]
+    for key in ("robot.target", "robot.gravity", "robot.control_rate", "robot.encoder_counts", "data.n_train"):
+        assert "given" not in lines[key], lines[key]
+
+
+@pytest.mark.parametrize("robot", ROBOT_PRESETS)
+def test_the_presets_pass_through_unchanged(robot):
+    train = compose_config("train", f"robot={robot}")
+    assert derive_train(train) == train
+    for loop in ("ideal", "realistic"):
+        cfg = compose_config("evaluate", f"robot={robot}", f"loop={loop}")
+        assert derive_evaluate(cfg) is cfg
+
+
+def test_a_redundant_arm_needs_locked_joints():
+    panda = ("panda_description/urdf/panda.urdf", "panda_link8")
+    with pytest.raises(ValueError, match=r"7 free joints.*robot\.locked"):
+        derive_train(compose_config("train", *_urdf(*panda)))
+    cfg = derive_train(compose_config("train", *_urdf(*panda, "+robot.locked.panda_joint3=0.0")))
+    assert cfg.robot.target == Target.pose and len(cfg.robot.joint_low) == 6
+
+
+def test_a_5_joint_arm_is_refused_with_the_ways_out():
+    so100 = ("so_arm_description/urdf/so100.urdf", "gripper")
+    with pytest.raises(ValueError, match=r"5 free joints.*robot\.locked.*robot\.target=pose"):
+        derive_train(compose_config("train", *_urdf(*so100)))
+    cfg = derive_train(compose_config("train", *_urdf(*so100, "robot.target=pose")))
+    assert cfg.robot.target == Target.pose and len(cfg.robot.home) == 5
+
+
+def test_the_urdf_and_end_link_are_required():
+    with pytest.raises(ValueError, match=r"robot\.urdf=''.*robot\.urdf=PATH"):
+        derive_train(compose_config("train", "robot=urdf"))
+    with pytest.raises(ValueError, match=r"robot\.end_link=''.*link06"):
+        derive_train(compose_config("train", *_urdf(Z1[0], "")))
+    with pytest.raises(ValueError, match=r"robot\.end_link='nope'"):
+        derive_train(compose_config("train", *_urdf(Z1[0], "nope")))
+    with pytest.raises(ValueError, match=r"robot\.target=None.*robot=urdf derives it"):
+        compose_config("train", "robot.target=null").check()
+
+
+def test_the_realistic_loop_takes_the_derived_sensing():
+    real = derive_evaluate(compose_config("evaluate", *_urdf(*Z1), "loop=realistic"))
+    assert real.loop.control_rate == 500.0 and real.loop.encoder_counts == [float(ENCODER_COUNTS)] * 6
+    assert real.gains.observer_gain == 25.0  # conf/gains/robot/urdf_realistic.yaml
+    assert derive_evaluate(compose_config("evaluate", *_urdf(*Z1), "loop=ideal")).loop.ideal
+    given = derive_evaluate(compose_config("evaluate", *_urdf(*Z1), "loop=realistic", "loop.control_rate=1000"))
+    assert given.loop.control_rate == 1000.0 and given.robot.control_rate == 500.0
+
+
+def test_train_then_evaluate_a_urdf_arm(tmp_path):
+    """train.py and evaluate.py's procedures on the Z1 from its URDF and end link alone: the
+    checkpoint names it, and no closed-loop torque exceeds its effort limits, in either loop."""
+    import evaluate
+    import train
+
+    arm = _urdf(*Z1)
+    train.run(compose_config("train", *arm, *TINY_TRAIN), tmp_path / "train")
+    ckpt = tmp_path / "train" / "checkpoint.pt"
+    effort = load_urdf_arm(derive_train(compose_config("train", *arm)).robot)[0].effort_limits().tolist()
+    short = ["control.duration=1", "control.payload_on=0.6", "control.payload_off=0.9", "parallel=false"]
+    for loop in ("ideal", "realistic"):
+        parts = [f"checkpoint={ckpt}", "n_test=200"] if loop == "ideal" else ["ik=false"]
+        cfg = compose_config("evaluate", *arm, f"loop={loop}", *parts, "online.enabled=false", *short)
+        metrics = evaluate.run(cfg, tmp_path / loop)
+        assert set(metrics["robots"].values()) == {"z1_description (link06, 6 joints)"}
+        assert metrics["control"]["pd"].keys() == {"0kg", "1kg", "2kg"}  # 0, half and all of the rated 2 kg
+        for cases in metrics["control"].values():
+            for m in cases.values():
+                assert all(math.isfinite(t) and t <= e + 1e-9 for t, e in zip(m["peak_tau"], effort)), m["peak_tau"]
+    assert metrics["control_info"]["loop"]["encoder_counts"] == [float(ENCODER_COUNTS)] * 6
