@@ -21,6 +21,7 @@ import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from rbfn.config import validate_evaluate, validate_train
+from rbfn.robots.derive import derive_evaluate, derive_train
 
 from .conftest import ROOT, compose_config
 
@@ -184,6 +185,7 @@ def test_command_composes_and_validates(page, argv):
             raise
         cfg = compose_config(name, *[o for o in overrides if not _plugin_override(o)])
     try:
+        cfg = (derive_train if name == "train" else derive_evaluate)(cfg)  # robot=urdf's keys, as the commands do
         (validate_train if name == "train" else validate_evaluate)(cfg)
     except ValueError as e:
         if "no CUDA device is available" in str(e):

@@ -35,7 +35,7 @@ from typing import Any
 
 import torch
 
-from ..config import EvalConfig, RobotConfig, Target, TrainConfig, Trajectory
+from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, Target, TrainConfig, Trajectory
 from .dynamics import Arm, load_arm, urdf_source
 from .kinematics import parse_urdf
 from .registry import closed_form
@@ -294,8 +294,16 @@ def derive_sizes(cfg: TrainConfig) -> TrainConfig:
 
 
 def _filled(robot: RobotConfig) -> RobotConfig:
-    """The robot with its robot=urdf keys derived (unchanged without robot.derive)."""
+    """The robot with its robot=urdf keys derived (unchanged without robot.derive; a warning
+    where another URDF takes a shipped preset's values)."""
     if not robot.derive:
+        if robot.urdf and robot.name in ROBOT_PRESETS:
+            log.warning(
+                "robot.urdf=%s takes robot=%s's preset values (box, home, payload, gains, sizes); for "
+                "your own arm use robot=urdf, which derives them from the URDF",
+                robot.urdf,
+                robot.name,
+            )
         return robot
     arm, name = load_urdf_arm(robot)
     return derive_robot(robot, arm, name)
