@@ -37,7 +37,7 @@ import torch
 
 from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, Target, TrainConfig, Trajectory
 from .dynamics import Arm, load_arm, urdf_source
-from .kinematics import parse_urdf
+from .kinematics import urdf_tree
 from .registry import closed_form
 
 __all__ = [
@@ -53,6 +53,7 @@ __all__ = [
     "derive_train",
     "load_urdf_arm",
     "rated_payload",
+    "warn_if_singular",
 ]
 
 log = logging.getLogger(__name__)
@@ -91,19 +92,19 @@ def load_urdf_arm(cfg: RobotConfig) -> tuple[Arm, str]:
     path = Path(cfg.urdf)
     try:
         text, source = urdf_source(path)
-        robot = parse_urdf(text, source)
+        root = urdf_tree(text, source)
     except (FileNotFoundError, ValueError) as e:
         raise type(e)(f"robot.urdf={cfg.urdf!r}: {e}") from None
     if not cfg.end_link:
         raise ValueError(
             "robot.end_link='' is not allowed: robot=urdf needs the chain's last link, robot.end_link=LINK, "
-            f"one of the links of {cfg.urdf}: {sorted(robot.link_map)}"
+            f"one of the links of {cfg.urdf}: {sorted(str(link.get('name')) for link in root.iter('link'))}"
         )
     try:
         arm = load_arm(path, end_link=cfg.end_link, gravity=GRAVITY if cfg.gravity is None else cfg.gravity)
     except ValueError as e:
         raise ValueError(f"robot.end_link={cfg.end_link!r} (robot.urdf={cfg.urdf!r}): {e}") from None
-    return arm, str(robot.name or path.stem)
+    return arm, str(root.get("name") or path.stem)
 
 
 def rated_payload(arm: Arm, home: torch.Tensor, margin: float = PAYLOAD_MARGIN) -> tuple[float, str]:
@@ -118,8 +119,9 @@ def rated_payload(arm: Arm, home: torch.Tensor, margin: float = PAYLOAD_MARGIN) 
     loaded = (g1.abs() > 1e-9) & torch.isfinite(bound)
     if not bool(loaded.any()):
         raise ValueError(
-            "robot.rated_payload: the URDF gives no effort limit on the joints a payload loads "
-            f"(effort {arm.effort_limits().tolist()}); give robot.rated_payload=KG"
+            "robot.rated_payload: no joint is both loaded by a payload at home (gravity "
+            f"{arm.gravity_vector.tolist()} m/s^2) and limited by a URDF effort (effort "
+            f"{arm.effort_limits().tolist()}); give robot.rated_payload=KG"
         )
     per = torch.where(loaded, (bound - g1.sign() * g0) / g1.abs(), torch.full_like(g1, math.inf))
     j = int(per.argmin())
@@ -156,7 +158,7 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         )
     free = [i for i, j in enumerate(arm.joint_names) if j not in cfg.locked]
     joints = [arm.joint_names[i] for i in free]
-    said("free joints", joints, f"the chain {arm.joint_names} to {cfg.end_link!r} less robot.locked {dict(cfg.locked)}")
+    log.info("free joints = %s (the chain to %r less robot.locked %s)", joints, cfg.end_link, dict(cfg.locked))
 
     target = cfg.target
     if target is None:
@@ -192,7 +194,7 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         payload, why = rated_payload(arm, full)
         said("rated_payload", f"{payload:g} kg", why)
         if payload == 0:
-            log.warning("robot.rated_payload = 0 kg: the arm holds itself at home near its effort limits")
+            log.warning("robot.rated_payload = 0 kg: the arm's own weight at home takes over half an effort limit")
     else:
         said("rated_payload", f"{payload:g} kg", "given")
 
@@ -306,7 +308,29 @@ def _filled(robot: RobotConfig) -> RobotConfig:
             )
         return robot
     arm, name = load_urdf_arm(robot)
-    return derive_robot(robot, arm, name)
+    filled = derive_robot(robot, arm, name)
+    warn_if_singular(filled)
+    return filled
+
+
+def warn_if_singular(cfg: RobotConfig, tol: float = 1e-3) -> float:
+    """Log a warning where the task Jacobian (3 or 6 rows, m and rad per rad or m) at cfg.home
+    has a smallest singular value below `tol` times its largest: a singular home (a stretched
+    elbow, aligned wrist axes), where the box around it holds more than one IK branch and the
+    network learns their average. Returns that ratio."""
+    from .robot import load_robot
+
+    robot = load_robot(cfg)
+    s = torch.linalg.svdvals(robot.jacobian(torch.tensor([cfg.home], dtype=torch.float64))[0])
+    ratio = float(s[-1] / s[0])
+    if ratio < tol:
+        log.warning(
+            "robot.home=%s is (near) a singular configuration of the arm (Jacobian singular values "
+            "%s): the box around it may hold more than one IK branch; give robot.home, away from it",
+            [round(v, 4) for v in cfg.home],
+            [float(f"{v:.3g}") for v in s.tolist()],
+        )
+    return ratio
 
 
 def derive_train(cfg: TrainConfig) -> TrainConfig:

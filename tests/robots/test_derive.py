@@ -56,6 +56,22 @@ def test_a_6_joint_arm_gets_every_key_from_its_urdf():
     assert (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test) == (s.n_train, s.n_val, s.n_test)
 
 
+def test_a_3_joint_arm_gets_position_targets_and_a_warning_at_a_singular_home(caplog):
+    """The SCARA's URDF through robot=urdf: the middle of its limits straightens the elbow (q2 = 0),
+    where the box holds both elbow branches; the log says so. Given a home off it, no warning."""
+    scara = ["robot=urdf", "robot.urdf=rbfn/robots/scara/scara.urdf", "robot.end_link=quill"]
+    with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
+        cfg = derive_train(compose_config("train", *scara))
+    assert cfg.robot.target == Target.position and cfg.rbfn.num_centers == SIZES[Target.position].num_centers
+    assert cfg.robot.home == [0.0, 0.0, 1.0] and any("singular" in m for m in caplog.messages)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
+        derive_train(compose_config("train", *scara, "robot.home=[1.0,1.0,1.0]"))
+    assert not any("singular" in m for m in caplog.messages)
+    with pytest.raises(ValueError, match=r"robot\.rated_payload: no joint is both loaded"):
+        derive_train(compose_config("train", *scara, "robot.gravity=0"))
+
+
 def test_the_sizes_are_the_presets():
     for target, name in ((Target.pose, "ur5"), (Target.position, "scara")):
         raw = OmegaConf.load(Path(CONF) / "sizing" / f"{name}.yaml")
