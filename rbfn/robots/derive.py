@@ -19,6 +19,9 @@ line per key, saying what it chose and why ("given" for a key the user gave, whi
 * control_rate, encoder_counts: 500 Hz and 2^20 counts per revolution (per metre, prismatic) on
   every chain joint, typical values, for the realistic loop.
 
+A home at a singular configuration (where the box around it holds more than one IK branch) is
+warned of (`warn_if_singular`).
+
 `derive_sizes` fills the training sizes conf/sizing/urdf.yaml leaves at its markers (by the target
 kind), `derive_train` / `derive_evaluate` apply both to a whole config: rbfn.studies.training and
 rbfn.studies.evaluation call them before any check. Robots without `robot.derive` (the presets)
