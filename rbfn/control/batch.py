@@ -66,7 +66,9 @@ class SlidingModeBatch(SlidingMode):
             if own is not None:
                 own[rows, cols] = 1.0
         gain = super().observer_gain()
-        self._gain = None if observed is None else observed.to(q0) * (gain.to(q0) if isinstance(gain, torch.Tensor) else gain)
+        self._gain = (
+            None if observed is None else observed.to(q0) * (gain.to(q0) if isinstance(gain, torch.Tensor) else gain)
+        )
         self._own = None if own is None else own.to(q0)
         state = super().init_state(q0, qd0)  # w: zeros, the batch having no w0
         for part, rows, cols in self._blocks():
