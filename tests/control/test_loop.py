@@ -304,3 +304,28 @@ def test_joint_rates_scale_the_observer_and_the_adaptation_per_joint_alone_and_b
     _, st = batch.torque(ref, q.repeat(2, 1), qd.repeat(2, 1), st, h=h[1], alpha=alpha[None])
     assert torch.allclose(st[0].d_hat, scaled.d_hat.repeat(2, 1), rtol=1e-12, atol=1e-15)
     assert not torch.equal(batch.units[0].rates.observer, torch.ones(3).double())
+
+
+def test_the_rated_payload_no_longer_drives_the_integrators_into_the_limits():
+    """The SCARA at its rated 20 kg in the realistic loop: with the realistic gains' per-joint rates
+    the observer and the adaptive network stay off the torque limits; without them (one K_o and
+    Gamma for every joint) the observer's loop oscillates into the prismatic joint's 500 N."""
+    from rbfn.control.comparison import compare_controllers
+    from rbfn.studies.control import check_control
+
+    def saturated(*extra):
+        cfg = compose_config(
+            "evaluate",
+            "control.duration=3.0",
+            "control.payload_on=0.5",
+            "control.payload_off=3.0",
+            "control.payloads=[20.0]",
+            "control.controllers=[smc_obs,arbfn_kmeans]",
+            *extra,
+        )
+        setup = check_control(cfg.control, cfg.robot)
+        res = compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop)
+        return {k: max(r.metrics["20kg"]["saturated"]) for k, r in res.runs.items()}
+
+    assert all(v <= 0.01 for v in saturated().values())
+    assert saturated("gains.inertia_scaling=false", "gains.gamma=500")["smc_obs"] > 0.05
