@@ -899,6 +899,7 @@ class EvalConfig:
     # run side by side
     parallel: bool = True  # checkpoint parts, half the control figures in forked processes
     # (fork, CPU, >= 2 cores)
+    progress: bool = True  # each part's "still running" line every 30 s on a terminal
     robot: RobotConfig = field(default_factory=RobotConfig)  # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)

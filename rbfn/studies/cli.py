@@ -2,23 +2,32 @@
 
 A refused setting, file or directory (ValueError, OSError, a run directory in use, another
 config's run) or a diverged closed loop (its message names the controller, case, step and state)
-is printed as one line, `error: <message>`, and the command exits with status 1;
+is printed as one line, `error: <message>` (then `note: <where the files it wrote are kept>` for a
+run that failed after writing), and the command exits with status 1;
 the traceback is shown with HYDRA_FULL_ERROR=1 (as Hydra's own errors are). Anything else (a bug)
 keeps its traceback. In a multirun every error is left to Hydra, which runs the other jobs and
 reports the first failure at the end.
+
+Progress: each part of a run that takes more than a few seconds says what it will do and how big
+when it starts, and its time when it ends (`announced`); while it runs, a line every 30 s says it
+is still at work (with `progress` on and stderr a terminal: quiet in tests, pipes and batch logs).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
+import threading
+import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 from ..control.simulator import SimulationDiverged
 from ..resume import DifferentRun
 from .rundir import RunDirInUse
 
-__all__ = ["REFUSALS", "one_line_errors"]
+__all__ = ["REFUSALS", "announced", "one_line_errors"]
 
 REFUSALS = (ValueError, OSError, RunDirInUse, DifferentRun, SimulationDiverged)
 
@@ -33,4 +42,38 @@ def one_line_errors(enabled: bool = True):
         if not enabled or os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
         print(f"error: {e}", file=sys.stderr, flush=True)
+        for note in getattr(e, "__notes__", ()):  # e.g. what a failed run kept (rbfn.studies.rundir)
+            print(f"note: {note}", file=sys.stderr, flush=True)
         sys.exit(1)
+
+
+HEARTBEAT_S = 30.0  # seconds between a running part's "still at work" lines
+
+
+@contextmanager
+def announced(log: logging.Logger, part: str, what: str, progress: bool = True) -> Iterator[dict]:
+    """Log `part: what` on entry and `part: done in T s` on a normal exit; yields a dict whose
+    "seconds" holds the wall seconds once the block ends. Between, with `progress` and stderr a
+    terminal, `part: still running (T so far)` every HEARTBEAT_S seconds (the library loops inside
+    a part report nothing themselves)."""
+    log.info("%s: %s", part, what)
+    t0 = time.perf_counter()
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(HEARTBEAT_S):
+            log.info("%s: still running (%.0f s so far)", part, time.perf_counter() - t0)
+
+    beats = progress and sys.stderr.isatty()
+    thread = threading.Thread(target=beat, name=f"{part}-progress", daemon=True) if beats else None
+    if thread is not None:
+        thread.start()
+    timing: dict = {}
+    try:
+        yield timing
+    finally:
+        stop.set()
+        if thread is not None:
+            thread.join()
+        timing["seconds"] = time.perf_counter() - t0
+    log.info("%s: done in %.1f s", part, timing["seconds"])

@@ -10,19 +10,25 @@ defaults are) belongs to one run: where another process holds it, or it holds an
 (two runs started in the same second), the run takes NAME_1, NAME_2, ... instead, each made with
 mkdir (which fails where another process made it first). A multirun's job directories are its
 sweep's and are never moved (a requeued SLURM job resumes in its own). An entry point removes its
-run directory again when it leaves it empty (a refused or failed run leaves no empty directory),
-and writes .hydra/ itself, after its checks (`hydra_run_files`).
+run directory again when it leaves it empty, and the empty parents made for it since the process
+started (Hydra makes hydra.run.dir with its parents before the run begins), so a refused or failed
+run leaves no empty directory behind, nor one holding only its bookkeeping (.hydra/, its log,
+TensorBoard event files); a run that fails after writing results keeps them, and its error says
+where (`hydra_run_dir`). It writes .hydra/ itself, after its checks (`hydra_run_files`).
 """
 
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import io
 import json
 import logging
 import math
 import os
+import shutil
 import struct
+import time
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any, ClassVar, cast
@@ -34,11 +40,15 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..files import atomic_write_bytes
 
+_STARTED = time.time()  # this process's start, near enough: the entry points import this module first
+
 __all__ = [
     "RunDir",
     "RunDirInUse",
     "hydra_run_dir",
     "hydra_run_files",
+    "birth_time",
+    "remove_new_empty_parents",
     "strict_json",
     "write_figure",
     "write_json",
@@ -165,13 +175,92 @@ def hydra_run_dir(own: bool = False):
     hc = HydraConfig.get()
     named = Path(hc.runtime.output_dir)
     fresh = hc.mode == RunMode.RUN and "${now:" in str(cast(dict, OmegaConf.to_container(hc.run))["dir"])
-    with RunDir(named, fresh=fresh, own=own, tidy=True) as run_dir:
-        if run_dir.path != named:
-            for handler in logging.getLogger().handlers:
-                if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == named:
-                    handler.close()
-                    handler.baseFilename = str(run_dir.path / Path(handler.baseFilename).name)
-        yield run_dir.path
+    try:
+        with RunDir(named, fresh=fresh, own=own, tidy=True) as run_dir:
+            if run_dir.path != named:
+                for handler in logging.getLogger().handlers:
+                    if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == named:
+                        handler.close()
+                        handler.baseFilename = str(run_dir.path / Path(handler.baseFilename).name)
+            before = set(os.listdir(run_dir.path))
+            try:
+                yield run_dir.path
+            except BaseException as e:
+                _after_failure(e, run_dir.path, before)
+                raise
+    finally:
+        remove_new_empty_parents(named)
+
+
+def _bookkeeping(name: str) -> bool:
+    """Whether run-directory entry `name` is bookkeeping, not a result: .hydra/ (the composed config),
+    the job's log, TensorBoard event files."""
+    return name == ".hydra" or name.endswith(".log") or name.startswith("events.out.tfevents.")
+
+
+def _after_failure(e: BaseException, path: Path, before: set[str]) -> None:
+    """After a run failed in `path` (holding `before` when it started): a directory that was empty and
+    got bookkeeping only is emptied (then tidied away); otherwise `e` gets a note naming what the
+    run wrote, which is kept."""
+    with suppress(OSError):
+        wrote = sorted(set(os.listdir(path)) - before)
+        if not before and all(_bookkeeping(name) for name in wrote):
+            for name in wrote:
+                (shutil.rmtree if (path / name).is_dir() else os.remove)(path / name)
+        elif wrote:
+            resume = "; run the same command again to resume it" if "last.pt" in wrote else ""
+            results = [name for name in wrote if not _bookkeeping(name)]  # its log and config are kept too
+            shown = ", ".join(results[:6]) + (", ..." if len(results) > 6 else "")
+            e.add_note(f"{path} keeps what this run wrote before it stopped ({shown}){resume}")
+
+
+def remove_new_empty_parents(path: Path, since: float | None = None) -> None:
+    """Remove `path` and its parents, nearest first, while each is an empty directory created at or
+    after `since` (default: this process's start), i.e. made for this run; never the working
+    directory or one above it, and none where the file system does not record creation times."""
+    since = _STARTED if since is None else since
+    keep = {Path.cwd().resolve(), *Path.cwd().resolve().parents}
+    for d in (path, *path.parents):
+        d = d.absolute()
+        try:
+            if not d.exists():
+                continue  # removed already (RunDir's tidy)
+            born = birth_time(d)
+            if d.resolve() in keep or not d.is_dir() or born is None or born < since or not _is_empty(d):
+                return
+            d.rmdir()
+        except OSError:
+            return
+
+
+class _StatxTimestamp(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_int64), ("tv_nsec", ctypes.c_uint32), ("_pad", ctypes.c_int32)]
+
+
+class _Statx(ctypes.Structure):  # struct statx (linux/stat.h), up to stx_btime, then its spare room
+    _fields_ = [
+        ("stx_mask", ctypes.c_uint32),
+        ("_head", ctypes.c_uint8 * 60),  # blksize, attributes, nlink, uid, gid, mode, ino, size, ...
+        ("stx_atime", _StatxTimestamp),
+        ("stx_btime", _StatxTimestamp),
+        ("_rest", ctypes.c_uint8 * 160),
+    ]
+
+
+def birth_time(path: Path) -> float | None:
+    """When `path` was created (Linux statx's btime), in time.time()'s seconds; None where the
+    system or the file system does not record it. Unlike the modification time, adding an entry
+    to a directory does not change it: a parent that existed before the run keeps its own."""
+    statx = getattr(ctypes.CDLL(None, use_errno=True), "statx", None)
+    if statx is None:
+        return None
+    buf = _Statx()
+    at_fdcwd, statx_btime = -100, 0x800
+    if statx(at_fdcwd, os.fsencode(path), 0, statx_btime, ctypes.byref(buf)) != 0:
+        return None
+    if not buf.stx_mask & statx_btime:
+        return None
+    return buf.stx_btime.tv_sec + buf.stx_btime.tv_nsec * 1e-9
 
 
 def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:

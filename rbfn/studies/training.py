@@ -15,6 +15,7 @@ from ..pipeline import check_ik_is_function, train_ik
 from ..resume import StateFile
 from ..robots.derive import derive_train
 from ..robots.robot import load_robot
+from .cli import announced
 from .ik import training_metrics, write_training
 from .rundir import RunDir, write_text
 
@@ -47,19 +48,24 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         torch.manual_seed(cfg.seed)
 
         # 1. Data: seeded joint samples in the branch's box, FK positions from the URDF.
-        data = make_dataset(robot, (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test), cfg.seed)
-        for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
-            check_finite(f"{name} positions", split.x)
-            check_finite(f"{name} joints", split.q)
+        d = cfg.data
+        with announced(log, "data", f"{d.n_train} / {d.n_val} / {d.n_test} samples (train / val / test)", cfg.progress):
+            data = make_dataset(robot, (d.n_train, d.n_val, d.n_test), cfg.seed)
+            for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
+                check_finite(f"{name} positions", split.x)
+                check_finite(f"{name} joints", split.q)
         for rel, text in (run_files or {}).items():
             write_text(out_dir / rel, text)
 
         # 2-5. Centres and widths, weights, growth, refinement (rbfn.pipeline); 6. outputs.
         writer = SummaryWriter(log_dir=str(out_dir))
         try:
-            result = train_ik(cfg, data, states, state, robot)
-            metrics = training_metrics(cfg, result, robot, data)
-            write_training(out_dir, cfg, robot, result, metrics, writer)
+            with announced(log, "fit", _fit_what(cfg), cfg.progress):
+                result = train_ik(cfg, data, states, state, robot)
+            outputs = "checkpoint.pt" + (", ik.onnx, ik.pt2" if cfg.export else "") + ", metrics.json"
+            with announced(log, "outputs", f"test accuracy (raw and polished), {outputs}", cfg.progress):
+                metrics = training_metrics(cfg, result, robot, data)
+                write_training(out_dir, cfg, robot, result, metrics, writer)
         finally:
             writer.close()
         state.finished = metrics
@@ -77,3 +83,10 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         out_dir,
     )
     return metrics
+
+
+def _fit_what(cfg: TrainConfig) -> str:
+    """What the fit will do and how big, for its first log line."""
+    r = cfg.rbfn
+    growth = f"grown from M = {r.growth.start}" if r.growth.start else "no growth"
+    return f"centers={cfg.centers.name}, M = {r.num_centers} ({growth}), weights by {r.solver}"

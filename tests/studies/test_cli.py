@@ -47,3 +47,38 @@ def test_a_run_directory_below_a_file_is_named(tmp_path):
     ):
         pass
     assert (tmp_path / "afile").read_text() == "keep"
+
+
+@pytest.mark.parametrize("progress,tty,beats", [(True, True, True), (False, True, False), (True, False, False)])
+def test_a_part_says_what_it_does_how_long_it_took_and_on_a_terminal_that_it_runs(
+    monkeypatch, caplog, progress, tty, beats
+):
+    import logging
+    import time
+
+    from rbfn.studies import cli
+
+    monkeypatch.setattr(cli, "HEARTBEAT_S", 0.02)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
+    log = logging.getLogger("test_cli")
+    with (
+        caplog.at_level(logging.INFO, logger="test_cli"),
+        cli.announced(log, "control", "6 controllers", progress) as t,
+    ):
+        time.sleep(0.15)
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0] == "control: 6 controllers" and lines[-1] == f"control: done in {t['seconds']:.1f} s"
+    assert t["seconds"] >= 0.15
+    assert any(line.startswith("control: still running (") for line in lines[1:-1]) == beats
+    assert len(lines) == 2 or beats
+
+
+def test_a_failed_part_logs_no_end_line(caplog):
+    import logging
+
+    from rbfn.studies.cli import announced
+
+    log = logging.getLogger("test_cli")
+    with caplog.at_level(logging.INFO, logger="test_cli"), pytest.raises(ValueError), announced(log, "ik", "x", False):
+        raise ValueError("bad")
+    assert [r.getMessage() for r in caplog.records] == ["ik: x"]
