@@ -5,10 +5,12 @@ whose kinematics differ from its model, and the closed-loop controller compariso
     python evaluate.py checkpoint=PATH n_test=20000
     python evaluate.py gains=paper ik=false online.enabled=false   # the closed loop alone
 
-Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; runs on
-the checkpoint's robot; writes checkpoint_online.pt), `control` (`control.enabled`, on `robot`: every
-controller on every payload case).
-With no checkpoint given and none found, the two checkpoint parts are skipped (and said so).
+Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; writes
+checkpoint_online.pt), `control` (`control.enabled`: every controller on every payload case).
+Every part runs on the checkpoint's robot, with its gains and realistic-loop facts (the config is
+composed again for it: rbfn.studies.evaluation.for_checkpoint); a robot= or robot.* override naming
+another robot is refused. With no checkpoint given and none found, the two checkpoint parts are
+skipped (and said so), and the `robot` group chooses the control part's robot.
 The checkpoint's parts run in a forked process beside the control part, and half the control
 figures in another (`parallel`, on by default; used where the machine forks, has two cores or
 more, and the device is the CPU); each process then runs one torch thread (unless `num_threads`
@@ -36,7 +38,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from rbfn.config import EvalConfig, register_configs
 from rbfn.studies.cli import one_line_errors
-from rbfn.studies.evaluation import run
+from rbfn.studies.evaluation import for_checkpoint, run
 from rbfn.studies.rundir import hydra_run_dir, hydra_run_files
 from rbfn.studies.stop import job, stop_on_signals
 
@@ -48,6 +50,7 @@ register_configs()
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(dcfg: DictConfig) -> None:
     with one_line_errors(HydraConfig.get().mode == RunMode.RUN), job(), hydra_run_dir(own=True) as out_dir:
+        dcfg = for_checkpoint(dcfg, HydraConfig.get().overrides.task)  # the checkpoint's robot, before any work
         run(cast(EvalConfig, OmegaConf.to_object(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
 
 

@@ -232,27 +232,22 @@ def test_nothing_to_evaluate_is_an_error_naming_why(tmp_path):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
-def test_metrics_name_the_robot_of_every_part_and_what_was_skipped(panda_ckpt, tmp_path, caplog):
+def test_metrics_name_the_robot_of_every_part_and_what_was_skipped(panda_ckpt, tmp_path):
     from rbfn.checkpoint import save_sealed
 
+    from .studies.test_evaluation import CONTROL, composed
+
     save_sealed(tmp_path / "panda.pt", panda_ckpt)
+    # The `robot` group left at its default (the SCARA): every part evaluates the checkpoint's Panda.
     m = evaluate.run(
-        compose_config(
-            "evaluate",
-            f"checkpoint={tmp_path / 'panda.pt'}",
-            "n_test=200",
-            "online.enabled=false",
-            "control.duration=1.2",
-            "control.payload_on=0.3",
-            "control.payload_off=0.9",
-            "control.controllers=[smc]",
-            "parallel=false",
-        ),
+        composed(f"checkpoint={tmp_path / 'panda.pt'}", "n_test=200", "online.enabled=false", "loop=ideal", *CONTROL),
         tmp_path / "run",
     )
-    assert m["robots"]["ik"].startswith("panda (") and m["robots"]["control"] == "scara (quill, 3 joints)"
+    assert m["robots"] == dict.fromkeys(("ik", "control"), "panda (panda_hand, 6 joints)")
     assert m["skipped"] == {}
-    assert "the parts evaluate different robots" in caplog.text
+    missing = tmp_path / "none"
+    m = evaluate.run(composed(f"outputs_dir={missing}", "online.enabled=false", *CONTROL), tmp_path / "alone")
+    assert m["robots"] == {"control": "scara (quill, 3 joints)"} and "no checkpoint.pt" in m["skipped"]["ik"]
 
 
 def test_metrics_json_is_strict_json_with_undefined_values_named(tmp_path):

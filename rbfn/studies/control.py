@@ -20,10 +20,11 @@ __all__ = ["check_control", "evaluate_control", "control_table"]
 log = logging.getLogger(__name__)
 
 
-def check_control(cfg: ControlConfig, robot: RobotConfig | None = None) -> ControlRobot:
+def check_control(cfg: ControlConfig, robot: RobotConfig | None = None, urdf_text: str | None = None) -> ControlRobot:
     """Load and check the control part's robot (URDF, joints, payload link, joint scale): call it
-    before any work; raises ValueError naming the bad key."""
-    return control_robot(robot or RobotConfig(), cfg)
+    before any work; raises ValueError naming the bad key. `urdf_text`: the URDF's text (a
+    checkpoint's), loaded instead of robot.urdf or the preset's file."""
+    return control_robot(robot or RobotConfig(), cfg, urdf_text=urdf_text)
 
 
 def evaluate_control(
@@ -35,12 +36,15 @@ def evaluate_control(
     robot: RobotConfig | None = None,
     parallel: bool = True,
     loop: LoopConfig | None = None,
+    urdf_text: str | None = None,
 ) -> dict:
     """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`;
-    `parallel`: half the figures drawn in a forked process where the machine allows."""
+    `parallel`: half the figures drawn in a forked process where the machine allows; `urdf_text`
+    as check_control takes it."""
     robot = robot or RobotConfig()
-    setup = check_control(cfg, robot)
-    label = robot_label(robot.name, Path(robot.urdf) if robot.urdf else robot.name)
+    setup = check_control(cfg, robot, urdf_text)
+    source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
+    label = robot_label(robot.name, source)
     res = compare_controllers(cfg, gains, device, setup=setup, loop=loop)
     metrics = {name: run.metrics for name, run in res.runs.items()}
     gain_record: dict[str, Any] = {

@@ -1,33 +1,53 @@
 """Evaluating a checkpoint and the controllers into a run directory: evaluate.py's procedure.
 
-Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint; runs
-on the checkpoint's robot), `control` (`control.enabled`, on `robot`). Every setting is checked
-before any part starts (`check`); the checkpoint's parts run in a forked process beside the
-control part where that is safe (rbfn.studies.beside).
+Parts: `ik` (accuracy; needs a checkpoint), `online` (`online.enabled`; needs a checkpoint),
+`control` (`control.enabled`). Every part evaluates one robot: the checkpoint's where one is
+evaluated (`for_checkpoint` composes the config for it; its URDF text, not a file, is what the
+control part loads), else the `robot` group's. Every setting is checked before any part starts
+(`check`); the checkpoint's parts run in a forked process beside the control part where that is
+safe (rbfn.studies.beside).
 """
 
 from __future__ import annotations
 
 import logging
-import time
+from collections.abc import Sequence
 from contextlib import contextmanager
+from dataclasses import fields
 from pathlib import Path
+from typing import cast
 
 import torch
+from hydra import compose
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.utils import to_absolute_path
+from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from ..checkpoint import read_checkpoint
-from ..config import EvalConfig, validate_evaluate
+from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, validate_evaluate
+from ..control.robot_setup import payload_cases
 from ..robots.derive import derive_evaluate
+from ..robots.dynamics import urdf_source
+from ..solver import DEFAULT_ITERATIONS
 from .beside import Beside, can_fork
+from .cli import announced
 from .control import check_control, evaluate_control
 from .ik import evaluate_ik
 from .online import check_online, evaluate_online
 from .plots import robot_label
 from .rundir import RunDir, write_json, write_text
 
-__all__ = ["check", "checkpoint_parts", "evaluate_parts", "evaluated_robots", "find_checkpoint", "run"]
+__all__ = [
+    "check",
+    "checkpoint_parts",
+    "evaluate_parts",
+    "evaluated_robots",
+    "find_checkpoint",
+    "for_checkpoint",
+    "run",
+    "same_robot",
+]
 
 log = logging.getLogger("evaluate")
 
@@ -44,6 +64,93 @@ def find_checkpoint(cfg: EvalConfig) -> Path | None:
     return found[-1] if found else None
 
 
+# A checkpoint's robot entry -> the robot keys it fixes (the box and target it was trained on).
+_ENTRY_KEYS = ("end_link", "locked", "target", "joint_low", "joint_high")
+
+
+def _entry_label(record: dict) -> str:
+    """A checkpoint's robot as metrics.json's `robots` names it: "name (end link, n joints)"."""
+    name = robot_label(record.get("name", ""), record["urdf"])
+    return f"{name} ({record['end_link']}, {len(record['joint_low'])} joints)"
+
+
+def _is_preset(record: dict) -> bool:
+    """Whether a checkpoint's robot entry is a shipped preset's robot (its name and packaged URDF)."""
+    name = record.get("name", "")
+    return name in ROBOT_PRESETS and record["urdf"] == urdf_source(name)[0]
+
+
+def same_robot(robot: RobotConfig, record: dict) -> bool:
+    """Whether `robot` is the robot of a checkpoint's robot entry `record`: the same end link and
+    locked joints, and the same URDF text or name (robot_label: a URDF's own name where robot.name
+    is a leftover preset's). A robot.urdf file that has moved or gone is taken for the checkpoint's
+    URDF text, which is what every part loads."""
+    if robot.end_link != record["end_link"] or dict(robot.locked) != dict(record.get("locked", {})):
+        return False
+    source: str | Path = robot.name
+    if robot.urdf:
+        source = Path(robot.urdf) if Path(robot.urdf).is_file() else record["urdf"]
+        if isinstance(source, Path) and urdf_source(source)[0] == record["urdf"]:
+            return True
+    return robot_label(robot.name, source) == robot_label(record.get("name", ""), record["urdf"])
+
+
+def _another_robot(path: Path, newest: bool, record: dict, given: str, robot: str | None = None) -> ValueError:
+    """The refusal of a config whose robot, chosen by the overrides `given` (after robot=`robot`
+    where they leave the group to the checkpoint), is not the checkpoint's."""
+    which = f"the newest checkpoint, {path}," if newest else f"checkpoint={path}"
+    other = f"robot={robot} {given}" if robot else given
+    return ValueError(
+        f"{which} holds a network of {_entry_label(record)}, but {given} chooses another robot, and every "
+        f"part evaluates the checkpoint's robot: leave {given} out, or evaluate the control part on that robot "
+        f"without a checkpoint (ik=false online.enabled=false {other}), or give checkpoint= one of its checkpoints"
+    )
+
+
+def for_checkpoint(dcfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
+    """evaluate.py's config `dcfg`, composed from the command-line `overrides` (Hydra initialised),
+    for the robot of the checkpoint it evaluates: `dcfg` itself where that is its robot, or where no
+    checkpoint part runs or none is found; else composed again with robot=NAME for a shipped preset
+    (robot=urdf with the training run's robot keys, robot.derive=false, for a user's arm) before the
+    user's overrides, the checkpoint's end link, locked joints, target and box filled in where the
+    overrides leave them. So the gains (`gains/robot@gains: ${robot}_${gains}`) and the realistic
+    loop's rate and encoders are the checkpoint robot's. ValueError naming both robots, before any
+    work, where `overrides` choose another robot (robot=NAME, or robot.* keys)."""
+    cfg = cast(EvalConfig, OmegaConf.to_object(dcfg))
+    path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
+    if path is None:
+        return dcfg  # the `robot` group decides
+    ckpt = read_checkpoint(path)
+    record = ckpt["robot"]
+    if same_robot(cfg.robot, record):
+        return dcfg
+    lines = {o.key_or_group: o.input_line for o in OverridesParser.create().parse_overrides(list(overrides))}
+    given = {k: line for k, line in lines.items() if k == "robot" or k.startswith("robot.")}
+    newest = not cfg.checkpoint
+    if "robot" in given:
+        raise _another_robot(path, newest, record, " ".join(given.values()))
+    preset = _is_preset(record)
+    choice = record["name"] if preset else "urdf"
+    dcfg = compose(config_name="evaluate", overrides=[f"robot={choice}", *overrides])
+    values = {k: record[k] for k in _ENTRY_KEYS if k in record}
+    if not preset:
+        trained = (ckpt.get("config") or {}).get("robot")
+        if not isinstance(trained, dict):
+            raise ValueError(
+                f"{path}: its config holds no robot entry (the training run's robot keys), which "
+                f"evaluating its robot, {_entry_label(record)}, needs; retrain with this aco-rbfn"
+            )
+        known = {f.name for f in fields(RobotConfig)}
+        values = {**{k: v for k, v in trained.items() if k in known}, **values, "derive": False}
+    for key, value in values.items():
+        if not any(k == f"robot.{key}" or k.startswith(f"robot.{key}.") for k in given):
+            dcfg.robot[key] = value  # the overrides' robot.* keys win
+    robot = cast(RobotConfig, OmegaConf.to_object(dcfg.robot))
+    if not same_robot(robot, record):  # the overrides' robot.* keys made it another robot
+        raise _another_robot(path, newest, record, " ".join(given.values()), choice)
+    return dcfg
+
+
 @contextmanager
 def _torch_threads(n: int | None):
     """torch's intra-op threads set to `n` inside the block and restored after it (None: unchanged)."""
@@ -58,12 +165,33 @@ def _torch_threads(n: int | None):
 
 
 @contextmanager
-def _timed(seconds: dict, part: str):
-    """Record the wall seconds of one part under `seconds[part]` and log them."""
-    t0 = time.perf_counter()
-    yield
-    seconds[part] = time.perf_counter() - t0
-    log.info("%s part: %.1f s", part, seconds[part])
+def _timed(seconds: dict, part: str, cfg: EvalConfig):
+    """One part announced (what and how big) and timed (rbfn.studies.cli.announced); its wall
+    seconds recorded under `seconds[part]`."""
+    with announced(log, part, _what(part, cfg), cfg.progress) as timing:
+        yield
+    seconds[part] = timing["seconds"]
+
+
+def _what(part: str, cfg: EvalConfig) -> str:
+    """What `part` will do and how big, for its first log line."""
+    if part == "ik":
+        return (
+            f"accuracy on {cfg.n_test} fresh test samples, float64 and float32, then polished by "
+            f"{DEFAULT_ITERATIONS} solver steps"
+        )
+    if part == "online":
+        o = cfg.online
+        return (
+            f"{o.learner} adaptation at {len(o.sizes)} perturbation sizes, adapted and frozen, "
+            f"{o.duration:g} s at {1 / o.dt:g} Hz"
+        )
+    c = cfg.control
+    payloads = len(payload_cases(c, cfg.robot.rated_payload)[0])  # without loading the URDF
+    return (
+        f"{len(c.controllers)} controllers x {payloads} payloads, {c.duration:g} s at {1 / c.dt:g} Hz, "
+        f"{cfg.loop.name} loop"
+    )
 
 
 def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> tuple[dict, dict[str, float]]:
@@ -74,12 +202,12 @@ def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> 
     writer = SummaryWriter(log_dir=str(out_dir), filename_suffix=".checkpoint")
     try:
         if cfg.ik:
-            with _timed(seconds, "ik"):
+            with _timed(seconds, "ik", cfg):
                 metrics["ik"] = evaluate_ik(ckpt, path, cfg, out_dir, writer)
             # Flat IK keys at the top level too, as train.py writes them.
             metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
         if cfg.online.enabled:
-            with _timed(seconds, "online"):
+            with _timed(seconds, "online", cfg):
                 metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
     finally:
         writer.close()
@@ -88,14 +216,21 @@ def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> 
 
 def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
     """Every setting checked before any work: (the checkpoint's path, its dict), both None when
-    no part needs one or none was found."""
+    no part needs one or none was found. A checkpoint of another robot than `cfg.robot` is refused
+    (`for_checkpoint` composes the config for the checkpoint's robot)."""
     validate_evaluate(cfg)
-    if cfg.control.enabled:
-        check_control(cfg.control, cfg.robot)  # the robot's URDF, joints and payload link, before any work
     if not (cfg.ik or cfg.online.enabled or cfg.control.enabled):
         raise ValueError("nothing to evaluate: ik, online.enabled and control.enabled are all false; enable a part")
     path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
     ckpt = read_checkpoint(path) if path is not None else None  # a bad file stops before any work
+    if path is not None and ckpt is not None and not same_robot(cfg.robot, ckpt["robot"]):
+        r = cfg.robot
+        raise _another_robot(
+            path, not cfg.checkpoint, ckpt["robot"], f"robot.urdf={r.urdf}" if r.urdf else f"robot={r.name}"
+        )
+    if cfg.control.enabled:
+        # the robot's URDF (the checkpoint's text), joints and payload link, before any work
+        check_control(cfg.control, cfg.robot, urdf_text=ckpt["robot"]["urdf"] if ckpt is not None else None)
     if ckpt is None and not cfg.control.enabled:
         root = Path(to_absolute_path(cfg.outputs_dir))
         why = "no such directory" if not root.is_dir() else "no checkpoint.pt below it"
@@ -131,13 +266,8 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
     robots, skipped = evaluated_robots(cfg, ckpt)
     for part, why in skipped.items():
         log.info("%s part skipped: %s", part, why)
-    if len(set(robots.values())) > 1:
-        log.warning(
-            "the parts evaluate different robots: %s (the IK and online parts run on the checkpoint's "
-            "robot, the control part on robot=%s)",
-            robots,
-            cfg.robot.name,
-        )
+    if robots:
+        log.info("robot: %s%s", next(iter(robots.values())), " (the checkpoint's)" if ckpt is not None else "")
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     metrics: dict = {}
@@ -152,9 +282,17 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
         if cfg.control.enabled:
             writer = SummaryWriter(log_dir=str(out_dir))
             try:
-                with _timed(seconds, "control"):
+                with _timed(seconds, "control", cfg):
                     control = evaluate_control(
-                        cfg.control, cfg.gains, cfg.device, writer, out_dir, cfg.robot, cfg.parallel, cfg.loop
+                        cfg.control,
+                        cfg.gains,
+                        cfg.device,
+                        writer,
+                        out_dir,
+                        cfg.robot,
+                        cfg.parallel,
+                        cfg.loop,
+                        urdf_text=ckpt["robot"]["urdf"] if ckpt is not None else None,
                     )
             finally:
                 writer.close()
@@ -170,18 +308,16 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
 
 
 def evaluated_robots(cfg: EvalConfig, ckpt: dict | None) -> tuple[dict[str, str], dict[str, str]]:
-    """(the robot each part that runs evaluates, as "name (end link, n joints)"; each enabled part
+    """(the robot each part that runs evaluates, as "name (end link, n joints)": the checkpoint's
+    where there is one (`check`: the config's robot is it), else `cfg.robot`; each enabled part
     that does not run, and why): metrics.json's `robots` and `skipped`."""
-    robots, skipped = {}, {}
+    skipped = {}
     if ckpt is not None:
-        r = ckpt["robot"]
-        label = f"{robot_label(r.get('name', ''), r['urdf'])} ({r['end_link']}, {len(r['joint_low'])} joints)"
-        robots.update({part: label for part, on in (("ik", cfg.ik), ("online", cfg.online.enabled)) if on})
+        label = _entry_label(ckpt["robot"])
     else:
         why = f"no checkpoint.pt under outputs_dir={cfg.outputs_dir!r} (train first, or pass checkpoint=PATH)"
         skipped.update({part: why for part, on in (("ik", cfg.ik), ("online", cfg.online.enabled)) if on})
-    if cfg.control.enabled:
         r = cfg.robot
-        name = robot_label(r.name, Path(r.urdf) if r.urdf else r.name)
-        robots["control"] = f"{name} ({r.end_link}, {len(r.joint_low)} joints)"
-    return robots, skipped
+        label = f"{robot_label(r.name, Path(r.urdf) if r.urdf else r.name)} ({r.end_link}, {len(r.joint_low)} joints)"
+    parts = (("ik", cfg.ik and ckpt is not None), ("online", cfg.online.enabled and ckpt is not None))
+    return {part: label for part, on in (*parts, ("control", cfg.control.enabled)) if on}, skipped
