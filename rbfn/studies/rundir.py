@@ -211,7 +211,9 @@ def _after_failure(e: BaseException, path: Path, before: set[str]) -> None:
             resume = "; run the same command again to resume it" if "last.pt" in wrote else ""
             results = [name for name in wrote if not _bookkeeping(name)]  # its log and config are kept too
             shown = ", ".join(results[:6]) + (", ..." if len(results) > 6 else "")
-            e.add_note(f"{path} keeps what this run wrote before it stopped ({shown}){resume}")
+            note = f"{path} keeps what this run wrote before it stopped ({shown}){resume}"
+            # What BaseException.add_note does from Python 3.11 (its traceback prints them), on 3.10 too.
+            e.__notes__ = [*getattr(e, "__notes__", []), note]  # type: ignore[attr-defined]
 
 
 def remove_new_empty_parents(path: Path, since: float | None = None) -> None:
