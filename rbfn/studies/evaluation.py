@@ -129,12 +129,13 @@ def for_checkpoint(dcfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
     newest = not cfg.checkpoint
     if "robot" in given:
         raise _another_robot(path, newest, record, " ".join(given.values()))
-    preset = _is_preset(record)
+    trained = (ckpt.get("config") or {}).get("robot")
+    # A preset's robot, unless trained as robot=urdf (its derived keys, not the preset's, then)
+    preset = _is_preset(record) and not (isinstance(trained, dict) and trained.get("derive"))
     choice = record["name"] if preset else "urdf"
     dcfg = compose(config_name="evaluate", overrides=[f"robot={choice}", *overrides])
     values = {k: record[k] for k in _ENTRY_KEYS if k in record}
     if not preset:
-        trained = (ckpt.get("config") or {}).get("robot")
         if not isinstance(trained, dict):
             raise ValueError(
                 f"{path}: its config holds no robot entry (the training run's robot keys), which "

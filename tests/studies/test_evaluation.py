@@ -98,17 +98,19 @@ def test_without_a_checkpoint_the_robot_group_decides(ur5_ckpt, tmp_path):
     assert m["robots"] == {"control": UR5} and list(m["control"]["smc"]) == ["0kg", "2.5kg", "5kg"]
 
 
-def test_a_users_arm_is_evaluated_from_the_checkpoints_urdf_text_when_its_file_is_gone(tmp_path):
-    path = tmp_path / "my_arm.urdf"
-    path.write_text(read_urdf(urdf_path("ur5")).replace('<robot name="ur5"', '<robot name="my_arm"', 1))
+@pytest.mark.parametrize("name", ["my_arm", "ur5"])  # a URDF of its own; a copy of the shipped UR5's
+def test_a_users_arm_is_evaluated_from_the_checkpoints_urdf_text_when_its_file_is_gone(tmp_path, name):
+    path = tmp_path / f"{name}.urdf"
+    path.write_text(read_urdf(urdf_path("ur5")).replace('<robot name="ur5"', f'<robot name="{name}"', 1))
     arm = ["robot=urdf", f"robot.urdf={path}", "robot.end_link=ee_link"]
     train.run(compose_config("train", *arm, *TINY_TRAIN, "rbfn.growth.start=0"), tmp_path / "train")
     path.unlink()
     cfg = composed(f"checkpoint={tmp_path / 'train' / 'checkpoint.pt'}", "n_test=200", "online.enabled=false", *CONTROL)
-    assert cfg.robot.name == "my_arm" and not cfg.robot.derive and len(cfg.robot.joint_low) == 6
-    assert cfg.gains == compose_config("evaluate", "robot=urdf").gains  # robot=urdf's gain set
+    # robot=urdf with the keys derived at training (not the UR5 preset's, for the copy either)
+    assert cfg.robot.name == name and not cfg.robot.derive and cfg.robot.urdf == str(path)
+    assert cfg.gains == compose_config("evaluate", "robot=urdf").gains
     m = evaluate.run(cfg, tmp_path / "run")
-    label = "my_arm (ee_link, 6 joints)"
+    label = f"{name} (ee_link, 6 joints)"
     assert m["robots"] == {"ik": label, "control": label}
     half = f"{cfg.robot.rated_payload / 2:g}kg"
     assert list(m["control"]["smc"]) == ["0kg", half, f"{cfg.robot.rated_payload:g}kg"]
