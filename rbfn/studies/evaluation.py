@@ -124,7 +124,8 @@ def for_checkpoint(dcfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
     record = ckpt["robot"]
     if same_robot(cfg.robot, record):
         return dcfg
-    lines = {o.key_or_group: o.input_line for o in OverridesParser.create().parse_overrides(list(overrides))}
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    lines = {o.key_or_group: o.input_line or o.key_or_group for o in parsed}
     given = {k: line for k, line in lines.items() if k == "robot" or k.startswith("robot.")}
     newest = not cfg.checkpoint
     if "robot" in given:
