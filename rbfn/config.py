@@ -598,6 +598,11 @@ class GainsConfig:
     # M_hat_jj at home carrying the rated payload (rbfn.control.robot_setup.ControlRobot.joint_rates).
     # The realistic sets' choice: their integrators stay stable whatever the arm carries.
     inertia_scaling: bool = False
+    # deg; 0: off. The realistic loop: each joint's torque gains capped so that its feedback's
+    # crossover K s_j / Me_jj (Me_jj the joint's apparent inertia at home, 1 / (M_hat^-1)_jj) keeps
+    # this phase margin against the loop's delays, hold and velocity filter
+    # (rbfn.control.loop.crossover_limit, ControlRobot.feedback_scale). The realistic sets: 30.
+    phase_margin: float = 0.0
 
     def check(self, key: str = "gains") -> None:
         for k, v in vars(self).items():
@@ -607,6 +612,7 @@ class GainsConfig:
             _need(getattr(self, k) > 0, f"{key}.{k}", getattr(self, k), "must be > 0")
         for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd", "dead_zone", "nominal_payload"):
             _need(getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
+        _need(0 <= self.phase_margin < 90, f"{key}.phase_margin", self.phase_margin, "must be in [0, 90) degrees")
 
 
 @dataclass

@@ -19,7 +19,7 @@ from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, LoopConfig
 from ..robots.scara import ScaraParams
 from .batch import Stacked
 from .controllers import make_controller
-from .loop import RealLoop, real_loop
+from .loop import RealLoop, crossover_limit, real_loop
 from .network import control_network, desired_states, pilot_residuals
 from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
@@ -52,6 +52,7 @@ class ControlComparison:
     scenario: Scenario
     payloads: list[float] = field(default_factory=list)
     robot: ControlRobot | None = None
+    joint_scale: list[float] | None = None  # the controllers' torque-gain factor per joint (None: 1)
 
 
 def compare_controllers(
@@ -74,14 +75,18 @@ def compare_controllers(
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
-    plant, model, scale = setup.plant, setup.nominal_model(gains.nominal_payload), setup.joint_scale(**kw)
-    rates = setup.joint_rates(gains, **kw)
+    plant, model = setup.plant, setup.nominal_model(gains.nominal_payload)
     real: RealLoop | None = None
     if loop is not None:
         effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)
-        real = real_loop(loop, sc.dt, setup.prismatic, effort, scale)
+        real = real_loop(loop, sc.dt, setup.prismatic, effort, setup.joint_scale(**kw))
         if real is not None:  # every controller meets the same noise in each payload case
             real = replace(real, noise_envs=len(setup.payloads))
+    # The controllers' torque-gain factor: the joint scale, capped for the loop's phase margin.
+    crossover = crossover_limit(real, gains.phase_margin) if real is not None and gains.phase_margin else None
+    gain_scale = setup.feedback_scale(gains, crossover)
+    scale = None if gain_scale is None else torch.tensor(gain_scale, **kw)
+    rates = setup.joint_rates(gains, scale=scale, **kw)
     period = sc.dt if real is None else real.period  # the controllers' time step, s
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n
@@ -167,7 +172,14 @@ def compare_controllers(
         for run in runs.values():
             for case, m in run.metrics.items():
                 m["gap_closure"] = gap_closure(runs["smc"].metrics[case], m, runs["smc_exact"].metrics[case])
-    return ControlComparison(runs, q_des=q_des, scenario=sc, payloads=list(setup.payloads), robot=setup)
+    return ControlComparison(
+        runs,
+        q_des=q_des,
+        scenario=sc,
+        payloads=list(setup.payloads),
+        robot=setup,
+        joint_scale=gain_scale,
+    )
 
 
 def gap_closure(smc: dict, run: dict, exact: dict) -> list[float]:

@@ -25,6 +25,7 @@ from ..config import LoopConfig
 
 __all__ = [
     "RealLoop",
+    "crossover_limit",
     "Applied",
     "Sensing",
     "Actuation",
@@ -88,6 +89,32 @@ class RealLoop:
     torque_noise: torch.Tensor | None = None
     seed: int = 0
     noise_envs: int = 0  # environments b and b + noise_envs share noise draws (0: each its own)
+
+
+def crossover_limit(loop: RealLoop, margin: float) -> float:
+    """The highest crossover frequency, rad/s, a feedback loop of the sliding surface may have in
+    `loop` and keep `margin` degrees of phase margin. Under tau = K s the joint is an integrator from
+    torque to s (-90 deg); the loop adds the lag phi(w) = w T (sensing_delay + actuation_delay + 1/2
+    for the zero-order hold, + 1/2 for the backward difference where the velocity is estimated) plus
+    the velocity filter's phase, and phi grows with w up to the Nyquist frequency pi / T (the filter's
+    lag falls by less than the hold's rises). Found by bisection where phi = 90 - margin degrees;
+    pi / T where even the Nyquist frequency keeps the margin. T: the control period."""
+    t, a = loop.period, loop.velocity_gain
+    periods = loop.sensing_delay + loop.actuation_delay + 0.5 + (0.0 if a is None else 0.5)
+
+    def lag(w: float) -> float:
+        x = w * t
+        filtered = 0.0 if a is None else math.atan2((1 - a) * math.sin(x), 1 - (1 - a) * math.cos(x))
+        return x * periods + filtered
+
+    target = math.radians(90.0 - margin)
+    lo, hi = 0.0, math.pi / t
+    if lag(hi) <= target:
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if lag(mid) <= target else (lo, mid)
+    return lo
 
 
 def quantise(q: torch.Tensor, resolution: torch.Tensor) -> torch.Tensor:

@@ -62,10 +62,36 @@ class ControlRobot:
             return self.closed.model(payload)
         return ArmModel(cast(ArmPlant, self.plant).terms, payload=payload)
 
-    def joint_rates(self, gains: GainsConfig, **kw) -> JointRates | None:
+    def home_inertia(self, payload: float = 0.0) -> torch.Tensor:
+        """The nominal model's inertia matrix M_hat (n, n) at home carrying `payload` kg, float64,
+        kg m^2 (kg)."""
+        home = torch.tensor([self.home], dtype=torch.float64)
+        eye = torch.eye(self.n, dtype=torch.float64)
+        return self.nominal_model(payload).at(home.expand(self.n, -1), torch.zeros_like(eye)).m_times(eye)
+
+    def feedback_scale(self, gains: GainsConfig, crossover: float | None) -> list[float] | None:
+        """The controllers' torque-gain factor per joint (n,), as `scale` (None for ones): the joint
+        scale s_j, capped where `crossover` (rad/s, `rbfn.control.loop.crossover_limit`; None: no
+        cap) is below the joint's feedback bandwidth K s_j / Me_jj, Me_jj = 1 / (M_hat^-1)_jj the
+        joint's apparent inertia at home with the other joints free (on a coupled joint far below
+        M_jj, which the scale follows):
+
+            s_j min(1, crossover Me_jj / (K s_j)).
+
+        `scale` itself where no joint is capped. The scenario's friction, disturbance and torque
+        noise keep the joint scale."""
+        if crossover is None:
+            return self.scale
+        apparent = 1.0 / torch.linalg.inv(self.home_inertia(gains.nominal_payload)).diagonal()
+        scale = torch.ones(self.n, dtype=torch.float64) if self.scale is None else torch.tensor(self.scale)
+        capped = torch.minimum(scale, crossover * apparent / gains.K)
+        return self.scale if torch.equal(capped, scale) else capped.tolist()
+
+    def joint_rates(self, gains: GainsConfig, scale: torch.Tensor | None = None, **kw) -> JointRates | None:
         """Per-joint factors of the observer gain and the adaptation rate (`gains.inertia_scaling`;
         None where it is off), from the nominal model's inertia diagonal at home, M0_jj unloaded (or
-        carrying gains.nominal_payload) and Mr_jj carrying the rated payload:
+        carrying gains.nominal_payload) and Mr_jj carrying the rated payload, and the controllers'
+        torque-gain factor s_j (`scale`, (n,); None: the joint scale):
 
             observer_j = min(1, K s_j / (K_o Mr_jj)),   gamma_j = M0_jj / Mr_jj.
 
@@ -77,17 +103,12 @@ class ControlRobot:
         the crossover likewise. Dimensionless (n,), dtype and device from kw."""
         if not gains.inertia_scaling:
             return None
-        home = torch.tensor([self.home], dtype=torch.float64)
-        eye = torch.eye(self.n, dtype=torch.float64)
-
-        def diagonal(payload: float) -> torch.Tensor:
-            at = self.nominal_model(payload).at(home.expand(self.n, -1), torch.zeros_like(eye))
-            return at.m_times(eye).diagonal()
-
-        base = diagonal(gains.nominal_payload)
-        rated = diagonal(max(self.rated_payload, gains.nominal_payload))
-        scale = torch.ones(self.n, dtype=torch.float64) if self.scale is None else torch.tensor(self.scale)
-        observer = (gains.K * scale / (gains.observer_gain * rated)).clamp(max=1.0)
+        base = self.home_inertia(gains.nominal_payload).diagonal()
+        rated = self.home_inertia(max(self.rated_payload, gains.nominal_payload)).diagonal()
+        if scale is None:
+            scale = self.joint_scale(dtype=torch.float64)
+        s = torch.ones(self.n, dtype=torch.float64) if scale is None else scale.double().cpu()
+        observer = (gains.K * s / (gains.observer_gain * rated)).clamp(max=1.0)
         return JointRates(observer.to(**kw), (base / rated).clamp(max=1.0).to(**kw))
 
     @property

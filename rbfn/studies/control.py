@@ -50,7 +50,7 @@ def evaluate_control(
     gain_record: dict[str, Any] = {
         k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()
     }
-    gain_record["joint_scale"] = setup.scale or [1.0] * setup.n  # the torque gains' factor per joint
+    gain_record["joint_scale"] = res.joint_scale or [1.0] * setup.n  # the torque gains' factor per joint
     info = {
         "loop": plain(loop) if loop is not None else {"name": "ideal"},
         "gains": gain_record,

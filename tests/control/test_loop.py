@@ -329,3 +329,72 @@ def test_the_rated_payload_no_longer_drives_the_integrators_into_the_limits():
 
     assert all(v <= 0.01 for v in saturated().values())
     assert saturated("gains.inertia_scaling=false", "gains.gamma=500")["smc_obs"] > 0.05
+
+
+def test_the_crossover_limit_keeps_the_phase_margin_against_the_loops_lag():
+    """crossover_limit: with exact velocity and no delay the lag is the hold's w T / 2, so the
+    limit is (90 - margin) deg / (T / 2); with delay and the filter the lag at the limit is
+    90 - margin deg, lower limits for more delay, and the Nyquist frequency where nothing lags."""
+    from rbfn.control.loop import crossover_limit
+
+    t = 2e-3
+    assert crossover_limit(RealLoop(period=t), 30.0) == pytest.approx(math.radians(60.0) / (t / 2), rel=1e-9)
+    loop = RealLoop(period=t, actuation_delay=1, velocity_gain=filter_gain(50.0, t))
+    w = crossover_limit(loop, 30.0)
+    a, x = loop.velocity_gain, w * t
+    lag = 2.0 * x + math.atan2((1 - a) * math.sin(x), 1 - (1 - a) * math.cos(x))
+    assert lag == pytest.approx(math.radians(60.0), abs=1e-9)
+    assert crossover_limit(RealLoop(period=t, actuation_delay=3, velocity_gain=a), 30.0) < w
+    assert crossover_limit(loop, 60.0) < w < crossover_limit(loop, 10.0)
+
+
+@pytest.mark.parametrize("robot", ["scara", "ur5"])
+def test_feedback_scale_caps_only_joints_whose_apparent_inertia_is_too_light(robot):
+    """feedback_scale: s_j min(1, w Me_jj / (K s_j)) with Me_jj = 1 / (M_hat^-1)_jj at home; the
+    joint scale itself where no joint reaches the limit, and the ideal loop's (no limit) always."""
+    from rbfn.studies.control import check_control
+
+    cfg = compose_config("evaluate", f"robot={robot}")
+    setup = check_control(cfg.control, cfg.robot)
+    assert setup.feedback_scale(cfg.gains, None) is setup.scale
+    apparent = 1.0 / torch.linalg.inv(setup.home_inertia()).diagonal()
+    s = torch.ones(setup.n, dtype=torch.float64) if setup.scale is None else torch.tensor(setup.scale)
+    bandwidth = cfg.gains.K * s / apparent  # rad/s per joint
+    w = 0.5 * float(bandwidth.max() + bandwidth.min())  # between the slowest and the fastest joint
+    capped = torch.tensor(setup.feedback_scale(cfg.gains, w), dtype=torch.float64)
+    fast = bandwidth > w
+    assert bool(fast.any()) and not bool(fast.all())
+    assert torch.allclose(capped[fast], w * apparent[fast] / cfg.gains.K, rtol=1e-12)
+    assert torch.equal(capped[~fast], s[~fast])
+    assert setup.feedback_scale(cfg.gains, float(bandwidth.max()) * 1.01) is setup.scale
+
+
+def test_a_coupled_arm_keeps_off_its_torque_limits_with_the_phase_margin():
+    """The Unitree Z1 (example-robot-data, robot=urdf): its elbow's apparent inertia is a tenth of
+    M_33, so the joint-scaled feedback crosses over at about 470 rad/s, beyond what one period of
+    delay at 500 Hz allows, and cycles between its limits; capped for the phase margin it does not."""
+    from importlib import metadata
+    from pathlib import Path
+
+    from rbfn.control.comparison import compare_controllers
+    from rbfn.robots.derive import derive_evaluate
+    from rbfn.studies.control import check_control
+
+    try:
+        root = Path(str(metadata.distribution("example-robot-data").locate_file("")))
+    except metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    found = list((root / "cmeel.prefix").rglob("z1_description/urdf/z1.urdf"))
+    if not found:
+        pytest.skip("example-robot-data holds no Z1")
+    over = ["robot=urdf", f"robot.urdf={found[0]}", "robot.end_link=link06", "control.duration=1.5"]
+    over += ["control.payload_on=0.3", "control.payload_off=1.2", "control.controllers=[smc,smc_obs]"]
+
+    def saturated(*extra):
+        cfg = derive_evaluate(compose_config("evaluate", *over, *extra))
+        setup = check_control(cfg.control, cfg.robot)
+        res = compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop)
+        return max(max(m["saturated"]) for r in res.runs.values() for m in r.metrics.values())
+
+    assert saturated() <= 0.01
+    assert saturated("gains.phase_margin=0") > 0.2
