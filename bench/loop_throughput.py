@@ -17,7 +17,7 @@ import torch
 
 from rbfn.config import ControlConfig, GainsConfig, LoopConfig, RobotConfig
 from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
-from rbfn.control.loop import crossover_limit, real_loop
+from rbfn.control.loop import real_loop
 from rbfn.control.robot_setup import control_robot
 
 # conf/loop/realistic.yaml with the SCARA's conf/robot values, and conf/gains/robot/scara_realistic.yaml
@@ -43,15 +43,12 @@ def measure(batch: int, repeats: int, device: str) -> dict[str, float]:
     real = real_loop(REALISTIC, sc.dt, [False, False, True], torch.tensor([100.0, 100.0, 500.0]))
     assert real is not None
     setup = control_robot(RobotConfig(), ControlConfig())  # the SCARA, rated 20 kg
-    # The controllers' torque-gain factor and each joint's observer and adaptation rate, as evaluate.py's.
-    capped = setup.feedback_scale(GAINS, crossover_limit(real, GAINS.phase_margin))
-    scale = None if capped is None else torch.tensor(capped, **kw)
-    rates = setup.joint_rates(GAINS, scale=scale, **kw)
+    factors = setup.gain_factors(GAINS, real, **kw)  # the controllers' per-joint factors, as evaluate.py's
     loops = {"ideal": (None, sc.dt), "realistic": (real, real.period)}
     times: dict[str, list[float]] = {name: [] for name in loops}
     for _ in range(repeats):
         for name, (loop, period) in loops.items():  # turn by turn
-            ctrl = make_controller("smc_obs", GAINS, period, joint_scale=scale, rates=rates)
+            ctrl = make_controller("smc_obs", GAINS, period, joint_scale=factors.scale, rates=factors.rates)
             if device != "cpu":
                 torch.cuda.synchronize()
             t0 = time.perf_counter()

@@ -19,7 +19,7 @@ from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, LoopConfig
 from ..robots.scara import ScaraParams
 from .batch import Stacked
 from .controllers import make_controller
-from .loop import RealLoop, crossover_limit, real_loop
+from .loop import RealLoop, real_loop
 from .network import control_network, desired_states, pilot_residuals
 from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
@@ -82,11 +82,8 @@ def compare_controllers(
         real = real_loop(loop, sc.dt, setup.prismatic, effort, setup.joint_scale(**kw))
         if real is not None:  # every controller meets the same noise in each payload case
             real = replace(real, noise_envs=len(setup.payloads))
-    # The controllers' torque-gain factor: the joint scale, capped for the loop's phase margin.
-    crossover = crossover_limit(real, gains.phase_margin) if real is not None and gains.phase_margin else None
-    gain_scale = setup.feedback_scale(gains, crossover)
-    scale = None if gain_scale is None else torch.tensor(gain_scale, **kw)
-    rates = setup.joint_rates(gains, scale=scale, **kw)
+    factors = setup.gain_factors(gains, real, **kw)  # the joint scale, capped for the phase margin
+    scale, rates = factors.scale, factors.rates
     period = sc.dt if real is None else real.period  # the controllers' time step, s
     payload = torch.tensor(setup.payloads, **kw)
     b, n = payload.shape[0], setup.n
@@ -178,7 +175,7 @@ def compare_controllers(
         scenario=sc,
         payloads=list(setup.payloads),
         robot=setup,
-        joint_scale=gain_scale,
+        joint_scale=factors.listed,
     )
 
 

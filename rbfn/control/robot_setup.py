@@ -15,7 +15,7 @@ from __future__ import annotations
 import reprlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, NamedTuple, cast
 
 import torch
 
@@ -23,11 +23,22 @@ from ..config import ControlConfig, GainsConfig, RobotConfig, Trajectory
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
 from .controllers import JointRates
+from .loop import RealLoop, crossover_limit
 from .models import ArmModel, NominalModel
 from .plants import ArmPlant, Plant
 from .trajectory import paper_trajectory, sinusoid_trajectory
 
-__all__ = ["ControlRobot", "control_robot", "payload_cases"]
+__all__ = ["ControlRobot", "GainFactors", "control_robot", "payload_cases"]
+
+
+class GainFactors(NamedTuple):
+    """What the controllers of one comparison take per joint beside the gains
+    (`ControlRobot.gain_factors`): the torque-gain factor as a list (None: 1 on every joint; what
+    `control_info` records) and as a tensor (n,), and the integrators' rates (None: off)."""
+
+    listed: list[float] | None
+    scale: torch.Tensor | None
+    rates: JointRates | None
 
 
 @dataclass
@@ -68,6 +79,15 @@ class ControlRobot:
         home = torch.tensor([self.home], dtype=torch.float64)
         eye = torch.eye(self.n, dtype=torch.float64)
         return self.nominal_model(payload).at(home.expand(self.n, -1), torch.zeros_like(eye)).m_times(eye)
+
+    def gain_factors(self, gains: GainsConfig, loop: RealLoop | None, **kw) -> GainFactors:
+        """The controllers' per-joint factors in `loop` (None: the ideal loop): the joint scale,
+        capped for `gains.phase_margin` in a realistic loop (`feedback_scale`), and the rates that
+        follow from it (`joint_rates`); tensors with dtype and device from kw."""
+        crossover = crossover_limit(loop, gains.phase_margin) if loop is not None and gains.phase_margin else None
+        listed = self.feedback_scale(gains, crossover)
+        scale = None if listed is None else torch.tensor(listed, **kw)
+        return GainFactors(listed, scale, self.joint_rates(gains, scale=scale, **kw))
 
     def feedback_scale(self, gains: GainsConfig, crossover: float | None) -> list[float] | None:
         """The controllers' torque-gain factor per joint (n,), as `scale` (None for ones): the joint

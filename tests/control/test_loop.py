@@ -27,6 +27,19 @@ class Echo(Controller):
         return (ref.q_d.expand_as(q) if self.mode == "reference" else q).clone(), state
 
 
+def _compare(*overrides: str, derive: bool = False):
+    """evaluate.py's closed-loop comparison for `overrides` (its robot checked first; `derive`: the
+    robot=urdf keys filled in as evaluate.py does): (ControlComparison, ControlRobot)."""
+    from rbfn.control.comparison import compare_controllers
+    from rbfn.robots.derive import derive_evaluate
+    from rbfn.studies.control import check_control
+
+    cfg = compose_config("evaluate", *overrides)
+    cfg = derive_evaluate(cfg) if derive else cfg
+    setup = check_control(cfg.control, cfg.robot)
+    return compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop), setup
+
+
 def _run(loop: RealLoop, ctrl: Controller, steps: int = 20, dt: float = 1e-3, ref=None, q0=None):
     sc = Scenario(duration=steps * dt, dt=dt, payload_on=0.0, payload_off=steps * dt, metrics_after=0.0)
     t = sc.times()
@@ -189,12 +202,10 @@ def test_the_perfect_knowledge_ceiling_and_the_gap_each_controller_closes():
     """smc_exact knows every force: with exact state it tracks far better than smc, and in the
     realistic loop it sets the ceiling each controller's gap closure is read against (smc 0,
     smc_exact 1 on every joint)."""
-    from rbfn.control.comparison import compare_controllers
-    from rbfn.studies.control import check_control, control_table
+    from rbfn.studies.control import control_table
 
     for loop in ("ideal", "realistic"):
-        cfg = compose_config(
-            "evaluate",
+        res, setup = _compare(
             f"loop={loop}",
             "control.duration=2.0",
             "control.payload_off=1.5",
@@ -202,8 +213,6 @@ def test_the_perfect_knowledge_ceiling_and_the_gap_each_controller_closes():
             "control.controllers=[smc,smc_obs,smc_exact]",
             "gains.observer_gain=30",
         )
-        setup = check_control(cfg.control, cfg.robot)
-        res = compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop)
         for case in ("0kg", "10kg"):
             smc, exact = res.runs["smc"].metrics[case], res.runs["smc_exact"].metrics[case]
             assert all(e < s / 5 for e, s in zip(exact["rms_err"], smc["rms_err"])), (loop, case)
@@ -310,12 +319,9 @@ def test_the_rated_payload_no_longer_drives_the_integrators_into_the_limits():
     """The SCARA at its rated 20 kg in the realistic loop: with the realistic gains' per-joint rates
     the observer and the adaptive network stay off the torque limits; without them (one K_o and
     Gamma for every joint) the observer's loop oscillates into the prismatic joint's 500 N."""
-    from rbfn.control.comparison import compare_controllers
-    from rbfn.studies.control import check_control
 
     def saturated(*extra):
-        cfg = compose_config(
-            "evaluate",
+        res, _ = _compare(
             "control.duration=3.0",
             "control.payload_on=0.5",
             "control.payload_off=3.0",
@@ -323,8 +329,6 @@ def test_the_rated_payload_no_longer_drives_the_integrators_into_the_limits():
             "control.controllers=[smc_obs,arbfn_kmeans]",
             *extra,
         )
-        setup = check_control(cfg.control, cfg.robot)
-        res = compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop)
         return {k: max(r.metrics["20kg"]["saturated"]) for k, r in res.runs.items()}
 
     assert all(v <= 0.01 for v in saturated().values())
@@ -376,10 +380,6 @@ def test_a_coupled_arm_keeps_off_its_torque_limits_with_the_phase_margin():
     from importlib import metadata
     from pathlib import Path
 
-    from rbfn.control.comparison import compare_controllers
-    from rbfn.robots.derive import derive_evaluate
-    from rbfn.studies.control import check_control
-
     try:
         root = Path(str(metadata.distribution("example-robot-data").locate_file("")))
     except metadata.PackageNotFoundError:
@@ -391,9 +391,7 @@ def test_a_coupled_arm_keeps_off_its_torque_limits_with_the_phase_margin():
     over += ["control.payload_on=0.3", "control.payload_off=1.2", "control.controllers=[smc,smc_obs]"]
 
     def saturated(*extra):
-        cfg = derive_evaluate(compose_config("evaluate", *over, *extra))
-        setup = check_control(cfg.control, cfg.robot)
-        res = compare_controllers(cfg.control, cfg.gains, "cpu", setup=setup, loop=cfg.loop)
+        res, _ = _compare(*over, *extra, derive=True)
         return max(max(m["saturated"]) for r in res.runs.values() for m in r.metrics.values())
 
     assert saturated() <= 0.01
