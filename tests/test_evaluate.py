@@ -38,7 +38,7 @@ SHORT = [
     "online.duration=4",
     "online.sizes=[0.0,0.03]",
 ]
-CONTROL_KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
+CONTROL_KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering", "limit_breach", "limit_excess"}
 
 
 @pytest.fixture(scope="module")

@@ -153,7 +153,8 @@ def compare_controllers(
         ) from None
     seconds = time.perf_counter() - t0
     q_des = ref.q_d if real is None else ref.q_d[:: real.substeps][: roll.t.shape[0]]  # at the rollout's rows
-    per_env = control_metrics(roll, q_des, sc)
+    limits = None if setup.lower is None else (torch.tensor(setup.lower), torch.tensor(setup.upper))
+    per_env = control_metrics(roll, q_des, sc, limits)
     runs: dict[str, ControlRun] = {}
     for i, name in enumerate(cfg.controllers):
         envs = slice(i * b, (i + 1) * b)

@@ -59,6 +59,8 @@ class ControlRobot:
     effort: list[float] | None = None  # per joint, the URDF's effort limits, N m (N); inf where none
     closed: Any = None  # the robot's closed forms where the registry has them (rbfn.robots.registry)
     rated_payload: float = 0.0  # kg, the most the arm is meant to carry (robot.rated_payload)
+    lower: list[float] | None = None  # per joint, the URDF's position limits, rad or m; -inf where none
+    upper: list[float] | None = None  # per joint, rad or m; inf where none
 
     @property
     def n(self) -> int:
@@ -206,6 +208,7 @@ def control_robot(
         arm.effort_limits().tolist(),
         closed,
         robot.rated_payload,
+        *(v.tolist() for v in arm.joint_limits()),
     )
 
 

@@ -565,11 +565,19 @@ def _simulate_real(
 serializable(Reference, Loop, Periods, Recorded, SlidingState, RealState, RealPeriods, Sensing, Actuation, Applied)
 
 
-def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> list[dict]:
+def control_metrics(
+    roll: Rollout,
+    q_des: torch.Tensor,
+    scenario: Scenario,
+    limits: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> list[dict]:
     """Per environment: rms_err, max_err (t > metrics_after), max_err_payload (inside the payload
     window), peak_tau (whole run) and chattering (mean |dtau/dt|), each a list of n (per joint: rad
     or m; N m or N; N m/s or N/s); in the realistic loop also `saturated`, the fraction of control
-    periods the joint's torque was at its limit. q_des: the desired joints at the rollout's rows."""
+    periods the joint's torque was at its limit. q_des: the desired joints at the rollout's rows.
+    With `limits` (lower, upper) (n,) (the URDF's position limits, rad or m, +-inf where none) also
+    `limit_breach`, the fraction of the rollout's rows (whole run) the joint spent beyond a limit,
+    and `limit_excess`, its largest distance beyond one (rad or m; 0 where it stayed within)."""
     err = (q_des[:, None, :] - roll.q).abs()  # (T, B, n)
     after = roll.t > scenario.metrics_after
     window = (roll.t >= scenario.payload_on) & (roll.t <= scenario.payload_off)
@@ -583,5 +591,10 @@ def control_metrics(roll: Rollout, q_des: torch.Tensor, scenario: Scenario) -> l
     }
     if roll.saturated is not None:
         per_key["saturated"] = roll.saturated
+    if limits is not None:
+        lower, upper = (v.to(roll.q) for v in limits)
+        beyond = torch.maximum(lower - roll.q, roll.q - upper).clamp(min=0.0)  # (T, B, n)
+        per_key["limit_breach"] = (beyond > 0).to(roll.q).mean(0)
+        per_key["limit_excess"] = beyond.amax(0)
     lists = {k: v.tolist() for k, v in per_key.items()}
     return [{k: v[i] for k, v in lists.items()} for i in range(roll.q.shape[1])]

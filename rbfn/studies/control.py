@@ -112,14 +112,16 @@ def _figure(
         detail=f"{name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, Lambda = {gains.Lambda:g}",
         window=(cfg.payload_on, cfg.payload_off),
         units=res.robot.units,
+        limits=None if res.robot.lower is None else (res.robot.lower, res.robot.upper),
     )
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
 
 def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> str:
     """RMS error per joint (t > 0.5 s), max error of the last joint in the payload window, peak
-    torques; in the realistic loop the largest share of time a joint spent saturated, and where
-    `smc_exact` ran the smallest share of the smc -> smc_exact gap closed over the joints."""
+    torques; in the realistic loop the largest share of time a joint spent saturated, where
+    `smc_exact` ran the smallest share of the smc -> smc_exact gap closed over the joints, and the
+    largest share of time a joint spent beyond its URDF position limit."""
     units = units or [("rad", "N m"), ("rad", "N m"), ("m", "N")]
     n = len(units)
     pos = ", ".join(f"e{j + 1}" for j in range(n)) + " [" + ", ".join(u for u, _ in units) + "]"
@@ -127,6 +129,7 @@ def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> 
     last = f"max e{n} window [{units[-1][0]}]"
     first: dict = next(iter(next(iter(metrics.values())).values()), {}) if metrics else {}
     extra = ("  sat max" if "saturated" in first else "") + ("  gap min" if "gap_closure" in first else "")
+    extra += "  beyond limit" if "limit_breach" in first else ""
     lines = [f"{'controller':14s} {'case':>6s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}{extra}"]
     for name, cases in metrics.items():
         for case, m in cases.items():
@@ -137,5 +140,7 @@ def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> 
                 row += f"  {100 * max(m['saturated']):6.2f}%"
             if "gap_closure" in m:
                 row += f"  {min(m['gap_closure']):7.2f}"
+            if "limit_breach" in m:
+                row += f"  {100 * max(m['limit_breach']):12.2f}%"
             lines.append(row)
     return "\nClosed loop\n" + "\n".join(lines)

@@ -14,6 +14,7 @@ this module never changes the process's backend and figures need no closing.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.colors import LogNorm
@@ -33,10 +34,14 @@ __all__ = [
     "online_figure",
     "MAX_POINTS",
     "PAYLOAD_LABEL",
+    "LIMIT_LABEL",
+    "BEYOND_LABEL",
 ]
 
 MAX_POINTS = 2500  # samples drawn per line of the tracking figure
 PAYLOAD_LABEL = "payload on"  # the legend entry of the shaded payload interval
+LIMIT_LABEL = "URDF joint limit"  # the legend entries of the position limits and the samples beyond them
+BEYOND_LABEL = "beyond the limit"
 FLOOR_MM = 1e-4  # errors below this are drawn at it (a log axis has no 0)
 
 
@@ -142,6 +147,7 @@ def tracking_figure(
     detail: str,
     window: tuple[float, float] | None = None,
     units: list[tuple[str, str]] | None = None,
+    limits: tuple[Sequence[float], Sequence[float]] | None = None,
 ) -> Figure:
     """The paper's n x 3 figure: per joint (rows), position vs desired, error, control input.
 
@@ -149,11 +155,15 @@ def tracking_figure(
     torque), default the SCARA's (rad, N m), (rad, N m), (m, N) for 3 joints, else (rad, N m) on
     every joint; `window` (s) shades the payload interval, named in the legend. Lines show every
     k-th sample, at most MAX_POINTS per line. Rows are shorter, with fewer ticks and smaller
-    labels, past 3 joints.
+    labels, past 3 joints. `limits` (lower, upper) (n,) the joints' position limits (rad or m,
+    +-inf where none): a limit near the drawn range is a dotted line on the position panel, and
+    stretches of time beyond one are marked (a stretch shorter than a drawn sample still shows).
     """
     n = q.shape[1]
     units = units or ([("rad", "N m"), ("rad", "N m"), ("m", "N")] if n == 3 else [("rad", "N m")] * n)
     k = max(1, -(-t.shape[0] // MAX_POINTS))  # every k-th sample: a figure, not a record
+    lower, upper = (np.full(n, -np.inf), np.full(n, np.inf)) if limits is None else map(np.asarray, limits)
+    beyond = np.maximum.reduceat((q < lower) | (q > upper), np.arange(0, t.shape[0], k), axis=0)  # (T/k, n)
     t, q, q_des, tau = t[::k], q[::k], q_des[::k], tau[::k]
     many = n > 3
     fig = Figure(figsize=(13, (2.1 if many else 2.7) * n + 0.6), layout="constrained")
@@ -169,6 +179,7 @@ def tracking_figure(
             ax.plot(t, y, lw=0.8, color="C0")
             if c == 0:
                 ax.plot(t, q_des[:, j], "--", lw=0.8, color="C1")
+                _draw_limits(ax, t, q[:, j], q_des[:, j], lower[j], upper[j], beyond[:, j])
             if window is not None:
                 ax.axvspan(*window, color="0.9", zorder=0)
             ax.set_ylabel(label, fontsize=9 if many else None)
@@ -181,12 +192,29 @@ def tracking_figure(
         ax.set_xlabel("t [s]")
     handles = [axes[0, 0].lines[0], axes[0, 0].lines[1]]
     names = ["actual", "desired"]
+    for label in (LIMIT_LABEL, BEYOND_LABEL):
+        drawn = [ln for ax in axes[:, 0] for ln in ax.lines if ln.get_label() == label]
+        if drawn:
+            handles.append(drawn[0])
+            names.append(label)
     if window is not None:
         handles.append(Patch(color="0.9", label=PAYLOAD_LABEL))
         names.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
     fig.legend(handles, names, loc="outside upper right", ncols=len(names), fontsize=8, frameon=False)
     fig.suptitle(_title(robot, detail))
     return fig
+
+
+def _draw_limits(ax, t, q, q_des, low: float, high: float, beyond: np.ndarray) -> None:
+    """A joint's position limits as dotted lines where they lie within a quarter of the drawn
+    range of q and q_des (a far limit would flatten the curves), and the samples beyond one."""
+    span = max(float(np.ptp(q)), float(np.ptp(q_des)), 1e-9)
+    bottom, top = min(q.min(), q_des.min()) - span / 4, max(q.max(), q_des.max()) + span / 4
+    for v in (low, high):
+        if np.isfinite(v) and bottom <= v <= top:
+            ax.axhline(v, ls=":", lw=1.0, color="C3", label=LIMIT_LABEL)
+    if beyond.any():
+        ax.plot(t[beyond], q[beyond], ".", ms=2, color="C3", label=BEYOND_LABEL)
 
 
 def online_figure(

@@ -216,3 +216,21 @@ def test_compiled_step_equals_eager():
     compiled = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, compile=True, chunk=5)
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-9)
+
+
+def test_control_metrics_count_the_time_and_distance_beyond_the_joint_limits():
+    from rbfn.control.simulator import Rollout, control_metrics
+
+    t = torch.linspace(0.0, 1.0, 11, dtype=torch.float64)
+    q = torch.zeros(11, 2, 2, dtype=torch.float64)  # (T, B, n)
+    q[3:5, 0, 0] = 1.3  # env 0, joint 1: 2 of 11 rows past its upper limit 1.0, by 0.3
+    q[7, 1, 1] = -2.5  # env 1, joint 2: 1 row past its lower limit -2.0, by 0.5
+    roll = Rollout(t, q, torch.zeros_like(q), torch.zeros_like(q))
+    sc = Scenario(duration=1.0, dt=0.1)
+    limits = (torch.tensor([-1.0, -2.0]), torch.tensor([1.0, 2.0]))
+    m = control_metrics(roll, torch.zeros(11, 2, dtype=torch.float64), sc, limits)
+    assert m[0]["limit_breach"] == pytest.approx([2 / 11, 0.0]) and m[0]["limit_excess"] == pytest.approx([0.3, 0.0])
+    assert m[1]["limit_breach"] == pytest.approx([0.0, 1 / 11]) and m[1]["limit_excess"] == pytest.approx([0.0, 0.5])
+    unlimited = (torch.full((2,), -float("inf")), torch.full((2,), float("inf")))
+    assert control_metrics(roll, q[:, 0], sc, unlimited)[0]["limit_breach"] == [0.0, 0.0]
+    assert "limit_breach" not in control_metrics(roll, q[:, 0], sc)[0]

@@ -14,7 +14,7 @@ from rbfn.studies.control import evaluate_control
 
 from ..conftest import compose_config
 
-KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering"}
+KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering", "limit_breach", "limit_excess"}
 
 
 def _short(**kw):
