@@ -18,6 +18,11 @@ joint's observer capped), go to the K_o nearest the derived one in conf/gains/ro
 Where none is admissible, the one with the least time saturated.
 
     python -m bench.tune_gains --robot scara [--observer 5,10,25,50,100] [--gamma 50,100,200,500]
+    python -m bench.tune_gains robot=urdf robot.urdf=PATH robot.end_link=LINK   # your arm
+
+Trailing arguments are evaluate.py's overrides (your arm's keys, derived from the URDF as
+evaluate.py derives them; a `robot=` among them replaces --robot). The last line prints the chosen
+set as the overrides to pass to evaluate.py.
 """
 
 from __future__ import annotations
@@ -37,21 +42,24 @@ from rbfn.studies.control import check_control
 SCORED = ("smc_obs", "arbfn_kmeans")
 
 
-def tuning_config(robot: str):
-    """The evaluation config of `robot` in the realistic loop, with the tuning scenarios."""
+def tuning_config(robot: str, overrides: list[str] | None = None):
+    """The evaluation config of `robot` (or of a `robot=` among `overrides`, evaluate.py's
+    overrides) in the realistic loop, with the tuning scenarios; robot=urdf's keys derived."""
     import pathlib
 
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from rbfn.config import register_configs
+    from rbfn.robots.derive import derive_evaluate
 
     register_configs()
     conf = str(pathlib.Path(__file__).resolve().parents[1] / "conf")
     with initialize_config_dir(config_dir=conf, version_base=None):
-        cfg = OmegaConf.to_object(
-            compose("evaluate", overrides=[f"robot={robot}", "loop=realistic", "gains=realistic"])
-        )
+        extra = list(overrides or [])
+        chosen = [] if any(o.startswith("robot=") for o in extra) else [f"robot={robot}"]
+        cfg = OmegaConf.to_object(compose("evaluate", overrides=[*chosen, "loop=realistic", "gains=realistic", *extra]))
+    cfg = derive_evaluate(cfg)
     rated = cfg.robot.rated_payload
     cfg.control = replace(
         cfg.control,
@@ -90,9 +98,10 @@ def main() -> None:
     ap.add_argument("--observer", default="5,10,25,50,100")
     ap.add_argument("--gamma", default="50,100,200,500")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("overrides", nargs="*", help="evaluate.py overrides, e.g. robot=urdf robot.urdf=PATH ...")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    cfg = tuning_config(args.robot)
+    cfg = tuning_config(args.robot, args.overrides)
     scores: dict[tuple[float, float], tuple[float, float, float]] = {}
 
     def scored(ko: float, gm: float) -> tuple[float, float, float]:
@@ -126,8 +135,9 @@ def main() -> None:
     else:
         best = min(rows, key=lambda r: (r[3], r[2]))
     print(
-        f"chosen for {args.robot}: observer_gain {best[0]}, gamma {best[1]} "
-        f"({'admissible' if admissible else 'none admissible: least saturated'})"
+        f"chosen for {cfg.robot.name}: observer_gain {best[0]}, gamma {best[1]} "
+        f"({'admissible' if admissible else 'none admissible: least saturated'}); "
+        f"for evaluate.py: gains.observer_gain={best[0]:g} gains.gamma={best[1]:g}"
     )
 
 

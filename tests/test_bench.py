@@ -75,3 +75,16 @@ def test_loop_throughput_measures_both_loops():
 
     rates = measure(batch=4, repeats=1, device="cpu")
     assert set(rates) == {"ideal", "realistic"} and all(r > 0 for r in rates.values())
+
+
+def test_tune_gains_takes_your_arm_from_overrides_and_keeps_the_evaluations_cases_out():
+    from bench.tune_gains import tuning_config
+    from rbfn.robots.kinematics import urdf_path
+
+    ur5 = str(urdf_path("ur5"))
+    cfg = tuning_config("scara", ["robot=urdf", f"robot.urdf={ur5}", "robot.end_link=ee_link"])
+    assert cfg.robot.name == "ur5" and len(cfg.robot.home) == 6  # derived from the URDF, not the SCARA's
+    rated = cfg.robot.rated_payload
+    assert rated > 0 and cfg.control.payloads == [round(0.3 * rated, 6), round(0.8 * rated, 6)]
+    assert cfg.control.duration == 6.0 and cfg.loop.noise_seed == 1 and not cfg.loop.ideal
+    assert tuning_config("scara").robot.name == "scara"
