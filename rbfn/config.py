@@ -40,6 +40,7 @@ __all__ = [
     "SELECTORS",
     "BASE_CONTROLLERS",
     "CONTROL_CENTER_METHODS",
+    "CLOSED_LOOP_SEARCHES",
     "MAX_SEED",
     "ROBOT_PRESETS",
     "RobotConfig",
@@ -57,6 +58,8 @@ __all__ = [
     "TrainConfig",
     "GainsConfig",
     "NetworkConfig",
+    "NetworkObjective",
+    "TuneConfig",
     "ControlConfig",
     "OnlineConfig",
     "LoopConfig",
@@ -95,6 +98,12 @@ class Colony(Choice):
 
 
 class Objective(Choice):
+    fit = "fit"
+    cluster = "cluster"
+
+
+class NetworkObjective(Choice):  # what the adaptive controller's centre search minimises
+    closed_loop = "closed_loop"
     fit = "fit"
     cluster = "cluster"
 
@@ -178,7 +187,9 @@ class Trajectory(Choice):  # the desired joint path of the closed loop
 SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
 # Controllers by name; the adaptive RBFN is arbfn_<one of CONTROL_CENTER_METHODS>.
 BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs", "smc_exact")
-CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid")
+CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid", "cmaes")
+# The searches that tune the network on the closed loop itself (control.network.objective=closed_loop).
+CLOSED_LOOP_SEARCHES = ("aco", "random", "cmaes")
 # The packaged robots: folders rbfn/robots/NAME/ (NAME.urdf, optional closed forms), presets
 # conf/robot/NAME.yaml (tests/robots/test_registry.py checks that the three lists agree).
 ROBOT_PRESETS = ("scara", "ur5", "panda")
@@ -616,19 +627,120 @@ class GainsConfig:
 
 
 @dataclass
+class TuneConfig:
+    """The closed-loop search (`control.network.objective=closed_loop`, rbfn.control.tuning): its own
+    scenarios, drawn (seeded) from these ranges and never evaluate.py's own cases, and its budget,
+    the same for every search (arbfn_aco, arbfn_random, arbfn_cmaes): `iterations` batches of
+    `population` candidates, each run on every scenario (population x iterations x scenarios
+    closed-loop episodes). Ranges are [low, high]; times in s."""
+
+    scenarios: int = 4  # payload, disturbance and noise draws, each one episode per candidate
+    duration: float = 3.0  # s, each episode; shorter than control.duration
+    payload_on: float = 1.0  # s: the payload window inside the episode
+    payload_off: float = 2.5
+    payload: list[float] = field(default_factory=lambda: [0.0, 1.0])  # fractions of robot.rated_payload
+    disturbance: list[float] = field(default_factory=lambda: [0.5, 1.5])  # factors of control.disturbance
+    disturbance_freq: list[float] = field(default_factory=lambda: [1.0, 4.0])  # rad/s
+    disturbance_phase: list[float] = field(default_factory=lambda: [0.0, 2 * math.pi])  # rad
+    seed: int = 1  # the scenario draws (the sensor-noise seed among them)
+    population: int = 16  # candidates per iteration (ants, CMA-ES's population, random draws)
+    iterations: int = 8
+    spread: float = 0.3  # the first candidates' spread around the k-means twin (see max_offset)
+    max_offset: float = 2.0  # a centre moves at most this many of the twin's widths per coordinate
+    max_width_factor: float = 4.0  # a width stays within [1 / factor, factor] times the twin's
+    saturation_penalty: float = 1.0  # cost per joint-share of time at the torque limit (realistic loop)
+
+    def check(self, key: str, duration: float) -> None:
+        """`duration`: control.duration, the evaluation's episode (s)."""
+        _need(self.scenarios >= 1, f"{key}.scenarios", self.scenarios, "must be >= 1")
+        _need(
+            finite(self.duration) and 0.5 < self.duration < duration,
+            f"{key}.duration",
+            self.duration,
+            f"must exceed 0.5 s (errors are measured after 0.5 s) and be shorter than control.duration={duration}",
+        )
+        _need(
+            finite(self.payload_on) and finite(self.payload_off) and 0 <= self.payload_on < self.payload_off,
+            f"{key}.payload_on/payload_off",
+            [self.payload_on, self.payload_off],
+            f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}",
+        )
+        _need(
+            self.payload_off <= self.duration,
+            f"{key}.payload_on/payload_off",
+            [self.payload_on, self.payload_off],
+            f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}",
+        )
+        for k, low in (("payload", 0.0), ("disturbance", 0.0), ("disturbance_freq", 0.0), ("disturbance_phase", None)):
+            v = list(getattr(self, k))
+            _need(
+                len(v) == 2 and all(finite(x) for x in v) and v[0] <= v[1] and (low is None or v[0] >= low),
+                f"{key}.{k}",
+                v,
+                "a range [low, high] of finite numbers, low <= high" + ("" if low is None else f", low >= {low:g}"),
+            )
+        _seed(f"{key}.seed", self.seed)
+        _need(self.population >= 2, f"{key}.population", self.population, "must be >= 2 (ACO_R's archive)")
+        _need(self.iterations >= 1, f"{key}.iterations", self.iterations, "must be >= 1")
+        for k in ("spread", "max_offset"):
+            _need(finite(getattr(self, k)) and getattr(self, k) > 0, f"{key}.{k}", getattr(self, k), "must be > 0")
+        _need(
+            finite(self.max_width_factor) and self.max_width_factor >= 1,
+            f"{key}.max_width_factor",
+            self.max_width_factor,
+            "must be >= 1",
+        )
+        _need(
+            finite(self.saturation_penalty) and self.saturation_penalty >= 0,
+            f"{key}.saturation_penalty",
+            self.saturation_penalty,
+            "must be >= 0",
+        )
+
+
+@dataclass
 class NetworkConfig:
-    """The adaptive controller's RBF network (controllers arbfn_<method>)."""
+    """The adaptive controller's RBF network (controllers arbfn_<method>). `objective`: what
+    arbfn_aco's colony minimises: `closed_loop`, the tracking error of the adapted network on
+    `tune`'s scenarios (arbfn_random and arbfn_cmaes search the same at the same budget); `fit`, the
+    pilot run's residual torque (arbfn_random: random centres); `cluster`, k-means' objective."""
 
     num_centers: int = 25
     observer: bool = True  # combine the network with the momentum observer
     warm_start: bool = False  # start W at the ridge fit of the pilot run's residual torque
     seed: int = 0
+    objective: NetworkObjective = NetworkObjective.closed_loop
     aco: ACOConfig = field(default_factory=ACOConfig)
+    tune: TuneConfig = field(default_factory=TuneConfig)
 
-    def check(self, key: str = "control.network") -> None:
+    def check(self, key: str = "control.network", duration: float = 10.0, controllers: tuple = ()) -> None:
+        """`duration`: control.duration (s); `controllers`: control.controllers."""
         _need(self.num_centers >= 1, f"{key}.num_centers", self.num_centers, "must be >= 1")
         _seed(f"{key}.seed", self.seed)
         self.aco.check(f"{key}.aco", self.num_centers if self.aco.colony == Colony.ant_system else 1)
+        _need(
+            self.aco.objective == Objective.fit,
+            f"{key}.aco.objective",
+            str(self.aco.objective),
+            f"the control network's objective is {key}.objective (closed_loop, fit or cluster); leave this at fit",
+        )
+        if self.objective != NetworkObjective.closed_loop:
+            _need(
+                "arbfn_cmaes" not in controllers,
+                "control.controllers",
+                "arbfn_cmaes",
+                f"CMA-ES searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective})",
+            )
+            return
+        if "arbfn_aco" in controllers:
+            _need(
+                self.aco.colony == Colony.acor,
+                f"{key}.aco.colony",
+                str(self.aco.colony),
+                f"the closed_loop objective searches continuous offsets with acor; or set {key}.objective=fit",
+            )
+        if any(f"arbfn_{m}" in controllers for m in CLOSED_LOOP_SEARCHES):
+            self.tune.check(f"{key}.tune", duration)
 
 
 @dataclass
@@ -748,7 +860,7 @@ class ControlConfig:
                 f"exceeds the pilot run's {n_train} training samples ({key}.duration={self.duration} s, "
                 f"one sample per {PILOT_STRIDE} periods, half of them for training)",
             )
-            n.check(f"{key}.network")
+            n.check(f"{key}.network", self.duration, tuple(self.controllers))
             # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
             n.aco.check_fits(
                 f"{key}.network.aco", n.num_centers, 2, "cpu", pool=min(n.aco.ant_system.candidates, n_train)

@@ -15,15 +15,26 @@ from typing import Any
 
 import torch
 
-from ..config import PILOT_STRIDE, ControlConfig, Dtype, GainsConfig, LoopConfig, RobotConfig
+from ..config import (
+    CLOSED_LOOP_SEARCHES,
+    PILOT_STRIDE,
+    ControlConfig,
+    Dtype,
+    GainsConfig,
+    LoopConfig,
+    NetworkObjective,
+    Objective,
+    RobotConfig,
+)
 from ..robots.scara import ScaraParams
 from .batch import Stacked
-from .controllers import make_controller
+from .controllers import Model, make_controller
 from .loop import RealLoop, real_loop
-from .network import control_network, desired_states, pilot_residuals
-from .robot_setup import ControlRobot, control_robot
+from .network import ControlNet, control_network, desired_states, pilot_residuals
+from .robot_setup import ControlRobot, GainFactors, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import Reference
+from .tuning import ClosedLoopCost, Tuned, TuneScenarios, tune_network, tuning_scenarios
 
 __all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name", "gap_closure"]
 
@@ -41,6 +52,7 @@ class ControlRun:
     rollout: Rollout
     sim_seconds: float  # the whole batch's (every controller's) simulation
     select_seconds: float | None = None  # the network's centre selection (arbfn_*)
+    tuned: Tuned | None = None  # the closed-loop tuning (arbfn_aco, _random, _cmaes; arbfn_kmeans: its cost)
 
 
 @dataclass
@@ -53,6 +65,7 @@ class ControlComparison:
     payloads: list[float] = field(default_factory=list)
     robot: ControlRobot | None = None
     joint_scale: list[float] | None = None  # the controllers' torque-gain factor per joint (None: 1)
+    tune_scenarios: TuneScenarios | None = None  # the closed-loop tuning's scenarios, where it ran
 
 
 def compare_controllers(
@@ -90,6 +103,30 @@ def compare_controllers(
     q0, qd0 = ref.q_d[:1].expand(b, n).clone(), ref.qd_d[:1].expand(b, n).clone()
     pilot = None
     controllers, select_seconds = [], {}
+    nets: dict[str, ControlNet] = {}
+    tuned: dict[str, Tuned] = {}
+    cost: ClosedLoopCost | None = None
+    objective = cfg.network.objective
+
+    def static(method: str) -> ControlNet:
+        """The network `method` selects from the pilot run (once per method)."""
+        assert pilot is not None
+        if method not in nets:
+            aco = cfg.network.aco
+            if objective != NetworkObjective.closed_loop:  # the colony's static objective
+                aco = replace(aco, objective=Objective(str(objective)))
+            nets[method] = control_network(
+                method,
+                pilot[0].double().cpu(),
+                pilot[1].double().cpu(),
+                m=cfg.network.num_centers,
+                seed=cfg.network.seed,
+                sample_dt=sc.dt * PILOT_STRIDE,
+                aco=aco,
+                warm_start=cfg.network.warm_start,
+            )
+        return nets[method]
+
     for name in cfg.controllers:
         features = w0 = None
         if name.startswith("arbfn_"):
@@ -105,16 +142,14 @@ def compare_controllers(
                     compile=cfg.compile,
                     aot=cfg.aot,
                 )
-            net = control_network(
-                name[len("arbfn_") :],
-                pilot[0].double().cpu(),
-                pilot[1].double().cpu(),
-                m=cfg.network.num_centers,
-                seed=cfg.network.seed,
-                sample_dt=sc.dt * PILOT_STRIDE,
-                aco=cfg.network.aco,
-                warm_start=cfg.network.warm_start,
-            )
+            method = name[len("arbfn_") :]
+            if objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
+                if cost is None:  # the tuning's scenarios, and smc's reference errors on them
+                    cost = _closed_loop_cost(cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
+                tuned[name] = tune_network(method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor)
+                net = tuned[name].net
+            else:
+                net = static(method)
             features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
         controllers.append(
             make_controller(
@@ -165,7 +200,12 @@ def compare_controllers(
             rollout=part,
             sim_seconds=seconds,
             select_seconds=select_seconds.get(name),
+            tuned=tuned.get(name),
         )
+    if cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
+        t0 = time.perf_counter()
+        twin_cost = float(cost(torch.zeros(1, cost.dimension, dtype=torch.float64))[0])
+        runs["arbfn_kmeans"].tuned = Tuned(nets["kmeans"], twin_cost, cost.s, time.perf_counter() - t0)
     if "smc" in runs and "smc_exact" in runs:
         for run in runs.values():
             for case, m in run.metrics.items():
@@ -177,6 +217,54 @@ def compare_controllers(
         payloads=list(setup.payloads),
         robot=setup,
         joint_scale=factors.listed,
+        tune_scenarios=None if cost is None else cost.scenarios,
+    )
+
+
+def _closed_loop_cost(
+    cfg: ControlConfig,
+    gains: GainsConfig,
+    setup: ControlRobot,
+    twin: ControlNet,
+    model: Model,
+    factors: GainFactors,
+    real: RealLoop | None,
+    loop: LoopConfig | None,
+    pilot: tuple[torch.Tensor, torch.Tensor],
+) -> ClosedLoopCost:
+    """The closed-loop tuning's cost for this comparison: its own scenarios (`tuning_scenarios`,
+    never the evaluation's payloads, disturbance frequency or noise seed) and episode, in the same
+    loop, at the same gains, factors and adaptation rate, from the twin's initial weights."""
+    tune, plant = cfg.network.tune, setup.plant
+    amplitude = list(plant.dist) if isinstance(plant.dist, (list, tuple)) else [float(plant.dist)] * setup.n
+    scenarios = tuning_scenarios(
+        tune,
+        rated_payload=setup.rated_payload,
+        disturbance=amplitude,
+        eval_payloads=list(setup.payloads),
+        eval_freq=cfg.disturbance_freq,
+        eval_noise_seed=loop.noise_seed if loop is not None else 0,
+    )
+    sc = Scenario(tune.duration, cfg.dt, cfg.integrator, tune.payload_on, tune.payload_off)
+    sc.validate()
+    like = pilot[0]
+    ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(dtype=like.dtype, device=like.device)
+    x, y = pilot[0].double().cpu(), pilot[1].double().cpu()
+    return ClosedLoopCost(
+        plant=plant,
+        model=model,
+        gains=gains,
+        twin=twin,
+        scenarios=scenarios,
+        scenario=sc,
+        ref=ref,
+        tune=tune,
+        observer=cfg.network.observer,
+        joint_scale=factors.scale,
+        rates=factors.rates,
+        loop=real,
+        pilot=((x - twin.offset) / twin.scale, y) if cfg.network.warm_start else None,
+        compile=cfg.compile,
     )
 
 

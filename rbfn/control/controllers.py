@@ -162,7 +162,9 @@ class SlidingMode(Controller):
     """`smc`, with optional momentum observer and adaptive RBF network (see the module docstring).
 
     features: (T, M) Gaussian activations of the desired state at every step (precomputed, the
-    inputs being the desired trajectory); w0: (M, n) initial weights (zeros: learn from scratch).
+    inputs being the desired trajectory), or per environment (T, B, M) (a network of its own in
+    each, as a colony's candidates); w0: (M, n) initial weights (zeros: learn from scratch), or
+    per environment (B, M, n).
     State: a SlidingState. Several of them run as one batch through `rbfn.control.batch`.
     """
 
@@ -186,7 +188,7 @@ class SlidingMode(Controller):
         p0 = self.model.at(q0, qd0).m_times(qd0)
         if self.features is None:
             return SlidingState(z, z.clone(), p0, None, z.clone(), z.clone())
-        m, n = self.features.shape[1], q0.shape[1]
+        m, n = self.features.shape[-1], q0.shape[1]
         w0 = z.new_zeros(m, n) if self.w0 is None else self.w0.to(z)
         return SlidingState(z, z.clone(), p0, w0.expand(q0.shape[0], m, n).clone(), z.clone(), z.clone())
 

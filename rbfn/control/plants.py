@@ -3,8 +3,8 @@ B environments at once, stepped by RK4 or semi-implicit Euler.
 
 M(q, m_p) qdd + C(q, qd, m_p) qd + G(q, m_p) + F(qd) + tau_d(t) = tau, with per joint j
 F_j = viscous_j qd_j + coulomb_j sign(qd_j) (or tanh(qd_j / smooth_velocity)) and
-tau_d,j = disturbance_j sin(frequency t); m_p the payload (kg, per environment), held within a
-step like the torque (zero-order hold).
+tau_d,j = disturbance_j sin(frequency t) (each environment its own with `Plant.varied`); m_p the
+payload (kg, per environment), held within a step like the torque (zero-order hold).
 
 * `ScaraPlant`: the paper's SCARA in closed form (M block diagonal: its inverse a 2x2 one and a
   scalar; a step is a few dozen fused tensor operations), the plant `rbfn.robots.registry`
@@ -20,6 +20,7 @@ Both give `coefficients(payload)` (what a step needs of the payload schedule, ea
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, cast
 
@@ -96,11 +97,23 @@ class Plant:
 
     def disturbance(self, t: torch.Tensor) -> torch.Tensor:
         """Disturbance torque tau_d(t): the shape of t for a single amplitude (every joint feels
-        it), else (..., n); N m (N)."""
+        it), else (..., n); per environment (`varied`) (..., B, n); N m (N)."""
+        if isinstance(self.dist, torch.Tensor):  # per environment: amplitude (B, n), frequency and phase (B,)
+            s = torch.sin(self.dist_freq.to(t) * t[..., None] + self.dist_phase.to(t))
+            return self.dist.to(t) * s[..., None]
         s = torch.sin(self.dist_freq * t)
         if isinstance(self.dist, (int, float)):
             return self.dist * s
         return self._per_joint(self.dist, t) * s.unsqueeze(-1)
+
+    def varied(self, amplitude: torch.Tensor, freq: torch.Tensor, phase: torch.Tensor) -> Plant:
+        """This plant with a disturbance of its own in each of B environments,
+        tau_d,bj(t) = amplitude[b, j] sin(freq[b] t + phase[b]): amplitude (B, n) N m (N), freq (B,)
+        rad/s, phase (B,) rad (the closed-loop tuning's scenarios). A shallow copy: the dynamics
+        are shared."""
+        plant = copy.copy(self)
+        plant.dist, plant.dist_freq, plant.dist_phase = amplitude, freq, phase
+        return plant
 
     if TYPE_CHECKING:
 

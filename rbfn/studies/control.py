@@ -15,7 +15,7 @@ from .beside import Beside, can_fork
 from .plots import robot_label, tracking_figure
 from .rundir import write_figure
 
-__all__ = ["check_control", "evaluate_control", "control_table"]
+__all__ = ["check_control", "evaluate_control", "control_table", "held_out"]
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,22 @@ def evaluate_control(
         "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
         "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()},
     }
+    tuned = {n: r.tuned for n, r in res.runs.items() if r.tuned is not None}
+    if tuned:  # the closed-loop tuning: the cost each network reached on the tuning's scenarios
+        info["tuning"] = {
+            n: {
+                "cost": t.cost,
+                "held_out": held_out(metrics, n),
+                "episodes": t.episodes,
+                "seconds": t.seconds,
+                "curve": t.curve,
+            }
+            for n, t in tuned.items()
+        }
+        info["tuning_scenarios"] = res.tune_scenarios.listed() if res.tune_scenarios is not None else None
+        for n, t in tuned.items():
+            for it, v in enumerate(t.curve):
+                writer.add_scalar(f"control/tuning/{n}/cost", v, it + 1)
     for name, cases in metrics.items():
         for case, m in cases.items():
             for key, vals in m.items():
@@ -72,6 +88,18 @@ def evaluate_control(
         other.result()
     log.info("%s", control_table(metrics, setup.units))
     return {"control": metrics, "control_info": info}
+
+
+def held_out(metrics: dict, name: str) -> float | None:
+    """The evaluation's counterpart of the tuning cost: the mean over the payload cases of
+    sum_j rms_j / rms_j(smc) of controller `name` (None without smc)."""
+    if "smc" not in metrics:
+        return None
+    ratios = [
+        sum(r / max(s, 1e-12) for r, s in zip(m["rms_err"], metrics["smc"][case]["rms_err"]))
+        for case, m in metrics[name].items()
+    ]
+    return sum(ratios) / len(ratios)
 
 
 def _figures(

@@ -7,7 +7,16 @@ import pytest
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
-from rbfn.config import ACOConfig, ACORConfig, ControlConfig, GainsConfig, NetworkConfig, Objective
+from rbfn.config import (
+    ACOConfig,
+    ACORConfig,
+    ControlConfig,
+    GainsConfig,
+    NetworkConfig,
+    NetworkObjective,
+    Objective,
+    TuneConfig,
+)
 from rbfn.control import SimulationDiverged
 from rbfn.control.comparison import compare_controllers
 from rbfn.studies.control import evaluate_control
@@ -18,7 +27,8 @@ KEYS = {"rms_err", "max_err", "max_err_payload", "peak_tau", "chattering", "limi
 
 
 def _short(**kw):
-    net = NetworkConfig(num_centers=8, aco=ACOConfig(iterations=5, ants=6, acor=ACORConfig(archive_size=6)))
+    tune = TuneConfig(scenarios=2, duration=0.8, payload_on=0.2, payload_off=0.6, population=4, iterations=2)
+    net = NetworkConfig(num_centers=8, aco=ACOConfig(iterations=5, ants=6, acor=ACORConfig(archive_size=6)), tune=tune)
     base = dict(
         duration=1.2,
         payload_on=0.3,
@@ -67,7 +77,9 @@ def test_a_diverging_controller_is_named_with_its_case():
 def test_cluster_controller_does_not_change_the_shared_aco_config():
     aco = ACOConfig(iterations=3, ants=4, acor=ACORConfig(archive_size=4))
     cfg = _short(
-        controllers=["arbfn_aco_cluster", "arbfn_aco"], payloads=[0.0], network=NetworkConfig(num_centers=6, aco=aco)
+        controllers=["arbfn_aco_cluster", "arbfn_aco"],
+        payloads=[0.0],
+        network=NetworkConfig(num_centers=6, aco=aco, objective=NetworkObjective.fit),
     )
     compare_controllers(cfg, GainsConfig())
     assert cfg.network.aco.objective == Objective.fit and aco.objective == Objective.fit

@@ -1,0 +1,360 @@
+"""Tuning the adaptive controller's network on the closed loop itself
+(`control.network.objective=closed_loop`).
+
+A candidate is the k-means twin's network (`rbfn.control.network`, centres and widths fitted to the
+pilot run) moved: with the twin's centres c_i and widths w_i (standardised desired-state units),
+
+    centre i = c_i + w_i u_i,   width i = w_i exp(v_i),   |u_ij| <= max_offset, |v_i| <= log(max_width_factor),
+
+x = (u, v) flattened (M (2n + 1),); x = 0 is the twin itself. Its cost is what the controller is
+judged by: every candidate runs the adaptive law from the twin's initial weights on every tuning
+scenario, all of them as one batched simulation (B = candidates x scenarios, each environment with
+its own network: features (T, B, M)), and
+
+    cost = mean over scenarios of [ sum_j rms_j / rms_j(smc) + saturation_penalty sum_j sat_j ],
+
+rms_j a joint's tracking RMS (t > 0.5 s), rms_j(smc) the plain sliding-mode controller's in the
+same scenario (run once), sat_j the share of control periods its torque was at its limit (the
+realistic loop; 0 in the ideal one). The scenarios are drawn from `control.network.tune`'s ranges
+and never equal the evaluation's cases (`tuning_scenarios`).
+
+Three searches spend the same budget, `iterations` batches of `population` candidates
+(`tune_network`): ACO_R (`aco`), random search around the twin (`random`) and CMA-ES (`cmaes`);
+each starts at the twin and keeps the best candidate it evaluated.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import torch
+
+from aco import ACOR
+
+from ..config import ACORConfig, TuneConfig
+from ..fit import design_matrix, ridge_fit
+from ..layer import gaussian_features
+from .controllers import Gains, JointRates, Model, make_controller
+from .loop import RealLoop
+from .network import ControlNet, desired_states
+from .simulator import Plant, Scenario, SimulationDiverged, control_metrics, simulate
+from .trajectory import Reference
+
+__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "SEARCHES"]
+
+SEARCHES = ("aco", "random", "cmaes")
+MAX_DRAWS = 1000  # redraws of a scenario value that falls on an evaluation case before giving up
+
+
+@dataclass
+class TuneScenarios:
+    """The tuning's S scenarios: payloads (S,) kg, disturbance amplitudes (S, n) N m (N),
+    frequencies (S,) rad/s and phases (S,) rad, and the sensor-noise seed (each scenario its own
+    stream of it)."""
+
+    payloads: torch.Tensor
+    amplitude: torch.Tensor
+    freq: torch.Tensor
+    phase: torch.Tensor
+    noise_seed: int
+
+    def listed(self) -> dict[str, Any]:
+        """As plain lists, for metrics.json."""
+        return {
+            "payloads": self.payloads.tolist(),
+            "disturbance": self.amplitude.tolist(),
+            "disturbance_freq": self.freq.tolist(),
+            "disturbance_phase": self.phase.tolist(),
+            "noise_seed": self.noise_seed,
+        }
+
+
+def tuning_scenarios(
+    tune: TuneConfig,
+    *,
+    rated_payload: float,
+    disturbance: list[float],
+    eval_payloads: list[float],
+    eval_freq: float,
+    eval_noise_seed: int,
+) -> TuneScenarios:
+    """Draw `tune.scenarios` scenarios (seeded by tune.seed) from tune's ranges: payloads as
+    fractions of `rated_payload` kg, amplitudes as factors of the evaluation's `disturbance` (n,)
+    N m (N), frequencies, phases. A payload within 1 % of the range's width (0.01 kg at least) of an
+    evaluation payload, a frequency as near `eval_freq` and an amplitude factor as near 1 are drawn
+    again, and the noise seed is never `eval_noise_seed`: the evaluation's cases are never tuned on.
+    ValueError names the key whose range leaves nothing else to draw."""
+    g = torch.Generator().manual_seed(tune.seed)
+
+    def draw(key: str, low: float, high: float, avoid: list[float], tol: float) -> float:
+        for _ in range(MAX_DRAWS):
+            v = low + (high - low) * float(torch.rand((), generator=g, dtype=torch.float64))
+            if all(abs(v - a) > tol for a in avoid):
+                return v
+        raise ValueError(
+            f"control.network.tune.{key}=[{low:g}, {high:g}] leaves nothing to draw but the evaluation's own "
+            f"values {avoid}: widen the range"
+        )
+
+    p_lo, p_hi = (f * rated_payload for f in tune.payload)
+    p_tol = max(0.01 * (p_hi - p_lo), 0.01)
+    f_lo, f_hi = tune.disturbance_freq
+    d_lo, d_hi = tune.disturbance
+    a_lo, a_hi = tune.disturbance_phase
+    payloads, factors, freqs, phases = [], [], [], []
+    for _ in range(tune.scenarios):
+        payloads.append(draw("payload", p_lo, p_hi, list(eval_payloads), p_tol))
+        factors.append(draw("disturbance", d_lo, d_hi, [1.0], max(0.01 * (d_hi - d_lo), 1e-3)))
+        freqs.append(draw("disturbance_freq", f_lo, f_hi, [eval_freq], max(0.01 * (f_hi - f_lo), 1e-3)))
+        phases.append(draw("disturbance_phase", a_lo, a_hi, [], 0.0))
+    seed = eval_noise_seed
+    while seed == eval_noise_seed:
+        seed = int(torch.randint(0, 2**31 - 1, (), generator=g))
+    amp = torch.tensor(factors, dtype=torch.float64)[:, None] * torch.tensor(disturbance, dtype=torch.float64)
+    return TuneScenarios(
+        torch.tensor(payloads, dtype=torch.float64),
+        amp,
+        torch.tensor(freqs, dtype=torch.float64),
+        torch.tensor(phases, dtype=torch.float64),
+        seed,
+    )
+
+
+class ClosedLoopCost:
+    """The closed-loop cost of candidate networks (see the module docstring): `__call__(x)` with x
+    (K, M (2n + 1)) returns (K,) costs, inf where a candidate's run diverged. Built once per
+    comparison; it runs `smc` on the scenarios once for the reference RMS.
+
+    plant, model, gains, joint_scale (n,), rates, observer: the comparison's; twin: the k-means
+    twin (its standardisation, centres, widths); scenario: the tuning episode (its duration and
+    payload window); ref: its desired trajectory (T, n) at the integration step; loop: the
+    realistic loop (None: ideal); pilot: (z, y) the pilot run's standardised inputs and residual
+    torque, for warm-started weights (None: the twin's zeros)."""
+
+    def __init__(
+        self,
+        *,
+        plant: Plant,
+        model: Model,
+        gains: Gains,
+        twin: ControlNet,
+        scenarios: TuneScenarios,
+        scenario: Scenario,
+        ref: Reference,
+        tune: TuneConfig,
+        observer: bool = True,
+        joint_scale: torch.Tensor | None = None,
+        rates: JointRates | None = None,
+        loop: RealLoop | None = None,
+        pilot: tuple[torch.Tensor, torch.Tensor] | None = None,
+        compile: bool = False,
+    ) -> None:
+        self.model, self.gains, self.twin, self.tune = model, gains, twin, tune
+        self.observer, self.scale, self.rates, self.pilot, self.compile = observer, joint_scale, rates, pilot, compile
+        self.scenarios, self.scenario, self.ref = scenarios, scenario, ref
+        s = scenarios.payloads.shape[0]
+        self.s, self.n = s, ref.q_d.shape[1]
+        self.loop = None if loop is None else replace(loop, noise_envs=s, seed=scenarios.noise_seed)
+        self.period = scenario.dt if self.loop is None else self.loop.period
+        self.plant = plant
+        m, d = twin.centers.shape
+        self.m, self.d = m, d
+        limit_u, limit_v = tune.max_offset, math.log(tune.max_width_factor)
+        self.upper = torch.cat([torch.full((m * d,), limit_u), torch.full((m,), limit_v)]).double()
+        self.lower = -self.upper
+        self.z = (desired_states(ref).double().cpu() - twin.offset) / twin.scale  # (T, d)
+        kw: dict[str, Any] = {"dtype": ref.q_d.dtype, "device": ref.q_d.device}
+        self.kw = kw
+        t0 = time.perf_counter()
+        smc = make_controller("smc", gains, self.period, model, joint_scale=joint_scale, rates=rates)
+        rms, _ = self._run(smc, 1)
+        self.smc_rms = rms[0].clamp_min(1e-12)  # (S, n)
+        self.smc_seconds = time.perf_counter() - t0
+
+    @property
+    def dimension(self) -> int:
+        return self.m * (self.d + 1)
+
+    def networks(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Centres (K, M, d) and widths (K, M), standardised units, of candidates x (K, D)."""
+        k = x.shape[0]
+        x = x.double().cpu()
+        u = x[:, : self.m * self.d].reshape(k, self.m, self.d)
+        v = x[:, self.m * self.d :]
+        w = self.twin.widths.double()
+        return self.twin.centers.double() + w[None, :, None] * u, w * v.exp()
+
+    def net(self, x: torch.Tensor, seconds: float) -> ControlNet:
+        """Candidate x (D,) as a ControlNet (its weights initialised as the twin's)."""
+        centers, widths = self.networks(x[None])
+        return ControlNet(
+            self.twin.offset, self.twin.scale, centers[0], widths[0], self._w0(centers, widths)[0], seconds
+        )
+
+    def _w0(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+        """Initial weights (K, M, n): zeros, or (warm start) each candidate's ridge fit of the pilot."""
+        k = centers.shape[0]
+        if self.pilot is None:
+            return torch.zeros(k, self.m, self.n, dtype=torch.float64)
+        z, y = self.pilot
+        fits = []
+        for c, w in zip(centers, widths):
+            a_tr = design_matrix(z[0::2], c, w, tail=False)
+            a_val = design_matrix(z[1::2], c, w, tail=False)
+            fits.append(ridge_fit(a_tr, y[0::2], a_val, y[1::2]).weights)
+        return torch.stack(fits)
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        """Costs (K,) of candidates x (K, D); inf for a candidate whose run diverged."""
+        centers, widths = self.networks(x)
+        w0 = self._w0(centers, widths)
+        k = x.shape[0]
+        cost = torch.full((k,), math.inf, dtype=torch.float64)
+        alive = list(range(k))
+        while alive:
+            idx = torch.tensor(alive)
+            feats = gaussian_features(self.z, centers[idx], widths[idx])  # (K', T, M)
+            feats = feats.transpose(0, 1).repeat_interleave(self.s, 1)  # (T, K' S, M)
+            ctrl = make_controller(
+                "arbfn_tune",
+                self.gains,
+                self.period,
+                self.model,
+                features=feats.to(**self.kw),
+                w0=w0[idx].repeat_interleave(self.s, 0).to(**self.kw),
+                observer=self.observer,
+                joint_scale=self.scale,
+                rates=self.rates,
+            )
+            try:
+                rms, sat = self._run(ctrl, len(alive))
+            except SimulationDiverged as e:
+                alive.pop(e.environment // self.s)  # that candidate's cost stays inf; run the others again
+                continue
+            ratio = (rms / self.smc_rms).sum(-1) + self.tune.saturation_penalty * sat.sum(-1)  # (K', S)
+            cost[idx] = ratio.mean(-1)
+            break
+        return cost
+
+    def _run(self, ctrl, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """RMS error (k, S, n) and share of periods at the torque limit (k, S, n) of `ctrl` driving
+        k blocks of the S scenarios."""
+        sc, s = self.scenarios, self.s
+        b = k * s
+        plant = self.plant.varied(
+            sc.amplitude.repeat(k, 1).to(**self.kw), sc.freq.repeat(k).to(**self.kw), sc.phase.repeat(k).to(**self.kw)
+        )
+        q0 = self.ref.q_d[:1].expand(b, self.n).clone()
+        qd0 = self.ref.qd_d[:1].expand(b, self.n).clone()
+        roll = simulate(
+            plant,
+            ctrl,
+            self.scenario,
+            self.ref,
+            q0=q0,
+            qd0=qd0,
+            payload=sc.payloads.repeat(k).to(**self.kw),
+            compile=self.compile,
+            loop=self.loop,
+        )
+        q_des = self.ref.q_d if self.loop is None else self.ref.q_d[:: self.loop.substeps][: roll.t.shape[0]]
+        per_env = control_metrics(roll, q_des, self.scenario)
+        rms = torch.tensor([m["rms_err"] for m in per_env], dtype=torch.float64).reshape(k, s, self.n)
+        sat = torch.zeros_like(rms) if roll.saturated is None else roll.saturated.double().cpu().reshape(k, s, self.n)
+        return rms, sat
+
+
+@dataclass
+class Tuned:
+    """A search's result: the best network, its cost, the closed-loop episodes it ran, the time
+    it took (s), and the best-so-far cost after each iteration."""
+
+    net: ControlNet
+    cost: float
+    episodes: int
+    seconds: float
+    curve: list[float] = field(default_factory=list)
+
+
+class _Tally:
+    """Counts a search's episodes and keeps its best candidate and best-so-far curve."""
+
+    def __init__(self, cost: ClosedLoopCost) -> None:
+        self.cost, self.episodes, self.curve = cost, 0, []
+        self.best_x: torch.Tensor | None = None
+        self.best = math.inf
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        values = self.cost(x)
+        self.episodes += x.shape[0] * self.cost.s
+        i = int(values.argmin())
+        if self.best_x is None or float(values[i]) < self.best:
+            self.best, self.best_x = float(values[i]), x[i].clone()
+        self.curve.append(self.best)
+        return values
+
+
+def tune_network(
+    search: str,
+    cost: ClosedLoopCost,
+    tune: TuneConfig,
+    seed: int,
+    acor: ACORConfig | None = None,
+) -> Tuned:
+    """The best network `search` (one of SEARCHES) finds in tune.iterations batches of
+    tune.population candidates, starting at the twin (x = 0): `aco`, ACO_R (its archive
+    min(acor.archive_size, population), q and xi from `acor`) whose first ants are the twin and
+    population - 1 draws N(0, spread^2) around it; `random`, the same first batch, then batch after
+    batch of such draws; `cmaes`, CMA-ES from mean 0 with step size `spread`. Every candidate is
+    clipped to the same box (cost.lower, cost.upper)."""
+    if search not in SEARCHES:
+        raise ValueError(f"unknown closed-loop search {search!r}; choose one of {list(SEARCHES)}")
+    g = torch.Generator().manual_seed(seed)
+    tally = _Tally(cost)
+    lo, hi, dim, pop = cost.lower, cost.upper, cost.dimension, tune.population
+    t0 = time.perf_counter()
+
+    def around_twin(first: bool) -> torch.Tensor:
+        x = tune.spread * torch.randn(pop, dim, generator=g, dtype=torch.float64)
+        if first:
+            x[0] = 0.0  # the twin itself
+        return torch.maximum(torch.minimum(x, hi), lo)
+
+    if search == "aco":
+        acor = acor or ACORConfig()
+        colony = ACOR(
+            archive_size=min(acor.archive_size, pop),
+            ants=pop,
+            q=acor.q,
+            xi=acor.xi,
+            iterations=tune.iterations - 1,
+            lower=lo,
+            upper=hi,
+        )
+        colony.minimize(tally, around_twin(True), generator=g)
+    elif search == "random":
+        for it in range(tune.iterations):
+            tally(around_twin(it == 0))
+    else:
+        import numpy as np
+        from cmaes import CMA
+
+        opt = CMA(
+            mean=np.zeros(dim),
+            sigma=tune.spread,
+            bounds=np.stack([lo.numpy(), hi.numpy()], 1),
+            seed=seed,
+            population_size=pop,
+        )
+        for _ in range(tune.iterations):
+            xs = [opt.ask() for _ in range(pop)]
+            values = tally(torch.tensor(np.stack(xs), dtype=torch.float64))
+            finite = values[torch.isfinite(values)]
+            worst = float(finite.max()) * 10 if finite.numel() else 1e6  # CMA-ES ranks: a diverged run is worst
+            opt.tell([(x, float(v) if math.isfinite(float(v)) else worst) for x, v in zip(xs, values)])
+    seconds = time.perf_counter() - t0
+    assert tally.best_x is not None
+    return Tuned(cost.net(tally.best_x, seconds), tally.best, tally.episodes, seconds, tally.curve)

@@ -1,0 +1,239 @@
+"""The closed-loop tuning of the adaptive network: one batch is the candidates' separate runs, its
+scenarios are never the evaluation's, every search spends the same budget, bad keys are refused."""
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+
+from rbfn.config import (
+    ACOConfig,
+    Colony,
+    ControlConfig,
+    GainsConfig,
+    LoopConfig,
+    NetworkConfig,
+    NetworkObjective,
+    Objective,
+    RobotConfig,
+    TuneConfig,
+)
+from rbfn.control.comparison import compare_controllers
+from rbfn.control.loop import real_loop
+from rbfn.control.network import control_network, pilot_residuals
+from rbfn.control.robot_setup import control_robot
+from rbfn.control.simulator import ScaraPlant, Scenario, stage_disturbances
+from rbfn.control.trajectory import Reference
+from rbfn.control.tuning import ClosedLoopCost, tune_network, tuning_scenarios
+
+from ..conftest import compose_config
+
+TUNE = TuneConfig(scenarios=2, duration=0.8, payload_on=0.2, payload_off=0.6, population=4, iterations=2)
+SEARCHES = ["arbfn_aco", "arbfn_random", "arbfn_cmaes"]
+# The realistic loop of the SCARA (500 Hz, encoders, one period of delay, noise, torque limits).
+REAL = LoopConfig(
+    name="realistic",
+    control_rate=500.0,
+    actuation_delay=1,
+    encoder_counts=[10485760.0, 10485760.0, 11377800.0],
+    position_noise=1e-5,
+    velocity_cutoff=50.0,
+    torque_limits=True,
+)
+
+
+def _control(**kw) -> ControlConfig:
+    base = dict(
+        duration=1.2,
+        payload_on=0.3,
+        payload_off=0.9,
+        payloads=[0.0, 10.0],
+        network=NetworkConfig(num_centers=6, tune=TUNE),
+        controllers=["smc", "arbfn_kmeans", *SEARCHES],
+    )
+    base.update(kw)
+    return ControlConfig(**base)
+
+
+def _cost(tune: TuneConfig = TUNE, loop: LoopConfig | None = REAL) -> ClosedLoopCost:
+    """The SCARA's closed-loop cost for a 6-centre network, as compare_controllers builds it."""
+    cfg = _control()
+    setup = control_robot(RobotConfig(), cfg)
+    sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
+    ref = Reference(*setup.trajectory(sc.times(torch.float64)))
+    gains, model = GainsConfig(), setup.model
+    real = None if loop is None else real_loop(loop, sc.dt, setup.prismatic, torch.tensor(setup.effort))
+    x, y = pilot_residuals(setup.plant, sc, ref, gains, model)
+    twin = control_network("kmeans", x, y, m=6, seed=0, sample_dt=sc.dt * 10)
+    scenarios = tuning_scenarios(
+        tune,
+        rated_payload=setup.rated_payload,
+        disturbance=[5.0] * 3,
+        eval_payloads=setup.payloads,
+        eval_freq=cfg.disturbance_freq,
+        eval_noise_seed=0,
+    )
+    tsc = Scenario(tune.duration, cfg.dt, cfg.integrator, tune.payload_on, tune.payload_off)
+    return ClosedLoopCost(
+        plant=setup.plant,
+        model=model,
+        gains=gains,
+        twin=twin,
+        scenarios=scenarios,
+        scenario=tsc,
+        ref=Reference(*setup.trajectory(tsc.times(torch.float64))),
+        tune=tune,
+        loop=real,
+    )
+
+
+@pytest.mark.parametrize("loop", [REAL, None], ids=["realistic", "ideal"])
+def test_one_batch_equals_the_candidates_separate_runs(loop):
+    cost = _cost(loop=loop)
+    g = torch.Generator().manual_seed(0)
+    x = 0.3 * torch.randn(3, cost.dimension, generator=g, dtype=torch.float64)
+    together = cost(x)
+    apart = torch.cat([cost(x[i : i + 1]) for i in range(3)])
+    assert torch.equal(together, apart)  # each environment's network, alone or in a batch, to the bit
+    assert torch.isfinite(together).all() and len(set(together.tolist())) == 3  # different networks, costs
+
+
+def test_the_twin_is_the_origin_and_smc_costs_one_per_joint():
+    cost = _cost()
+    centers, widths = cost.networks(torch.zeros(1, cost.dimension, dtype=torch.float64))
+    assert torch.equal(centers[0], cost.twin.centers) and torch.equal(widths[0], cost.twin.widths)
+    assert cost.smc_rms.shape == (TUNE.scenarios, 3) and (cost.smc_rms > 0).all()
+
+
+def test_a_varied_plant_feels_its_own_disturbance_in_each_environment():
+    plant = ScaraPlant(disturbance=5.0, disturbance_freq=2.0)
+    amp = torch.tensor([[5.0, 5.0, 5.0], [1.0, 2.0, 3.0]], dtype=torch.float64)
+    varied = plant.varied(amp, torch.tensor([2.0, 3.0]), torch.tensor([0.0, 0.5]))
+    d = stage_disturbances(varied, 10, 1e-3, dtype=torch.float64)  # (10, 3, B, n)
+    assert d.shape == (10, 3, 2, 3)
+    torch.testing.assert_close(d[:, :, 0, 0], stage_disturbances(plant, 10, 1e-3, dtype=torch.float64))
+    t = torch.arange(21, dtype=torch.float64) * 0.5e-3
+    torch.testing.assert_close(d[:, 0, 1, 2], 3.0 * torch.sin(3.0 * t[0:-1:2] + 0.5))
+    assert plant.dist == 5.0  # the original is untouched
+
+
+def test_tuning_scenarios_are_never_the_evaluations():
+    """Ranges that hold the evaluation's payloads, frequency and amplitude: none is drawn."""
+    tune = TuneConfig(scenarios=300, payload=[0.0, 1.0], disturbance=[0.5, 1.5], disturbance_freq=[1.0, 4.0])
+    eval_payloads = [0.0, 10.0, 20.0]
+    sc = tuning_scenarios(
+        tune, rated_payload=20.0, disturbance=[5.0] * 3, eval_payloads=eval_payloads, eval_freq=2.0, eval_noise_seed=0
+    )
+    assert sc.payloads.shape == (300,) and sc.amplitude.shape == (300, 3)
+    for p in eval_payloads:
+        assert (sc.payloads - p).abs().min() > 0.19  # 1 % of the 20 kg range
+    assert (sc.freq - 2.0).abs().min() > 0.029 and (sc.amplitude[:, 0] / 5.0 - 1.0).abs().min() > 0.0099
+    assert sc.noise_seed != 0
+    assert 0.0 <= float(sc.phase.min()) and float(sc.phase.max()) <= 2 * math.pi
+    again = tuning_scenarios(
+        tune, rated_payload=20.0, disturbance=[5.0] * 3, eval_payloads=eval_payloads, eval_freq=2.0, eval_noise_seed=0
+    )
+    assert torch.equal(sc.payloads, again.payloads) and sc.noise_seed == again.noise_seed  # seeded
+
+
+def test_the_evaluations_noise_seed_is_never_drawn():
+    seeds = set()
+    for s in range(20):
+        tune = TuneConfig(scenarios=1, seed=s)
+        seeds.add(
+            tuning_scenarios(
+                tune, rated_payload=1.0, disturbance=[1.0], eval_payloads=[], eval_freq=2.0, eval_noise_seed=s
+            ).noise_seed
+            - s
+        )
+    assert 0 not in seeds
+
+
+def test_a_range_holding_only_an_evaluation_case_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"control.network.tune.payload=\[10, 10\].*evaluation's own"):
+        tuning_scenarios(
+            TuneConfig(payload=[0.5, 0.5]),
+            rated_payload=20.0,
+            disturbance=[5.0],
+            eval_payloads=[10.0],
+            eval_freq=2.0,
+            eval_noise_seed=0,
+        )
+
+
+def test_every_search_spends_the_same_budget_and_keeps_its_best():
+    res = compare_controllers(_control(), GainsConfig())
+    budget = TUNE.population * TUNE.iterations * TUNE.scenarios
+    twin = res.runs["arbfn_kmeans"].tuned
+    assert twin is not None and twin.episodes == TUNE.scenarios
+    for name in SEARCHES:
+        tuned = res.runs[name].tuned
+        assert tuned is not None and tuned.episodes == budget, name
+        assert len(tuned.curve) == TUNE.iterations and tuned.cost == tuned.curve[-1]
+        assert all(b <= a for a, b in zip(tuned.curve, tuned.curve[1:]))  # best so far
+        if name != "arbfn_cmaes":  # their first candidate is the twin
+            assert tuned.cost <= twin.cost
+    assert res.tune_scenarios is not None and not set(res.tune_scenarios.payloads.tolist()) & {0.0, 10.0}
+
+
+def test_a_searchs_network_is_what_it_reports():
+    """The tuned network re-evaluated alone costs what the search recorded."""
+    cost = _cost(loop=None)
+    tuned = tune_network("random", cost, TUNE, seed=0)
+    x = torch.cat([((tuned.net.centers - cost.twin.centers) / cost.twin.widths[:, None]).flatten()])
+    x = torch.cat([x, (tuned.net.widths / cost.twin.widths).log()])
+    torch.testing.assert_close(float(cost(x[None])[0]), tuned.cost, rtol=1e-9, atol=0.0)
+
+
+def test_the_static_objectives_stay():
+    """objective=fit: arbfn_aco is the pilot-fit colony, exactly as control_network selects it."""
+    aco = ACOConfig(iterations=2, ants=4)
+    cfg = _control(
+        controllers=["arbfn_aco"], network=NetworkConfig(num_centers=6, aco=aco, objective=NetworkObjective.fit)
+    )
+    res = compare_controllers(cfg, GainsConfig())
+    assert res.runs["arbfn_aco"].tuned is None and res.tune_scenarios is None
+
+
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        ({"duration": 1.2}, r"control.network.tune.duration=1.2 .*shorter than control.duration"),
+        ({"payload_off": 1.5}, r"control.network.tune.payload_on/payload_off"),
+        ({"population": 1}, r"control.network.tune.population=1 .*>= 2"),
+        ({"payload": [1.0, 0.0]}, r"control.network.tune.payload=\[1.0, 0.0\] .*low <= high"),
+        ({"disturbance_freq": [-1.0, 2.0]}, r"control.network.tune.disturbance_freq=.*low >= 0"),
+        ({"iterations": 0}, r"control.network.tune.iterations=0"),
+        ({"scenarios": 0}, r"control.network.tune.scenarios=0"),
+    ],
+)
+def test_bad_tuning_settings_are_refused_by_name(change, match):
+    tune = replace(TuneConfig(duration=1.0, payload_on=0.2, payload_off=0.9), **change)
+    with pytest.raises(ValueError, match=match):
+        _control(network=NetworkConfig(num_centers=6, tune=tune)).check()
+
+
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        ({"objective": NetworkObjective.fit}, r"control.controllers='arbfn_cmaes'.*objective=closed_loop"),
+        ({"aco": ACOConfig(colony=Colony.ant_system)}, r"control.network.aco.colony='ant_system'.*acor"),
+        ({"aco": ACOConfig(objective=Objective.cluster)}, r"control.network.aco.objective='cluster'.*objective"),
+    ],
+)
+def test_settings_the_closed_loop_search_cannot_take_are_refused_by_name(change, match):
+    with pytest.raises(ValueError, match=match):
+        _control(network=NetworkConfig(num_centers=6, tune=TUNE, **change)).check()
+
+
+def test_bad_keys_fail_at_composition_naming_the_options():
+    with pytest.raises(Exception) as e:
+        compose_config("evaluate", "control.network.objective=magic")
+    message = f"{e.value} {e.value.__cause__}"  # Hydra shows both on the command line
+    assert "objective=magic" in message and "expected one of [closed_loop, fit, cluster]" in message
+    with pytest.raises(Exception) as e:
+        compose_config("evaluate", "control.network.tune.episodes=3")
+    assert "tune.episodes" in f"{e.value} {e.value.__cause__}"
+    cfg = compose_config("evaluate")
+    assert cfg.control.network.objective == NetworkObjective.closed_loop
