@@ -236,7 +236,7 @@ def _closed_loop_cost(
     never the evaluation's payloads, disturbance frequency or noise seed) and episode, in the same
     loop, at the same gains, factors and adaptation rate, from the twin's initial weights."""
     tune, plant = cfg.network.tune, setup.plant
-    amplitude = list(plant.dist) if isinstance(plant.dist, (list, tuple)) else [float(plant.dist)] * setup.n
+    amplitude = [float(plant.dist)] * setup.n if isinstance(plant.dist, (int, float)) else list(plant.dist)
     scenarios = tuning_scenarios(
         tune,
         rated_payload=setup.rated_payload,

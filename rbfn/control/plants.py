@@ -46,6 +46,8 @@ class Plant:
 
     n: int
     compile_chunk = 25  # control periods per torch.compile'd call (simulate(compile=True))
+    # Each environment's own disturbance (`varied`): amplitude (B, n), frequency and phase (B,); None: dist's.
+    per_environment: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
 
     def __init__(
         self,
@@ -98,9 +100,9 @@ class Plant:
     def disturbance(self, t: torch.Tensor) -> torch.Tensor:
         """Disturbance torque tau_d(t): the shape of t for a single amplitude (every joint feels
         it), else (..., n); per environment (`varied`) (..., B, n); N m (N)."""
-        if isinstance(self.dist, torch.Tensor):  # per environment: amplitude (B, n), frequency and phase (B,)
-            s = torch.sin(self.dist_freq.to(t) * t[..., None] + self.dist_phase.to(t))
-            return self.dist.to(t) * s[..., None]
+        if self.per_environment is not None:  # amplitude (B, n), frequency and phase (B,)
+            amplitude, freq, phase = self.per_environment
+            return amplitude.to(t) * torch.sin(freq.to(t) * t[..., None] + phase.to(t))[..., None]
         s = torch.sin(self.dist_freq * t)
         if isinstance(self.dist, (int, float)):
             return self.dist * s
@@ -112,7 +114,7 @@ class Plant:
         rad/s, phase (B,) rad (the closed-loop tuning's scenarios). A shallow copy: the dynamics
         are shared."""
         plant = copy.copy(self)
-        plant.dist, plant.dist_freq, plant.dist_phase = amplitude, freq, phase
+        plant.per_environment = (amplitude, freq, phase)
         return plant
 
     if TYPE_CHECKING:

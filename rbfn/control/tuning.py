@@ -283,7 +283,8 @@ class _Tally:
     """Counts a search's episodes and keeps its best candidate and best-so-far curve."""
 
     def __init__(self, cost: ClosedLoopCost) -> None:
-        self.cost, self.episodes, self.curve = cost, 0, []
+        self.cost, self.episodes = cost, 0
+        self.curve: list[float] = []
         self.best_x: torch.Tensor | None = None
         self.best = math.inf
 

@@ -51,7 +51,7 @@ def evaluate_control(
         k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()
     }
     gain_record["joint_scale"] = res.joint_scale or [1.0] * setup.n  # the torque gains' factor per joint
-    info = {
+    info: dict[str, Any] = {
         "loop": plain(loop) if loop is not None else {"name": "ideal"},
         "gains": gain_record,
         "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
@@ -140,7 +140,7 @@ def _figure(
         detail=f"{name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, Lambda = {gains.Lambda:g}",
         window=(cfg.payload_on, cfg.payload_off),
         units=res.robot.units,
-        limits=None if res.robot.lower is None else (res.robot.lower, res.robot.upper),
+        limits=None if res.robot.lower is None or res.robot.upper is None else (res.robot.lower, res.robot.upper),
     )
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
