@@ -1,11 +1,14 @@
 """The closed-loop tuning of the adaptive network: one batch is the candidates' separate runs, its
 scenarios are never the evaluation's, every search spends the same budget, bad keys are refused."""
 
+import json
 import math
 from dataclasses import replace
 
 import pytest
 import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.config import (
     ACOConfig,
@@ -26,6 +29,7 @@ from rbfn.control.robot_setup import control_robot
 from rbfn.control.simulator import ScaraPlant, Scenario, stage_disturbances
 from rbfn.control.trajectory import Reference
 from rbfn.control.tuning import ClosedLoopCost, tune_network, tuning_scenarios
+from rbfn.studies.control import evaluate_control
 
 from ..conftest import compose_config
 
@@ -237,3 +241,28 @@ def test_bad_keys_fail_at_composition_naming_the_options():
     assert "tune.episodes" in f"{e.value} {e.value.__cause__}"
     cfg = compose_config("evaluate")
     assert cfg.control.network.objective == NetworkObjective.closed_loop
+
+
+def test_the_other_controllers_do_not_change_when_the_colony_tunes_on_the_closed_loop():
+    names = ["smc", "smc_obs", "arbfn_aco", "arbfn_kmeans"]
+    fit = NetworkConfig(num_centers=6, tune=TUNE, objective=NetworkObjective.fit)
+    static = compare_controllers(_control(controllers=names, network=fit), GainsConfig())
+    tuned = compare_controllers(_control(controllers=names), GainsConfig())
+    for name in ("smc", "smc_obs", "arbfn_kmeans"):
+        assert tuned.runs[name].metrics == static.runs[name].metrics, name
+    assert tuned.runs["arbfn_aco"].metrics != static.runs["arbfn_aco"].metrics
+
+
+def test_metrics_json_reports_the_tuned_cost_beside_the_held_out_result(tmp_path):
+    cfg = _control(controllers=["smc", "arbfn_kmeans", "arbfn_aco"])
+    with SummaryWriter(str(tmp_path)) as writer:
+        info = evaluate_control(cfg, GainsConfig(), "cpu", writer, tmp_path)["control_info"]
+    json.dumps(info)
+    assert set(info["tuning"]) == {"arbfn_kmeans", "arbfn_aco"}
+    aco = info["tuning"]["arbfn_aco"]
+    assert set(aco) == {"cost", "held_out", "episodes", "seconds", "curve"}
+    assert aco["episodes"] == TUNE.population * TUNE.iterations * TUNE.scenarios and len(aco["curve"]) == 2
+    assert math.isfinite(aco["held_out"]) and aco["held_out"] > 0
+    assert len(info["tuning_scenarios"]["payloads"]) == TUNE.scenarios
+    events = EventAccumulator(str(tmp_path)).Reload()
+    assert [e.step for e in events.Scalars("control/tuning/arbfn_aco/cost")] == [1, 2]
