@@ -12,6 +12,8 @@ from rbfn.config import EvalConfig, RobotConfig, Target
 from rbfn.robots.kinematics import read_urdf, urdf_path
 from rbfn.studies.evaluation import evaluated_robots
 from rbfn.studies.plots import (
+    BEYOND_LABEL,
+    LIMIT_LABEL,
     PAYLOAD_LABEL,
     online_figure,
     pose_error_figure,
@@ -121,6 +123,25 @@ def test_the_payload_band_is_named_in_the_legend():
     assert any(t.get_text().startswith(PAYLOAD_LABEL) for t in legend.get_texts())
     legend = _tracking(6).legends[0]
     assert not any(PAYLOAD_LABEL in t.get_text() for t in legend.get_texts())
+
+
+def test_joint_limits_are_drawn_near_the_curves_and_breaches_marked():
+    n = 3
+    t = np.linspace(0.0, 4.0, 3000)
+    q_des = 0.5 * np.sin(t[:, None] * np.arange(1, n + 1))
+    q = q_des.copy()
+    q[1500, 0] = 0.7  # one sample past joint 1's upper limit: thinning must not hide it
+    lower, upper = [-0.6, -np.inf, -50.0], [0.6, np.inf, 50.0]  # joint 3's limits far from its range
+    fig = tracking_figure(t, q, q_des, q, robot="z1", detail="pd", limits=(lower, upper))
+    lines = {r: [ln for ln in fig.axes[3 * r].lines if ln.get_label() == LIMIT_LABEL] for r in range(n)}
+    assert sorted(ln.get_ydata()[0] for ln in lines[0]) == [-0.6, 0.6]
+    assert lines[1] == [] and lines[2] == []  # none, and too far to draw without flattening the curves
+    marks = [ln for ax in fig.axes for ln in ax.lines if ln.get_label() == BEYOND_LABEL]
+    assert len(marks) == 1 and marks[0].get_xdata().size >= 1
+    names = [x.get_text() for x in fig.legends[0].get_texts()]
+    assert LIMIT_LABEL in names and BEYOND_LABEL in names
+    clean = tracking_figure(t, q_des, q_des, q, robot="z1", detail="pd", limits=(lower, upper))
+    assert BEYOND_LABEL not in [x.get_text() for x in clean.legends[0].get_texts()]
 
 
 def test_pose_error_figure_draws_the_error_against_the_distance_from_the_box_centre():
