@@ -9,13 +9,19 @@ line per key, saying what it chose and why ("given" for a key the user gave, whi
 * name: the URDF's <robot name="...">.
 * target: `pose` for 6 free joints (the chain less robot.locked), `position` for 3; other counts
   are refused (`rbfn.pipeline.check_ik_is_function`, or too few joints), naming the way out.
-* home: the middle of each free joint's limits (0 for a joint without limits, e.g. continuous).
+* home: the middle of each free joint's limits (0 for a joint without limits, e.g. continuous),
+  unless the box around it is ill-conditioned (a singularity runs through it: the 5 % quantile of
+  the task Jacobian's smallest to largest singular value over the box below CONDITIONED); then the
+  nearest of CANDIDATES seeded candidates around the middle whose box is twice as well
+  conditioned (none: the best of them); `conditioned_home`.
 * joint_low / joint_high: home +- robot.box_halfwidth (rad, or m for a prismatic joint), clipped to
   the limits; given a box without a home, home is the box centre.
 * gravity: 9.81 m/s^2 (standard gravity).
 * rated_payload: the largest point mass (kg, 2 significant digits, rounded down) at the end link
   whose static gravity torque at home stays within PAYLOAD_MARGIN of every joint's URDF effort
-  limit; the control part's payload cases are 0, half and all of it.
+  limit (where a payload loads no joint at home, an arm pointing straight up: at home and
+  BOX_SAMPLES seeded joint vectors in the box); the control part's payload cases are 0, half and
+  all of it.
 * control_rate, encoder_counts: 500 Hz and 2^20 counts per revolution (per metre, prismatic) on
   every chain joint, typical values, for the realistic loop.
 
@@ -42,6 +48,7 @@ from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, Target, TrainConfig
 from .dynamics import Arm, load_arm, urdf_source
 from .kinematics import urdf_tree
 from .registry import closed_form
+from .robot import Robot, load_robot
 
 __all__ = [
     "CONTROL_RATE",
@@ -49,6 +56,9 @@ __all__ = [
     "GRAVITY",
     "PAYLOAD_MARGIN",
     "SIZES",
+    "CONDITIONED",
+    "box_conditioning",
+    "conditioned_home",
     "Sizes",
     "derive_evaluate",
     "derive_robot",
@@ -63,6 +73,9 @@ log = logging.getLogger(__name__)
 
 GRAVITY = 9.81  # m/s^2, standard gravity
 PAYLOAD_MARGIN = 0.5  # the rated payload's gravity torque at home: at most this share of each effort limit
+BOX_SAMPLES = 128  # seeded joint vectors in a box: its conditioning and its payload bound
+CONDITIONED = 5e-3  # a box's 5 % quantile of sigma_min / sigma_max below this: a singularity runs through it
+CANDIDATES = 256  # homes tried around the middle of the limits where its box is ill-conditioned
 CONTROL_RATE = 500.0  # Hz: a typical controller cycle (the UR e-Series' 500 Hz)
 ENCODER_COUNTS = 2**20  # per revolution (per metre, prismatic): a typical 20-bit joint encoder
 
@@ -111,32 +124,37 @@ def load_urdf_arm(cfg: RobotConfig) -> tuple[Arm, str]:
 
 
 def rated_payload(arm: Arm, home: torch.Tensor, margin: float = PAYLOAD_MARGIN) -> tuple[float, str]:
-    """(the largest point mass in kg at the arm's end link whose static gravity torque at `home`
-    (n,) stays within `margin` of every joint's effort limit, 2 significant digits rounded down;
-    the joint that bounds it, in words). G(q, m) = G0 + m G1 is affine in the mass m, so per joint
+    """(the largest point mass in kg at the arm's end link whose static gravity torque at every
+    joint vector of `home` ((n,), or (S, n): home and samples of its box) stays within `margin` of
+    every joint's effort limit, 2 significant digits rounded down; the joint and vector that bound
+    it, in words). G(q, m) = G0 + m G1 is affine in the mass m, so per joint and vector
     |G0_j + m G1_j| <= margin e_j holds up to m_j = (margin e_j - sign(G1_j) G0_j) / |G1_j|.
     ValueError where the URDF gives no effort limit on the joints gravity loads."""
-    q = home.to(torch.float64).reshape(1, -1)
-    g0, g1 = arm.gravity(q)[0], arm.gravity(q, 1.0)[0] - arm.gravity(q)[0]  # N m (N), N m per kg
+    q = home.to(torch.float64).reshape(-1, arm.n)
+    g0 = arm.gravity(q)  # (S, n) N m (N)
+    g1 = arm.gravity(q, 1.0) - g0  # N m per kg
     bound = margin * arm.effort_limits()
     loaded = (g1.abs() > 1e-9) & torch.isfinite(bound)
     if not bool(loaded.any()):
         raise ValueError(
-            "robot.rated_payload: no joint is both loaded by a payload at home (gravity "
+            "robot.rated_payload: no joint is both loaded by a payload in the box (gravity "
             f"{arm.gravity_vector.tolist()} m/s^2) and limited by a URDF effort (effort "
             f"{arm.effort_limits().tolist()}); give robot.rated_payload=KG"
         )
     per = torch.where(loaded, (bound - g1.sign() * g0) / g1.abs(), torch.full_like(g1, math.inf))
-    j = int(per.argmin())
-    m = max(float(per[j]), 0.0)
+    i, j = divmod(int(per.argmin()), arm.n)
+    m = max(float(per[i, j]), 0.0)
     if m > 0:
         step = 10.0 ** (math.floor(math.log10(m)) - 1)
         m = math.floor(m / step + 1e-9) * step
         m = float(f"{m:.2g}")
+    unit = "N" if arm.prismatic[j] else "N m"
+    where = "at home" if i == 0 else "in the box, at " + str([round(v, 3) for v in q[i].tolist()])
     why = (
-        f"{arm.joint_names[j]} at home holds {abs(float(g0[j])):.3g} {'N' if arm.prismatic[j] else 'N m'} "
-        f"unloaded and {abs(float(g0[j] + m * g1[j])):.3g} with it, of its effort limit "
+        f"{arm.joint_names[j]} {where} holds {abs(float(g0[i, j])):.3g} {unit} "
+        f"unloaded and {abs(float(g0[i, j] + m * g1[i, j])):.3g} with it, of its effort limit "
         f"{float(arm.effort_limits()[j]):.3g}; at most {margin:.0%} of every joint's limit"
+        + (f", at home and {q.shape[0] - 1} joint vectors in the box" if q.shape[0] > 1 else "")
     )
     return m, why
 
@@ -184,6 +202,16 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     lo_all, hi_all = arm.joint_limits()
     lo, hi = lo_all[free], hi_all[free]
     home, low, high = _home_and_box(cfg, joints, lo, hi)
+    if not cfg.home and not (cfg.joint_low and cfg.joint_high):  # both by the middle rule
+        trial = replace(cfg, name=name, target=target, home=home, joint_low=low, joint_high=high)
+        home, why = conditioned_home(load_robot(trial), lo, hi, torch.tensor(home), cfg.box_halfwidth)
+        low, high = _box(torch.tensor(home, dtype=torch.float64), lo, hi, cfg.box_halfwidth)
+        said("home", [round(v, 4) for v in home], why)
+        said(
+            "joint_low, joint_high",
+            f"{[round(v, 4) for v in low]}, {[round(v, 4) for v in high]}",
+            f"home +- robot.box_halfwidth={cfg.box_halfwidth:g}, clipped to the URDF limits",
+        )
 
     gravity = GRAVITY if cfg.gravity is None else cfg.gravity
     said("gravity", gravity, "given" if cfg.gravity is not None else "standard gravity, m/s^2")
@@ -193,8 +221,12 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         full = torch.zeros(arm.n, dtype=torch.float64)
         for j, v in cfg.locked.items():
             full[arm.joint_names.index(j)] = v
-        full[free] = torch.tensor(home, dtype=torch.float64)
-        payload, why = rated_payload(arm, full)
+        full = full.repeat(BOX_SAMPLES + 1, 1)
+        full[:, free] = torch.cat([torch.tensor([home], dtype=torch.float64), _samples(low, high)])
+        try:
+            payload, why = rated_payload(arm, full[0])
+        except ValueError:  # no joint loaded at home (an arm pointing straight up): over the box
+            payload, why = rated_payload(arm, full)
         said("rated_payload", f"{payload:g} kg", why)
         if payload == 0:
             log.warning("robot.rated_payload = 0 kg: the arm's own weight at home takes over half an effort limit")
@@ -249,18 +281,14 @@ def _home_and_box(
     elif box:
         home = [(a + b) / 2 for a, b in zip(cfg.joint_low, cfg.joint_high)]
         why = "the given box's centre"
-    else:
-        finite = torch.isfinite(lo) & torch.isfinite(hi)
-        home = torch.where(finite, (lo + hi) / 2, torch.zeros_like(lo)).tolist()
-        why = "the middle of each joint's URDF limits; 0 without limits"
+    else:  # logged by derive_robot, after conditioned_home
+        return _middle(lo, hi).tolist(), *_box(_middle(lo, hi), lo, hi, w)
     log.info("robot.home = %s (%s)", [round(v, 4) for v in home], why)
     if box:
         low, high = [float(v) for v in cfg.joint_low], [float(v) for v in cfg.joint_high]
         log.info("robot.joint_low, joint_high = %s, %s (given)", low, high)
     else:
-        h = torch.tensor(home, dtype=torch.float64)
-        low = torch.maximum(h - w, lo).tolist()
-        high = torch.minimum(h + w, hi).tolist()
+        low, high = _box(torch.tensor(home, dtype=torch.float64), lo, hi, w)
         log.info(
             "robot.joint_low, joint_high = %s, %s (home +- robot.box_halfwidth=%g, clipped to the URDF limits)",
             [round(v, 4) for v in low],
@@ -268,6 +296,66 @@ def _home_and_box(
             w,
         )
     return home, low, high
+
+
+def _middle(lo: torch.Tensor, hi: torch.Tensor) -> torch.Tensor:
+    """The middle of each joint's limits (n,); 0 for a joint without (continuous)."""
+    finite = torch.isfinite(lo) & torch.isfinite(hi)
+    return torch.where(finite, (lo + hi) / 2, torch.zeros_like(lo))
+
+
+def _box(home: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, w: float) -> tuple[list[float], list[float]]:
+    """(joint_low, joint_high): home (n,) +- w, clipped to the limits lo, hi (n,)."""
+    return torch.maximum(home - w, lo).tolist(), torch.minimum(home + w, hi).tolist()
+
+
+def _samples(low: list[float], high: list[float], n: int = BOX_SAMPLES, seed: int = 0) -> torch.Tensor:
+    """n joint vectors (n, k) drawn uniformly in the box (seeded: the same box, the same samples)."""
+    lo, hi = torch.tensor(low, dtype=torch.float64), torch.tensor(high, dtype=torch.float64)
+    g = torch.Generator().manual_seed(seed)
+    return lo + (hi - lo) * torch.rand(n, lo.numel(), generator=g, dtype=torch.float64)
+
+
+def box_conditioning(robot: Robot, homes: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, w: float) -> torch.Tensor:
+    """Per home (C, k): the 5 % quantile over BOX_SAMPLES seeded joint vectors of its box (home
+    +- w, clipped to the limits lo, hi (k,)) of the task Jacobian's sigma_min / sigma_max (C,).
+    Near 0 where a singularity runs through the box (and with it a second IK branch)."""
+    u = 2 * _samples([0.0] * homes.shape[1], [1.0] * homes.shape[1]) - 1  # (S, k) in [-1, 1]
+    q = torch.maximum(torch.minimum(homes[:, None, :] + w * u, hi), lo)  # (C, S, k)
+    s = torch.linalg.svdvals(robot.jacobian(q.reshape(-1, homes.shape[1]))).reshape(*q.shape[:2], -1)
+    return (s[..., -1] / s[..., 0]).quantile(0.05, dim=1)
+
+
+def conditioned_home(
+    robot: Robot, lo: torch.Tensor, hi: torch.Tensor, middle: torch.Tensor, w: float, seed: int = 0
+) -> tuple[list[float], str]:
+    """(home (k,), why): `middle` where its box (+- w, clipped to the limits lo, hi (k,) of the
+    free joints) is well conditioned (box_conditioning >= CONDITIONED); else, of CANDIDATES seeded
+    candidates middle + r u (u uniform in [-1, 1]^k, r growing from 0 to pi, rad or m; kept inside
+    the limits, a box's width from them where the range allows), the nearest to the middle whose
+    box reaches twice CONDITIONED, or, where none does, the best conditioned."""
+    middle = middle.to(torch.float64)
+    rule = "the middle of each joint's URDF limits; 0 without limits"
+    score = float(box_conditioning(robot, middle[None], lo, hi, w)[0])
+    if score >= CONDITIONED:
+        return middle.tolist(), rule
+    g = torch.Generator().manual_seed(seed)
+    u = 2 * torch.rand(CANDIDATES, middle.numel(), generator=g, dtype=torch.float64) - 1
+    r = torch.linspace(0.0, math.pi, CANDIDATES + 1, dtype=torch.float64)[1:, None]
+    inner_lo = torch.where(hi - lo > 2 * w, lo + w, lo)
+    inner_hi = torch.where(hi - lo > 2 * w, hi - w, hi)
+    cand = torch.maximum(torch.minimum(middle + r * u, inner_hi), inner_lo)  # (C, k)
+    scores = box_conditioning(robot, cand, lo, hi, w)
+    dist = (cand - middle).norm(dim=-1)
+    good = scores >= 2 * CONDITIONED
+    i = int(torch.where(good, dist, torch.full_like(dist, math.inf)).argmin()) if good.any() else int(scores.argmax())
+    why = (
+        f"the middle of the limits {[round(v, 4) for v in middle.tolist()]} has a singularity in its box "
+        f"(sigma_min / sigma_max {score:.2g} at its 5 % quantile, under {CONDITIONED:g}); the nearest of "
+        f"{CANDIDATES} candidates around it with a well-conditioned box ({float(scores[i]):.2g}), "
+        f"{float(dist[i]):.2f} away"
+    )
+    return cand[i].tolist(), why
 
 
 def derive_sizes(cfg: TrainConfig) -> TrainConfig:
@@ -321,7 +409,6 @@ def warn_if_singular(cfg: RobotConfig, tol: float = 1e-3) -> float:
     has a smallest singular value below `tol` times its largest: a singular home (a stretched
     elbow, aligned wrist axes), where the box around it holds more than one IK branch and the
     network learns their average. Returns that ratio."""
-    from .robot import load_robot
 
     robot = load_robot(cfg)
     s = torch.linalg.svdvals(robot.jacobian(torch.tensor([cfg.home], dtype=torch.float64))[0])

@@ -11,7 +11,17 @@ import torch
 from omegaconf import OmegaConf
 
 from rbfn.config import ROBOT_PRESETS, Target
-from rbfn.robots.derive import ENCODER_COUNTS, PAYLOAD_MARGIN, SIZES, derive_evaluate, derive_train, load_urdf_arm
+from rbfn.robots.derive import (
+    CONDITIONED,
+    ENCODER_COUNTS,
+    PAYLOAD_MARGIN,
+    SIZES,
+    box_conditioning,
+    derive_evaluate,
+    derive_train,
+    load_urdf_arm,
+)
+from rbfn.robots.robot import load_robot
 from tests.conftest import CONF, TINY_TRAIN, compose_config
 
 
@@ -56,20 +66,54 @@ def test_a_6_joint_arm_gets_every_key_from_its_urdf():
     assert (cfg.data.n_train, cfg.data.n_val, cfg.data.n_test) == (s.n_train, s.n_val, s.n_test)
 
 
-def test_a_3_joint_arm_gets_position_targets_and_a_warning_at_a_singular_home(caplog):
+def test_a_singular_middle_moves_the_home_off_it_and_a_given_singular_home_is_warned_of(caplog):
     """The SCARA's URDF through robot=urdf: the middle of its limits straightens the elbow (q2 = 0),
-    where the box holds both elbow branches; the log says so. Given a home off it, no warning."""
+    where the box would hold both elbow branches. The derived home moves off it, to a box holding
+    one elbow branch (q2 of one sign), and the log says why; a home given there is kept and warned
+    of; given off it, no warning."""
     scara = ["robot=urdf", "robot.urdf=rbfn/robots/scara/scara.urdf", "robot.end_link=quill"]
     with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
         cfg = derive_train(compose_config("train", *scara))
-    assert cfg.robot.target == Target.position and cfg.rbfn.num_centers == SIZES[Target.position].num_centers
-    assert cfg.robot.home == [0.0, 0.0, 1.0] and any("singular" in m for m in caplog.messages)
+    r = cfg.robot
+    assert r.target == Target.position and cfg.rbfn.num_centers == SIZES[Target.position].num_centers
+    assert r.joint_low[1] > 0 or r.joint_high[1] < 0, (r.joint_low, r.joint_high)  # one elbow branch
+    assert any("has a singularity in its box" in m for m in caplog.messages)
+    assert not any("singular configuration" in m for m in caplog.messages)
+    assert derive_train(compose_config("train", *scara)).robot.home == r.home  # seeded: the same home
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
+        derive_train(compose_config("train", *scara, "robot.home=[0.0,0.0,1.0]"))
+    assert any("singular configuration" in m for m in caplog.messages)
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
         derive_train(compose_config("train", *scara, "robot.home=[1.0,1.0,1.0]"))
     assert not any("singular" in m for m in caplog.messages)
     with pytest.raises(ValueError, match=r"robot\.rated_payload: no joint is both loaded"):
         derive_train(compose_config("train", *scara, "robot.gravity=0"))
+
+
+def test_an_arm_pointing_straight_up_at_the_middle_of_its_limits_gets_a_home_it_can_learn_and_carry_from():
+    """Kinova's Jaco (example-robot-data, 6 joints): the middle of its limits stands it straight up
+    (q2 = q3 = q5 = pi), a singularity, and no payload loads a joint there. The derived home's box
+    is well conditioned, and the rated payload is positive and within the effort margin."""
+    over = _urdf("kinova_description/robots/kinova.urdf", "j2s6s200_end_effector")
+    r = derive_train(compose_config("train", *over)).robot
+    lo, hi = torch.tensor(r.joint_low, dtype=torch.float64), torch.tensor(r.joint_high, dtype=torch.float64)
+    home = torch.tensor([r.home], dtype=torch.float64)
+    assert float(box_conditioning(load_robot(r), home, lo, hi, r.box_halfwidth)[0]) >= 2 * CONDITIONED
+    arm, _ = load_urdf_arm(r)
+    assert r.rated_payload > 0
+    loaded = arm.gravity(home, r.rated_payload)[0].abs()
+    assert bool((loaded <= PAYLOAD_MARGIN * arm.effort_limits() + 1e-9).all())
+
+
+def test_box_conditioning_tells_a_box_across_a_singularity_from_one_beside_it():
+    cfg = derive_train(compose_config("train", "robot=scara")).robot
+    robot = load_robot(cfg)
+    lo, hi = torch.tensor([-3.0, -2.5, 0.0], dtype=torch.float64), torch.tensor([3.0, 2.5, 2.0], dtype=torch.float64)
+    homes = torch.tensor([[1.0, 0.0, 1.0], [1.0, 1.0, 1.0]], dtype=torch.float64)
+    across, beside = box_conditioning(robot, homes, lo, hi, 0.5).tolist()
+    assert across < CONDITIONED <= beside
 
 
 def test_the_sizes_are_the_presets():
