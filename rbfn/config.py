@@ -644,10 +644,10 @@ class TuneConfig:
     disturbance_phase: list[float] = field(default_factory=lambda: [0.0, 2 * math.pi])  # rad
     seed: int = 1  # the scenario draws (the sensor-noise seed among them)
     population: int = 16  # candidates per iteration (ants, CMA-ES's population, random draws)
-    iterations: int = 8
-    spread: float = 0.3  # the first candidates' spread around the k-means twin (see max_offset)
-    max_offset: float = 2.0  # a centre moves at most this many of the twin's widths per coordinate
-    max_width_factor: float = 4.0  # a width stays within [1 / factor, factor] times the twin's
+    iterations: int = 16
+    spread: float = 0.3  # the first candidates' spread around the k-means twin (offsets, log-widths)
+    max_offset: float = 1.0  # a centre moves at most this far per coordinate (standardised units)
+    max_width_factor: float = 4.0  # each log-width factor and the common one within [1 / factor, factor]
     saturation_penalty: float = 1.0  # cost per joint-share of time at the torque limit (realistic loop)
 
     def check(self, key: str, duration: float) -> None:

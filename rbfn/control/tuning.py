@@ -4,9 +4,12 @@
 A candidate is the k-means twin's network (`rbfn.control.network`, centres and widths fitted to the
 pilot run) moved: with the twin's centres c_i and widths w_i (standardised desired-state units),
 
-    centre i = c_i + w_i u_i,   width i = w_i exp(v_i),   |u_ij| <= max_offset, |v_i| <= log(max_width_factor),
+    centre i = c_i + u_i,   width i = w_i exp(v_i + g),
+    |u_ij| <= max_offset,   |v_i|, |g| <= log(max_width_factor),
 
-x = (u, v) flattened (M (2n + 1),); x = 0 is the twin itself. Its cost is what the controller is
+x = (u, v, g) flattened (M (2n + 1) + 1,); x = 0 is the twin itself. The common log-width g is
+one coordinate for what otherwise takes all M at once: on the SCARA most of the gain lies in
+wider Gaussians. Its cost is what the controller is
 judged by: every candidate runs the adaptive law from the twin's initial weights on every tuning
 scenario, all of them as one batched simulation (B = candidates x scenarios, each environment with
 its own network: features (T, B, M)), and
@@ -163,7 +166,7 @@ class ClosedLoopCost:
         m, d = twin.centers.shape
         self.m, self.d = m, d
         limit_u, limit_v = tune.max_offset, math.log(tune.max_width_factor)
-        self.upper = torch.cat([torch.full((m * d,), limit_u), torch.full((m,), limit_v)]).double()
+        self.upper = torch.cat([torch.full((m * d,), limit_u), torch.full((m + 1,), limit_v)]).double()
         self.lower = -self.upper
         self.z = (desired_states(ref).double().cpu() - twin.offset) / twin.scale  # (T, d)
         kw: dict[str, Any] = {"dtype": ref.q_d.dtype, "device": ref.q_d.device}
@@ -176,16 +179,16 @@ class ClosedLoopCost:
 
     @property
     def dimension(self) -> int:
-        return self.m * (self.d + 1)
+        """D = M (d + 1) + 1: the centre offsets, the log-widths and the common log-width."""
+        return self.m * (self.d + 1) + 1
 
     def networks(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Centres (K, M, d) and widths (K, M), standardised units, of candidates x (K, D)."""
         k = x.shape[0]
         x = x.double().cpu()
         u = x[:, : self.m * self.d].reshape(k, self.m, self.d)
-        v = x[:, self.m * self.d :]
-        w = self.twin.widths.double()
-        return self.twin.centers.double() + w[None, :, None] * u, w * v.exp()
+        v, g = x[:, self.m * self.d : -1], x[:, -1:]
+        return self.twin.centers.double() + u, self.twin.widths.double() * (v + g).exp()
 
     def net(self, x: torch.Tensor, seconds: float) -> ControlNet:
         """Candidate x (D,) as a ControlNet (its weights initialised as the twin's)."""
@@ -270,13 +273,15 @@ class ClosedLoopCost:
 @dataclass
 class Tuned:
     """A search's result: the best network, its cost, the closed-loop episodes it ran, the time
-    it took (s), and the best-so-far cost after each iteration."""
+    it took (s), the best-so-far cost after each iteration, and the best candidate x (D,) (None:
+    not searched)."""
 
     net: ControlNet
     cost: float
     episodes: int
     seconds: float
     curve: list[float] = field(default_factory=list)
+    x: torch.Tensor | None = None
 
 
 class _Tally:
@@ -358,4 +363,4 @@ def tune_network(
             opt.tell([(x, float(v) if math.isfinite(float(v)) else worst) for x, v in zip(xs, values)])
     seconds = time.perf_counter() - t0
     assert tally.best_x is not None
-    return Tuned(cost.net(tally.best_x, seconds), tally.best, tally.episodes, seconds, tally.curve)
+    return Tuned(cost.net(tally.best_x, seconds), tally.best, tally.episodes, seconds, tally.curve, tally.best_x)
