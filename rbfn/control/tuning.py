@@ -85,10 +85,12 @@ def tuning_scenarios(
     eval_noise_seed: int,
 ) -> TuneScenarios:
     """Draw `tune.scenarios` scenarios (seeded by tune.seed) from tune's ranges: payloads as
-    fractions of `rated_payload` kg, amplitudes as factors of the evaluation's `disturbance` (n,)
-    N m (N), frequencies, phases. A payload within 1 % of the range's width (0.01 kg at least) of an
-    evaluation payload, a frequency as near `eval_freq` and an amplitude factor as near 1 are drawn
-    again, and the noise seed is never `eval_noise_seed`: the evaluation's cases are never tuned on.
+    fractions of `rated_payload` kg (stratified: scenario i from the i-th of S equal parts of the
+    range, so that light and heavy payloads are both tuned on), amplitudes as factors of the
+    evaluation's `disturbance` (n,) N m (N), frequencies, phases. A payload within 1 % of the
+    range's width (0.01 kg at least) of an evaluation payload, a frequency as near `eval_freq` and
+    an amplitude factor as near 1 are drawn again, and the noise seed is never `eval_noise_seed`:
+    the evaluation's cases are never tuned on.
     ValueError names the key whose range leaves nothing else to draw."""
     g = torch.Generator().manual_seed(tune.seed)
 
@@ -98,8 +100,8 @@ def tuning_scenarios(
             if all(abs(v - a) > tol for a in avoid):
                 return v
         raise ValueError(
-            f"control.network.tune.{key}=[{low:g}, {high:g}] leaves nothing to draw but the evaluation's own "
-            f"values {avoid}: widen the range"
+            f"control.network.tune.{key}={list(getattr(tune, key))} leaves nothing to draw (here "
+            f"[{low:g}, {high:g}]) but the evaluation's own values {avoid}: widen the range"
         )
 
     p_lo, p_hi = (f * rated_payload for f in tune.payload)
@@ -108,8 +110,10 @@ def tuning_scenarios(
     d_lo, d_hi = tune.disturbance
     a_lo, a_hi = tune.disturbance_phase
     payloads, factors, freqs, phases = [], [], [], []
-    for _ in range(tune.scenarios):
-        payloads.append(draw("payload", p_lo, p_hi, list(eval_payloads), p_tol))
+    strata = tune.scenarios
+    for i in range(tune.scenarios):  # payloads stratified: scenario i draws from the i-th of S equal parts
+        lo, hi = p_lo + (p_hi - p_lo) * i / strata, p_lo + (p_hi - p_lo) * (i + 1) / strata
+        payloads.append(draw("payload", lo, hi, list(eval_payloads), p_tol))
         factors.append(draw("disturbance", d_lo, d_hi, [1.0], max(0.01 * (d_hi - d_lo), 1e-3)))
         freqs.append(draw("disturbance_freq", f_lo, f_hi, [eval_freq], max(0.01 * (f_hi - f_lo), 1e-3)))
         phases.append(draw("disturbance_phase", a_lo, a_hi, [], 0.0))
