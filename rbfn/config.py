@@ -420,8 +420,8 @@ class OLSConfig:
 class FullRefineConfig:
     """`mode: full`: Adam on the whole training set, the output weights solved inside the loss."""
 
-    steps: int = 300  # Adam steps
-    lr: float = 0.01  # Adam step size
+    steps: int = 2000  # Adam steps
+    lr: float = 0.02  # Adam step size
 
     def check(self, key: str) -> None:
         _need(self.steps >= 0, f"{key}.steps", self.steps, "must be >= 0")

@@ -28,6 +28,7 @@ __all__ = [
     "DEFAULT_RIDGES",
     "ROUND_TOL",
     "rounding_tolerance",
+    "RoundingRule",
 ]
 
 # Ridge values relative to the mean diagonal of the Gram matrix.
@@ -164,6 +165,17 @@ def rounding_tolerance(
     needs (it doubled the UR5's k-means error at M = 2000)."""
     best = torch.nan_to_num(mse, nan=torch.inf).amin(-1, keepdim=True).clamp(max=torch.finfo(mse.dtype).max)
     return (round_rel * (best / outputs).sqrt()).clamp(min=round_tol)
+
+
+@dataclass(frozen=True)
+class RoundingRule:
+    """The float32-stability rule of `ridge_fit` as one value: a fit deployed in `dtype` may have a
+    rounding scale (`rounding_scale`) of at most `rounding_tolerance(mse, outputs, round_tol,
+    round_rel)` (output units: rad, m)."""
+
+    dtype: torch.dtype = torch.float32
+    round_tol: float = ROUND_TOL
+    round_rel: float = 0.0
 
 
 def ridge_choose(

@@ -18,7 +18,16 @@ import torch
 
 from .config import RefineLoss, Solver, Target, TrainConfig
 from .data import Dataset, input_scaling
-from .fit import ROUND_TOL, RidgeFit, deployed_design, design_matrix, ridge_fit, rounding_scale, rounding_tolerance
+from .fit import (
+    ROUND_TOL,
+    RidgeFit,
+    RoundingRule,
+    deployed_design,
+    design_matrix,
+    ridge_fit,
+    rounding_scale,
+    rounding_tolerance,
+)
 from .growth import grow, growth_schedule
 from .layer import RBFNetwork, assemble
 from .lms import lms_fit
@@ -260,6 +269,7 @@ def train_ik(
             cfg.rbfn.max_width,
             cfg.seed,
             jacobians,
+            rule=RoundingRule(torch.float32, ROUND_TOL, cfg.rbfn.round_rel),
         )
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history

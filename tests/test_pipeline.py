@@ -11,7 +11,7 @@ import train
 from rbfn import pipeline
 from rbfn.config import ROBOT_PRESETS
 from rbfn.data import input_scaling, make_dataset
-from rbfn.fit import design_matrix
+from rbfn.fit import ROUND_TOL, design_matrix
 from rbfn.pipeline import check_ik_is_function, fit_weights, task_jacobians, train_ik
 from rbfn.refine import Refined
 from rbfn.robots.robot import load_robot
@@ -180,3 +180,24 @@ def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
         tmp_path / "joint",
     )
     assert joint["test_pos_err_mm_median"] != m["test_pos_err_mm_median"]
+
+
+def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_data):
+    """The full way's ridge is the float32 rule's (rbfn.refine.refine_full): the network it keeps
+    is the one whose stable fit is best on validation, and the final weights, re-solved by that
+    rule from the deployed float32 design, are that fit (the same validation error to float32's
+    rounding of the design) and pass the rule."""
+    cfg = compose_config(
+        "train",
+        "centers=kmeans_refine",
+        "centers.refine.mode=full",
+        "centers.refine.full.steps=30",
+        "rbfn.num_centers=20",
+        "rbfn.growth.start=0",
+        "progress=false",
+        "export=false",
+    )
+    result = train_ik(cfg, small_data)
+    assert result.fit.rounding is not None and float(result.fit.rounding) <= ROUND_TOL
+    assert result.refine_history[-1] < result.refine_history[0]  # the refinement learned
+    assert math.isclose(float(result.fit.val_mse), min(result.refine_history), rel_tol=1e-3)

@@ -5,16 +5,16 @@ import torch
 
 import rbfn.refine as rf
 from rbfn.config import RefineConfig, RefineMode
-from rbfn.fit import design_matrix, ridge_solve
+from rbfn.fit import ROUND_TOL, RoundingRule, design_matrix, ridge_fit, ridge_solve
 from rbfn.layer import gaussian_features
 
 
-def _problem(m: int = 15):
+def _problem(m: int = 15, width: float = 0.4):
     g = torch.Generator().manual_seed(0)
     z = torch.rand(600, 2, generator=g, dtype=torch.float64) * 2 - 1
     y = torch.stack([torch.sin(3 * z[:, 0]), z[:, 0] * z[:, 1]], -1)
     c = torch.rand(m, 2, generator=g, dtype=torch.float64) * 2 - 1
-    w = torch.full((m,), 0.4, dtype=torch.float64)
+    w = torch.full((m,), width, dtype=torch.float64)
     weights = ridge_solve(design_matrix(z[:400], c, w), y[:400], 1e-8)
     return z[:400], y[:400], z[400:], y[400:], c, w, weights
 
@@ -62,6 +62,29 @@ def test_full_refinement_keeps_the_best_on_validation():
     z_tr, y_tr, z_val, y_val, c, w, _ = _problem()
     r = rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, 1e-8, steps=20, lr=0.01, eval_every=5)
     assert len(r.history) == 5 and r.val_mse == min(r.history) and r.val_mse < r.history[0]
+
+
+def test_full_refinement_under_the_float32_rule_beats_re_solving_afterwards():
+    """With the rule, the ridge inside the loss is the one the rule picks for the current centres,
+    so the refinement optimises the weights that will be deployed: they pass the rule, and their
+    validation error is far below that of refining at a fixed ridge (the selection's, or the
+    floor) and re-solving by the rule afterwards. Wide Gaussians (width 1 on [-1, 1]^2): accurate
+    fits there cancel, and the rule binds."""
+    z_tr, y_tr, z_val, y_val, c, w, _ = _problem(width=1.0)
+
+    def deployed(r: rf.Refined):
+        """The rule's fit (`ridge_fit` in float32 with ROUND_TOL) for the refined centres."""
+        a_tr, a_val = (design_matrix(z / r.input_scale, r.centers, r.widths) for z in (z_tr, z_val))
+        return ridge_fit(a_tr, y_tr, a_val, y_val, eval_dtype=torch.float32, round_tol=ROUND_TOL)
+
+    start = float(deployed(rf.Refined(c, w, torch.ones(2, dtype=torch.float64), 0.0, [])).ridge)
+    ruled = rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, start, steps=100, lr=0.02, rule=RoundingRule())
+    fit = deployed(ruled)
+    assert fit.rounding is not None and fit.rounding <= ROUND_TOL
+    assert ruled.val_mse == min(ruled.history) and math.isclose(ruled.val_mse, float(fit.val_mse), rel_tol=1e-12)
+    for ridge in (start, 1e-11):  # the old way: a fixed ridge in the loss, the rule only at the end
+        fixed = deployed(rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, ridge, steps=100, lr=0.02))
+        assert float(fit.val_mse) < 0.2 * float(fixed.val_mse)
 
 
 @pytest.mark.parametrize(
