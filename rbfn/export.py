@@ -6,7 +6,11 @@ Both take the network's targets, B dynamic: a position network's input is named 
 float32 in m; a pose network's "poses", (B, 7) float32: position in m, then the end link's
 orientation in the root frame as a unit quaternion (w, x, y, z) (q and -q give the same answer).
 Both return joints (B, n) float32 (the free joints in URDF order and units: rad, or m for a
-prismatic joint) and in_workspace (B,) bool. Both carry the same metadata (`metadata`: the target
+prismatic joint) and in_workspace (B,) bool. For an arm whose first joint turns about the base's
+vertical axis (the SCARA, the UR5, the Panda) both turn a target anywhere around the base into
+the trained range of that joint and turn the joint back, in their graph (`rbfn.yaw`, as the
+solver does; metadata "base_yaw": "true"; --no-base-yaw exports the network as trained).
+Both carry the same metadata (`metadata`: the target
 kind, the input's layout and, given the robot, its joint names and a few example joint vectors
 inside the trained box with the targets they reach): the ONNX model's metadata_props, and the
 .pt2 file's extra file "rbfn.json". The ONNX graph runs large batches in blocks, as the module's eager
@@ -45,6 +49,7 @@ from .files import unwritable, write_files
 from .layer import RBFNetwork
 from .robots.robot import Robot, robot_from_record
 from .scripts import fail
+from .yaw import BaseYaw, answer as yaw_answer, base_yaw as yaw_of
 
 __all__ = [
     "INPUTS",
@@ -78,15 +83,25 @@ class DeployedIK(nn.Module):
     One graph for any B: the rows are not split into blocks as in the network's eager calls
     (`export_onnx` wraps the graph in a loop over blocks). What it takes of the network is its
     documented export interface: `RBFNetwork.for_export`, `solve_rows`, `rows_per_block`,
-    `in_features` and `target`.
+    `in_features` and `target`. With `yaw` (the robot's `rbfn.yaw.BaseYaw`), targets anywhere
+    around the base are turned into the trained range and the first joint turned back, in the
+    graph (`rbfn.yaw.answer`, as the solver does); in_workspace is then also False where no whole
+    turn brings the first joint inside its URDF limits.
     """
 
-    def __init__(self, net: RBFNetwork) -> None:
+    def __init__(self, net: RBFNetwork, yaw: BaseYaw | None = None) -> None:
         super().__init__()
         self.net = net.for_export()
+        self.yaw = yaw
+
+    def _solve(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        if self.yaw is None:
+            return self.net.solve_rows(x)
+        q, inside, _ = yaw_answer(self.yaw, self.net.solve_rows, x)
+        return q, inside
 
     def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.solve_rows(positions)
+        return self._solve(positions)
 
 
 class DeployedPoseIK(DeployedIK):
@@ -95,12 +110,15 @@ class DeployedPoseIK(DeployedIK):
     "poses" (torch.export names it after `forward`'s argument)."""
 
     def forward(self, poses: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.net.solve_rows(poses)
+        return self._solve(poses)
 
 
-def deployed(net: RBFNetwork) -> DeployedIK:
-    """The exporters' module for `net`, in eval mode: its input named for the network's targets."""
-    return (DeployedPoseIK if net.target == "pose" else DeployedIK)(net).eval()
+def deployed(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True) -> DeployedIK:
+    """The exporters' module for `net`, in eval mode: its input named for the network's targets;
+    given the network's `robot` and `base_yaw`, turning targets around the base where the arm
+    allows it (`rbfn.yaw`)."""
+    yaw = yaw_of(robot) if robot is not None and base_yaw else None
+    return (DeployedPoseIK if net.target == "pose" else DeployedIK)(net, yaw).eval()
 
 
 def _example(net: RBFNetwork) -> torch.Tensor:
@@ -111,9 +129,10 @@ def _example(net: RBFNetwork) -> torch.Tensor:
     return x
 
 
-def metadata(net: RBFNetwork, robot: Robot | None = None) -> dict[str, str]:
+def metadata(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True) -> dict[str, str]:
     """What the exports say about themselves, as strings: "target" ("position" or "pose"), "input"
-    (the input's name and layout) and, given the network's `robot`, "robot" (its name),
+    (the input's name and layout) and, given the network's `robot`, "robot" (its name), "base_yaw"
+    ("true" where the graph turns targets around the base into the trained range, else "false"),
     "joint_names" (a JSON list: the free joints, the outputs' order), "example_joints" (a JSON (4, n)
     list: joint vectors inside the robot's sampled box, rad or m, seeded) and "example_targets" (a
     JSON (4, 3) or (4, 7) list: the targets they reach, the robot's forward kinematics, float64)."""
@@ -131,27 +150,29 @@ def metadata(net: RBFNetwork, robot: Robot | None = None) -> dict[str, str]:
     return {
         **meta,
         "robot": robot.name,
+        "base_yaw": "true" if base_yaw and yaw_of(robot) is not None else "false",
         "joint_names": json.dumps(robot.joint_names),
         "example_joints": json.dumps(q.tolist()),
         "example_targets": json.dumps(robot.targets(q.to(robot.chain.device)).cpu().tolist()),
     }
 
 
-def pt2_bytes(net: RBFNetwork, *, robot: Robot | None = None) -> bytes:
+def pt2_bytes(net: RBFNetwork, *, robot: Robot | None = None, base_yaw: bool = True) -> bytes:
     """A torch.export program with a dynamic batch dimension, as the bytes of a .pt2 file; its
-    `metadata` in the extra file "rbfn.json"."""
+    `metadata` in the extra file "rbfn.json"; `deployed(net, robot, base_yaw)`."""
     batch = torch.export.Dim("batch", min=1)
     name = INPUTS[net.target][0]
     buf = io.BytesIO()
     with _quiet_exporter():
-        prog = torch.export.export(deployed(net), (_example(net),), dynamic_shapes={name: {0: batch}})
-        torch.export.save(prog, buf, extra_files={"rbfn.json": json.dumps(metadata(net, robot))})
+        module = deployed(net, robot, base_yaw)
+        prog = torch.export.export(module, (_example(net),), dynamic_shapes={name: {0: batch}})
+        torch.export.save(prog, buf, extra_files={"rbfn.json": json.dumps(metadata(net, robot, base_yaw))})
     return buf.getvalue()
 
 
-def export_pt2(net: RBFNetwork, path: str | Path, *, robot: Robot | None = None) -> Path:
+def export_pt2(net: RBFNetwork, path: str | Path, *, robot: Robot | None = None, base_yaw: bool = True) -> Path:
     """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
-    write_files({Path(path): pt2_bytes(net, robot=robot)})
+    write_files({Path(path): pt2_bytes(net, robot=robot, base_yaw=base_yaw)})
     return Path(path)
 
 
@@ -177,22 +198,29 @@ def _quiet_exporter():
 
 
 def export_onnx(
-    net: RBFNetwork, path: str | Path, block_rows: int | None = None, *, robot: Robot | None = None
+    net: RBFNetwork,
+    path: str | Path,
+    block_rows: int | None = None,
+    *,
+    robot: Robot | None = None,
+    base_yaw: bool = True,
 ) -> Path:
     """Write a single-file ONNX model (input "positions" (B, 3) or "poses" (B, 7), outputs "joints",
     "in_workspace") that runs the rows in blocks of `block_rows` (default `net.rows_per_block`),
     atomically; its `metadata(net, robot)` in the model's metadata_props."""
-    write_files({Path(path): onnx_bytes(net, block_rows, robot=robot)})
+    write_files({Path(path): onnx_bytes(net, block_rows, robot=robot, base_yaw=base_yaw)})
     return Path(path)
 
 
-def onnx_bytes(net: RBFNetwork, block_rows: int | None = None, *, robot: Robot | None = None) -> bytes:
+def onnx_bytes(
+    net: RBFNetwork, block_rows: int | None = None, *, robot: Robot | None = None, base_yaw: bool = True
+) -> bytes:
     """The single-file ONNX model of `export_onnx`, as bytes."""
     batch = torch.export.Dim("batch", min=1)
     name, layout = INPUTS[net.target]
     with _quiet_exporter():
         prog = torch.onnx.export(
-            deployed(net),
+            deployed(net, robot, base_yaw),
             (_example(net),),
             dynamo=True,
             external_data=False,
@@ -207,7 +235,7 @@ def onnx_bytes(net: RBFNetwork, block_rows: int | None = None, *, robot: Robot |
     joints, inside = model.graph.output
     joints.doc_string = "joints (B, n) float32: the free joints in URDF order and units (rad, or m if prismatic)"
     inside.doc_string = "in_workspace (B,) bool: the target lies in the trained workspace"
-    helper.set_model_props(model, metadata(net, robot))
+    helper.set_model_props(model, metadata(net, robot, base_yaw))
     onnx.checker.check_model(model)
     return model.SerializeToString()
 
@@ -285,14 +313,16 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
     return result
 
 
-def export_all(net: RBFNetwork, out_dir: str | Path, stem: str = "ik", *, robot: Robot | None = None) -> list[Path]:
+def export_all(
+    net: RBFNetwork, out_dir: str | Path, stem: str = "ik", *, robot: Robot | None = None, base_yaw: bool = True
+) -> list[Path]:
     """Write `stem`.onnx and `stem`.pt2 into `out_dir`, with `metadata(net, robot)` (pass the
-    network's robot for the example targets): both are built before either is written, and
-    written all or none, so a failure leaves the old files as they were."""
+    network's robot for the example targets and the base rotation, `base_yaw`): both are built
+    before either is written, and written all or none, so a failure leaves the old files as they were."""
     out_dir = Path(out_dir)
     files = {
-        out_dir / f"{stem}.onnx": onnx_bytes(net, robot=robot),
-        out_dir / f"{stem}.pt2": pt2_bytes(net, robot=robot),
+        out_dir / f"{stem}.onnx": onnx_bytes(net, robot=robot, base_yaw=base_yaw),
+        out_dir / f"{stem}.pt2": pt2_bytes(net, robot=robot, base_yaw=base_yaw),
     }
     write_files(files)
     return list(files)
@@ -326,6 +356,12 @@ def main(argv: list[str] | None = None) -> None:
         help="write even over a write-protected ik.onnx or ik.pt2 or into a write-protected directory "
         "(replaced files keep their mode)",
     )
+    p.add_argument(
+        "--no-base-yaw",
+        action="store_true",
+        help="export the network as trained, without turning targets around the base into its trained range "
+        "(the default does, for arms whose first joint turns about the base's vertical axis)",
+    )
     a = p.parse_args(argv)
     if not a.checkpoint.is_file():
         fail(
@@ -351,7 +387,7 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as e:  # noqa: BLE001 (a checkpoint that passes its checks but does not build: a bug)
         fail(p, f"CHECKPOINT {a.checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
     try:
-        paths = export_all(net, out_dir, robot=robot)
+        paths = export_all(net, out_dir, robot=robot, base_yaw=not a.no_base_yaw)
     except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
         fail(
             p,

@@ -18,18 +18,22 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+import numpy as np
 import torch
 from pytorch_kinematics import transforms as tf
 
 from .checkpoint import model_from_checkpoint, read_checkpoint
 from .config import Target, finite, validate_device
 from .layer import RBFNetwork
+from .robots.kinematics import joint_limits
 from .robots.robot import Robot, robot_from_record
+from .yaw import answer as yaw_answer, base_yaw as yaw_of, nearest_turn
 
 __all__ = ["IKSolver", "load_solver", "DEFAULT_ITERATIONS", "MAX_ITERATIONS"]
 
 DEFAULT_ITERATIONS = 3
 MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the polish converges in a few)
+STEP_SCALES = (2.0, 1.4, 1.0, 0.6, 0.3)  # the line search's multiples of a step (measured on the UR5)
 
 
 def _count(name: str, v) -> int:
@@ -45,10 +49,25 @@ def _positive(name: str, v, zero: bool = False) -> float:
 
 
 class IKSolver:
-    """The IK network of a checkpoint plus damped-least-squares polish on the robot's kinematics."""
+    """The IK network of a checkpoint plus damped-least-squares polish on the robot's kinematics.
+
+    tol_mm, tol_deg: what counts as converged. damping: lambda of the step (m^2; 0 is Gauss-Newton).
+    max_step: the largest joint change of one step before its line search (rad, or m for a
+    prismatic joint). margin: how far past the trained box the polish may move each joint, as a
+    share of the box's width (kept inside the URDF limits). base_yaw: turn targets around the base
+    into the trained range where the arm allows it (`rbfn.yaw`; False: as trained, targets unturned).
+    """
 
     def __init__(
-        self, model: RBFNetwork, robot: Robot, tol_mm: float = 0.1, tol_deg: float = 0.1, damping: float = 1e-8
+        self,
+        model: RBFNetwork,
+        robot: Robot,
+        tol_mm: float = 0.1,
+        tol_deg: float = 0.1,
+        damping: float = 1e-8,
+        max_step: float = 0.5,
+        margin: float = 0.1,
+        base_yaw: bool = True,
     ) -> None:
         if not isinstance(model, RBFNetwork):
             raise TypeError(f"model must be an RBFNetwork, got {type(model).__name__}")
@@ -59,10 +78,23 @@ class IKSolver:
                 f"the model returns {model.out_features} joints, the robot has {len(robot.joint_names)} "
                 f"free joints ({robot.joint_names})"
             )
+        if not isinstance(base_yaw, bool):
+            raise ValueError(f"base_yaw={base_yaw!r} is not allowed: use True or False")
         self.model, self.robot = model, robot
         self.tol_mm, self.tol_deg = _positive("tol_mm", tol_mm), _positive("tol_deg", tol_deg)
         self.damping = _positive("damping", damping, zero=True)
+        self.max_step = _positive("max_step", max_step)
+        self.margin = _positive("margin", margin, zero=True)
         self.pose_target = robot.target == Target.pose
+        self.yaw = yaw_of(robot) if base_yaw else None
+        # The polish's joint range: the trained box widened by `margin` of its width, inside the URDF
+        # limits; the first joint over its whole URDF range where targets are turned around the base.
+        u_low, u_high = (t[robot.free] for t in joint_limits(robot.chain))
+        wide = self.margin * (robot.high - robot.low)
+        self.low = torch.maximum(robot.low - wide, u_low)
+        self.high = torch.minimum(robot.high + wide, u_high)
+        if self.yaw is not None:
+            self.low[0], self.high[0] = self.yaw.limit_low, self.yaw.limit_high
 
     def _errors(self, q: torch.Tensor, x: torch.Tensor):
         """Task error e (B, 3 or 6), Jacobian J (B, 3 or 6, n), position error (B,) m, rotation (B,) rad."""
@@ -74,20 +106,67 @@ class IKSolver:
         e_rot = tf.matrix_to_axis_angle(r_err)  # (B, 3), world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
+    def _cost(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Error (B,) of joints q (B, n) against targets x in tolerances: mm / tol_mm + deg / tol_deg."""
+        pos, rot = self.robot.errors(q, x)
+        return pos / self.tol_mm + (rot / self.tol_deg if rot is not None else 0.0)
+
     def _polish(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
         """`iterations` damped-least-squares steps from joints q (B, n) toward targets x; (joints,
-        converged (B,))."""
-        low, high = self.robot.low.to(q.device), self.robot.high.to(q.device)
+        converged (B,)).
+
+        A step: dq = J^T (J J^T + lambda I)^-1 e, shortened to at most `max_step` per joint, then a
+        line search: q + a dq for a in STEP_SCALES (each within the polish's joint range), the one
+        nearest the target kept. Near a singular configuration the full Gauss-Newton step
+        overshoots (the first step from a far network answer multiplied the error threefold); the
+        search takes the shorter step there and the longer one where the error is curved the other
+        way, for one Jacobian and len(STEP_SCALES) forward kinematics a step."""
+        low, high = self.low.to(q.device), self.high.to(q.device)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=q.device)
+        scales = torch.tensor(STEP_SCALES, dtype=torch.float64, device=q.device)
+        b, n, s = q.shape[0], q.shape[1], scales.shape[0]
         for _ in range(iterations):
             e, jac, _, _ = self._errors(q, x)
             y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + self.damping * eye, e.unsqueeze(-1))
-            q = (q + (jac.transpose(-1, -2) @ y).squeeze(-1)).clamp(low, high)
-        _, _, pos, rot = self._errors(q, x)
-        ok = pos * 1000.0 <= self.tol_mm
+            dq = (jac.transpose(-1, -2) @ y).squeeze(-1)
+            dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-300)).clamp(max=1.0)
+            trials = (q[:, None] + scales[None, :, None] * dq[:, None]).clamp(low, high)  # (B, S, n)
+            cost = self._cost(trials.reshape(b * s, n), x.repeat_interleave(s, 0)).reshape(b, s)
+            q = trials[torch.arange(b, device=q.device), cost.argmin(-1)]
+        pos, rot = self.robot.errors(q, x)
+        ok = pos <= self.tol_mm
         if rot is not None:
-            ok &= torch.rad2deg(rot) <= self.tol_deg
+            ok &= rot <= self.tol_deg
         return q, ok
+
+    def _network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(the network's joints (B, n) float64, within the polish's range; the base turn d (B,) rad,
+        0 without it) for targets x (B, 3 or 7) float64."""
+        model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
+        low, high = self.low.to(x.device), self.high.to(x.device)
+        if self.yaw is None:
+            return model(x).clamp(low, high), torch.zeros(x.shape[0], dtype=torch.float64, device=x.device)
+        k = self.yaw.candidates
+        q, _, d = yaw_answer(self.yaw, model.solve, x, score=lambda qs: self._cost(qs, x.repeat(k, 1)))
+        return q.clamp(low, high), d
+
+    def _near(self, near, b: int, device) -> torch.Tensor:
+        """`near` as (B, n) float64 joints, or a clear error naming it."""
+        names = self.robot.joint_names
+        want = f"({b}, {len(names)}): the robot's current joints {names} (rad, or m if prismatic), a row per target"
+        if isinstance(near, np.ndarray):
+            near = torch.as_tensor(near)
+        if not isinstance(near, torch.Tensor):
+            raise TypeError(f"near must be a torch.Tensor or numpy.ndarray {want}; got {type(near).__name__}")
+        if tuple(near.shape) != (b, len(names)):
+            raise ValueError(f"near must be {want}; got shape {tuple(near.shape)}")
+        if not near.is_floating_point():
+            raise TypeError(f"near must be floating-point joints {want}; got dtype {near.dtype}")
+        bad = ~torch.isfinite(near).all(-1)
+        if bool(bad.any()):
+            i = int(bad.nonzero()[0])
+            raise ValueError(f"near must be finite; row {i} is {near[i].tolist()}")
+        return near.to(dtype=torch.float64, device=device)
 
     @torch.no_grad()
     def solve(
@@ -97,12 +176,20 @@ class IKSolver:
         restarts: int = 0,
         restart_iterations: int = 20,
         seed: int = 0,
+        near=None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math).
 
+        near: the robot's current joints (B, n) (rad, or m if prismatic), or None. Given, the polish
+        starts from both the network's answer and `near`, and each target gets, among the converged
+        answers, the one nearest `near` (the first joint, where targets are turned around the base,
+        by the whole turn nearest it); distance: each joint's change divided by the width of its
+        trained range, so radians and metres count alike. Solving a path point by point with the
+        previous answer as `near` keeps it on its branch.
         restarts: for the targets not converged after `iterations` steps from the network's answer,
         up to this many rounds of `restart_iterations` steps from joints drawn uniformly in the
-        trained box (generator seeded by `seed`); a target keeps the first start that converges.
+        trained box (turned with the target; generator seeded by `seed`); a target keeps the first
+        start that converges.
         """
         for name, v in (("iterations", iterations), ("restarts", restarts), ("restart_iterations", restart_iterations)):
             _count(name, v)
@@ -110,9 +197,26 @@ class IKSolver:
             raise ValueError(f"seed={seed!r} is not allowed: use an integer in [0, 2**63)")
         dev = self.robot.chain.device
         x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
+        b = x.shape[0]
+        near_q = None if near is None else self._near(near, b, dev)
+        q, d = self._network(x)
+        if near_q is None:
+            q, ok = self._polish(q, x, iterations)
+        else:
+            both, ok2 = self._polish(
+                torch.cat([q, near_q.clamp(self.low.to(dev), self.high.to(dev))]), x.repeat(2, 1), iterations
+            )
+            both = both.reshape(2, b, -1)
+            if self.yaw is not None:
+                both[..., 0] = nearest_turn(self.yaw, both[..., 0].reshape(-1), near_q[:, 0].repeat(2))[0].reshape(2, b)
+            width = (self.robot.high - self.robot.low).to(dev)
+            # Converged answers by their distance to `near`; where neither converged, the closer to the target.
+            miss = self._cost(both.reshape(2 * b, -1), x.repeat(2, 1)).reshape(2, b)
+            dist = torch.where(ok2.reshape(2, b), ((both - near_q) / width).norm(dim=-1), 1e9 + miss)
+            pick = dist.argmin(0)
+            rows = torch.arange(b, device=dev)
+            q, ok = both[pick, rows], ok2.reshape(2, b)[pick, rows]
         low, high = self.robot.low.to(dev), self.robot.high.to(dev)
-        model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
-        q, ok = self._polish(model(x).clamp(low, high), x, iterations)
         g = torch.Generator(device=dev).manual_seed(seed)
         for _ in range(restarts):
             todo = (~ok).nonzero().squeeze(-1)
@@ -121,13 +225,18 @@ class IKSolver:
             start = low + (high - low) * torch.rand(
                 todo.numel(), low.shape[0], generator=g, dtype=torch.float64, device=dev
             )
+            if self.yaw is not None:
+                start[:, 0] += self.yaw.sign * d[todo]
             q_r, ok_r = self._polish(start, x[todo], restart_iterations)
             q[todo[ok_r]], ok[todo[ok_r]] = q_r[ok_r], True
         return q, ok
 
 
-def load_solver(path: str | Path, device: str = "cpu", tol_mm: float = 0.1, tol_deg: float = 0.1) -> IKSolver:
+def load_solver(
+    path: str | Path, device: str = "cpu", tol_mm: float = 0.1, tol_deg: float = 0.1, base_yaw: bool = True
+) -> IKSolver:
     """The IKSolver of the checkpoint at `path`: its network (float64) and its robot's kinematics."""
     validate_device(device, 0, prefix="")
     ckpt = read_checkpoint(path)
-    return IKSolver(model_from_checkpoint(ckpt).to(device), robot_from_record(ckpt["robot"], device), tol_mm, tol_deg)
+    model, robot = model_from_checkpoint(ckpt).to(device), robot_from_record(ckpt["robot"], device)
+    return IKSolver(model, robot, tol_mm, tol_deg, base_yaw=base_yaw)

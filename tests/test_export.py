@@ -138,8 +138,10 @@ def test_a_pose_network_is_solved_through_its_poses_input(pose_run):
 
     robot = robot_from_record(read_checkpoint(pose_run / "checkpoint.pt")["robot"])
     x = make_split(robot, 50, seed=5).x.float()
-    with torch.no_grad():
-        y_ref, in_ref = load_model(pose_run / "checkpoint.pt").solve(x)
+    from rbfn.export import deployed
+
+    with torch.no_grad():  # the exports turn targets around the base (the UR5's first joint) as this module does
+        y_ref, in_ref = deployed(load_model(pose_run / "checkpoint.pt"), robot)(x)
     assert in_ref.any() and y_ref.shape == (50, 6)
 
     sess = ort.InferenceSession(str(pose_run / "ik.onnx"), providers=["CPUExecutionProvider"])
@@ -187,3 +189,44 @@ def test_the_deploy_example_runs_on_position_and_pose_networks(net, scara_robot,
         assert out[5].endswith("max joint error -- (10 m away)  in workspace False")
     with pytest.raises(SystemExit, match=r"holds no example targets: export it again with python -m rbfn\.export"):
         _run_example(export_onnx(net, tmp_path / "bare.onnx"), capsys)  # no robot given: no examples
+
+
+def test_exports_turn_targets_around_the_base_as_the_module_does(net, scara_robot, tmp_path):
+    """Given the robot (the SCARA's first joint turns about the base's vertical axis), ONNX and
+    .pt2 turn targets anywhere around the base into the trained range in their graph: they agree
+    with the torch module within 1e-5, flag alike, and say so in their metadata; exported without
+    the robot or with base_yaw=False they are the network as trained."""
+    ort = pytest.importorskip("onnxruntime")
+    import math
+
+    from rbfn.export import deployed
+
+    g = torch.Generator().manual_seed(11)
+    q = scara_robot.low + torch.rand(300, 3, dtype=torch.float64, generator=g) * (scara_robot.high - scara_robot.low)
+    q[150:, 0] = (2 * torch.rand(150, dtype=torch.float64, generator=g) - 1) * math.pi  # the whole turn
+    x = scara_robot.targets(q).float()
+    net.double()
+    with torch.no_grad():
+        y_ref, in_ref = deployed(net, scara_robot)(x)
+    sess = ort.InferenceSession(
+        str(export_onnx(net, tmp_path / "ik.onnx", robot=scara_robot)), providers=["CPUExecutionProvider"]
+    )
+    y_onnx, in_onnx = sess.run(None, {"positions": x.numpy()})
+    assert abs(y_onnx - y_ref.numpy()).max() < 1e-5 and (in_onnx == in_ref.numpy()).all()
+    assert sess.get_modelmeta().custom_metadata_map["base_yaw"] == "true"
+    prog = torch.export.load(str(export_pt2(net, tmp_path / "ik.pt2", robot=scara_robot))).module()
+    y_pt2, in_pt2 = prog(x)
+    assert float((y_pt2 - y_ref).abs().max()) < 1e-5 and torch.equal(in_pt2, in_ref)
+    # The turned half is answered as well as the half inside the box, and the first joint lies in its limits.
+    err, _ = scara_robot.errors(y_ref.double(), x.double())
+    assert float(err[150:].median()) < 1.5 * float(err[:150].median())
+    assert (y_ref[:, 0].abs() <= math.pi + 1e-6).all()
+    plain = ort.InferenceSession(
+        str(export_onnx(net, tmp_path / "plain.onnx", robot=scara_robot, base_yaw=False)),
+        providers=["CPUExecutionProvider"],
+    )
+    with torch.no_grad():
+        y_net, _ = net.float().solve(x)
+    net.double()
+    assert abs(plain.run(None, {"positions": x.numpy()})[0] - y_net.numpy()).max() < 1e-5
+    assert plain.get_modelmeta().custom_metadata_map["base_yaw"] == "false"

@@ -71,7 +71,10 @@ def test_polish_converges_and_stays_in_the_box(ur5_run):
     split, robot = _targets()
     raw_pos, _ = robot.errors(solver.model(split.x), split.x)
     q, ok = solver.solve(split.x, iterations=8)
-    assert ((q >= robot.low) & (q <= robot.high)).all()
+    # The polish's range: the trained box widened by a tenth of its width, the base joint's URDF limits.
+    wide = 0.1 * (robot.high - robot.low)
+    assert ((q[:, 1:] >= (robot.low - wide)[1:]) & (q[:, 1:] <= (robot.high + wide)[1:])).all()
+    assert torch.equal(solver.low[1:], (robot.low - wide)[1:]) and float(solver.high[0]) == 2 * torch.pi
     pos, rot = robot.errors(q, split.x)
     assert float(ok.double().mean()) >= 0.95
     assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
@@ -91,18 +94,22 @@ def test_restarts_rescue_the_targets_the_polish_leaves(ur5_run):
     assert torch.equal(q[ok1], q1[ok1]) and ok[ok1].all()
     pos, rot = robot.errors(q, split.x)
     assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
-    assert ((q >= robot.low) & (q <= robot.high)).all()
+    assert ((q >= solver.low) & (q <= solver.high)).all()
     assert torch.equal(solver.solve(split.x, iterations=1, restarts=5)[0], q)  # seeded
     with pytest.raises(ValueError, match="restarts=-2"):
         solver.solve(split.x, restarts=-2)
 
 
 def test_pose_export_matches_the_module(ur5_run, tmp_path):
+    """Training's ik.onnx turns targets around the base as the torch module of the exporters does."""
     ort = pytest.importorskip("onnxruntime")
+    from rbfn.export import deployed
+
     out, _ = ur5_run
-    split, _ = _targets(50)
+    split, robot = _targets(50)
     x = split.x.float()
-    q, inside = load_model(out / "checkpoint.pt").solve(x)
+    with torch.no_grad():
+        q, inside = deployed(load_model(out / "checkpoint.pt"), robot)(x)
     sess = ort.InferenceSession(str(out / "ik.onnx"), providers=["CPUExecutionProvider"])
     q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"poses": x.numpy()})
     assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-4)
@@ -149,3 +156,145 @@ def test_solver_settings_are_checked(panda_ckpt, kwargs, message):
 
     with pytest.raises(ValueError, match=message):
         IKSolver(model_from_checkpoint(panda_ckpt), robot_from_record(panda_ckpt["robot"]), **kwargs)
+
+
+def _turned(split, robot, seed=7):
+    """The split's joints with the first joint drawn anywhere in [-pi, pi] (the rest in the box), and their targets."""
+    g = torch.Generator().manual_seed(seed)
+    q = split.q.clone()
+    q[:, 0] = (2 * torch.rand(q.shape[0], generator=g, dtype=torch.float64) - 1) * torch.pi
+    return q, robot.targets(q)
+
+
+def test_near_picks_the_nearest_converged_answer(ur5_run):
+    """Given the current joints, the answer is the converged one nearest them: the truth itself
+    where the current joints are near it, and the whole turn of the base joint nearest them."""
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, _ = _targets(100)
+    g = torch.Generator().manual_seed(3)
+    near = split.q + 0.02 * torch.randn(split.q.shape, generator=g, dtype=torch.float64)
+    q, ok = solver.solve(split.x, near=near)
+    assert float(ok.double().mean()) >= 0.97
+    assert float((q - split.q)[ok].abs().max()) < 1e-3  # the truth's branch, within the tolerance
+    turned = near.clone()
+    turned[:, 0] -= 2 * torch.pi  # the same pose one turn of the base joint away (UR5 limits +-2 pi)
+    q2, ok2 = solver.solve(split.x, near=turned)
+    both = ok & ok2
+    assert float(both.double().mean()) >= 0.95
+    one_turn_back = q[:, 0] - 2 * torch.pi
+    expected = torch.where(one_turn_back >= -2 * torch.pi, one_turn_back, q[:, 0])  # inside the URDF limits
+    assert torch.allclose(q2[both, 0], expected[both], atol=1e-3) and (one_turn_back[both] >= -2 * torch.pi).any()
+    assert torch.allclose(q2[both, 1:], q[both, 1:], atol=1e-3)
+    assert torch.equal(solver.solve(split.x, near=near)[0], q)  # deterministic
+
+
+def test_near_keeps_a_dense_path_on_its_branch(ur5_run):
+    """A dense path through the box (the poses of a straight joint-space line across half the box,
+    away from singular poses, 200 points) solved point by point, each near the last answer:
+    converged everywhere and no step jumps (every joint moves less than 0.1 rad a step; the
+    path's own steps are below 0.01)."""
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    _, robot = _targets(1)
+    mid, width = 0.5 * (robot.low + robot.high), robot.high - robot.low
+    s = torch.linspace(0, 1, 200, dtype=torch.float64)[:, None]
+    path = robot.targets(mid - 0.25 * width + 0.5 * s * width)
+    q, ok = solver.solve(path[:1], near=(mid - 0.25 * width)[None])
+    steps = []
+    for x in path[1:]:
+        q_next, ok_next = solver.solve(x[None], near=q)
+        steps.append(float((q_next - q).abs().max()))
+        q, ok = q_next, ok & ok_next
+    assert bool(ok) and max(steps) < 0.1, max(steps)
+
+
+@pytest.mark.parametrize(
+    "near,error,message",
+    [
+        (
+            "shape",
+            ValueError,
+            r"near must be \(10, 6\): the robot's current joints \['shoulder_pan_joint'.*got shape \(10, 5\)",
+        ),
+        ("nan", ValueError, r"near must be finite; row 2 is \[nan"),
+        ("int", TypeError, r"near must be floating-point joints .*got dtype torch.int64"),
+        ("list", TypeError, r"near must be a torch.Tensor or numpy.ndarray \(10, 6\).*got list"),
+    ],
+)
+def test_bad_near_is_refused(ur5_run, near, error, message):
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, _ = _targets(10)
+    bad = {
+        "shape": split.q[:, :5],
+        "nan": split.q.clone().index_fill_(0, torch.tensor([2]), float("nan")),
+        "int": split.q.long(),
+        "list": split.q.tolist(),
+    }[near]
+    with pytest.raises(error, match=message):
+        solver.solve(split.x, near=bad)
+
+
+def test_a_target_turned_around_the_base_is_solved_as_well_as_inside_the_box(ur5_run):
+    """Targets whose base joint lies anywhere in [-pi, pi] (outside the trained [-1, 1]) are turned
+    into the box: the same raw accuracy and the same polished success as inside it; without the
+    turn (base_yaw=False) most of them are lost."""
+    split, robot = _targets(300)
+    _, x_turned = _turned(split, robot)
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    raw_in, _ = robot.errors(solver._network(split.x)[0], split.x)
+    raw_out, _ = robot.errors(solver._network(x_turned)[0], x_turned)
+    assert abs(float(raw_out.median()) / float(raw_in.median()) - 1) < 0.05
+    _, ok_in = solver.solve(split.x)
+    q, ok_out = solver.solve(x_turned)
+    assert abs(float(ok_out.double().mean()) - float(ok_in.double().mean())) <= 0.01
+    assert float(ok_out.double().mean()) >= 0.95
+    assert (q[:, 0].abs() <= 2 * torch.pi).all()  # within the UR5's URDF limits
+    _, ok_plain = load_solver(ur5_run[0] / "checkpoint.pt", base_yaw=False).solve(x_turned)
+    assert float(ok_plain.double().mean()) < 0.8
+
+
+@pytest.mark.parametrize("name", ["scara", "ur5", "panda"])
+def test_the_shipped_arms_turn_about_the_base(name):
+    from rbfn.robots.robot import load_robot
+    from rbfn.yaw import base_yaw
+
+    robot = load_robot(compose_config("train", f"robot={name}").robot)
+    assert robot.base_yaw_sign() == 1
+    yaw = base_yaw(robot)
+    assert (
+        yaw is not None and yaw.candidates >= 2 and (yaw.low, yaw.high) == (float(robot.low[0]), float(robot.high[0]))
+    )
+
+
+@pytest.mark.parametrize(
+    "old,new",
+    [
+        (
+            '<origin xyz="0 0 0" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>',
+            '<origin xyz="0.1 0 0" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>',
+        ),
+        (
+            '<origin xyz="0 0 0" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>',
+            '<origin xyz="0 0 0" rpy="0 0 0"/>\n    <axis xyz="0 1 0"/>',
+        ),
+        (
+            '<origin xyz="0 0 0" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>',
+            '<origin xyz="0 0 0" rpy="0.3 0 0"/>\n    <axis xyz="0 0 1"/>',
+        ),
+    ],
+    ids=["offset-off-the-axis", "axis-not-vertical", "tilted-origin"],
+)
+def test_an_arm_without_the_symmetry_is_not_turned(old, new):
+    """A first joint off the base's vertical axis, about another axis or tilted: detected as such,
+    so its targets are solved as trained."""
+    from rbfn.robots import scara
+    from rbfn.robots.kinematics import load_serial_chain, read_urdf
+    from rbfn.robots.robot import Robot
+    from rbfn.yaw import base_yaw
+
+    text = read_urdf(scara.URDF_PATH)
+    assert text.count(old) == 1
+    text = text.replace(old, new)
+    chain = load_serial_chain(text, scara.END_LINK, torch.float64)
+    box = torch.tensor([0.0, 0.3, 0.5], dtype=torch.float64), torch.tensor([2.0, 2.0, 1.5], dtype=torch.float64)
+    robot = Robot(chain, text, scara.END_LINK, *box)
+    assert robot.base_yaw_sign() == 0 and base_yaw(robot) is None

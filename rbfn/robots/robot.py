@@ -113,6 +113,37 @@ class Robot:
             return pos, None
         return pos, rotation_error_deg(pose[:, :3, :3], tf.quaternion_to_matrix(x[:, 3:]))
 
+    def base_yaw_sign(self, tol: float = 1e-9) -> int:
+        """+1 or -1 where the first free joint turns the whole arm about the root's vertical (z)
+        axis, so that turning a target about z by d is turning that joint by +d or -d (the sign
+        of its axis); 0 otherwise. Read from the chain: the first free joint is revolute, its axis
+        is the root's +-z and its origin, after every fixed offset and held joint before it, lies
+        on that axis (within `tol`, m and unit axis). The SCARA, the UR5 and the Panda have it."""
+        t = torch.eye(4, dtype=torch.float64)
+        names = self.chain.get_joint_parameter_names()
+        for frame in self.chain._serial_frames:
+            joint = frame.joint
+            if joint.offset is not None:
+                t = t @ joint.offset.get_matrix()[0].to(device="cpu", dtype=torch.float64)
+            if joint.joint_type == "fixed":
+                continue
+            axis = joint.axis.to(device="cpu", dtype=torch.float64)
+            axis = axis / axis.norm()
+            if joint.name in self.locked:  # held: part of the fixed transform before the first free joint
+                held = torch.eye(4, dtype=torch.float64)
+                value = self.locked[joint.name]
+                if joint.joint_type == "revolute":
+                    held[:3, :3] = tf.axis_angle_to_matrix(axis * value)
+                else:
+                    held[:3, 3] = axis * value
+                t = t @ held
+                continue
+            assert joint.name in names
+            z = t[:3, :3] @ axis  # the joint's axis in the root frame
+            on_axis = float(t[:2, 3].abs().max()) <= tol and float(z[:2].abs().max()) <= tol
+            return int(torch.sign(z[2])) if joint.joint_type == "revolute" and on_axis else 0
+        return 0
+
     def record(self) -> dict:
         """Plain data for a checkpoint's `robot` entry."""
         return {
