@@ -12,6 +12,7 @@ joints in robot.locked are held at their value (desired amplitude 0). The joint 
 
 from __future__ import annotations
 
+import logging
 import reprlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,8 @@ from .loop import RealLoop, crossover_limit
 from .models import ArmModel, NominalModel
 from .plants import ArmPlant, Plant
 from .trajectory import paper_trajectory, sinusoid_trajectory
+
+log = logging.getLogger(__name__)
 
 __all__ = ["ControlRobot", "GainFactors", "control_robot", "payload_cases"]
 
@@ -165,6 +168,16 @@ def control_robot(
     `urdf_text`: the URDF's text (a checkpoint's robot entry: data, never a file name), used
     instead of the file robot.urdf or the preset robot.name."""
     payloads, figure_payload = payload_cases(cfg, robot.rated_payload)
+    heavy = [p for p in payloads if p > robot.rated_payload]
+    if heavy:
+        log.warning(
+            "control.payloads=%s: %s kg exceed robot.rated_payload=%g kg, what %s is meant to carry; "
+            "its torques may reach the URDF's effort limits (the realistic loop clips them there)",
+            list(payloads),
+            heavy,
+            robot.rated_payload,
+            robot.name,
+        )
     source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
     arm = _load(robot, cfg, source, urdf_text)
     n, names, prismatic = arm.n, arm.joint_names, arm.prismatic

@@ -219,3 +219,15 @@ def test_ur5_compiled_step_equals_eager():
     compiled = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, compile=True)
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-8)
+
+
+def test_payload_cases_beyond_the_rated_payload_are_run_and_warned_of(caplog):
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="rbfn.control.robot_setup"):
+        control_robot(RobotConfig(), ControlConfig())  # 0, 10, 20 kg of the SCARA's rated 20
+    assert not caplog.messages
+    with caplog.at_level(logging.WARNING, logger="rbfn.control.robot_setup"):
+        setup = control_robot(RobotConfig(), ControlConfig(payloads=[0.0, 30.0]))
+    assert setup.payloads == [0.0, 30.0]
+    assert any("[30.0] kg exceed robot.rated_payload=20 kg" in m for m in caplog.messages), caplog.messages
