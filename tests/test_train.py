@@ -137,7 +137,13 @@ def test_export_command_writes_models_that_reproduce_the_checkpoint(trained, tmp
     )
     assert r.returncode == 0, r.stderr[-3000:]
     x = torch.tensor([[1.2, 0.8, -1.0], [0.5, 1.4, -0.7], [2.5, 0.0, -1.0]], dtype=torch.float32)
-    q, inside = load_model(out / "checkpoint.pt").solve(x)
+    from rbfn.checkpoint import read_checkpoint
+    from rbfn.export import deployed
+    from rbfn.robots.robot import robot_from_record
+
+    robot = robot_from_record(read_checkpoint(out / "checkpoint.pt")["robot"])
+    with torch.no_grad():  # the exports turn targets around the base (the SCARA's first joint) as this module does
+        q, inside = deployed(load_model(out / "checkpoint.pt"), robot)(x)
     sess = ort.InferenceSession(str(tmp_path / "ik.onnx"), providers=["CPUExecutionProvider"])
     q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"positions": x.numpy()})
     assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-5)
