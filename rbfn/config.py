@@ -635,9 +635,9 @@ class TuneConfig:
     closed-loop episodes). Ranges are [low, high]; times in s."""
 
     scenarios: int = 4  # payload, disturbance and noise draws, each one episode per candidate
-    duration: float = 3.0  # s, each episode; shorter than control.duration
-    payload_on: float = 1.0  # s: the payload window inside the episode
-    payload_off: float = 2.5
+    duration: float = 6.0  # s, each episode; shorter than control.duration
+    payload_on: float = 1.0  # s: the payload window inside the episode (as long as the evaluation's:
+    payload_off: float = 4.0  # with 3 s episodes and a 1.5 s window the tuned networks did worse held out)
     payload: list[float] = field(default_factory=lambda: [0.0, 1.0])  # fractions of robot.rated_payload
     disturbance: list[float] = field(default_factory=lambda: [0.5, 1.5])  # factors of control.disturbance
     disturbance_freq: list[float] = field(default_factory=lambda: [1.0, 4.0])  # rad/s
