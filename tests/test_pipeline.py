@@ -11,7 +11,7 @@ import train
 from rbfn import pipeline
 from rbfn.config import ROBOT_PRESETS
 from rbfn.data import input_scaling, make_dataset
-from rbfn.fit import ROUND_TOL, design_matrix
+from rbfn.fit import EXPONENT_ROUND_TOL, ROUND_TOL, design_matrix
 from rbfn.pipeline import check_ik_is_function, fit_weights, task_jacobians, train_ik
 from rbfn.refine import Refined
 from rbfn.robots.robot import load_robot
@@ -183,10 +183,11 @@ def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
 
 
 def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_data):
-    """The full way's ridge is the float32 rule's (rbfn.refine.refine_full): the network it keeps
-    is the one whose stable fit is best on validation, and the final weights, re-solved by that
-    rule from the deployed float32 design, are that fit (the same validation error to float32's
-    rounding of the design) and pass the rule."""
+    """The full way's ridge is the float32 rule's (rbfn.refine.refine_full, with the exponents'
+    rounding: rbfn.pipeline.refined_rule): the network it keeps is the one whose stable fit is
+    best on validation, and the final weights, re-solved by that rule from the deployed float32
+    design, are that fit (the same validation error to float32's rounding of the design) and pass
+    the rule."""
     cfg = compose_config(
         "train",
         "centers=kmeans_refine",
@@ -198,6 +199,16 @@ def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_da
         "export=false",
     )
     result = train_ik(cfg, small_data)
-    assert result.fit.rounding is not None and float(result.fit.rounding) <= ROUND_TOL
+    assert result.fit.rounding is not None and float(result.fit.rounding) <= EXPONENT_ROUND_TOL
     assert result.refine_history[-1] < result.refine_history[0]  # the refinement learned
     assert math.isclose(float(result.fit.val_mse), min(result.refine_history), rel_tol=1e-3)
+    x = small_data.test.x
+    with torch.no_grad():  # the deployed float32 module agrees with float64 as the exports must
+        assert float((result.model.float()(x.float()).double() - result.model.double()(x)).abs().max()) < 1e-5
+
+
+def test_round_exponents_picks_the_rule_after_the_full_refinement():
+    on = pipeline.refined_rule(compose_config("train", "rbfn.round_rel=0.001"))
+    off = pipeline.refined_rule(compose_config("train", "rbfn.round_exponents=false"))
+    assert on.exponents and on.round_tol == EXPONENT_ROUND_TOL and on.round_rel == 0.001
+    assert not off.exponents and off.round_tol == ROUND_TOL
