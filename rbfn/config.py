@@ -515,7 +515,7 @@ class RBFNConfig:
     # error per output where that exceeds the absolute 2e-6 (rad, m); 0: the absolute bound alone
     round_rel: float = 0.0
     # after the full refinement, the rule also counts each Gaussian's float32 exponent error
-    # (rbfn.fit.exponent_rows, at most 5e-6); false: the plain scale alone (more accurate SCARA
+    # (rbfn.fit.exponent_rows, at most 4e-6); false: the plain scale alone (more accurate SCARA
     # networks at M = 160, whose deployments then differ by up to ~3e-5)
     round_exponents: bool = True
     growth: GrowthConfig = field(default_factory=GrowthConfig)
@@ -639,9 +639,13 @@ class TuneConfig:
     closed-loop episodes). Ranges are [low, high]; times in s."""
 
     scenarios: int = 4  # payload, disturbance and noise draws, each one episode per candidate
-    duration: float = 6.0  # s, each episode; shorter than control.duration
-    payload_on: float = 1.0  # s: the payload window inside the episode (as long as the evaluation's:
-    payload_off: float = 4.0  # with 3 s episodes and a 1.5 s window the tuned networks did worse held out)
+    # s, each episode, shorter than control.duration; null: min(6 s, 0.6 control.duration)
+    duration: Optional[float] = None
+    # s, the payload window inside the episode; null: the evaluation's (1 to 4 s by default), scaled by
+    # duration / control.duration where it does not fit (with 3 s episodes and a 1.5 s window the tuned
+    # networks did worse held out than with 6 s and the evaluation's 3 s)
+    payload_on: Optional[float] = None
+    payload_off: Optional[float] = None
     payload: list[float] = field(default_factory=lambda: [0.0, 1.0])  # fractions of robot.rated_payload
     disturbance: list[float] = field(default_factory=lambda: [0.5, 1.5])  # factors of control.disturbance
     disturbance_freq: list[float] = field(default_factory=lambda: [1.0, 4.0])  # rad/s
@@ -654,26 +658,37 @@ class TuneConfig:
     max_width_factor: float = 4.0  # each log-width factor and the common one within [1 / factor, factor]
     saturation_penalty: float = 1.0  # cost per joint-share of time at the torque limit (realistic loop)
 
-    def check(self, key: str, duration: float) -> None:
-        """`duration`: control.duration, the evaluation's episode (s)."""
+    def episode(self, duration: float, payload_on: float, payload_off: float) -> tuple[float, float, float]:
+        """(episode, payload on, payload off) in s for an evaluation of `duration` s whose payload
+        window is [payload_on, payload_off]: the configured values, or where null the derived ones."""
+        d = self.duration if self.duration is not None else min(6.0, 0.6 * duration)
+        on, off = (
+            (payload_on, payload_off) if payload_off <= d else (payload_on * d / duration, payload_off * d / duration)
+        )
+        return (
+            d,
+            on if self.payload_on is None else self.payload_on,
+            off if self.payload_off is None else self.payload_off,
+        )
+
+    def check(self, key: str, duration: float, window: tuple[float, float] = (1.0, 4.0)) -> None:
+        """`duration`: control.duration, the evaluation's episode (s); `window`: its payload window (s)."""
         _need(self.scenarios >= 1, f"{key}.scenarios", self.scenarios, "must be >= 1")
+        for k in ("duration", "payload_on", "payload_off"):
+            v = getattr(self, k)
+            _need(v is None or finite(v), f"{key}.{k}", v, "must be a finite number of seconds or null (derived)")
+        d, on, off = self.episode(duration, *window)
         _need(
-            finite(self.duration) and 0.5 < self.duration < duration,
+            0.5 < d < duration,
             f"{key}.duration",
-            self.duration,
+            self.duration if self.duration is not None else f"null (derived: {d:g})",
             f"must exceed 0.5 s (errors are measured after 0.5 s) and be shorter than control.duration={duration}",
         )
         _need(
-            finite(self.payload_on) and finite(self.payload_off) and 0 <= self.payload_on < self.payload_off,
+            0 <= on < off <= d,
             f"{key}.payload_on/payload_off",
-            [self.payload_on, self.payload_off],
-            f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}",
-        )
-        _need(
-            self.payload_off <= self.duration,
-            f"{key}.payload_on/payload_off",
-            [self.payload_on, self.payload_off],
-            f"need 0 <= payload_on < payload_off <= {key}.duration={self.duration}",
+            [on, off],
+            f"need 0 <= payload_on < payload_off <= the episode, {key}.duration={d:g}",
         )
         for k, low in (("payload", 0.0), ("disturbance", 0.0), ("disturbance_freq", 0.0), ("disturbance_phase", None)):
             v = list(getattr(self, k))
@@ -717,8 +732,15 @@ class NetworkConfig:
     aco: ACOConfig = field(default_factory=ACOConfig)
     tune: TuneConfig = field(default_factory=TuneConfig)
 
-    def check(self, key: str = "control.network", duration: float = 10.0, controllers: tuple = ()) -> None:
-        """`duration`: control.duration (s); `controllers`: control.controllers."""
+    def check(
+        self,
+        key: str = "control.network",
+        duration: float = 10.0,
+        controllers: tuple = (),
+        window: tuple[float, float] = (1.0, 4.0),
+    ) -> None:
+        """`duration`: control.duration (s); `controllers`: control.controllers; `window`: control's
+        payload window (s)."""
         _need(self.num_centers >= 1, f"{key}.num_centers", self.num_centers, "must be >= 1")
         _seed(f"{key}.seed", self.seed)
         self.aco.check(f"{key}.aco", self.num_centers if self.aco.colony == Colony.ant_system else 1)
@@ -744,7 +766,7 @@ class NetworkConfig:
                 f"the closed_loop objective searches continuous offsets with acor; or set {key}.objective=fit",
             )
         if any(f"arbfn_{m}" in controllers for m in CLOSED_LOOP_SEARCHES):
-            self.tune.check(f"{key}.tune", duration)
+            self.tune.check(f"{key}.tune", duration, window)
 
 
 @dataclass
@@ -864,7 +886,7 @@ class ControlConfig:
                 f"exceeds the pilot run's {n_train} training samples ({key}.duration={self.duration} s, "
                 f"one sample per {PILOT_STRIDE} periods, half of them for training)",
             )
-            n.check(f"{key}.network", self.duration, tuple(self.controllers))
+            n.check(f"{key}.network", self.duration, tuple(self.controllers), (self.payload_on, self.payload_off))
             # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
             n.aco.check_fits(
                 f"{key}.network.aco", n.num_centers, 2, "cpu", pool=min(n.aco.ant_system.candidates, n_train)

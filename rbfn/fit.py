@@ -173,9 +173,9 @@ def rounding_tolerance(
 
 
 # The tolerance on `exponent_rows`' rounding scale (output units). The deployed float32 module,
-# its ONNX and .pt2 exports differed by 0.8-1.3 times that scale on 10k in-workspace SCARA
-# positions (M = 40 and 160, refined), so 5e-6 keeps them below 1e-5.
-EXPONENT_ROUND_TOL = 5e-6
+# its ONNX and .pt2 exports differed by 0.8-2.1 times that scale on 10k in-workspace SCARA
+# positions (8 refined networks, M = 40 and 160), so 4e-6 keeps them below 1e-5.
+EXPONENT_ROUND_TOL = 4e-6
 
 
 def exponent_rows(a: torch.Tensor, z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
