@@ -9,7 +9,14 @@ Works on any exported network, for any robot: the file says what it takes. Its i
 inside the trained box and the targets they reach (forward kinematics, computed at export). This
 solves those targets and one 10 m away, and prints the joints, the largest joint error against
 the joints that reached each target (rad, or m for a prismatic joint) and the workspace flag:
-the network answers every query, the flag says when not to trust the answer.
+the network answers every query, the flag says when not to trust the answer. Where the file turns
+targets around the base (metadata "base_yaw": "true": arms whose first joint turns about the
+base's vertical axis), it also solves the first example turned 2 rad about the base, far outside
+the trained range of that joint, and prints the first joint's change (2 rad).
+
+The exported model is the network alone (no robot model, so no polish): to polish its answer to
+0.1 mm / 0.1 deg or pick the solution nearest the robot's current joints (`near`), use the torch
+solver, `rbfn.load_solver(checkpoint).solve(targets, near=q)` (docs/deployment.md).
 """
 
 import json
@@ -17,6 +24,19 @@ import sys
 
 import numpy as np
 import onnxruntime as ort
+
+
+def turned(x: np.ndarray, angle: float) -> np.ndarray:
+    """Targets x (B, 3) or (B, 7) (position in m, then a unit quaternion (w, x, y, z)) turned by
+    `angle` rad about the base's vertical (z) axis."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = x.copy()
+    out[:, 0], out[:, 1] = c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1]
+    if x.shape[1] == 7:  # (cos(a/2), 0, 0, sin(a/2)) times the quaternion
+        ch, sh = np.cos(angle / 2), np.sin(angle / 2)
+        w, qx, qy, qz = x[:, 3], x[:, 4], x[:, 5], x[:, 6]
+        out[:, 3:] = np.stack([ch * w - sh * qz, ch * qx - sh * qy, ch * qy + sh * qx, ch * qz + sh * w], -1)
+    return out
 
 
 def main(path: str) -> None:
@@ -35,6 +55,10 @@ def main(path: str) -> None:
     for i, (q, ok) in enumerate(zip(joints, inside)):
         error = f"{np.abs(q - truth[i]).max():.2e}" if i < len(truth) else "-- (10 m away)"
         print(f"target {i}: joints {np.array2string(q, precision=3)}  max joint error {error}  in workspace {bool(ok)}")
+    if meta.get("base_yaw") == "true":
+        (q_turned,), (ok,) = session.run(["joints", "in_workspace"], {inp.name: turned(targets[:1], 2.0)})
+        change = (q_turned[0] - joints[0, 0] + np.pi) % (2 * np.pi) - np.pi  # within a whole turn
+        print(f"target 0 turned 2 rad about the base: first joint changes by {change:.3f} rad  in workspace {bool(ok)}")
 
 
 if __name__ == "__main__":

@@ -34,6 +34,8 @@ __all__ = ["IKSolver", "load_solver", "DEFAULT_ITERATIONS", "MAX_ITERATIONS"]
 DEFAULT_ITERATIONS = 3
 MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the polish converges in a few)
 STEP_SCALES = (2.0, 1.4, 1.0, 0.6, 0.3)  # the line search's multiples of a step (measured on the UR5)
+PROGRESS = 0.25  # a full step that leaves more than this share of the error is searched along
+FAR = 100.0  # a network answer this many tolerances off (10 mm at the default 0.1 mm) tries the base turns
 
 
 def _count(name: str, v) -> int:
@@ -108,47 +110,90 @@ class IKSolver:
 
     def _cost(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """Error (B,) of joints q (B, n) against targets x in tolerances: mm / tol_mm + deg / tol_deg."""
+        return self._scored(q, x)[0]
+
+    def _scored(self, q: torch.Tensor, x: torch.Tensor):
+        """(`_cost`, position error (B,) mm, rotation error (B,) deg or None) of joints q against x."""
         pos, rot = self.robot.errors(q, x)
-        return pos / self.tol_mm + (rot / self.tol_deg if rot is not None else 0.0)
+        return pos / self.tol_mm + (rot / self.tol_deg if rot is not None else 0.0), pos, rot
 
-    def _polish(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def _polish(
+        self, q: torch.Tensor, x: torch.Tensor, iterations: int, first: tuple | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """`iterations` damped-least-squares steps from joints q (B, n) toward targets x; (joints,
-        converged (B,)).
+        converged (B,)). `first`: `_errors(q, x)` where already computed.
 
-        A step: dq = J^T (J J^T + lambda I)^-1 e, shortened to at most `max_step` per joint, then a
-        line search: q + a dq for a in STEP_SCALES (each within the polish's joint range), the one
+        A step: dq = J^T (J J^T + lambda I)^-1 e, shortened to at most `max_step` per joint. Where
+        the full step leaves more than PROGRESS of the error (mm / tol_mm + deg / tol_deg), a line
+        search: q + a dq for a in STEP_SCALES (each within the polish's joint range), the one
         nearest the target kept. Near a singular configuration the full Gauss-Newton step
         overshoots (the first step from a far network answer multiplied the error threefold); the
         search takes the shorter step there and the longer one where the error is curved the other
-        way, for one Jacobian and len(STEP_SCALES) forward kinematics a step."""
+        way. A step costs one Jacobian and one forward kinematics, plus len(STEP_SCALES) for the
+        few rows searched."""
         low, high = self.low.to(q.device), self.high.to(q.device)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=q.device)
         scales = torch.tensor(STEP_SCALES, dtype=torch.float64, device=q.device)
-        b, n, s = q.shape[0], q.shape[1], scales.shape[0]
-        for _ in range(iterations):
-            e, jac, _, _ = self._errors(q, x)
+        s = scales.shape[0]
+        if iterations == 0:
+            _, pos, rot = self._scored(q, x)
+        for i in range(iterations):
+            e, jac, pos, rot = first if i == 0 and first is not None else self._errors(q, x)
+            before = pos * 1000.0 / self.tol_mm + (torch.rad2deg(rot) / self.tol_deg if rot is not None else 0.0)
             y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + self.damping * eye, e.unsqueeze(-1))
             dq = (jac.transpose(-1, -2) @ y).squeeze(-1)
             dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-300)).clamp(max=1.0)
-            trials = (q[:, None] + scales[None, :, None] * dq[:, None]).clamp(low, high)  # (B, S, n)
-            cost = self._cost(trials.reshape(b * s, n), x.repeat_interleave(s, 0)).reshape(b, s)
-            q = trials[torch.arange(b, device=q.device), cost.argmin(-1)]
-        pos, rot = self.robot.errors(q, x)
+            full = (q + dq).clamp(low, high)
+            after, pos, rot = self._scored(full, x)
+            slow = (after > PROGRESS * before).nonzero().squeeze(-1)
+            if slow.numel():
+                m, n = slow.numel(), q.shape[1]
+                trials = (q[slow, None] + scales[None, :, None] * dq[slow, None]).clamp(low, high).reshape(m * s, n)
+                cost, t_pos, t_rot = self._scored(trials, x[slow].repeat_interleave(s, 0))
+                pick = torch.arange(m, device=q.device) * s + cost.reshape(m, s).argmin(-1)
+                full[slow], pos[slow] = trials[pick], t_pos[pick]
+                if rot is not None and t_rot is not None:
+                    rot[slow] = t_rot[pick]
+            q = full
         ok = pos <= self.tol_mm
         if rot is not None:
             ok &= rot <= self.tol_deg
         return q, ok
 
-    def _network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the network's joints (B, n) float64, within the polish's range; the base turn d (B,) rad,
         0 without it) for targets x (B, 3 or 7) float64."""
+        q, d, _ = self._network(x)
+        return q, d
+
+    def _network(self, x: torch.Tensor):
+        """`network`'s (joints, turn) and `_errors` at those joints (None without the base turn)."""
         model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
         low, high = self.low.to(x.device), self.high.to(x.device)
+        q = model(x).clamp(low, high)
+        d = torch.zeros(x.shape[0], dtype=torch.float64, device=x.device)
         if self.yaw is None:
-            return model(x).clamp(low, high), torch.zeros(x.shape[0], dtype=torch.float64, device=x.device)
-        k = self.yaw.candidates
-        q, _, d = yaw_answer(self.yaw, model.solve, x, score=lambda qs: self._cost(qs, x.repeat(k, 1)))
-        return q.clamp(low, high), d
+            return q, d, None
+        # The answer as trained where it is close; the targets it misses by more than FAR tolerances
+        # (outside the trained yaw range, or at its edge) try the base turns, picked by forward kinematics.
+        # The errors come with the Jacobian, the polish's first.
+        e, jac, pos, rot = self._errors(q, x)
+        cost = pos * 1000.0 / self.tol_mm + (torch.rad2deg(rot) / self.tol_deg if rot is not None else 0.0)
+        far = (cost > FAR).nonzero().squeeze(-1)
+        if far.numel():
+            xf, k = x[far], self.yaw.candidates
+            plain = lambda z: (model(z), torch.ones(z.shape[0], dtype=torch.bool, device=z.device))  # noqa: E731
+            q_f, _, d_f = yaw_answer(self.yaw, plain, xf, score=lambda qs: self._cost(qs, xf.repeat(k, 1)))
+            q_f = q_f.clamp(low, high)
+            better = self._cost(q_f, xf) < cost[far]
+            rows = far[better]
+            q[rows], d[rows] = q_f[better], d_f[better]
+            if rows.numel():
+                e_r, jac_r, pos_r, rot_r = self._errors(q[rows], x[rows])
+                e[rows], jac[rows], pos[rows] = e_r, jac_r, pos_r
+                if rot is not None and rot_r is not None:
+                    rot[rows] = rot_r
+        return q, d, (e, jac, pos, rot)
 
     def _near(self, near, b: int, device) -> torch.Tensor:
         """`near` as (B, n) float64 joints, or a clear error naming it."""
@@ -199,9 +244,9 @@ class IKSolver:
         x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
         b = x.shape[0]
         near_q = None if near is None else self._near(near, b, dev)
-        q, d = self._network(x)
+        q, d, first = self._network(x)
         if near_q is None:
-            q, ok = self._polish(q, x, iterations)
+            q, ok = self._polish(q, x, iterations, first)
         else:
             both, ok2 = self._polish(
                 torch.cat([q, near_q.clamp(self.low.to(dev), self.high.to(dev))]), x.repeat(2, 1), iterations

@@ -9,15 +9,21 @@ the trained range of that joint, solved there, and d is added back to the joint:
        spaced at most 0.8 times the joint's trained width apart, so one of them brings the target's
        first joint inside the box whatever the other joints;
     2. the network answers each turned target; the pick is the candidate flagged in the workspace
-       whose first joint lies nearest the box's centre (or, where the robot's kinematics is at hand,
-       the one whose answer reaches the target best: `IKSolver`);
-    3. recentre: d += s (q1 - c), so the turned target's first joint is the box's centre c, and
-       the network answers once more (its most accurate region);
-    4. q1 += s d, wrapped by whole turns into the joint's URDF limits (the turn nearest the box's
-       centre, or nearest `near`); an answer that no turn brings inside the limits is flagged.
+       whose first joint lies nearest the box's centre (the exports: they hold no robot model), or,
+       given a `score`, the one that reaches the target best (the solver: forward kinematics);
+    3. q1 += s d, wrapped by whole turns into the joint's URDF limits (the turn nearest the box's
+       centre; the solver's `near` picks the turn nearest the current joints); an answer that no
+       turn brings inside the limits is flagged.
 
-The solver (`rbfn.solver`) and the exports (`rbfn.export`, in their graph) both call `answer`, the
-one place of this mapping. Arms without the symmetry are solved as before, their targets not turned.
+Turned targets do not depend on the target's own yaw (only on the other joints), so a target
+anywhere around the base is answered as one inside the box. A second pass re-centring the turn on
+the network's first answer was tried and left out: 1 % off the UR5's median error for one more
+network pass.
+
+The solver (`rbfn.solver`, for the targets the network as trained misses by more than
+`rbfn.solver.FAR` tolerances) and
+the exports (`rbfn.export`, in their graph, for every target) both call `answer`, the one place of
+this mapping. Arms without the symmetry are solved as before, their targets not turned.
 Plain torch, traceable (torch.export, ONNX): no data-dependent branches.
 """
 

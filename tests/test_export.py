@@ -184,9 +184,11 @@ def test_the_deploy_example_runs_on_position_and_pose_networks(net, scara_robot,
     assert lines[0].startswith(f"{scara_robot.name}: input 'positions' ['batch', 3]")
     pose_lines = _run_example(pose_run / "ik.onnx", capsys)
     assert pose_lines[0].startswith("ur5: input 'poses' ['batch', 7], outputs the joints ['shoulder_pan_joint',")
-    for out in (lines, pose_lines):
-        assert len(out) == 6 and all("in workspace True" in line for line in out[1:5])
+    for out in (lines, pose_lines):  # both arms turn about the base: a 7th line, the first example turned 2 rad
+        assert len(out) == 7 and all("in workspace True" in line for line in out[1:5])
         assert out[5].endswith("max joint error -- (10 m away)  in workspace False")
+        change = float(out[6].split("changes by ")[1].split(" rad")[0])
+        assert out[6].startswith("target 0 turned 2 rad about the base") and abs(change - 2.0) < 0.05
     with pytest.raises(SystemExit, match=r"holds no example targets: export it again with python -m rbfn\.export"):
         _run_example(export_onnx(net, tmp_path / "bare.onnx"), capsys)  # no robot given: no examples
 
