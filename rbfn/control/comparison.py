@@ -245,7 +245,8 @@ def _closed_loop_cost(
         eval_freq=cfg.disturbance_freq,
         eval_noise_seed=loop.noise_seed if loop is not None else 0,
     )
-    sc = Scenario(tune.duration, cfg.dt, cfg.integrator, tune.payload_on, tune.payload_off)
+    duration, on, off = tune.episode(cfg.duration, cfg.payload_on, cfg.payload_off)
+    sc = Scenario(duration, cfg.dt, cfg.integrator, on, off)
     sc.validate()
     like = pilot[0]
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(dtype=like.dtype, device=like.device)

@@ -92,6 +92,18 @@ def _cost(tune: TuneConfig = TUNE, loop: LoopConfig | None = REAL) -> ClosedLoop
     )
 
 
+@pytest.mark.parametrize(
+    "duration,window,episode",
+    [(10.0, (1.0, 4.0), (6.0, 1.0, 4.0)), (5.0, (1.0, 4.0), (3.0, 0.6, 2.4)), (1.2, (0.3, 0.9), (0.72, 0.18, 0.54))],
+)
+def test_the_derived_episode_is_shorter_than_the_evaluations(duration, window, episode):
+    """Null tune.duration and window: min(6 s, 0.6 x control.duration), the evaluation's window
+    where it fits, else scaled with the episode."""
+    got = TuneConfig().episode(duration, *window)
+    assert got == pytest.approx(episode)
+    TuneConfig().check("control.network.tune", duration, window)
+
+
 @pytest.mark.parametrize("loop", [REAL, None], ids=["realistic", "ideal"])
 def test_one_batch_equals_the_candidates_separate_runs(loop):
     cost = _cost(loop=loop)
