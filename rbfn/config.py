@@ -515,7 +515,7 @@ class RBFNConfig:
     # error per output where that exceeds the absolute 2e-6 (rad, m); 0: the absolute bound alone
     round_rel: float = 0.0
     # after the full refinement, the rule also counts each Gaussian's float32 exponent error
-    # (rbfn.fit.exponent_rows, at most 5e-6); false: the plain scale alone (more accurate SCARA
+    # (rbfn.fit.exponent_rows, at most 4e-6); false: the plain scale alone (more accurate SCARA
     # networks at M = 160, whose deployments then differ by up to ~3e-5)
     round_exponents: bool = True
     growth: GrowthConfig = field(default_factory=GrowthConfig)
