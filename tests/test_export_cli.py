@@ -45,8 +45,8 @@ def pose_ckpt(tmp_path):
 @pytest.fixture()
 def fake_export(monkeypatch):
     """Exports that take no time: the files' bytes name their format."""
-    monkeypatch.setattr(rbfn.export, "onnx_bytes", lambda net, robot: b"onnx")
-    monkeypatch.setattr(rbfn.export, "pt2_bytes", lambda net, robot: b"pt2")
+    monkeypatch.setattr(rbfn.export, "onnx_bytes", lambda net, robot, base_yaw=True: b"onnx")
+    monkeypatch.setattr(rbfn.export, "pt2_bytes", lambda net, robot, base_yaw=True: b"pt2")
 
 
 def _error_line(capsys, *argv, status=2):
@@ -110,7 +110,7 @@ def test_a_write_protected_output_is_kept_unless_forced(ckpt, capsys, fake_expor
 def test_an_export_that_fails_writes_nothing(ckpt, capsys, monkeypatch, fake_export, failing):
     (ckpt.parent / "ik.onnx").write_bytes(b"old onnx")
 
-    def fail(net, robot):
+    def fail(net, robot, base_yaw=True):
         raise RuntimeError("the exporter broke\nwith a long story")
 
     monkeypatch.setattr(rbfn.export, failing, fail)
