@@ -4,13 +4,18 @@ damped-least-squares (Levenberg-Marquardt) steps on the robot's own FK and Jacob
     solver = rbfn.load_solver("outputs/train/.../checkpoint.pt")
     q, converged = solver.solve(targets, iterations=3)   # targets (B, 3) m, or (B, 7) m + quaternion
 
+    q, converged = solver.solve(targets, near=q_now)     # the converged answer nearest the current joints
+
 Each step solves (J J^T + lambda I) y = e, dq = J^T y for the task error e (position in m, and for
-pose targets the rotation error as an axis-angle vector in rad, root frame), and clamps the
-joints to the trained box, so the answer never leaves the branch the network was trained on.
-`converged` is True where the final error is within `tol_mm` and `tol_deg`. With `restarts`, the
-targets that did not converge are tried again from random joints in the box, as a sampling IK
-would, so only the hard few pay for it. Runs where torch and the robot model are available;
-deployed exports hold the network alone.
+pose targets the rotation error as an axis-angle vector in rad, root frame), shortens it to
+`max_step` and line-searches it where it makes little progress, and clamps the joints to the
+trained box widened by `margin` of its width (inside the URDF limits), so the answer stays on the
+branch the network was trained on. For arms whose first joint turns about the base's vertical
+axis, targets the network misses are turned into its trained range (`rbfn.yaw`) and that joint
+ranges over its URDF limits. `converged` is True where the final error is within `tol_mm` and
+`tol_deg`. With `restarts`, the targets that did not converge are tried again from random joints
+in the box, as a sampling IK would, so only the hard few pay for it. Runs where torch and the
+robot model are available; deployed exports hold the network alone.
 """
 
 from __future__ import annotations
