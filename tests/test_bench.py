@@ -88,3 +88,28 @@ def test_tune_gains_takes_your_arm_from_overrides_and_keeps_the_evaluations_case
     assert rated > 0 and cfg.control.payloads == [round(0.3 * rated, 6), round(0.8 * rated, 6)]
     assert cfg.control.duration == 6.0 and cfg.loop.noise_seed == 1 and not cfg.loop.ideal
     assert tuning_config("scara").robot.name == "scara"
+
+
+def test_ik_path_counts_jumps_and_unsolved_points():
+    from bench.ik_path import jumps, path_joints
+
+    low, high = torch.tensor([0.0, -1.0], dtype=torch.float64), torch.tensor([2.0, 1.0], dtype=torch.float64)
+    q = path_joints(low, high, 11, reach=0.25)
+    assert torch.allclose(q[0], torch.tensor([0.5, -0.5], dtype=torch.float64)) and torch.allclose(
+        q[-1], -q[0] + 2 * q[5]
+    )
+    ok = torch.ones(11, dtype=torch.bool)
+    assert jumps(q, ok, 0.15) == 0  # the path's own steps are 0.1
+    bent = q.clone()
+    bent[6:, 1] += 1.0  # one step of 1 rad: a branch jump
+    ok[9] = False  # and a point not solved
+    assert jumps(bent, ok, 0.15) == 2
+
+
+def test_base_yaw_bench_redraws_only_the_first_joint(scara_robot):
+    from bench.base_yaw import turned_targets
+
+    q = 0.5 * (scara_robot.low + scara_robot.high).expand(50, -1).clone()
+    turned, x = turned_targets(scara_robot, q)
+    assert torch.equal(turned[:, 1:], q[:, 1:]) and turned[:, 0].abs().max() <= torch.pi
+    assert torch.allclose(x, scara_robot.targets(turned)) and float(turned[:, 0].std()) > 1.0
