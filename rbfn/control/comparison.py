@@ -95,7 +95,7 @@ def compare_controllers(
         real = real_loop(loop, sc.dt, setup.prismatic, effort, setup.joint_scale(**kw))
         if real is not None:  # every controller meets the same noise in each payload case
             real = replace(real, noise_envs=len(setup.payloads))
-    factors = setup.gain_factors(gains, real, **kw)  # the joint scale, capped for the phase margin
+    factors = setup.gain_factors(gains, real, dt=sc.dt, **kw)  # the joint scale, capped where the loop needs
     scale, rates = factors.scale, factors.rates
     period = sc.dt if real is None else real.period  # the controllers' time step, s
     payload = torch.tensor(setup.payloads, **kw)

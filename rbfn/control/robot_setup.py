@@ -24,7 +24,7 @@ from ..config import ControlConfig, GainsConfig, RobotConfig, Trajectory
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
 from .controllers import JointRates
-from .loop import RealLoop, crossover_limit
+from .loop import RealLoop, crossover_limit, integration_limit
 from .models import ArmModel, NominalModel
 from .plants import ArmPlant, Plant
 from .trajectory import paper_trajectory, sinusoid_trajectory
@@ -85,11 +85,15 @@ class ControlRobot:
         eye = torch.eye(self.n, dtype=torch.float64)
         return self.nominal_model(payload).at(home.expand(self.n, -1), torch.zeros_like(eye)).m_times(eye)
 
-    def gain_factors(self, gains: GainsConfig, loop: RealLoop | None, **kw) -> GainFactors:
-        """The controllers' per-joint factors in `loop` (None: the ideal loop): the joint scale,
-        capped for `gains.phase_margin` in a realistic loop (`feedback_scale`), and the rates that
-        follow from it (`joint_rates`); tensors with dtype and device from kw."""
-        crossover = crossover_limit(loop, gains.phase_margin) if loop is not None and gains.phase_margin else None
+    def gain_factors(self, gains: GainsConfig, loop: RealLoop | None, dt: float | None = None, **kw) -> GainFactors:
+        """The controllers' per-joint factors in `loop` (None: the ideal loop, stepping dt s): the
+        joint scale, capped for `gains.phase_margin` in a realistic loop and, in the ideal loop with
+        dt given, for the integrator's stability (`integration_limit`; `feedback_scale`), and the
+        rates that follow from it (`joint_rates`); tensors with dtype and device from kw."""
+        if loop is not None:
+            crossover = crossover_limit(loop, gains.phase_margin) if gains.phase_margin else None
+        else:
+            crossover = None if dt is None else integration_limit(dt)
         listed = self.feedback_scale(gains, crossover)
         scale = None if listed is None else torch.tensor(listed, **kw)
         return GainFactors(listed, scale, self.joint_rates(gains, scale=scale, **kw))

@@ -35,6 +35,7 @@ from ..robots.registry import ClosedForm, closed_form
 from ..robots.robot import robot_from_record, rotation_error_deg, unit_quaternions
 from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
+from .loop import integration_limit
 from .robot_setup import control_robot
 from .simulator import ArmPlant, Loop, Periods, Plant, Scenario, make_chunk, stage_disturbances
 from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
@@ -224,7 +225,9 @@ def online_robot(
     )
     # the entry's dynamics; friction, disturbance scaled per joint
     setup = control_robot(robot, ControlConfig(trajectory=Trajectory.sinusoid), urdf_text=record["urdf"])
-    ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=setup.joint_scale(**kw))
+    listed = setup.feedback_scale(gains, integration_limit(cfg.dt))  # capped where the step cannot follow
+    scale = None if listed is None else torch.tensor(listed, **kw)
+    ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=scale)
     trained = robot_from_record(record, kw.get("device", "cpu"))  # its chain, free joints, targets
     closed, n = record_closed_form(record), setup.n
     if closed is None:

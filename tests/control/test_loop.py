@@ -373,6 +373,26 @@ def test_feedback_scale_caps_only_joints_whose_apparent_inertia_is_too_light(rob
     assert setup.feedback_scale(cfg.gains, float(bandwidth.max()) * 1.01) is setup.scale
 
 
+@pytest.mark.parametrize("robot", ["scara", "ur5", "panda"])
+def test_the_ideal_loop_caps_only_feedback_its_step_cannot_follow(robot):
+    """gain_factors in the ideal loop: the joint scale capped at integration_limit(dt); no shipped
+    arm's joint reaches it at 1 kHz (their ideal-loop results stay as they were), at 10 ms the
+    fastest joint is capped to it."""
+    from rbfn.control.loop import integration_limit
+    from rbfn.studies.control import check_control
+
+    cfg = compose_config("evaluate", f"robot={robot}", "loop=ideal")
+    setup = check_control(cfg.control, cfg.robot)
+    assert setup.gain_factors(cfg.gains, None, dt=1e-3).listed is setup.scale
+    apparent = 1.0 / torch.linalg.inv(setup.home_inertia()).diagonal()
+    s = torch.ones(setup.n, dtype=torch.float64) if setup.scale is None else torch.tensor(setup.scale)
+    bandwidth = cfg.gains.K * s / apparent
+    dt = 1.5 * 0.5 / float(bandwidth.max())  # the fastest joint 1.5x beyond what this step follows
+    capped = torch.tensor(setup.gain_factors(cfg.gains, None, dt=dt).listed, dtype=torch.float64)
+    fastest = int(bandwidth.argmax())
+    assert float(cfg.gains.K * capped[fastest] / apparent[fastest]) == pytest.approx(integration_limit(dt))
+
+
 def test_a_coupled_arm_keeps_off_its_torque_limits_with_the_phase_margin():
     """The Unitree Z1 (example-robot-data, robot=urdf): its elbow's apparent inertia is a tenth of
     M_33, so the joint-scaled feedback crosses over at about 470 rad/s, beyond what one period of
