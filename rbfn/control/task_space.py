@@ -37,7 +37,7 @@ from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
 from .loop import integration_limit
 from .robot_setup import control_robot
-from .simulator import ArmPlant, Loop, Periods, Plant, Scenario, make_chunk, stage_disturbances
+from .simulator import ArmPlant, Loop, Periods, Plant, Scenario, SimulationDiverged, make_chunk, stage_disturbances
 from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
@@ -348,8 +348,13 @@ def run_online(
             loop, rq = out.loop, out.q
             qs[sl] = rq
             k += m
-            if not bool(torch.isfinite(loop.q).all()):
-                raise RuntimeError(f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s): q = {loop.q.tolist()}")
+            bad = (~torch.isfinite(loop.q).all(-1)).nonzero()
+            if bad.numel():
+                e = int(bad[0, 0])
+                row = f"{'frozen' if e >= n_s else 'adapted'} network, link-1 error {100 * sizes[e % n_s]:g} %"
+                raise SimulationDiverged(
+                    f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s), {row}: q = {loop.q[e].tolist()}", e
+                )
             # Pairs (x, q) of this segment; the frozen environments learn nothing.
             x = rob.targets(*rob.measure(rq))  # (m, B, d)
             a = net.design(x).transpose(0, 1)  # (B, m, P)

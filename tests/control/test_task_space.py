@@ -78,3 +78,14 @@ def test_the_registry_alone_chooses_the_closed_form():
     for change in ({"urdf": scara["urdf"] + "\n<!-- a copy -->"}, {"locked": {"joint3": 1.0}}, {"target": "pose"}):
         assert record_closed_form({**scara, **change}) is None
         assert path_name(replace(OnlineConfig(), path=None), {**scara, **change}) == "sinusoid"
+
+
+def test_a_diverged_online_run_names_its_row_and_step(panda_ckpt):
+    """A step far too coarse for the observer (K_o dt = 50): the run stops as a diverged
+    simulation, which the entry points print as one line, naming the row, the step and its state."""
+    from rbfn.control.simulator import SimulationDiverged
+
+    cfg = OnlineConfig(duration=4.0, dt=0.05, sizes=[0.0, 0.03], update_every=2)
+    gains = replace(GainsConfig(), observer_gain=1000.0)
+    with pytest.raises(SimulationDiverged, match=r"online run diverged by step \d+ \(t = .* s\), adapted network"):
+        run_online(model_from_checkpoint(panda_ckpt), panda_ckpt["robot"], cfg, gains, list(cfg.sizes))
