@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.metadata
 import importlib.util
 import io
 import re
@@ -157,6 +158,18 @@ def _plugin_override(o: str) -> bool:
     return re.match(r"^[+~]*hydra(/launcher|/sweeper|\.launcher\.|\.sweeper\.)", o) is not None
 
 
+def _expand_erd(arg: str) -> str:
+    """`$ERD`, the pages' name for example-robot-data's robots folder (docs/your_arm.md sets it),
+    expanded; skips where example-robot-data is not installed."""
+    if "$ERD" not in arg:
+        return arg
+    try:
+        root = importlib.metadata.distribution("example-robot-data").locate_file("")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data is not installed")
+    return arg.replace("$ERD", str(Path(str(root)) / "cmeel.prefix" / "share" / "example-robot-data" / "robots"))
+
+
 @pytest.mark.parametrize("page,argv", HYDRA_COMMANDS)
 def test_command_composes_and_validates(page, argv):
     name = argv[1].removesuffix(".py")
@@ -172,7 +185,7 @@ def test_command_composes_and_validates(page, argv):
             overrides.append(a[1:-1])  # `[key=value]`: an optional override, checked as given
         else:
             overrides.append(a)
-    overrides = _first_values(overrides, multirun)
+    overrides = [_expand_erd(o) for o in _first_values(overrides, multirun)]
     try:
         cfg = compose_config(name, *overrides)
     except Exception:
