@@ -34,7 +34,7 @@ from .network import ControlNet, control_network, desired_states, pilot_residual
 from .robot_setup import ControlRobot, GainFactors, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import Reference
-from .tuning import ClosedLoopCost, Tuned, TuneScenarios, tune_network, tuning_scenarios
+from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, tune_network, tuning_scenarios
 
 __all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name", "gap_closure"]
 
@@ -106,6 +106,7 @@ def compare_controllers(
     nets: dict[str, ControlNet] = {}
     tuned: dict[str, Tuned] = {}
     cost: ClosedLoopCost | None = None
+    confirm: ClosedLoopCost | None = None  # the same scenarios at the evaluation's length
     objective = cfg.network.objective
 
     def static(method: str) -> ControlNet:
@@ -146,7 +147,11 @@ def compare_controllers(
             if objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
                 if cost is None:  # the tuning's scenarios, and smc's reference errors on them
                     cost = _closed_loop_cost(cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
-                tuned[name] = tune_network(method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor)
+                found = tune_network(method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor)
+                if confirm is None:  # the same scenarios, as long as the evaluation's episode
+                    args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
+                    confirm = _closed_loop_cost(*args, full_length=True)
+                tuned[name] = confirmed(found, cost, confirm)
                 net = tuned[name].net
             else:
                 net = static(method)
@@ -231,9 +236,11 @@ def _closed_loop_cost(
     real: RealLoop | None,
     loop: LoopConfig | None,
     pilot: tuple[torch.Tensor, torch.Tensor],
+    full_length: bool = False,
 ) -> ClosedLoopCost:
     """The closed-loop tuning's cost for this comparison: its own scenarios (`tuning_scenarios`,
-    never the evaluation's payloads, disturbance frequency or noise seed) and episode, in the same
+    never the evaluation's payloads, disturbance frequency or noise seed) and episode (with
+    `full_length`, as long as the evaluation's, its payload window: the confirmation), in the same
     loop, at the same gains, factors and adaptation rate, from the twin's initial weights."""
     tune, plant = cfg.network.tune, setup.plant
     amplitude = [float(plant.dist)] * setup.n if isinstance(plant.dist, (int, float)) else list(plant.dist)
@@ -246,6 +253,8 @@ def _closed_loop_cost(
         eval_noise_seed=loop.noise_seed if loop is not None else 0,
     )
     duration, on, off = tune.episode(cfg.duration, cfg.payload_on, cfg.payload_off)
+    if full_length:
+        duration, on, off = cfg.duration, cfg.payload_on, cfg.payload_off
     sc = Scenario(duration, cfg.dt, cfg.integrator, on, off)
     sc.validate()
     like = pilot[0]

@@ -46,7 +46,7 @@ from .network import ControlNet, desired_states
 from .simulator import Plant, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import Reference
 
-__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "SEARCHES"]
+__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed", "SEARCHES"]
 
 SEARCHES = ("aco", "random", "cmaes")
 MAX_DRAWS = 1000  # redraws of a scenario value that falls on an evaluation case before giving up
@@ -286,6 +286,8 @@ class Tuned:
     seconds: float
     curve: list[float] = field(default_factory=list)
     x: torch.Tensor | None = None
+    confirmation: tuple[float, float] | None = None  # (this network, the twin) at the evaluation's length
+    kept_twin: bool = False  # the search's network failed the confirmation: the twin kept
 
 
 class _Tally:
@@ -305,6 +307,32 @@ class _Tally:
             self.best, self.best_x = float(values[i]), x[i].clone()
         self.curve.append(self.best)
         return values
+
+
+def confirmed(found: Tuned, cost: ClosedLoopCost, confirm: ClosedLoopCost) -> Tuned:
+    """`found` where, on the tuning's scenarios in episodes as long as the evaluation's (`confirm`),
+    its cost is no higher than its k-means twin's; else the twin, with its tuning cost
+    (`kept_twin`). An adapted network can drift unstable after the tuning's shorter episode ends
+    (on the Unitree Z1 a tuned network's weights drove two joints to their torque limits from
+    8 s of 10), which the search cannot see; the confirmation costs 2 x S episodes of the
+    evaluation's length, counted in `episodes`."""
+    if found.x is None:
+        return found
+    twin = torch.zeros_like(found.x)
+    mine, theirs = (float(c) for c in confirm(torch.stack([found.x, twin])))
+    episodes = found.episodes + 2 * confirm.s
+    if mine <= theirs:
+        return replace(found, episodes=episodes, confirmation=(mine, theirs))
+    twin_cost = float(cost(twin[None])[0])
+    return replace(
+        found,
+        net=cost.net(twin, found.seconds),
+        cost=twin_cost,
+        episodes=episodes + cost.s,
+        x=twin,
+        confirmation=(mine, theirs),
+        kept_twin=True,
+    )
 
 
 def tune_network(

@@ -66,6 +66,8 @@ def evaluate_control(
                 "episodes": t.episodes,
                 "seconds": t.seconds,
                 "curve": t.curve,
+                "confirmation": None if t.confirmation is None else list(t.confirmation),
+                "kept_twin": t.kept_twin,
             }
             for n, t in tuned.items()
         }

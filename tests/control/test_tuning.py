@@ -187,12 +187,46 @@ def test_every_search_spends_the_same_budget_and_keeps_its_best():
     assert twin is not None and twin.episodes == TUNE.scenarios
     for name in SEARCHES:
         tuned = res.runs[name].tuned
-        assert tuned is not None and tuned.episodes == budget, name
-        assert len(tuned.curve) == TUNE.iterations and tuned.cost == tuned.curve[-1]
+        assert tuned is not None and tuned.confirmation is not None, name
+        # the search's budget, then the confirmation against the twin (and the twin's cost where kept)
+        assert tuned.episodes == budget + 2 * TUNE.scenarios + (TUNE.scenarios if tuned.kept_twin else 0), name
+        assert len(tuned.curve) == TUNE.iterations
+        assert tuned.cost == (twin.cost if tuned.kept_twin else tuned.curve[-1])
         assert all(b <= a for a, b in zip(tuned.curve, tuned.curve[1:]))  # best so far
+        mine, theirs = tuned.confirmation
+        assert tuned.kept_twin == (mine > theirs)
         if name != "arbfn_cmaes":  # their first candidate is the twin
-            assert tuned.cost <= twin.cost
+            assert tuned.curve[-1] <= twin.cost
     assert res.tune_scenarios is not None and not set(res.tune_scenarios.payloads.tolist()) & {0.0, 10.0}
+
+
+def test_a_network_worse_than_its_twin_at_the_evaluations_length_gives_way_to_the_twin():
+    """confirmed: a found network whose cost in full-length episodes exceeds the twin's is
+    replaced by the twin (its tuning cost, its network); one no worse is kept as found."""
+    from rbfn.control.tuning import confirmed
+
+    cost = _cost(loop=None)
+    tuned = tune_network("random", cost, TUNE, seed=0)
+    assert tuned.x is not None
+
+    class Fixed:  # a confirmation whose verdict is given
+        s = cost.s
+
+        def __init__(self, mine: float, theirs: float) -> None:
+            self.values = torch.tensor([mine, theirs], dtype=torch.float64)
+
+        def __call__(self, x: torch.Tensor) -> torch.Tensor:
+            assert x.shape == (2, cost.dimension) and not x[1].any()  # the found network, then the twin
+            return self.values
+
+    kept = confirmed(tuned, cost, Fixed(1.0, 2.0))  # type: ignore[arg-type]
+    assert not kept.kept_twin and kept.net is tuned.net and kept.episodes == tuned.episodes + 2 * cost.s
+    back = confirmed(tuned, cost, Fixed(3.0, 2.0))  # type: ignore[arg-type]
+    assert back.kept_twin and back.confirmation == (3.0, 2.0) and back.x is not None and not back.x.any()
+    assert back.cost == float(cost(torch.zeros(1, cost.dimension, dtype=torch.float64))[0])
+    assert torch.equal(back.net.centers, cost.twin.centers.double()) and torch.equal(
+        back.net.widths, cost.twin.widths.double()
+    )
 
 
 def test_a_searchs_network_is_what_it_reports():
@@ -275,8 +309,10 @@ def test_metrics_json_reports_the_tuned_cost_beside_the_held_out_result(tmp_path
     json.dumps(info)
     assert set(info["tuning"]) == {"arbfn_kmeans", "arbfn_aco"}
     aco = info["tuning"]["arbfn_aco"]
-    assert set(aco) == {"cost", "held_out", "episodes", "seconds", "curve"}
-    assert aco["episodes"] == TUNE.population * TUNE.iterations * TUNE.scenarios and len(aco["curve"]) == 2
+    assert set(aco) == {"cost", "held_out", "episodes", "seconds", "curve", "confirmation", "kept_twin"}
+    extra = 2 * TUNE.scenarios + (TUNE.scenarios if aco["kept_twin"] else 0)  # the confirmation
+    assert aco["episodes"] == TUNE.population * TUNE.iterations * TUNE.scenarios + extra and len(aco["curve"]) == 2
+    assert len(aco["confirmation"]) == 2 and aco["kept_twin"] == (aco["confirmation"][0] > aco["confirmation"][1])
     assert math.isfinite(aco["held_out"]) and aco["held_out"] > 0
     assert len(info["tuning_scenarios"]["payloads"]) == TUNE.scenarios
     events = EventAccumulator(str(tmp_path)).Reload()
