@@ -117,7 +117,7 @@ def for_checkpoint(dcfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
     loop's rate and encoders are the checkpoint robot's. ValueError naming both robots, before any
     work, where `overrides` choose another robot (robot=NAME, or robot.* keys)."""
     cfg = cast(EvalConfig, OmegaConf.to_object(dcfg))
-    path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
+    path = find_checkpoint(cfg) if _uses_checkpoint(cfg) else None
     if path is None:
         return dcfg  # the `robot` group decides
     ckpt = read_checkpoint(path)
@@ -216,6 +216,12 @@ def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> 
     return metrics, seconds
 
 
+def _uses_checkpoint(cfg: EvalConfig) -> bool:
+    """Whether a checkpoint decides the run: a part evaluates one (ik, online), or one is named
+    (`checkpoint=PATH`: its robot is the closed loop's too, with ik and online off)."""
+    return bool(cfg.ik or cfg.online.enabled or cfg.checkpoint)
+
+
 def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
     """Every setting checked before any work: (the checkpoint's path, its dict), both None when
     no part needs one or none was found. A checkpoint of another robot than `cfg.robot` is refused
@@ -223,7 +229,7 @@ def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
     validate_evaluate(cfg)
     if not (cfg.ik or cfg.online.enabled or cfg.control.enabled):
         raise ValueError("nothing to evaluate: ik, online.enabled and control.enabled are all false; enable a part")
-    path = find_checkpoint(cfg) if cfg.ik or cfg.online.enabled else None
+    path = find_checkpoint(cfg) if _uses_checkpoint(cfg) else None
     ckpt = read_checkpoint(path) if path is not None else None  # a bad file stops before any work
     if path is not None and ckpt is not None and not same_robot(cfg.robot, ckpt["robot"]):
         r = cfg.robot
@@ -276,7 +282,13 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
     seconds: dict[str, float] = {}
     # The checkpoint's parts run in a forked process beside the control part where that is safe
     # (rbfn.studies.beside), started before this process's TensorBoard writer and its thread.
-    both = ckpt is not None and cfg.control.enabled and cfg.parallel and can_fork(cfg.device)
+    both = (
+        ckpt is not None
+        and (cfg.ik or cfg.online.enabled)
+        and cfg.control.enabled
+        and cfg.parallel
+        and can_fork(cfg.device)
+    )
     # The forked parts keep a core busy: this process takes one thread too while they run. Two
     # threads here beside them measured the control part 1.2x slower and its centre selection 2-4x.
     one = both and not cfg.num_threads

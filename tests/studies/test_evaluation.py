@@ -55,6 +55,15 @@ def test_a_checkpoint_is_evaluated_on_its_robot_control_part_included(ur5_ckpt, 
     assert m["control_info"]["gains"]["K"] == cfg.gains.K and len(m["control_info"]["gains"]["joint_scale"]) == 6
 
 
+def test_a_named_checkpoint_chooses_the_closed_loops_robot_with_its_other_parts_off(ur5_ckpt, tmp_path):
+    """checkpoint=PATH ik=false online.enabled=false: the closed loop on the checkpoint's arm (the
+    UR5), not the `robot` group's default (the SCARA); without checkpoint=, the group's."""
+    parts = ["ik=false", "online.enabled=false", *CONTROL]
+    m = evaluate.run(composed(f"checkpoint={ur5_ckpt}", *parts), tmp_path / "named")
+    assert m["robots"] == {"control": UR5} and len(m["control"]["smc"]["0kg"]["rms_err"]) == 6
+    assert composed(*parts).robot.name == "scara"
+
+
 @pytest.mark.parametrize(
     "overrides,said",
     [
