@@ -209,8 +209,7 @@ def compare_controllers(
         )
     if cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
         t0 = time.perf_counter()
-        twin_cost = float(cost(torch.zeros(1, cost.dimension, dtype=torch.float64))[0])
-        runs["arbfn_kmeans"].tuned = Tuned(nets["kmeans"], twin_cost, cost.s, time.perf_counter() - t0)
+        runs["arbfn_kmeans"].tuned = Tuned(nets["kmeans"], cost.twin_cost, cost.s, time.perf_counter() - t0)
     if "smc" in runs and "smc_exact" in runs:
         for run in runs.values():
             for case, m in run.metrics.items():

@@ -38,6 +38,7 @@ __all__ = [
     "Recorded",
     "simulate",
     "control_metrics",
+    "metric_tensors",
     "make_chunk",
     "stage_disturbances",
     "payload_coefficients",
@@ -565,15 +566,15 @@ def _simulate_real(
 serializable(Reference, Loop, Periods, Recorded, SlidingState, RealState, RealPeriods, Sensing, Actuation, Applied)
 
 
-def control_metrics(
+def metric_tensors(
     roll: Rollout,
     q_des: torch.Tensor,
     scenario: Scenario,
     limits: tuple[torch.Tensor, torch.Tensor] | None = None,
-) -> list[dict]:
-    """Per environment: rms_err, max_err (t > metrics_after), max_err_payload (inside the payload
-    window), peak_tau (whole run) and chattering (mean |dtau/dt|), each a list of n (per joint: rad
-    or m; N m or N; N m/s or N/s); in the realistic loop also `saturated`, the fraction of control
+) -> dict[str, torch.Tensor]:
+    """Each metric as (B, n), per environment and joint: rms_err, max_err (t > metrics_after),
+    max_err_payload (inside the payload window), peak_tau (whole run) and chattering (mean
+    |dtau/dt|) (rad or m; N m or N; N m/s or N/s); in the realistic loop also `saturated`, the fraction of control
     periods the joint's torque was at its limit. q_des: the desired joints at the rollout's rows.
     With `limits` (lower, upper) (n,) (the URDF's position limits, rad or m, +-inf where none) also
     `limit_breach`, the fraction of the rollout's rows (whole run) the joint spent beyond a limit,
@@ -596,5 +597,16 @@ def control_metrics(
         beyond = torch.maximum(lower - roll.q, roll.q - upper).clamp(min=0.0)  # (T, B, n)
         per_key["limit_breach"] = (beyond > 0).to(roll.q).mean(0)
         per_key["limit_excess"] = beyond.amax(0)
+    return per_key
+
+
+def control_metrics(
+    roll: Rollout,
+    q_des: torch.Tensor,
+    scenario: Scenario,
+    limits: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> list[dict]:
+    """`metric_tensors` per environment: a dict of lists of n floats each (metrics.json's form)."""
+    per_key = metric_tensors(roll, q_des, scenario, limits)
     lists = {k: v.tolist() for k, v in per_key.items()}
     return [{k: v[i] for k, v in lists.items()} for i in range(roll.q.shape[1])]

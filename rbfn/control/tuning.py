@@ -28,6 +28,7 @@ each starts at the twin and keeps the best candidate it evaluated.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -43,7 +44,7 @@ from ..layer import gaussian_features
 from .controllers import Gains, JointRates, Model, make_controller
 from .loop import RealLoop
 from .network import ControlNet, desired_states
-from .simulator import Plant, Scenario, SimulationDiverged, control_metrics, simulate
+from .simulator import Plant, Scenario, SimulationDiverged, metric_tensors, simulate
 from .trajectory import Reference
 
 __all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed", "SEARCHES"]
@@ -181,6 +182,12 @@ class ClosedLoopCost:
         self.smc_rms = rms[0].clamp_min(1e-12)  # (S, n)
         self.smc_seconds = time.perf_counter() - t0
 
+    @functools.cached_property
+    def twin_cost(self) -> float:
+        """The k-means twin's cost (x = 0), run once and shared by the searches' confirmation and
+        arbfn_kmeans' record."""
+        return float(self(torch.zeros(1, self.dimension, dtype=torch.float64))[0])
+
     @property
     def dimension(self) -> int:
         """D = M (d + 1) + 1: the centre offsets, the log-widths and the common log-width."""
@@ -268,8 +275,7 @@ class ClosedLoopCost:
             loop=self.loop,
         )
         q_des = self.ref.q_d if self.loop is None else self.ref.q_d[:: self.loop.substeps][: roll.t.shape[0]]
-        per_env = control_metrics(roll, q_des, self.scenario)
-        rms = torch.tensor([m["rms_err"] for m in per_env], dtype=torch.float64).reshape(k, s, self.n)
+        rms = metric_tensors(roll, q_des, self.scenario)["rms_err"].double().cpu().reshape(k, s, self.n)
         sat = torch.zeros_like(rms) if roll.saturated is None else roll.saturated.double().cpu().reshape(k, s, self.n)
         return rms, sat
 
@@ -323,11 +329,10 @@ def confirmed(found: Tuned, cost: ClosedLoopCost, confirm: ClosedLoopCost) -> Tu
     episodes = found.episodes + 2 * confirm.s
     if mine <= theirs:
         return replace(found, episodes=episodes, confirmation=(mine, theirs))
-    twin_cost = float(cost(twin[None])[0])
     return replace(
         found,
         net=cost.net(twin, found.seconds),
-        cost=twin_cost,
+        cost=cost.twin_cost,
         episodes=episodes + cost.s,
         x=twin,
         confirmation=(mine, theirs),
