@@ -8,6 +8,7 @@ validation error.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -15,12 +16,14 @@ from dataclasses import dataclass, field
 
 import torch
 
-from aco import ACOR, AntSystem
+from aco import ACOR, ACOResult, AntSystem
 
 from .centers import kmeans_centers, ols_centers, random_centers
 from .config import CentersConfig
 from .objectives import FitObjective, cluster_objective
 from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Selection", "select", "choose_widths", "colony_objective", "visibility"]
 
@@ -161,7 +164,8 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
 
 # Above this many centre coordinates M * d, or where the full colony's fits would cost more than
 # FULL_FLOPS floating-point operations, the colony searches a few global width quantities instead
-# of every coordinate (see `_acor_reduced`); otherwise everything (as the SCARA's: its M = 80
+# of every coordinate (see `_acor_reduced`), or, where the refinement follows and re-optimises
+# every width from the same start, skips itself; otherwise everything (as the SCARA's: its M = 80
 # colony costs about 6e10, the UR5's M = 200 one 2.6e12, which took 9 minutes).
 FULL_SEARCH_MAX = 2048
 FULL_FLOPS = 2e11
@@ -186,6 +190,21 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     ranked = colony_objective(objective, m, a.fit_rows, seed) if a.objective == "fit" else objective
     full_cost = (r.archive_size + a.ants * a.iterations) * ranked.cost(m)
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
+        if cfg.refine.enabled:
+            # The reduced colony's two global width quantities are a subset of what the refinement
+            # then optimises per centre from the same k-means start, and it erased their gain
+            # (UR5, M = 2000: docs/results.md): the colony skips itself.
+            log.info(
+                "colony: skipped at M = %d (M * d = %d > %d or %.2g flops > %.2g): it could search two "
+                "global width quantities only, which the refinement re-optimises per centre; the k-means "
+                "centres and their validation-tuned widths go to the refinement as they are",
+                m,
+                m * d,
+                FULL_SEARCH_MAX,
+                full_cost,
+                FULL_FLOPS,
+            )
+            return c0, w0, ACOResult(best=torch.empty(0), best_value=math.nan, iterations=0)
         return _acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
