@@ -66,6 +66,8 @@ class ControlComparison:
     robot: ControlRobot | None = None
     joint_scale: list[float] | None = None  # the controllers' torque-gain factor per joint (None: 1)
     tune_scenarios: TuneScenarios | None = None  # the closed-loop tuning's scenarios, where it ran
+    tuning_seconds: float = 0.0  # wall time of the closed-loop tuning: the scenarios' smc references,
+    # every search and its confirmation
 
 
 def compare_controllers(
@@ -108,6 +110,7 @@ def compare_controllers(
     cost: ClosedLoopCost | None = None
     confirm: ClosedLoopCost | None = None  # the same scenarios at the evaluation's length
     objective = cfg.network.objective
+    tuning_seconds = 0.0
 
     def static(method: str) -> ControlNet:
         """The network `method` selects from the pilot run (once per method)."""
@@ -145,6 +148,7 @@ def compare_controllers(
                 )
             method = name[len("arbfn_") :]
             if objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
+                t_tune = time.perf_counter()
                 if cost is None:  # the tuning's scenarios, and smc's reference errors on them
                     cost = _closed_loop_cost(cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
                 found = tune_network(method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor)
@@ -153,6 +157,7 @@ def compare_controllers(
                     confirm = _closed_loop_cost(*args, full_length=True)
                 tuned[name] = confirmed(found, cost, confirm)
                 net = tuned[name].net
+                tuning_seconds += time.perf_counter() - t_tune
             else:
                 net = static(method)
             features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
@@ -222,6 +227,7 @@ def compare_controllers(
         robot=setup,
         joint_scale=factors.listed,
         tune_scenarios=None if cost is None else cost.scenarios,
+        tuning_seconds=tuning_seconds,
     )
 
 

@@ -72,6 +72,7 @@ def evaluate_control(
             for n, t in tuned.items()
         }
         info["tuning_scenarios"] = res.tune_scenarios.listed() if res.tune_scenarios is not None else None
+        info["tuning_seconds"] = res.tuning_seconds  # every search with its confirmation, and the set-up
         for n, t in tuned.items():
             for it, v in enumerate(t.curve):
                 writer.add_scalar(f"control/tuning/{n}/cost", v, it + 1)

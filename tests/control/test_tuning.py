@@ -315,5 +315,6 @@ def test_metrics_json_reports_the_tuned_cost_beside_the_held_out_result(tmp_path
     assert len(aco["confirmation"]) == 2 and aco["kept_twin"] == (aco["confirmation"][0] > aco["confirmation"][1])
     assert math.isfinite(aco["held_out"]) and aco["held_out"] > 0
     assert len(info["tuning_scenarios"]["payloads"]) == TUNE.scenarios
+    assert info["tuning_seconds"] >= aco["seconds"] > 0  # the whole tuning holds the search and more
     events = EventAccumulator(str(tmp_path)).Reload()
     assert [e.step for e in events.Scalars("control/tuning/arbfn_aco/cost")] == [1, 2]
