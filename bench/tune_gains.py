@@ -39,27 +39,15 @@ from rbfn.control.comparison import compare_controllers
 from rbfn.control.simulator import SimulationDiverged
 from rbfn.studies.control import check_control
 
+from .tuning_time import evaluation_config
+
 SCORED = ("smc_obs", "arbfn_kmeans")
 
 
 def tuning_config(robot: str, overrides: list[str] | None = None):
     """The evaluation config of `robot` (or of a `robot=` among `overrides`, evaluate.py's
     overrides) in the realistic loop, with the tuning scenarios; robot=urdf's keys derived."""
-    import pathlib
-
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
-    from rbfn.config import register_configs
-    from rbfn.robots.derive import derive_evaluate
-
-    register_configs()
-    conf = str(pathlib.Path(__file__).resolve().parents[1] / "conf")
-    with initialize_config_dir(config_dir=conf, version_base=None):
-        extra = list(overrides or [])
-        chosen = [] if any(o.startswith("robot=") for o in extra) else [f"robot={robot}"]
-        cfg = OmegaConf.to_object(compose("evaluate", overrides=[*chosen, "loop=realistic", "gains=realistic", *extra]))
-    cfg = derive_evaluate(cfg)
+    cfg = evaluation_config(robot, ["loop=realistic", "gains=realistic", *(overrides or [])])
     rated = cfg.robot.rated_payload
     cfg.control = replace(
         cfg.control,

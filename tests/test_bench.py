@@ -90,6 +90,20 @@ def test_tune_gains_takes_your_arm_from_overrides_and_keeps_the_evaluations_case
     assert tuning_config("scara").robot.name == "scara"
 
 
+def test_tuning_time_times_the_whole_tuning_and_each_search():
+    from bench.tuning_time import evaluation_config, measure
+
+    small = ["control.duration=2", "control.payload_off=1.5", "control.network.num_centers=4"]
+    small += ["control.network.tune.iterations=2", "control.network.tune.population=3"]
+    small += ["control.network.tune.scenarios=1", "control.network.tune.duration=1"]
+    cfg = evaluation_config("scara", small)
+    assert cfg.control.network.objective == "closed_loop" and not cfg.loop.ideal  # evaluate.py's defaults
+    r = measure(cfg, ["smc", "arbfn_kmeans", "arbfn_aco"], repeats=1, device="cpu")
+    assert r["comparison_s"] >= r["tuning_s"] >= r["search_s"]["arbfn_aco"] > 0
+    # 2 x 3 candidates on 1 scenario, then the confirmation's 2 (and the twin's 1 where it was kept)
+    assert set(r["search_s"]) == {"arbfn_aco"} and r["episodes"]["arbfn_aco"] in (8, 9)
+
+
 def test_ik_path_counts_jumps_and_unsolved_points():
     from bench.ik_path import jumps, path_joints
 
