@@ -104,6 +104,31 @@ def test_tuning_time_times_the_whole_tuning_and_each_search():
     assert set(r["search_s"]) == {"arbfn_aco"} and r["episodes"]["arbfn_aco"] in (8, 9)
 
 
+def test_closed_loop_summary_pairs_each_seeds_runs(tmp_path):
+    from bench.closed_loop import figure, load, main, tables
+
+    def run(scale: float) -> dict:  # smc's RMS 1 per joint; the others `scale` x theirs
+        control = {"smc": {"0kg": {"rms_err": [1.0, 1.0]}, "10kg": {"rms_err": [1.0, 1.0]}}}
+        factors = {"arbfn_kmeans": 1.0, "arbfn_aco": scale, "arbfn_random": 0.9, "arbfn_cmaes": 0.95}
+        for name, f in factors.items():
+            control[name] = {case: {"rms_err": [0.5 * f, 0.5 * f]} for case in ("0kg", "10kg")}
+        tuning = {n: {"cost": f, "curve": [1.0, f], "kept_twin": False} for n, f in factors.items()}
+        return {"control": control, "control_info": {"tuning": tuning, "tuning_seconds": 12.0}}
+
+    for seed, scale in ((0, 0.6), (1, 0.8)):
+        (tmp_path / f"scara_s{seed}").mkdir()
+        (tmp_path / f"scara_s{seed}" / "metrics.json").write_text(json.dumps(run(scale)))
+    runs = load(tmp_path)
+    assert list(runs) == ["scara"] and sorted(runs["scara"]) == [0, 1]
+    text = tables(runs)
+    assert "| 0 | 2.000 | 1.000 | 0.600 | 0.900 | 0.950 | 0.600 | 0.667 |" in text  # smc = n = 2
+    assert "below 1 in 2/2 seeds, at most 0.7 in 1/2" in text and "at most 1 in 2/2" in text
+    figure(runs, tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 0
+    with pytest.raises(SystemExit):  # nothing to summarize
+        main(["--summarize", str(tmp_path / "empty")])
+
+
 def test_ik_path_counts_jumps_and_unsolved_points():
     from bench.ik_path import jumps, path_joints
 
