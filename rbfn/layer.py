@@ -20,12 +20,24 @@ also folds the workspace flag's cover test into that product: it adds s_i = r^2 
 to exponent i, so that "some centre lies within the cover radius r" reads
 max_i (exponent_i + s_i) >= 0, and scales head weight i by exp(-s_i), so the outputs are the same;
 one pass over the (B, M) exponents less (where every s_i <= MAX_COVER_SHIFT, so that nothing
-overflows float32; otherwise the squared distances are taken). About the centroid u and the
-centres stay O(1), so the expansion's cancellation costs float32 little: on the trained SCARA
-network (M = 80, 1e5 workspace positions) the joints differ from float64 by at most 9e-6
-(rad, m), against 3e-6 by broadcasting (the plain path), and the median FK error is unchanged
-(0.856 mm); `solve`, its cover test folded, 1.0e-5 on another trained network (9.3e-6 by
-`forward`), with the same flags as float64. In float64 the two paths agree to about 1e-12 (tested).
+overflows float32; otherwise the squared distances are taken).
+
+The expansion cancels: its terms are of size (|u|^2 + |mu_i - centroid|^2) / (2 sigma_i^2), the
+exponent far smaller where a Gaussian is narrow beside its distance from the centroid (the `full`
+refinement makes such Gaussians), and a float32 product loses 2^-24 times that size, a
+relative error of the Gaussian that depends on the product's order of operations (ONNX Runtime's
+against torch's). So v and the product are taken in float64 whatever the module's dtype
+(`EXPONENT_DTYPE`; the factors built in float64 from the buffers), and the exponents are cast to
+the module's dtype once, before exp2 / exp and the head: a float32 module then rounds only the
+Gaussians and the head (the float32 rule's scale, `rbfn.fit.ROUND_TOL`), whatever the order. On
+the trained SCARA networks (M = 40 and 160, five seeds each, 10 000 positions in the trained joint
+box) float32 `solve` is within 2.6e-6 to 4.3e-6 (rad, m) of float64, on the UR5's (M = 2000,
+10 000 poses) within 2.1e-6 (a float32 product: 6.6e-6 to 3.4e-5 and 1.2e-5), and the ONNX and
+.pt2 exports within 9.5e-6 of the module, flagging alike. The float64 product costs a
+float32 module's fast path about 1.3x (SCARA, M = 160) to 1.5x (UR5, M = 2000) at B = 10 000 on one
+CPU thread, and needs a device with float64 (CPU, CUDA); a float64 module computes as it did. In
+float64 the two paths agree to about 1e-12 (tested).
+
 Eager calls of the fast path process rows in blocks of about `block_elements` exponents, which
 stay in cache; traced and exported graphs are one piece with a dynamic batch dimension.
 `features` takes the plain broadcast distances.
@@ -109,21 +121,27 @@ def distance_rows(z: torch.Tensor) -> torch.Tensor:
 # ------------------------------------------------------- the fast path: exponents by one product
 class _Expansion(NamedTuple):
     """Gaussian exponents of features x (B, d) as matrix products, in base 2 (eager) or e (traced):
-    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |v|^2] @ weight. The
-    fast path's form of `gaussian_features` (see the module docstring), tested against the plain
-    path; it keeps its own rounding order, which the trained metrics and the exports carry."""
+    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |v|^2] @ weight, both in
+    EXPONENT_DTYPE (float64). The fast path's form of `gaussian_features` (see the module
+    docstring), tested against the plain path; it keeps its own rounding order, which the trained
+    metrics and the exports carry."""
 
-    centroid: torch.Tensor  # (d,) the centres' mean, the origin of u
-    in_weight: torch.Tensor  # (d, d + 1): [diag(1 / scale), 0]
+    centroid: torch.Tensor  # (d,) the centres' mean, the origin of u (the module's dtype)
+    in_weight: torch.Tensor  # (d, d + 1): [diag(1 / scale), 0] (float64, as are the weights below)
     in_bias: torch.Tensor  # (d + 1,): [-offset / scale - centroid, 1]
     weight: torch.Tensor  # (d + 2, M): rows mu_i' / sigma_i^2, (1 - |mu_i'|^2) / (2 sigma_i^2) and
     # -1 / (2 sigma_i^2), times log_base(e), mu_i' = mu_i - centroid
-    to_sq_dist: torch.Tensor  # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base))
+    to_sq_dist: torch.Tensor  # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base)), module dtype
     gaussians: Callable[[torch.Tensor], torch.Tensor]  # exponents -> activations (eager: in place)
     cover_weight: torch.Tensor | None  # (d + 2, M): weight with the cover shift s_i (base units) added
     # to the constant row; None where the cover test is not folded
     head_scale: torch.Tensor | None  # (M,): base^-s_i, the head weights' factor for cover_weight's exponents
+    # (module dtype)
 
+
+EXPONENT_DTYPE = torch.float64
+"""The dtype of the fast path's input transform and exponent product whatever the module's own
+(the module docstring): the exponents are cast to the module's dtype after the product."""
 
 MAX_COVER_SHIFT = 60.0  # largest cover shift s_i folded (natural units): e^60 and e^-60 are normal float32
 
@@ -145,7 +163,12 @@ def _expand(
     fold: bool,
 ) -> _Expansion:
     """The exponents' matrix form for centres (M, d), widths (M,), the input scaling (d,) and,
-    with `fold`, the cover radius (0-dim)."""
+    with `fold`, the cover radius (0-dim): the products' factors in float64 whatever the buffers'
+    dtype (see the module docstring), what multiplies the float32 exponents and head in theirs."""
+    dtype = centers.dtype
+    centers, widths, offset, scale, cover_radius = (
+        t.to(EXPONENT_DTYPE) for t in (centers, widths, offset, scale, cover_radius)
+    )
     centroid = centers.mean(0)
     mu = centers - centroid
     log_e = LOG2E if base2 else 1.0
@@ -158,13 +181,13 @@ def _expand(
         shift = 0.5 * cover_radius.square() * inv  # (M,) in base units
         d = centers.shape[1]
         cover_weight = torch.cat([weight[:d], (weight[d] + shift)[None], weight[d + 1 :]])
-        head_scale = torch.exp2(-shift) if base2 else torch.exp(-shift)
+        head_scale = (torch.exp2(-shift) if base2 else torch.exp(-shift)).to(dtype)
     return _Expansion(
-        centroid,
+        centroid.to(dtype),
         in_weight,
         in_bias,
         weight,
-        -2.0 / log_e * widths.square(),
+        (-2.0 / log_e * widths.square()).to(dtype),
         torch.Tensor.exp2_ if base2 else torch.exp,
         cover_weight,
         head_scale,
@@ -320,9 +343,9 @@ class RBFNetwork(nn.Module):
         """`x` as a tensor (B, in_features), or a clear TypeError/ValueError naming what is wrong."""
         return self._inputs(x)
 
-    def _feat(self, x: torch.Tensor) -> torch.Tensor:
-        """Features (..., d) of public inputs (..., in_features), in the module's dtype."""
-        x = x.to(self.centers.dtype)
+    def _feat(self, x: torch.Tensor, dtype: torch.dtype | None = None) -> torch.Tensor:
+        """Features (..., d) of public inputs (..., in_features), in `dtype` (default the module's)."""
+        x = x.to(dtype or self.centers.dtype)
         return x if self.inputs is None else self.inputs(x)
 
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
@@ -420,11 +443,14 @@ class RBFNetwork(nn.Module):
     def _exponents(self, x: torch.Tensor, cover: bool = False) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
         """[u, 1] (B, d + 1) and the Gaussian exponents (B, M), -||z - mu_i||^2 / (2 sigma_i^2) in
         the expansion's base, for public inputs x (B, in_features); and the expansion. With `cover`
-        and a folded cover test, the exponents carry the cover shift (see the module docstring)."""
+        and a folded cover test, the exponents carry the cover shift (see the module docstring).
+        Computed in EXPONENT_DTYPE from the inputs' features in it, returned in the module's dtype."""
         e = self._expansion()
-        v = torch.addmm(e.in_bias, self._feat(x), e.in_weight)
+        dtype = self.centers.dtype
+        v = torch.addmm(e.in_bias, self._feat(x, EXPONENT_DTYPE), e.in_weight)  # (B, d + 1) float64
         weight = e.cover_weight if cover and e.cover_weight is not None else e.weight
-        return v, torch.cat([v, v.square().sum(-1, keepdim=True)], -1) @ weight, e
+        a = torch.cat([v, (v * v).sum(-1, keepdim=True)], -1) @ weight  # (B, M) float64 (v * v: square is slow in it)
+        return v.to(dtype), a.to(dtype), e
 
     def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion, cover: bool = False) -> torch.Tensor:
         """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M) of
@@ -441,10 +467,10 @@ class RBFNetwork(nn.Module):
         y = W h + A z + b, h_i = exp(-|z - mu_i|^2 / (2 sigma_i^2)), z = (x - offset) / scale.
 
         The plain path (`fast = False`) is that equation. The fast path (default) computes the same
-        exponents as one matrix product in row blocks (`_forward_rows`; see the module docstring):
-        within 1e-12 of the plain path in float64, and in float32 both within 1e-5 (rad, m) of
-        float64 on networks fitted by the float32 rule (tested), with exp2 and no (B, M, d)
-        differences. Training, evaluation and the exports take the fast path."""
+        exponents as one matrix product (in float64) in row blocks (`_forward_rows`; see the module
+        docstring): within 1e-12 of the plain path in float64, and in float32 both within 1e-5
+        (rad, m) of float64 on networks fitted by the float32 rule (tested), with exp2 and no
+        (B, M, d) differences. Training, evaluation and the exports take the fast path."""
         x = self._inputs(x)
         if self.fast:
             return self._blocks(self._forward_rows, x)

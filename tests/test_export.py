@@ -76,6 +76,26 @@ def test_round_trip_10k_positions_batches_1_7_10000(net, tmp_path):
         assert torch.equal(in_pt2, in_ref) and torch.equal(in_onnx, in_ref)
 
 
+def test_exports_agree_beside_a_narrow_gaussian_far_from_the_centroid(tmp_path):
+    """The exported graphs take the exponents' product in float64 too (rbfn.layer): beside a
+    Gaussian narrow beside its distance from the centres' centroid, where the product in float32
+    put the exports 5e-3 from the float32 module, ONNX (onnxruntime) and .pt2 agree with it and
+    with float64 within 2e-6 (measured 6e-7), and flag alike."""
+    ort = pytest.importorskip("onnxruntime")
+    from .test_layer import narrow_far_net
+
+    net, x = narrow_far_net()
+    with torch.no_grad():
+        y64, in64 = net.solve(x)
+        y32, in32 = net.for_export().solve(x)
+        y_pt2, in_pt2 = torch.export.load(str(export_pt2(net, tmp_path / "ik.pt2"))).module()(x)
+    sess = ort.InferenceSession(str(export_onnx(net, tmp_path / "ik.onnx")), providers=["CPUExecutionProvider"])
+    y_onnx, in_onnx = (torch.from_numpy(a) for a in sess.run(None, {"positions": x.numpy()}))
+    for y, inside in ((y_pt2, in_pt2), (y_onnx, in_onnx)):
+        assert float((y - y32).abs().max()) < 2e-6 and float((y.double() - y64).abs().max()) < 2e-6
+        assert torch.equal(inside, in32) and torch.equal(inside, in64)
+
+
 def test_export_is_one_graph_whatever_the_eager_block_size(net, small_data, tmp_path):
     """The exported program does not split rows into blocks: one graph for any batch size."""
     import copy

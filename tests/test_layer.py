@@ -249,6 +249,40 @@ def test_matrix_product_exponents_match_broadcast_distances():
         assert (mask32 != mask_ref).sum() <= 2
 
 
+def narrow_far_net(seed=0):
+    """A network with a Gaussian narrow (sigma = 0.01) beside its distance from the centres'
+    centroid (about 4, scaled units), and 500 float32 inputs beside that centre (its training
+    inputs): an exponent expanded about the centroid in float32 loses about
+    u (|z - c0|^2 + |mu - c0|^2) / (2 sigma^2) ~ 1e-2 there (u = 2^-24), the Gaussian that relative error."""
+    g = torch.Generator().manual_seed(seed)
+    c = torch.randn(12, 3, generator=g, dtype=torch.float64) * 0.5
+    c[0] = torch.tensor([3.0, -2.5, 2.0], dtype=torch.float64)
+    w = torch.full((12,), 0.6, dtype=torch.float64)
+    w[0] = 0.01
+    one = torch.ones(3, dtype=torch.float64)
+    net = assemble(c, w, 0.1 * torch.randn(12 + 4, 3, generator=g, dtype=torch.float64), 2 * one, one, tail=True)
+    x = (2 + c[0] + 0.02 * torch.randn(500, 3, generator=g, dtype=torch.float64)).float()
+    net.set_domain(x.double(), net(x.double()).detach())
+    return net.eval(), x
+
+
+def test_float32_exponents_are_exact_beside_a_narrow_gaussian_far_from_the_centroid():
+    """The fast path takes the exponents' product in float64 whatever the module's dtype and
+    casts them: beside a narrow Gaussian far from the centroid the float32 module (forward and
+    solve, its cover test folded) is within 1e-6 of float64 at the same inputs (measured 3e-7),
+    where the product in float32 was off by 4e-3. In float64 the fast path is the plain equation to
+    1e-10 here (its own expansion error, u = 2^-53 times the same factor)."""
+    net, x = narrow_far_net()
+    with torch.no_grad():
+        y64, in64 = net.solve(x)
+        assert (y64 - _plain(net, x.double())).abs().max() < 1e-10 and in64.all()
+        net32 = copy.deepcopy(net).float()
+        assert net32._expansion().cover_weight is not None  # the cover test folded
+        y32, in32 = net32.solve(x)
+        assert y32.dtype == torch.float32 and (y32.double() - y64).abs().max() < 1e-6 and torch.equal(in32, in64)
+        assert (net32(x).double() - y64).abs().max() < 1e-6
+
+
 def _trained(tail=True, m=60, seed=5):
     """A network fitted as training fits one (ridge least squares, the ridge chosen by the float32
     rule) to a smooth map of 3 inputs, and inputs over its domain and beyond."""
