@@ -514,10 +514,6 @@ class RBFNConfig:
     # float32 deployment: a fit's rounding scale may reach this fraction of its own validation RMS
     # error per output where that exceeds the absolute 2e-6 (rad, m); 0: the absolute bound alone
     round_rel: float = 0.0
-    # after the full refinement, the rule also counts each Gaussian's float32 exponent error
-    # (rbfn.fit.exponent_rows, at most 4e-6): deployments within 1e-5 of each other, at a cost in
-    # accuracy (SCARA M = 160: 0.71 against 0.125 mm); false: the plain scale alone, as every fit
-    round_exponents: bool = False
     growth: GrowthConfig = field(default_factory=GrowthConfig)
 
     def check(self, n_train: int, key: str = "rbfn") -> None:

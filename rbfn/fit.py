@@ -29,8 +29,6 @@ __all__ = [
     "ROUND_TOL",
     "rounding_tolerance",
     "RoundingRule",
-    "exponent_rows",
-    "EXPONENT_ROUND_TOL",
 ]
 
 # Ridge values relative to the mean diagonal of the Gram matrix.
@@ -115,7 +113,6 @@ def ridge_fit(
     a_val_eval: torch.Tensor | None = None,
     round_tol: float = ROUND_TOL,
     round_rel: float = 0.0,
-    a_round: torch.Tensor | None = None,
 ) -> RidgeFit:
     """Ridge least squares for every ridge in `ridges`; keep the one with the lowest validation MSE.
 
@@ -133,8 +130,7 @@ def ridge_fit(
     formula, summation order) by far more than the dtype's precision; choosing on the measured
     error alone would reward the op order that happened to be measured. Where the constraint
     binds, the ridge is refined between the grid's neighbours. If no ridge is stable, the most
-    stable one is kept. `a_round` (..., Nv, P), where given, replaces |a_val| in the rounding
-    scale (`exponent_rows`: each Gaussian's error grown by its exponent's).
+    stable one is kept.
     """
     gram = a_train.transpose(-1, -2) @ a_train
     rhs = a_train.transpose(-1, -2) @ y_train
@@ -154,8 +150,7 @@ def ridge_fit(
         mse = (pred - y_val.unsqueeze(-2)).square().sum(-1).mean(-2)
         if deploy is None:
             return mse, None
-        rows = a_val if a_round is None else a_round
-        return mse, rounding_scale(rows, w_flat, deploy).unflatten(-1, (n_l, n_out)).amax((-3, -1))
+        return mse, rounding_scale(a_val, w_flat, deploy).unflatten(-1, (n_l, n_out)).amax((-3, -1))
 
     return ridge_choose(gram, rhs, score, ridges, deploy, round_tol, round_rel)
 
@@ -172,36 +167,15 @@ def rounding_tolerance(
     return (round_rel * (best / outputs).sqrt()).clamp(min=round_tol)
 
 
-# The tolerance on `exponent_rows`' rounding scale (output units). The deployed float32 module,
-# its ONNX and .pt2 exports differed by 0.8-2.1 times that scale on 10k in-workspace SCARA
-# positions (8 refined networks, M = 40 and 160), so 4e-6 keeps them below 1e-5.
-EXPONENT_ROUND_TOL = 4e-6
-
-
-def exponent_rows(a: torch.Tensor, z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    """|a| (..., N, P) with each Gaussian column i grown by its exponent's rounding,
-    1 + (|z - c0|^2 + |mu_i - c0|^2) / (2 sigma_i^2) (c0 the centres' centroid, the origin the
-    deployed module takes its exponents from, `rbfn.layer`): a float32 exponent carries an absolute
-    error of a few u times those magnitudes, the Gaussian that relative error. Narrow Gaussians far
-    from the centroid amplify it far past the u of the plain `rounding_scale`. z (..., N, d) scaled
-    inputs, centres (M, d), widths (M,)."""
-    c0 = centers.mean(-2, keepdim=True)
-    grow = (z - c0).square().sum(-1, keepdim=True) + (centers - c0).square().sum(-1)
-    grow = 1.0 + grow / (2.0 * widths.square())
-    m = centers.shape[-2]
-    return torch.cat([a[..., :m].abs() * grow, a[..., m:].abs()], -1)
-
-
 @dataclass(frozen=True)
 class RoundingRule:
     """The float32-stability rule of `ridge_fit` as one value: a fit deployed in `dtype` may have a
-    rounding scale (`rounding_scale`, of `exponent_rows` with `exponents`) of at most
-    `rounding_tolerance(mse, outputs, round_tol, round_rel)` (output units: rad, m)."""
+    rounding scale (`rounding_scale`) of at most `rounding_tolerance(mse, outputs, round_tol,
+    round_rel)` (output units: rad, m)."""
 
     dtype: torch.dtype = torch.float32
     round_tol: float = ROUND_TOL
     round_rel: float = 0.0
-    exponents: bool = False
 
 
 def ridge_choose(

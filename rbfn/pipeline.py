@@ -19,13 +19,11 @@ import torch
 from .config import RefineLoss, Solver, Target, TrainConfig
 from .data import Dataset, input_scaling
 from .fit import (
-    EXPONENT_ROUND_TOL,
     ROUND_TOL,
     RidgeFit,
     RoundingRule,
     deployed_design,
     design_matrix,
-    exponent_rows,
     ridge_fit,
     rounding_scale,
     rounding_tolerance,
@@ -78,15 +76,14 @@ def fit_weights(
     the training and validation inputs' features (N, d). After mini-batch refinement (`refined`
     with trained weights) those weights are kept instead where their validation loss (the one
     refinement minimised) is lower and they are as stable in float32 as the ridge rule demands;
-    the fit's ridge is then NaN. After the full refinement the ridge follows the rule it refined
-    under (`refined_rule`)."""
+    the fit's ridge is then NaN. Every fit follows the float32 rule the full refinement optimises
+    under (`float32_rule`)."""
     q_tr, q_val = data.train.q, data.val.q
     z_val = (feats[1] - offset) / scale
     a_tr = design_matrix((feats[0] - offset) / scale, centers, widths, cfg.rbfn.tail)
     a_val = design_matrix(z_val, centers, widths, cfg.rbfn.tail)
     a_val32 = deployed_design(feats[1], offset, scale, centers, widths, cfg.rbfn.tail, torch.float32)
-    full = refined is not None and refined.weights is None  # after the full way: the rule it refined under
-    rule = refined_rule(cfg) if full else RoundingRule(torch.float32, ROUND_TOL, cfg.rbfn.round_rel)
+    rule = float32_rule(cfg)
     fit = ridge_fit(
         a_tr,
         q_tr,
@@ -95,7 +92,6 @@ def fit_weights(
         a_val_eval=a_val32,
         round_tol=rule.round_tol,
         round_rel=rule.round_rel,
-        a_round=exponent_rows(a_val, z_val, centers, widths) if rule.exponents else None,
     )
     if cfg.rbfn.solver == Solver.lms:
         fit.weights = lms_fit(a_tr, q_tr, alpha0=cfg.rbfn.lms_alpha0, epochs=cfg.rbfn.lms_epochs, generator=gen)
@@ -106,22 +102,16 @@ def fit_weights(
         pred = (a_val32 @ trained.to(a_val32.dtype)).to(q_val.dtype)
         mse = (pred - q_val).square().sum(-1).mean()
         rounding = rounding_scale(a_val, trained, torch.float32).amax()
-        tol = rounding_tolerance(mse[None], q_val.shape[1], ROUND_TOL, cfg.rbfn.round_rel)[0]
+        tol = rounding_tolerance(mse[None], q_val.shape[1], rule.round_tol, rule.round_rel)[0]
         ridge_pred = (a_val32 @ fit.weights.to(a_val32.dtype)).to(q_val.dtype)
         if rounding <= tol and refined.val_loss(pred) < refined.val_loss(ridge_pred):
             fit = RidgeFit(trained, torch.tensor(float("nan"), dtype=q_val.dtype), mse, rounding)
     return fit
 
 
-def refined_rule(cfg: TrainConfig) -> RoundingRule:
-    """The float32 rule of the full refinement and of the weights re-solved after it: the plain
-    rule of every other fit or, with `rbfn.round_exponents`, the rounding scale that counts each
-    Gaussian's exponent error (`rbfn.fit.exponent_rows`), at most EXPONENT_ROUND_TOL. The
-    refinement narrows Gaussians far from the centres' centroid, whose float32 exponents the plain
-    scale does not see: under it the refined SCARA networks' deployments differed by up to
-    3.9e-5 rad at M = 160 (before this refinement, by up to 2.1e-5)."""
-    if cfg.rbfn.round_exponents:
-        return RoundingRule(torch.float32, EXPONENT_ROUND_TOL, cfg.rbfn.round_rel, exponents=True)
+def float32_rule(cfg: TrainConfig) -> RoundingRule:
+    """The float32 rule of every fit, the full refinement's included: a rounding scale of at most
+    ROUND_TOL or `rbfn.round_rel` times the fit's own error (`rbfn.fit.rounding_tolerance`)."""
     return RoundingRule(torch.float32, ROUND_TOL, cfg.rbfn.round_rel)
 
 
@@ -296,7 +286,7 @@ def train_ik(
             cfg.rbfn.max_width,
             cfg.seed,
             jacobians,
-            rule=refined_rule(cfg),
+            rule=float32_rule(cfg),
         )
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history

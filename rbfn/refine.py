@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .fit import RoundingRule, design_matrix, exponent_rows, ridge_fit, ridge_solve
+from .fit import RoundingRule, design_matrix, ridge_fit, ridge_solve
 from .layer import LOG2E, distance_rows
 
 __all__ = [
@@ -188,7 +188,6 @@ def refine_full(
                     eval_dtype=rule.dtype,
                     round_tol=rule.round_tol,
                     round_rel=rule.round_rel,
-                    a_round=exponent_rows(a_val, z_val / s, c, w) if rule.exponents else None,
                 )
                 return float(fit.val_mse), max(float(fit.ridge), min_ridge)
             weights = ridge_solve(a_tr, y_train, ridge)

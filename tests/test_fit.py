@@ -199,30 +199,3 @@ def test_binding_constraint_refines_between_the_grid_ridges(gain, expected):
     assert math.isclose(float(fit.ridge), expected, rel_tol=1e-9)
     assert math.isclose(float(fit.weights[0, 0]), gain / (1 + expected), rel_tol=1e-12)
     assert math.isclose(float(fit.val_mse), 2.0 - gain / (1 + expected), rel_tol=1e-12) and float(fit.rounding) <= 1.0
-
-
-def test_exponent_rows_bound_the_float32_error_of_narrow_gaussians_the_plain_scale_misses():
-    """A Gaussian narrow beside its distance from the centres' centroid carries its float32
-    exponent's error, (|z - c0|^2 + |mu - c0|^2) / (2 sigma^2) times u: the deployed module's error
-    there is 1400x the plain rounding scale, and within a small factor of exponent_rows' scale."""
-    from rbfn.fit import exponent_rows, rounding_scale
-    from rbfn.layer import assemble
-
-    g = torch.Generator().manual_seed(0)
-    z = torch.rand(2000, 2, generator=g, dtype=torch.float64) * 2 - 1
-    c = torch.rand(12, 2, generator=g, dtype=torch.float64) * 2 - 1
-    w = torch.full((12,), 0.5, dtype=torch.float64)
-    c[:2] = torch.tensor([[0.9, 0.9], [-0.9, 0.8]], dtype=torch.float64)
-    w[:2] = torch.tensor([0.01, 0.02], dtype=torch.float64)  # narrow, far from the centroid
-    weights = torch.randn(12 + 3, 2, generator=g, dtype=torch.float64)
-    z = torch.cat([z, c[:2] + 0.003])  # rows beside the narrow centres
-    one = torch.ones(2, dtype=torch.float64)
-    net = assemble(c, w, weights, 0 * one, one, True)
-    with torch.no_grad():
-        err = (net.float()(z.float()).double() - net.double()(z)).abs().amax()
-    a = design_matrix(z, c, w)
-    rows = exponent_rows(a, z, c, w)
-    assert torch.equal(rows[:, 12:], a[:, 12:].abs()) and (rows[:, :12] >= a[:, :12]).all()
-    plain = rounding_scale(a, weights, torch.float32).amax()
-    scale = rounding_scale(rows, weights, torch.float32).amax()
-    assert err > 100 * plain and err < 4 * scale

@@ -11,7 +11,7 @@ import train
 from rbfn import pipeline
 from rbfn.config import ROBOT_PRESETS
 from rbfn.data import input_scaling, make_dataset
-from rbfn.fit import EXPONENT_ROUND_TOL, ROUND_TOL, design_matrix
+from rbfn.fit import ROUND_TOL, design_matrix
 from rbfn.pipeline import check_ik_is_function, fit_weights, task_jacobians, train_ik
 from rbfn.refine import Refined
 from rbfn.robots.robot import load_robot
@@ -182,10 +182,8 @@ def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
     assert joint["test_pos_err_mm_median"] != m["test_pos_err_mm_median"]
 
 
-@pytest.mark.parametrize("exponents", [False, True])
-def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_data, exponents):
-    """The full way's ridge is the float32 rule's (rbfn.refine.refine_full; with
-    rbfn.round_exponents the rule counting the exponents' rounding, rbfn.pipeline.refined_rule):
+def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_data):
+    """The full way's ridge is the float32 rule's (rbfn.refine.refine_full, rbfn.pipeline.float32_rule):
     the network it keeps is the one whose stable fit is best on validation, and the final weights,
     re-solved by that rule from the deployed float32 design, are that fit (the same validation
     error to float32's rounding of the design) and pass the rule."""
@@ -196,13 +194,11 @@ def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_da
         "centers.refine.full.steps=30",
         "rbfn.num_centers=20",
         "rbfn.growth.start=0",
-        f"rbfn.round_exponents={str(exponents).lower()}",
         "progress=false",
         "export=false",
     )
     result = train_ik(cfg, small_data)
-    tol = EXPONENT_ROUND_TOL if exponents else ROUND_TOL
-    assert result.fit.rounding is not None and float(result.fit.rounding) <= tol
+    assert result.fit.rounding is not None and float(result.fit.rounding) <= ROUND_TOL
     assert result.refine_history[-1] < result.refine_history[0]  # the refinement learned
     assert math.isclose(float(result.fit.val_mse), min(result.refine_history), rel_tol=1e-3)
     x = small_data.test.x
@@ -210,8 +206,9 @@ def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_da
         assert float((result.model.float()(x.float()).double() - result.model.double()(x)).abs().max()) < 1e-5
 
 
-def test_round_exponents_picks_the_rule_after_the_full_refinement():
-    on = pipeline.refined_rule(compose_config("train", "rbfn.round_rel=0.001", "rbfn.round_exponents=true"))
-    off = pipeline.refined_rule(compose_config("train"))
-    assert on.exponents and on.round_tol == EXPONENT_ROUND_TOL and on.round_rel == 0.001
-    assert not off.exponents and off.round_tol == ROUND_TOL
+def test_every_fit_takes_the_float32_rule_with_its_round_rel():
+    from rbfn.fit import RoundingRule
+
+    assert pipeline.float32_rule(compose_config("train", "rbfn.round_rel=0.001")) == RoundingRule(
+        torch.float32, ROUND_TOL, 0.001
+    )
