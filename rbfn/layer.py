@@ -34,9 +34,10 @@ the trained SCARA networks (M = 40 and 160, five seeds each, 10 000 positions in
 box) float32 `solve` is within 2.6e-6 to 4.3e-6 (rad, m) of float64, on the UR5's (M = 2000,
 10 000 poses) within 2.1e-6 (a float32 product: 6.6e-6 to 3.4e-5 and 1.2e-5), and the ONNX and
 .pt2 exports within 9.5e-6 of the module, flagging alike. The float64 product costs a
-float32 module's fast path about 1.3x (SCARA, M = 160) to 1.5x (UR5, M = 2000) at B = 10 000 on one
-CPU thread, and needs a device with float64 (CPU, CUDA); a float64 module computes as it did. In
-float64 the two paths agree to about 1e-12 (tested).
+float32 module's fast path and the exports about 1.2x to 1.9x in time at B = 10 000 on one CPU
+thread (SCARA M = 160, UR5 M = 2000; measured on a busy machine), and needs a device with float64
+(CPU, CUDA); a float64 module computes as it did, bit for bit. In float64 the two paths agree to
+about 1e-12 (tested).
 
 Eager calls of the fast path process rows in blocks of about `block_elements` exponents, which
 stay in cache; traced and exported graphs are one piece with a dynamic batch dimension.
