@@ -318,3 +318,17 @@ def test_metrics_json_reports_the_tuned_cost_beside_the_held_out_result(tmp_path
     assert info["tuning_seconds"] >= aco["seconds"] > 0  # the whole tuning holds the search and more
     events = EventAccumulator(str(tmp_path)).Reload()
     assert [e.step for e in events.Scalars("control/tuning/arbfn_aco/cost")] == [1, 2]
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_the_tuning_runs_on_cuda_as_on_the_cpu():
+    """device=cuda runs the whole batch (candidates x scenarios) on the GPU; the searches see the
+    same costs to rounding, so they spend the same budget and land close."""
+    cfg = _control(controllers=["smc", "arbfn_kmeans", "arbfn_aco"])
+    cpu, gpu = (compare_controllers(cfg, GainsConfig(), device) for device in ("cpu", "cuda"))
+    a, b = cpu.runs["arbfn_aco"].tuned, gpu.runs["arbfn_aco"].tuned
+    assert a is not None and b is not None and a.episodes == b.episodes
+    assert b.cost == pytest.approx(a.cost, rel=0.05)
+    twin_cpu, twin_gpu = cpu.runs["arbfn_kmeans"].metrics, gpu.runs["arbfn_kmeans"].metrics
+    for case, m in twin_cpu.items():  # no search: the same run to rounding
+        assert twin_gpu[case]["rms_err"] == pytest.approx(m["rms_err"], rel=1e-3)
