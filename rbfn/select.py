@@ -194,15 +194,17 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
             # The reduced colony's two global width quantities are a subset of what the refinement
             # then optimises per centre from the same k-means start, and it erased their gain
             # (UR5, M = 2000: docs/results.md): the colony skips itself.
+            why = (
+                f"M * d = {m * d} > {FULL_SEARCH_MAX}"
+                if m * d > FULL_SEARCH_MAX
+                else f"its fits would cost {full_cost:.2g} flops > {FULL_FLOPS:.2g}"
+            )
             log.info(
-                "colony: skipped at M = %d (M * d = %d > %d or %.2g flops > %.2g): it could search two "
-                "global width quantities only, which the refinement re-optimises per centre; the k-means "
-                "centres and their validation-tuned widths go to the refinement as they are",
+                "colony: skipped at M = %d (%s): it could search two global width quantities only, which "
+                "the refinement re-optimises per centre; the k-means centres and their validation-tuned "
+                "widths go to the refinement as they are",
                 m,
-                m * d,
-                FULL_SEARCH_MAX,
-                full_cost,
-                FULL_FLOPS,
+                why,
             )
             return c0, w0, ACOResult(best=torch.empty(0), best_value=math.nan, iterations=0)
         return _acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state)
