@@ -79,7 +79,7 @@ def tables(runs: dict[str, dict[int, dict]]) -> str:
     """Markdown: per robot, every seed's held-out cost per controller and the paired ratios."""
     lines = []
     for robot, seeds in runs.items():
-        names = [n for n in CONTROLLERS if all(n in m["control"] for m in seeds.values())]
+        names = [n for n in CONTROLLERS if any(n in m["control"] for m in seeds.values())]
         lines += [
             f"**{robot}** (held-out: mean over the payload cases of sum_j RMS_j / smc's RMS_j; smc = n)",
             "",
@@ -88,19 +88,27 @@ def tables(runs: dict[str, dict[int, dict]]) -> str:
         ]
         ratios, others = [], []
         for seed, m in sorted(seeds.items()):
-            cost = {n: held_out(m["control"], n) for n in names}
+            cost = {n: held_out(m["control"], n) for n in names if n in m["control"]}
             ratio = cost["arbfn_aco"] / cost["arbfn_kmeans"]
-            best_other = min(cost[n] for n in SEARCHES[1:] if n in cost)
+            searched = [cost[n] for n in SEARCHES[1:] if n in cost]  # a seed may run arbfn_aco alone
             ratios.append(ratio)
-            others.append(cost["arbfn_aco"] / best_other)
-            cells = " | ".join(f"{cost[n]:.3f}" for n in names)
-            lines.append(f"| {seed} | {cells} | {ratio:.3f} | {others[-1]:.3f} |")
+            other = "-"
+            if searched:
+                others.append(cost["arbfn_aco"] / min(searched))
+                other = f"{others[-1]:.3f}"
+            cells = " | ".join(f"{cost[n]:.3f}" if n in cost else "-" for n in names)
+            lines.append(f"| {seed} | {cells} | {ratio:.3f} | {other} |")
         lines += [
             "",
             f"aco / kmeans: mean {statistics.fmean(ratios):.3f}, range {min(ratios):.3f} to {max(ratios):.3f}, "
             f"below 1 in {sum(r < 1 for r in ratios)}/{len(ratios)} seeds, at most 0.7 in "
-            f"{sum(r <= 0.7 for r in ratios)}/{len(ratios)}; aco / the better other search: mean "
-            f"{statistics.fmean(others):.3f}, at most 1 in {sum(r <= 1 for r in others)}/{len(others)}",
+            f"{sum(r <= 0.7 for r in ratios)}/{len(ratios)}"
+            + (
+                f"; aco / the better other search: mean {statistics.fmean(others):.3f}, "
+                f"at most 1 in {sum(r <= 1 for r in others)}/{len(others)} seeds"
+                if others
+                else ""
+            ),
             "",
             "| seed | " + " | ".join(f"`{n}` tuning cost" for n in ("arbfn_kmeans", *SEARCHES)) + " | tuning s |",
             "|---" * 6 + "|",
@@ -109,6 +117,8 @@ def tables(runs: dict[str, dict[int, dict]]) -> str:
             tuning = m["control_info"]["tuning"]
             cells = " | ".join(
                 f"{tuning[n]['cost']:.3f}" + (" (twin kept)" if tuning[n].get("kept_twin") else "")
+                if n in tuning
+                else "-"
                 for n in ("arbfn_kmeans", *SEARCHES)
             )
             lines.append(f"| {seed} | {cells} | {m['control_info'].get('tuning_seconds', float('nan')):.0f} |")
@@ -130,11 +140,14 @@ def figure(runs: dict[str, dict[int, dict]], path: Path) -> None:
             curves = []
             for m in seeds.values():  # each seed's scenarios differ: relative to its own twin
                 tuning = m["control_info"]["tuning"]
-                curves.append([v / tuning["arbfn_kmeans"]["cost"] for v in tuning[name]["curve"]])
+                if name in tuning:
+                    curves.append([v / tuning["arbfn_kmeans"]["cost"] for v in tuning[name]["curve"]])
+            if not curves:
+                continue
             for c in curves:
                 ax.plot(range(1, len(c) + 1), c, color=colours[name], alpha=0.25, lw=0.8)
             mean = [statistics.fmean(v) for v in zip(*curves)]
-            ax.plot(range(1, len(mean) + 1), mean, color=colours[name], lw=2, label=f"{name} (mean)")
+            ax.plot(range(1, len(mean) + 1), mean, color=colours[name], lw=2, label=f"{name} ({len(curves)} seeds)")
         ax.axhline(1.0, color="k", ls="--", lw=1, label="arbfn_kmeans, the twin")
         ax.set(
             title=f"{robot}: {len(seeds)} seeds",

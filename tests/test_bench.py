@@ -115,14 +115,19 @@ def test_closed_loop_summary_pairs_each_seeds_runs(tmp_path):
         tuning = {n: {"cost": f, "curve": [1.0, f], "kept_twin": False} for n, f in factors.items()}
         return {"control": control, "control_info": {"tuning": tuning, "tuning_seconds": 12.0}}
 
-    for seed, scale in ((0, 0.6), (1, 0.8)):
+    for seed, scale in ((0, 0.6), (1, 0.8), (2, 0.8)):
         (tmp_path / f"scara_s{seed}").mkdir()
-        (tmp_path / f"scara_s{seed}" / "metrics.json").write_text(json.dumps(run(scale)))
+        m = run(scale)
+        if seed == 2:  # a seed run with arbfn_aco alone
+            for part in (m["control"], m["control_info"]["tuning"]):
+                del part["arbfn_random"], part["arbfn_cmaes"]
+        (tmp_path / f"scara_s{seed}" / "metrics.json").write_text(json.dumps(m))
     runs = load(tmp_path)
-    assert list(runs) == ["scara"] and sorted(runs["scara"]) == [0, 1]
+    assert list(runs) == ["scara"] and sorted(runs["scara"]) == [0, 1, 2]
     text = tables(runs)
     assert "| 0 | 2.000 | 1.000 | 0.600 | 0.900 | 0.950 | 0.600 | 0.667 |" in text  # smc = n = 2
-    assert "below 1 in 2/2 seeds, at most 0.7 in 1/2" in text and "at most 1 in 2/2" in text
+    assert "| 2 | 2.000 | 1.000 | 0.800 | - | - | 0.800 | - |" in text
+    assert "below 1 in 3/3 seeds, at most 0.7 in 1/3" in text and "at most 1 in 2/2 seeds" in text
     figure(runs, tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 0
     with pytest.raises(SystemExit):  # nothing to summarize
