@@ -21,6 +21,7 @@ from aco import ACOR, ACOResult, AntSystem
 from .centers import kmeans_centers, ols_centers, random_centers
 from .config import CentersConfig
 from .objectives import FitObjective, cluster_objective
+from .refine import refine_mode
 from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
 
 log = logging.getLogger(__name__)
@@ -164,8 +165,8 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
 
 # Above this many centre coordinates M * d, or where the full colony's fits would cost more than
 # FULL_FLOPS floating-point operations, the colony searches a few global width quantities instead
-# of every coordinate (see `_acor_reduced`), or, where the refinement follows and re-optimises
-# every width from the same start, skips itself; otherwise everything (as the SCARA's: its M = 80
+# of every coordinate (see `_acor_reduced`), or, where the mini-batch refinement follows and
+# trains every width from the same start, skips itself; otherwise everything (as the SCARA's: its M = 80
 # colony costs about 6e10, the UR5's M = 200 one 2.6e12, which took 9 minutes).
 FULL_SEARCH_MAX = 2048
 FULL_FLOPS = 2e11
@@ -190,10 +191,12 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     ranked = colony_objective(objective, m, a.fit_rows, seed) if a.objective == "fit" else objective
     full_cost = (r.archive_size + a.ants * a.iterations) * ranked.cost(m)
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
-        if cfg.refine.enabled:
-            # The reduced colony's two global width quantities are a subset of what the refinement
-            # then optimises per centre from the same k-means start, and it erased their gain
-            # (UR5, M = 2000: docs/results.md): the colony skips itself.
+        if cfg.refine.enabled and refine_mode(cfg.refine, z.shape[0], objective.width(m)) == "minibatch":
+            # The reduced colony's two global width quantities are a subset of what the mini-batch
+            # refinement then trains per centre from the same k-means start, over many epochs, and
+            # it erased their gain (UR5, M = 2000: 2-4 % worse than without them, docs/results.md):
+            # the colony skips itself. Before the `full` refinement (the SCARA at M = 160) it still
+            # helps (0.125 against 0.142 mm over five seeds), so it runs there.
             why = (
                 f"M * d = {m * d} > {FULL_SEARCH_MAX}"
                 if m * d > FULL_SEARCH_MAX
@@ -201,8 +204,8 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
             )
             log.info(
                 "colony: skipped at M = %d (%s): it could search two global width quantities only, which "
-                "the refinement re-optimises per centre; the k-means centres and their validation-tuned "
-                "widths go to the refinement as they are",
+                "the mini-batch refinement trains per centre; the k-means centres and their "
+                "validation-tuned widths go to the refinement as they are",
                 m,
                 why,
             )

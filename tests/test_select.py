@@ -111,22 +111,25 @@ def test_reduced_acor_is_no_worse_than_its_kmeans_seed(objective, monkeypatch, l
 
 
 @pytest.mark.parametrize("limit", ["FULL_SEARCH_MAX", "FULL_FLOPS"])
-def test_the_large_m_colony_skips_itself_where_the_refinement_follows(objective, monkeypatch, caplog, limit):
-    """Where only the two global width quantities could be searched, a refinement that follows
-    re-optimises every width from the same k-means start: the colony hands over k-means' own
-    centres and widths (kmeans_refine's start, bit for bit), runs no iteration and says why."""
+def test_the_large_m_colony_skips_itself_where_the_minibatch_refinement_follows(objective, monkeypatch, caplog, limit):
+    """Where only the two global width quantities could be searched, a mini-batch refinement that
+    follows trains every width from the same k-means start: the colony hands over k-means' own
+    centres and widths (kmeans_refine's start, bit for bit), runs no iteration and says why.
+    Before the full refinement, or none, the reduced colony searches."""
     import rbfn.select as sel
 
     monkeypatch.setattr(sel, limit, 0)
     km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
     cfg = CentersConfig(method="aco")
-    cfg.aco.iterations, cfg.refine.enabled = 4, True
+    cfg.aco.iterations, cfg.refine.enabled, cfg.refine.mode = 4, True, "minibatch"
     with caplog.at_level("INFO", logger="rbfn.select"):
         aco = select(cfg, objective, 10, seed=0, max_width=2.0)
     assert torch.equal(aco.centers, km.centers) and torch.equal(aco.widths, km.widths)
     assert aco.aco_best == [] and aco.aco_mean == []
     assert "colony: skipped at M = 10" in caplog.text
-    monkeypatch.undo()  # the full colony at this size: it searches
+    cfg.refine.mode = "auto"  # full at this size
+    assert 1 <= len(select(cfg, objective, 10, seed=0, max_width=2.0).aco_best) <= 4
+    monkeypatch.undo()  # the full colony at this size: it searches every coordinate
     assert len(select(cfg, objective, 10, seed=0, max_width=2.0).aco_best) == 4
 
 
