@@ -74,7 +74,7 @@ def measure(cfg, controllers: list[str] | None, repeats: int, device: str) -> di
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="scara")
     ap.add_argument("--controllers", default=None, help="comma-separated; default: evaluate.py's control.controllers")
@@ -82,7 +82,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--device", default="cpu")
     ap.add_argument("overrides", nargs="*", help="evaluate.py overrides")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.threads < 1 or args.repeats < 1:
         ap.error(f"--threads={args.threads} and --repeats={args.repeats} must both be >= 1")
     torch.set_num_threads(args.threads)
