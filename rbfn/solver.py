@@ -115,12 +115,8 @@ class IKSolver:
 
     def _cost(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """Error (B,) of joints q (B, n) against targets x in tolerances: mm / tol_mm + deg / tol_deg."""
-        return self._scored(q, x)[0]
-
-    def _scored(self, q: torch.Tensor, x: torch.Tensor):
-        """(`_cost`, position error (B,) mm, rotation error (B,) deg or None) of joints q against x."""
         pos, rot = self.robot.errors(q, x)
-        return pos / self.tol_mm + (rot / self.tol_deg if rot is not None else 0.0), pos, rot
+        return pos / self.tol_mm + (rot / self.tol_deg if rot is not None else 0.0)
 
     def _polish(
         self, q: torch.Tensor, x: torch.Tensor, iterations: int, first: tuple | None = None
@@ -134,36 +130,44 @@ class IKSolver:
         nearest the target kept. Near a singular configuration the full Gauss-Newton step
         overshoots (the first step from a far network answer multiplied the error threefold); the
         search takes the shorter step there and the longer one where the error is curved the other
-        way. A step costs one Jacobian and one forward kinematics, plus len(STEP_SCALES) for the
-        few rows searched."""
+        way. A step costs one Jacobian (its pose gives the error after the step before, and the
+        next step's Jacobian), plus len(STEP_SCALES) forward kinematics and a Jacobian for the few
+        rows searched."""
         low, high = self.low.to(q.device), self.high.to(q.device)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=q.device)
         scales = torch.tensor(STEP_SCALES, dtype=torch.float64, device=q.device)
         s = scales.shape[0]
-        if iterations == 0:
-            _, pos, rot = self._scored(q, x)
-        for i in range(iterations):
-            e, jac, pos, rot = first if i == 0 and first is not None else self._errors(q, x)
-            before = pos * 1000.0 / self.tol_mm + (torch.rad2deg(rot) / self.tol_deg if rot is not None else 0.0)
+        state = first  # `_errors` at q: the step's Jacobian and error
+        for _ in range(iterations):
+            e, jac, pos, rot = state if state is not None else self._errors(q, x)
             y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + self.damping * eye, e.unsqueeze(-1))
             dq = (jac.transpose(-1, -2) @ y).squeeze(-1)
             dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-300)).clamp(max=1.0)
             full = (q + dq).clamp(low, high)
-            after, pos, rot = self._scored(full, x)
-            slow = (after > PROGRESS * before).nonzero().squeeze(-1)
+            # The error after the step comes with the next step's Jacobian (it costs about what forward
+            # kinematics alone does), so a step is one Jacobian, not a Jacobian and a pose.
+            after = self._errors(full, x)
+            slow = (self._tolerances(after) > PROGRESS * self._tolerances((e, jac, pos, rot))).nonzero().squeeze(-1)
             if slow.numel():
                 m, n = slow.numel(), q.shape[1]
                 trials = (q[slow, None] + scales[None, :, None] * dq[slow, None]).clamp(low, high).reshape(m * s, n)
-                cost, t_pos, t_rot = self._scored(trials, x[slow].repeat_interleave(s, 0))
-                pick = torch.arange(m, device=q.device) * s + cost.reshape(m, s).argmin(-1)
-                full[slow], pos[slow] = trials[pick], t_pos[pick]
-                if rot is not None and t_rot is not None:
-                    rot[slow] = t_rot[pick]
-            q = full
-        ok = pos <= self.tol_mm
+                cost = self._cost(trials, x[slow].repeat_interleave(s, 0))
+                full[slow] = trials[torch.arange(m, device=q.device) * s + cost.reshape(m, s).argmin(-1)]
+                redo = self._errors(full[slow], x[slow])
+                for part, new in zip(after, redo):
+                    if part is not None and new is not None:
+                        part[slow] = new
+            q, state = full, after
+        _, _, pos, rot = state if state is not None else self._errors(q, x)
+        ok = pos * 1000.0 <= self.tol_mm
         if rot is not None:
-            ok &= rot <= self.tol_deg
+            ok &= torch.rad2deg(rot) <= self.tol_deg
         return q, ok
+
+    def _tolerances(self, errors: tuple) -> torch.Tensor:
+        """`_errors`' position (m) and rotation (rad) errors (B,) in tolerances: mm / tol_mm + deg / tol_deg."""
+        _, _, pos, rot = errors
+        return pos * 1000.0 / self.tol_mm + (torch.rad2deg(rot) / self.tol_deg if rot is not None else 0.0)
 
     def network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the network's joints (B, n) float64, within the polish's range; the base turn d (B,) rad,
@@ -183,7 +187,7 @@ class IKSolver:
         # (outside the trained yaw range, or at its edge) try the base turns, picked by forward kinematics.
         # The errors come with the Jacobian, the polish's first.
         e, jac, pos, rot = self._errors(q, x)
-        cost = pos * 1000.0 / self.tol_mm + (torch.rad2deg(rot) / self.tol_deg if rot is not None else 0.0)
+        cost = self._tolerances((e, jac, pos, rot))
         far = (cost > FAR).nonzero().squeeze(-1)
         if far.numel():
             xf, k = x[far], self.yaw.candidates
