@@ -13,7 +13,7 @@ The summary reads every OUT/<robot>_s<S>/metrics.json: per robot and seed the he
 (mean over the payload cases of sum_j RMS_j / smc's RMS_j) of every controller, the ratio of
 `arbfn_aco` to `arbfn_kmeans`, and to the better of `arbfn_random` and `arbfn_cmaes`, and the
 tuning's cost and seconds; `--figure` draws each search's best-so-far tuning cost per iteration
-relative to the twin's (mean over seeds, thin lines each seed).
+relative to the twin's (mean over the seeds that ran all three searches, thin lines each seed).
 """
 
 from __future__ import annotations
@@ -121,7 +121,8 @@ def tables(runs: dict[str, dict[int, dict]]) -> str:
                 else "-"
                 for n in ("arbfn_kmeans", *SEARCHES)
             )
-            lines.append(f"| {seed} | {cells} | {m['control_info'].get('tuning_seconds', float('nan')):.0f} |")
+            seconds = m["control_info"].get("tuning_seconds")
+            lines.append(f"| {seed} | {cells} | {'-' if seconds is None else f'{seconds:.0f}'} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -136,21 +137,22 @@ def figure(runs: dict[str, dict[int, dict]], path: Path) -> None:
     fig, axes = plt.subplots(1, len(runs), figsize=(5.5 * len(runs), 4), squeeze=False)
     colours = {"arbfn_aco": "C0", "arbfn_random": "C1", "arbfn_cmaes": "C2", "arbfn_kmeans": "k"}
     for ax, (robot, seeds) in zip(axes[0], runs.items()):
+        # the means over the seeds every search ran, so that they compare like with like
+        common = [k for k, m in seeds.items() if all(n in m["control_info"]["tuning"] for n in SEARCHES)]
         for name in SEARCHES:
-            curves = []
-            for m in seeds.values():  # each seed's scenarios differ: relative to its own twin
+            curves = {}
+            for k, m in seeds.items():  # each seed's scenarios differ: relative to its own twin
                 tuning = m["control_info"]["tuning"]
                 if name in tuning:
-                    curves.append([v / tuning["arbfn_kmeans"]["cost"] for v in tuning[name]["curve"]])
-            if not curves:
-                continue
-            for c in curves:
+                    curves[k] = [v / tuning["arbfn_kmeans"]["cost"] for v in tuning[name]["curve"]]
+            for c in curves.values():
                 ax.plot(range(1, len(c) + 1), c, color=colours[name], alpha=0.25, lw=0.8)
-            mean = [statistics.fmean(v) for v in zip(*curves)]
-            ax.plot(range(1, len(mean) + 1), mean, color=colours[name], lw=2, label=f"{name} ({len(curves)} seeds)")
+            if common:
+                mean = [statistics.fmean(v) for v in zip(*(curves[k] for k in common))]
+                ax.plot(range(1, len(mean) + 1), mean, color=colours[name], lw=2, label=f"{name} (mean)")
         ax.axhline(1.0, color="k", ls="--", lw=1, label="arbfn_kmeans, the twin")
         ax.set(
-            title=f"{robot}: {len(seeds)} seeds",
+            title=f"{robot}: means over seeds {', '.join(map(str, common))}; thin: every seed",
             xlabel="iteration (each: a batch of candidates x the tuning scenarios)",
             ylabel="best tuning cost so far / the twin's",
         )
