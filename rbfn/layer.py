@@ -34,8 +34,9 @@ the trained SCARA networks (M = 40 and 160, five seeds each, 10 000 positions in
 box) float32 `solve` is within 2.6e-6 to 4.3e-6 (rad, m) of float64, on the UR5's (M = 2000,
 10 000 poses) within 2.1e-6 (a float32 product: 6.6e-6 to 3.4e-5 and 1.2e-5), and the ONNX and
 .pt2 exports within 9.5e-6 of the module, flagging alike. The float64 product costs a
-float32 module's fast path and the exports about 1.2x to 1.9x in time at B = 10 000 on one CPU
-thread (SCARA M = 160, UR5 M = 2000; measured on a busy machine), and needs a device with float64
+float32 module's fast path 1.22x (`solve`) to 1.26x (`forward`) on the SCARA at M = 160 and 1.38x
+(`forward`) to 1.57x (`solve`) on the UR5 at M = 2000, in time at B = 10 000 on one CPU thread
+(quiet machine; the exports 1.1x to 1.9x on a busy one), and needs a device with float64
 (CPU, CUDA); a float64 module computes as it did, bit for bit. In float64 the two paths agree to
 about 1e-12 (tested).
 
