@@ -26,6 +26,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from rbfn.studies.control import held_out
+
 __all__ = ["CONTROLLERS", "SEARCHES", "run_seed", "load", "tables", "figure", "main"]
 
 SEARCHES = ("arbfn_aco", "arbfn_random", "arbfn_cmaes")
@@ -55,14 +57,6 @@ def run_seed(robot: str, seed: int, out: Path, extra: list[str]) -> Path:
     print(" ".join(cmd[1:]), flush=True)
     subprocess.run(cmd, check=True, cwd=ROOT)
     return run_dir
-
-
-def held_out(control: dict, name: str) -> float:
-    """Mean over the payload cases of sum_j RMS_j / smc's RMS_j."""
-    smc = control["smc"]
-    return statistics.fmean(
-        sum(a / b for a, b in zip(m["rms_err"], smc[case]["rms_err"])) for case, m in control[name].items()
-    )
 
 
 def load(out: Path) -> dict[str, dict[int, dict]]:

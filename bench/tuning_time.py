@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import pathlib
 import statistics
-import time
 from dataclasses import replace
 
 import torch
@@ -26,7 +25,7 @@ import torch
 from rbfn.control.comparison import compare_controllers
 from rbfn.studies.control import check_control
 
-from .timing import machine_info
+from .timing import machine_info, timed
 
 __all__ = ["evaluation_config", "measure", "main"]
 
@@ -54,10 +53,14 @@ def measure(cfg, controllers: list[str] | None, repeats: int, device: str) -> di
     setup = check_control(control, cfg.robot)
     whole, tuning, searches = [], [], {}
     episodes = {}
+    runs: list = []
+
+    def run() -> None:
+        runs[:] = [compare_controllers(control, cfg.gains, device, setup=setup, loop=cfg.loop)]  # the last only
+
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        res = compare_controllers(control, cfg.gains, device, setup=setup, loop=cfg.loop)
-        whole.append(time.perf_counter() - t0)
+        whole.append(timed(run, device))  # GPU work included
+        res = runs[-1]
         tuning.append(res.tuning_seconds)
         for name, run in res.runs.items():
             if run.tuned is not None and run.tuned.x is not None:

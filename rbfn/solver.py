@@ -153,16 +153,20 @@ class IKSolver:
                 trials = (q[slow, None] + scales[None, :, None] * dq[slow, None]).clamp(low, high).reshape(m * s, n)
                 cost = self._cost(trials, x[slow].repeat_interleave(s, 0))
                 full[slow] = trials[torch.arange(m, device=q.device) * s + cost.reshape(m, s).argmin(-1)]
-                redo = self._errors(full[slow], x[slow])
-                for part, new in zip(after, redo):
-                    if part is not None and new is not None:
-                        part[slow] = new
+                self._refresh(after, slow, full, x)
             q, state = full, after
         _, _, pos, rot = state if state is not None else self._errors(q, x)
         ok = pos * 1000.0 <= self.tol_mm
         if rot is not None:
             ok &= torch.rad2deg(rot) <= self.tol_deg
         return q, ok
+
+    def _refresh(self, errors: tuple, rows: torch.Tensor, q: torch.Tensor, x: torch.Tensor) -> None:
+        """`errors` (`_errors`' tuple for joints q (B, n) and targets x) recomputed in place at `rows`
+        (indices), where q changed."""
+        for part, new in zip(errors, self._errors(q[rows], x[rows])):
+            if part is not None and new is not None:
+                part[rows] = new
 
     def _tolerances(self, errors: tuple) -> torch.Tensor:
         """`_errors`' position (m) and rotation (rad) errors (B,) in tolerances: mm / tol_mm + deg / tol_deg."""
@@ -198,10 +202,7 @@ class IKSolver:
             rows = far[better]
             q[rows], d[rows] = q_f[better], d_f[better]
             if rows.numel():
-                e_r, jac_r, pos_r, rot_r = self._errors(q[rows], x[rows])
-                e[rows], jac[rows], pos[rows] = e_r, jac_r, pos_r
-                if rot is not None and rot_r is not None:
-                    rot[rows] = rot_r
+                self._refresh((e, jac, pos, rot), rows, q, x)
         return q, d, (e, jac, pos, rot)
 
     def _near(self, near, b: int, device) -> torch.Tensor:

@@ -149,11 +149,11 @@ def compare_controllers(
             method = name[len("arbfn_") :]
             if objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
                 t_tune = time.perf_counter()
+                args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
                 if cost is None:  # the tuning's scenarios, and smc's reference errors on them
-                    cost = _closed_loop_cost(cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
+                    cost = _closed_loop_cost(*args)
                 found = tune_network(method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor)
                 if confirm is None:  # the same scenarios, as long as the evaluation's episode
-                    args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
                     confirm = _closed_loop_cost(*args, full_length=True)
                 tuned[name] = confirmed(found, cost, confirm)
                 net = tuned[name].net
