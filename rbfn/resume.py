@@ -18,7 +18,7 @@ from typing import Any
 
 from .checkpoint import TRAIN_STATE_KIND, load_sealed, save_sealed
 
-__all__ = ["TrainState", "StateFile", "DifferentRun"]
+__all__ = ["TrainState", "StateFile", "DifferentRun", "comparable"]
 
 
 class DifferentRun(ValueError):
@@ -55,7 +55,8 @@ def _foreign_metrics(run_dir: Path) -> bool:
         return True
 
 
-def _comparable(cfg: dict) -> dict:
+def comparable(cfg: dict) -> dict:
+    """`cfg` without the keys that may differ between an interrupted run and its resumption."""
     return {k: v for k, v in cfg.items() if k not in _FREE_KEYS}
 
 
@@ -87,7 +88,7 @@ class StateFile:
             )
         if not isinstance(raw.get("state"), dict) or not isinstance(raw["state"].get("config"), dict):
             raise ValueError(f"{self.path} holds no training state with a config. {restart}")
-        if _comparable(raw["state"]["config"]) != _comparable(config):
+        if comparable(raw["state"]["config"]) != comparable(config):
             raise DifferentRun(
                 f"{self.path} belongs to a run with a different configuration; resume it "
                 "with the same overrides, use another hydra.run.dir, or delete last.pt"

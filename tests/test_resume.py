@@ -266,3 +266,81 @@ def test_train_stopped_by_sigterm_mid_colony_resumes_to_the_same_result(tmp_path
     assert r.returncode == 0 and "resuming from" in r.stdout + r.stderr, r.stderr[-3000:]
     train.run(compose_config("train", *over), tmp_path / "ref")
     _assert_same_outcome(tmp_path / "run", tmp_path / "ref")
+
+
+def _finished_run(tmp_path) -> Path:
+    run_dir = tmp_path / "finished"
+    train.run(compose_config("train", *OVERRIDES, "centers=kmeans"), run_dir, RUN_FILES)
+    return run_dir
+
+
+def _files(run_dir: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(run_dir)): p.read_bytes() for p in sorted(run_dir.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize(
+    "remove,copy",
+    [
+        pytest.param(["last.pt"], [], id="finished run without its last.pt"),
+        pytest.param(["last.pt", "metrics.json"], [], id="a checkpoint alone"),
+        pytest.param(["last.pt", "checkpoint.pt"], [], id="a training metrics.json alone"),
+        pytest.param([], ["checkpoint.pt"], id="a copied checkpoint in a new folder"),
+    ],
+)
+def test_results_without_their_state_are_never_written_over(tmp_path, remove, copy):
+    """Every file a finished run wrote decides ownership, not last.pt alone: a directory holding
+    results without the state saying whose they are is refused, and left exactly as it was."""
+    finished = _finished_run(tmp_path)
+    run_dir = tmp_path / "target"
+    if copy:
+        run_dir.mkdir()
+        for name in copy:
+            (run_dir / name).write_bytes((finished / name).read_bytes())
+    else:
+        finished.rename(run_dir)
+        for name in remove:
+            (run_dir / name).unlink()
+    before = _files(run_dir)
+    with pytest.raises(ValueError, match="no training state"):
+        train.run(compose_config("train", *OVERRIDES, "centers=kmeans", "seed=1"), run_dir, RUN_FILES)
+    assert _files(run_dir) == before
+
+
+def test_a_finished_run_missing_an_output_is_neither_done_nor_refilled(tmp_path):
+    run_dir = _finished_run(tmp_path)
+    (run_dir / "checkpoint.pt").unlink()
+    before = _files(run_dir)
+    with pytest.raises(ValueError, match=r"finished run with this config whose checkpoint.pt is missing"):
+        train.run(compose_config("train", *OVERRIDES, "centers=kmeans"), run_dir, RUN_FILES)
+    assert _files(run_dir) == before
+
+
+def test_another_configs_composed_config_is_not_written_over(tmp_path):
+    """A run stopped before its first result leaves its .hydra/config.yaml only: the same config
+    starts again there, another is refused."""
+    run_dir = tmp_path / "run"
+    (run_dir / ".hydra").mkdir(parents=True)
+    (run_dir / ".hydra" / "config.yaml").write_text("seed: 1\nnum_threads: 2\n")
+    with pytest.raises(ValueError, match="different configuration"):
+        train.run(compose_config("train", *OVERRIDES, "centers=kmeans"), run_dir, RUN_FILES)
+    assert (run_dir / ".hydra" / "config.yaml").read_text() == "seed: 1\nnum_threads: 2\n"
+    (run_dir / ".hydra" / "config.yaml").write_text("seed: 0\nnum_threads: 2\n")  # differs in a free key only
+    train.run(compose_config("train", *OVERRIDES, "centers=kmeans"), run_dir, RUN_FILES)
+    assert (run_dir / "checkpoint.pt").is_file()
+
+
+def test_the_working_directory_is_not_a_run_directory(tmp_path):
+    """`hydra.run.dir=''` names the working directory: it holds files no run wrote, so it is refused
+    with one line and nothing is written into it."""
+    (tmp_path / "README.md").write_text("mine\n")
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), *OVERRIDES, "hydra.run.dir=''"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert r.returncode == 1 and r.stderr.strip().count("\n") == 0, r.stderr[-3000:]
+    assert "no training state (last.pt)" in r.stderr
+    assert sorted(os.listdir(tmp_path)) == ["README.md"]

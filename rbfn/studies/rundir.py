@@ -48,6 +48,8 @@ __all__ = [
     "hydra_run_dir",
     "hydra_run_files",
     "birth_time",
+    "made_since",
+    "bookkeeping",
     "remove_new_empty_parents",
     "strict_json",
     "write_figure",
@@ -90,7 +92,8 @@ class RunDir:
     `fresh`: `path` was named after the clock; one that another process holds or that holds any file
     is passed over for PATH_1, PATH_2, ... (`.path` is then the directory used). Otherwise a
     directory another process holds is refused (RunDirInUse), and with `own` one holding any file
-    too. `tidy`: the directory is removed on exit if it is empty. Re-entrant within a process: a
+    too. `tidy`: the directory is removed on exit if it is empty and was made for this run (a directory
+    the user made before is kept, with its mode). Re-entrant within a process: a
     directory this process holds already is entered without another lock or check.
     """
 
@@ -159,7 +162,7 @@ class RunDir:
             return
         if self._tidy:
             with suppress(OSError):  # removed by someone else meanwhile: nothing to tidy
-                if _is_empty(self.path):
+                if _is_empty(self.path) and made_since(self.path, _STARTED):
                     self.path.rmdir()  # still under the lock: nobody else is starting in it
         del RunDir._held[os.path.realpath(self.path)]
         fcntl.flock(self._fd, fcntl.LOCK_UN)
@@ -192,7 +195,7 @@ def hydra_run_dir(own: bool = False):
         remove_new_empty_parents(named)
 
 
-def _bookkeeping(name: str) -> bool:
+def bookkeeping(name: str) -> bool:
     """Whether run-directory entry `name` is bookkeeping, not a result: .hydra/ (the composed config),
     the job's log, TensorBoard event files."""
     return name == ".hydra" or name.endswith(".log") or name.startswith("events.out.tfevents.")
@@ -204,12 +207,12 @@ def _after_failure(e: BaseException, path: Path, before: set[str]) -> None:
     run wrote, which is kept."""
     with suppress(OSError):
         wrote = sorted(set(os.listdir(path)) - before)
-        if not before and all(_bookkeeping(name) for name in wrote):
+        if not before and all(bookkeeping(name) for name in wrote):
             for name in wrote:
                 (shutil.rmtree if (path / name).is_dir() else os.remove)(path / name)
         elif wrote:
             resume = "; run the same command again to resume it" if "last.pt" in wrote else ""
-            results = [name for name in wrote if not _bookkeeping(name)]  # its log and config are kept too
+            results = [name for name in wrote if not bookkeeping(name)]  # its log and config are kept too
             shown = ", ".join(results[:6]) + (", ..." if len(results) > 6 else "")
             note = f"{path} keeps what this run wrote before it stopped ({shown}){resume}"
             # What BaseException.add_note does from Python 3.11 (its traceback prints them), on 3.10 too.
@@ -218,8 +221,8 @@ def _after_failure(e: BaseException, path: Path, before: set[str]) -> None:
 
 def remove_new_empty_parents(path: Path, since: float | None = None) -> None:
     """Remove `path` and its parents, nearest first, while each is an empty directory created at or
-    after `since` (default: this process's start), i.e. made for this run; never the working
-    directory or one above it, and none where the file system does not record creation times."""
+    after `since` (default: this process's start), i.e. made for this run (`made_since`); never the
+    working directory or one above it."""
     since = _STARTED if since is None else since
     keep = {Path.cwd().resolve(), *Path.cwd().resolve().parents}
     for d in (path, *path.parents):
@@ -227,12 +230,19 @@ def remove_new_empty_parents(path: Path, since: float | None = None) -> None:
         try:
             if not d.exists():
                 continue  # removed already (RunDir's tidy)
-            born = birth_time(d)
-            if d.resolve() in keep or not d.is_dir() or born is None or born < since or not _is_empty(d):
+            if d.resolve() in keep or not d.is_dir() or not made_since(d, since) or not _is_empty(d):
                 return
             d.rmdir()
         except OSError:
             return
+
+
+def made_since(path: Path, since: float) -> bool:
+    """Whether directory `path` was created at or after `since` (time.time() seconds): by its birth
+    time where the file system records one, else by its last change (an empty directory a user made
+    before the run, and left alone since, is never taken for one the run made)."""
+    born = birth_time(path)
+    return (born if born is not None else os.stat(path).st_mtime) >= since
 
 
 class _StatxTimestamp(ctypes.Structure):

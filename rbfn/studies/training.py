@@ -4,22 +4,24 @@ fitting), with the run directory's checks, resumable state and outputs around it
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import torch
+from omegaconf import OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from ..config import TrainConfig, plain, validate_train
 from ..data import check_finite, make_dataset
 from ..pipeline import check_ik_is_function, train_ik
-from ..resume import StateFile
+from ..resume import DifferentRun, StateFile, TrainState, comparable
 from ..robots.derive import derive_train
 from ..robots.robot import load_robot
 from .cli import announced
 from .ik import training_metrics, write_training
-from .rundir import RunDir, write_text
+from .rundir import RunDir, bookkeeping, write_text
 
-__all__ = ["run"]
+__all__ = ["claim", "outputs", "run"]
 
 log = logging.getLogger("train")
 
@@ -38,6 +40,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write
+        claim(out_dir, state, cfg.export, (run_files or {}).get(_CONFIG_FILE))
         if state.finished is not None:
             log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
             return state.finished
@@ -83,6 +86,60 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         out_dir,
     )
     return metrics
+
+
+_CONFIG_FILE = ".hydra/config.yaml"
+
+
+def outputs(export: bool) -> tuple[str, ...]:
+    """The files a finished training run leaves in its directory, beside last.pt and its bookkeeping
+    (`rbfn.studies.rundir`: .hydra/, train.log, TensorBoard events)."""
+    return ("checkpoint.pt", *(("ik.onnx", "ik.pt2") if export else ()), "metrics.json")
+
+
+def claim(out_dir: Path, state: TrainState, export: bool, config_text: str | None = None) -> None:
+    """Refuse `out_dir` unless it is this run's to write: new or empty, this configuration's
+    interrupted run (its last.pt, loaded as `state`), or this configuration's finished run with
+    every output in place. Every file a run writes decides: results (checkpoint.pt, metrics.json,
+    the exports) without the last.pt that says whose they are, files no run wrote, another
+    configuration's composed config (.hydra/config.yaml; `config_text` is this run's), or a finished
+    run missing some of its outputs are refused, and the directory is left exactly as it was."""
+    names = sorted(os.listdir(out_dir))
+    listed = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+    fix = "give train.py a new or empty hydra.run.dir"
+    if state.finished is not None:
+        missing = [name for name in outputs(export) if not (out_dir / name).is_file()]
+        if missing:
+            raise DifferentRun(
+                f"hydra.run.dir={out_dir} holds a finished run with this config whose "
+                f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} missing, so it is not reported as done "
+                f"nor written again; restore {'it' if len(missing) == 1 else 'them'} (`python -m rbfn.export "
+                f"{out_dir / 'checkpoint.pt'}` writes the exports), delete the directory to train again, or {fix}"
+            )
+        return
+    if state.done or state.current:
+        return  # this configuration's interrupted run: its own files, resumed
+    # A multirun job's failed.json (train.py) records a failure a rerun of the sweep replaces.
+    foreign = [name for name in names if not bookkeeping(name) and name != "failed.json"]
+    if foreign:
+        raise DifferentRun(
+            f"hydra.run.dir={out_dir} holds files ({listed}) but no training state (last.pt) saying whose "
+            f"they are: another run's results, or files no run wrote, which training would write over; {fix}"
+        )
+    config = out_dir / _CONFIG_FILE
+    if config_text is not None and config.is_file() and not _same_config(config.read_text(), config_text):
+        raise DifferentRun(
+            f"hydra.run.dir={out_dir} holds {_CONFIG_FILE} of a run with a different configuration (stopped "
+            f"before its first result), which this run would write over; resume it with the same overrides, or {fix}"
+        )
+
+
+def _same_config(a: str, b: str) -> bool:
+    """Whether two composed configs (YAML) differ only in keys a resumed run may change."""
+    plain_a, plain_b = (OmegaConf.to_container(OmegaConf.create(text)) for text in (a, b))
+    if not isinstance(plain_a, dict) or not isinstance(plain_b, dict):
+        return False
+    return comparable(plain_a) == comparable(plain_b)
 
 
 def _fit_what(cfg: TrainConfig) -> str:

@@ -128,3 +128,18 @@ def test_a_control_part_that_diverges_before_any_result_leaves_no_directory(tmp_
     assert r.stderr.splitlines()[-1].startswith("error: controller pd, payload 0kg: simulation diverged"), r.stderr
     assert "Traceback" not in r.stderr
     assert tmp_path.is_dir() and list(tmp_path.iterdir()) == []  # there before the run: kept
+
+
+@pytest.mark.parametrize(
+    "script,override", [("train.py", "data.n_val=0"), ("evaluate.py", "n_test=0")], ids=["train", "evaluate"]
+)
+def test_a_refused_run_keeps_the_empty_directory_the_user_made(tmp_path, script, override):
+    """An empty run directory made before the run is the user's: a refused run leaves it, and its
+    mode, as they were."""
+    mine = tmp_path / "mine"
+    mine.mkdir(mode=0o700)
+    time.sleep(0.05)  # the file system's clock is coarser than time.time()
+    r = _run(script, override, f"hydra.run.dir={mine}")
+    assert r.returncode == 1 and r.stderr.startswith("error: "), r.stderr
+    assert mine.is_dir() and not os.listdir(mine)
+    assert mine.stat().st_mode & 0o777 == 0o700
