@@ -27,6 +27,11 @@ parts included, after their cleanup, with exit status 128 + the signal's number 
 
 from __future__ import annotations
 
+import signal
+
+if __name__ == "__main__":  # Ctrl-C while the imports below load: ends at once, status 130 (then rbfn.studies.stop)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 import atexit
 import gc
 from typing import cast
@@ -58,5 +63,6 @@ if __name__ == "__main__":
     # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
     # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
     atexit.register(gc.freeze)
-    stop_on_signals()
-    main()
+    with one_line_errors():  # a stop by a signal outside the job (Hydra composing, say): one line too
+        stop_on_signals()
+        main()

@@ -17,34 +17,71 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
 import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 
 from ..control.simulator import SimulationDiverged
 from ..resume import DifferentRun
 from .rundir import RunDirInUse
+from .stop import Stopped
 
-__all__ = ["REFUSALS", "announced", "one_line_errors"]
+__all__ = ["REFUSALS", "ConsoleHandler", "announced", "one_line_errors", "report_stop"]
 
 REFUSALS = (ValueError, OSError, RunDirInUse, DifferentRun, SimulationDiverged)
+
+
+def _say(line: str, notes=()) -> None:
+    print(line, file=sys.stderr, flush=True)
+    for note in notes:  # e.g. what a failed run kept (rbfn.studies.rundir)
+        print(f"note: {note}", file=sys.stderr, flush=True)
+
+
+def report_stop(e: Stopped) -> None:
+    """Say once, on stderr, in one line, that signal `e.signum` stopped this process and what it kept
+    (its notes); its exit status says the same (128 + the signal's number)."""
+    if not getattr(e, "reported", False):
+        e.reported = True  # type: ignore[attr-defined]
+        kept = "".join(f"; {note}" for note in getattr(e, "__notes__", ()))
+        _say(f"stopped by {signal.Signals(e.signum).name} (exit status {e.code}){kept}")
 
 
 @contextmanager
 def one_line_errors(enabled: bool = True):
     """Inside, a refusal (REFUSALS) ends the process with `error: <message>` on stderr and exit
-    status 1 (where `enabled` and HYDRA_FULL_ERROR is not 1)."""
+    status 1 (where `enabled` and HYDRA_FULL_ERROR is not 1); a stop by a signal
+    (rbfn.studies.stop) says so in one line, keeping its exit status."""
     try:
         yield
+    except Stopped as e:
+        if enabled:
+            report_stop(e)
+        raise
     except REFUSALS as e:
         if not enabled or os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
-        print(f"error: {e}", file=sys.stderr, flush=True)
-        for note in getattr(e, "__notes__", ()):  # e.g. what a failed run kept (rbfn.studies.rundir)
-            print(f"note: {note}", file=sys.stderr, flush=True)
+        _say(f"error: {e}", getattr(e, "__notes__", ()))
         sys.exit(1)
+
+
+class ConsoleHandler(logging.StreamHandler):
+    """The terminal's log handler (conf: hydra.job_logging.handlers.console): where its stream is
+    closed under it (`python train.py | head -1`), it says so once on stderr and sends the rest to
+    /dev/null (the job's log file still gets every message) instead of a BrokenPipeError block a
+    message. The run goes on."""
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        if not isinstance(sys.exc_info()[1], BrokenPipeError):
+            super().handleError(record)
+            return
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        with suppress(OSError, ValueError):
+            os.dup2(devnull, self.stream.fileno())  # also quiets the interpreter's final flush
+        os.close(devnull)
+        _say("note: standard output was closed; the run goes on, its messages go to its log file only")
 
 
 HEARTBEAT_S = 30.0  # seconds between a running part's "still at work" lines

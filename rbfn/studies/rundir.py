@@ -20,6 +20,7 @@ where (`hydra_run_dir`). It writes .hydra/ itself, after its checks (`hydra_run_
 from __future__ import annotations
 
 import ctypes
+import errno
 import fcntl
 import io
 import json
@@ -28,14 +29,16 @@ import math
 import os
 import shutil
 import struct
+import sys
 import time
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any, ClassVar, cast
 
 from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
 from hydra.types import RunMode
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..files import atomic_write_bytes
@@ -43,6 +46,7 @@ from ..files import atomic_write_bytes
 _STARTED = time.time()  # this process's start, near enough: the entry points import this module first
 
 __all__ = [
+    "MadeRunDir",
     "RunDir",
     "RunDirInUse",
     "hydra_run_dir",
@@ -273,6 +277,52 @@ def birth_time(path: Path) -> float | None:
     if not buf.stx_mask & statx_btime:
         return None
     return buf.stx_btime.tv_sec + buf.stx_btime.tv_nsec * 1e-9
+
+
+class MadeRunDir(Callback):
+    """Hydra callback (conf: hydra.callbacks.run_dir): makes the run's directory (a multirun's sweep
+    directory) before Hydra would, so that one that cannot be made (a read-only file system, a path
+    under a file, a dangling symbolic link or a loop of them, a name too long for the file system)
+    ends the command with one line, `error: hydra.run.dir=...: <why>`, and exit status 1 instead of
+    Hydra's traceback (with HYDRA_FULL_ERROR=1, the traceback)."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        _make_or_exit("hydra.run.dir", config.hydra.run.dir)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        _make_or_exit("hydra.sweep.dir", config.hydra.sweep.dir)
+
+
+def _make_or_exit(key: str, value: str) -> None:
+    path = Path(str(value))
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        return
+    except OSError as e:
+        if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            return  # Hydra's own attempt raises it again, with the traceback
+        why = _why_not_made(path, e)
+    print(f"error: {key}={value}: cannot make the run directory: {why}; give another {key}", file=sys.stderr)
+    sys.exit(1)  # Hydra turns a callback's exception into a warning and goes on
+
+
+def _why_not_made(path: Path, e: OSError) -> str:
+    """What stops directory `path` being made, in words, from the error `e` mkdir gave."""
+    if e.errno == errno.ENAMETOOLONG:
+        return f"a name in it is too long for the file system ({len(str(path))} characters)"
+    for up in reversed((path, *path.parents)):
+        try:
+            os.stat(up)
+        except OSError as err:
+            if err.errno == errno.ELOOP:
+                return f"{up} is a loop of symbolic links"
+            if os.path.islink(up):
+                return f"{up} is a symbolic link to {os.readlink(up)}, which does not exist"
+            break
+        if not up.is_dir():
+            return f"{up} is a file, not a directory"
+    where = f" ({e.filename})" if e.filename else ""
+    return f"{e.strerror or e}{where}"
 
 
 def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:

@@ -3,13 +3,16 @@
 By default SIGTERM (what kill, timeout and SLURM send) and SIGHUP (a closed terminal) end a Python
 process at once: no `finally` block or context manager's exit runs, so a temporary file being
 written stays, and the processes the command started (evaluate.py's forked parts, a joblib
-multirun's workers) go on writing into the run directory. After `stop_on_signals()` (train.py and
+multirun's workers) go on writing into the run directory. SIGINT (Ctrl-C) raises
+KeyboardInterrupt wherever the process is, which a library's broad `except` may swallow, and which
+ends in a traceback. After `stop_on_signals()` (train.py and
 evaluate.py call it first) the first such signal, in the main thread:
 
 1. is passed on to this process's children (those that do not ignore it) and waits up to
    `CHILDREN_SECONDS` for them to end, each after its own cleanup;
 2. raises `Stopped`, a SystemExit with the conventional status 128 + the signal's number (143 for
-   SIGTERM): every `finally` and context manager's exit runs on the way out.
+   SIGTERM, 130 for SIGINT): every `finally` and context manager's exit runs on the way out, and
+   the entry point says so in one line (rbfn.studies.cli.report_stop).
 
 Later signals are ignored (they would cut that cleanup short). A process started by another (a
 forked part, a pool's worker) also asks Linux to send it SIGTERM when its parent ends, however the
@@ -33,7 +36,7 @@ from typing import cast
 
 __all__ = ["Stopped", "job", "stop_on_signals"]
 
-SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
 CHILDREN_SECONDS = 10.0  # how long a stopped process waits for its children's cleanup
 _PR_SET_PDEATHSIG = 1
 _stopping = False
@@ -126,7 +129,7 @@ def stop_on_signals() -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     for s in SIGNALS:
-        if signal.getsignal(s) in (signal.SIG_DFL, _on_signal):
+        if signal.getsignal(s) in (signal.SIG_DFL, signal.default_int_handler, _on_signal):
             signal.signal(s, _on_signal)
     parent = multiprocessing.parent_process()
     if parent is not None:

@@ -82,3 +82,111 @@ def test_a_failed_part_logs_no_end_line(caplog):
     with caplog.at_level(logging.INFO, logger="test_cli"), pytest.raises(ValueError), announced(log, "ik", "x", False):
         raise ValueError("bad")
     assert [r.getMessage() for r in caplog.records] == ["ik: x"]
+
+
+def _unmakeable(tmp_path, kind: str) -> str:
+    """A run directory that cannot be made, of `kind`."""
+    if kind == "below a file":
+        (tmp_path / "afile").write_text("keep")
+        return str(tmp_path / "afile" / "run")
+    if kind == "dangling symlink":
+        (tmp_path / "link").symlink_to(tmp_path / "gone")
+        return str(tmp_path / "link")
+    if kind == "symlink loop":
+        (tmp_path / "a").symlink_to(tmp_path / "b")
+        (tmp_path / "b").symlink_to(tmp_path / "a")
+        return str(tmp_path / "a" / "run")
+    return str(tmp_path / ("x" * 300) / "run")  # a name too long for the file system
+
+
+@pytest.mark.parametrize(
+    "script,kind",
+    [
+        *(("train.py", k) for k in ("below a file", "dangling symlink", "symlink loop", "name too long")),
+        ("evaluate.py", "dangling symlink"),
+    ],
+)
+def test_a_run_directory_that_cannot_be_made_is_one_line(tmp_path, script, kind):
+    key = "hydra.run.dir"
+    """Hydra makes the run directory before the run starts: where it cannot, the command still ends
+    with one line naming the key and why, and exit status 1."""
+    before = sorted(os.listdir(tmp_path))
+    value = _unmakeable(tmp_path, kind)
+    made = sorted(os.listdir(tmp_path))
+    r = _run(
+        script, "data.n_val=0" if script == "train.py" else "n_test=0", f"{key}={value}", env={"HYDRA_FULL_ERROR": "0"}
+    )
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"error: {key}={value}: cannot make the run directory: "), r.stderr
+    assert sorted(os.listdir(tmp_path)) == made and before == []
+
+
+def test_a_sweep_directory_that_cannot_be_made_is_one_line(tmp_path):
+    (tmp_path / "afile").write_text("keep")
+    r = _run(
+        "train.py", "-m", "seed=0,1", f"hydra.sweep.dir={tmp_path / 'afile' / 'sweep'}", env={"HYDRA_FULL_ERROR": "0"}
+    )
+    assert r.returncode == 1 and r.stderr.strip().splitlines() == [
+        f"error: hydra.sweep.dir={tmp_path / 'afile' / 'sweep'}: cannot make the run directory: "
+        f"{tmp_path / 'afile'} is a file, not a directory; give another hydra.sweep.dir"
+    ], r.stderr
+
+
+TINY = [
+    "data.n_train=300",
+    "data.n_val=200",
+    "data.n_test=200",
+    "rbfn.num_centers=10",
+    "centers=kmeans",
+    "progress=false",
+    "num_threads=1",
+    "export=false",
+]
+
+
+def test_a_closed_standard_output_is_one_note_and_the_run_goes_on(tmp_path):
+    """`python train.py | head -1`: the reader goes away after the first line; the run ends as usual,
+    with one note on stderr instead of a BrokenPipeError block a message."""
+    proc = subprocess.Popen(
+        [sys.executable, "train.py", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None and proc.stdout.readline()  # the first line, as head -1
+    proc.stdout.close()
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "Error" not in err and err.strip().splitlines() == [
+        "note: standard output was closed; the run goes on, its messages go to its log file only"
+    ], err
+    assert (tmp_path / "run" / "metrics.json").is_file()
+    assert "test position error median" in (tmp_path / "run" / "train.log").read_text()
+
+
+def test_ctrl_c_to_train_is_one_line_and_keeps_the_state_to_resume(tmp_path):
+    import signal
+    import time
+
+    run_dir = tmp_path / "run"
+    args = [sys.executable, "train.py", *TINY, "centers=aco", "centers.aco.iterations=400", f"hydra.run.dir={run_dir}"]
+    proc = subprocess.Popen(
+        args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (run_dir / "last.pt").exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C: the whole foreground group
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == [
+        f"stopped by SIGINT (exit status 130); {run_dir} keeps what this run wrote before it stopped (last.pt); "
+        "run the same command again to resume it"
+    ], err

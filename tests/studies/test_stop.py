@@ -119,9 +119,13 @@ def start(args: list[str], log: Path) -> subprocess.Popen:
         )
 
 
-def stop_and_check(proc: subprocess.Popen, log: Path, run_dir: Path, started, seconds: float = 120) -> None:
-    """Once `started()`, SIGTERM `proc` (from `start`): it exits with 143, every process of its group
-    is gone within seconds, no *.tmp is left and no file under `run_dir` changes afterwards."""
+def stop_and_check(
+    proc: subprocess.Popen, log: Path, run_dir: Path, started, seconds: float = 120, sig: int = signal.SIGTERM
+) -> None:
+    """Once `started()`, send `sig` to `proc` (from `start`; SIGINT to its whole group, as Ctrl-C
+    does): it exits with 128 + sig, saying so in its last line and with no traceback, every process
+    of its group is gone within seconds, no *.tmp is left and no file under `run_dir` changes
+    afterwards."""
     try:
         deadline = time.monotonic() + seconds
         while not started():
@@ -130,9 +134,15 @@ def stop_and_check(proc: subprocess.Popen, log: Path, run_dir: Path, started, se
             time.sleep(0.1)
         before = group(proc.pid)
         assert len(before) > 1, before
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=30) == 128 + signal.SIGTERM, log.read_text()[-3000:]
-        assert _gone(before, 5.0), f"still running after SIGTERM: {group(proc.pid)}"
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        assert proc.wait(timeout=30) == 128 + sig, log.read_text()[-3000:]
+        assert _gone(before, 5.0), f"still running after {signal.Signals(sig).name}: {group(proc.pid)}"
+        text = log.read_text()
+        assert "Traceback" not in text and "KeyboardInterrupt" not in text, text[-3000:]
+        assert text.strip().splitlines()[-1].startswith(f"stopped by {signal.Signals(sig).name} "), text[-3000:]
     finally:
         for pid in group(proc.pid):
             os.kill(pid, signal.SIGKILL)
@@ -154,7 +164,8 @@ def ckpt(tmp_path_factory):
 
 
 @pytest.mark.skipif(not can_fork("cpu"), reason="this machine does not fork, or has one core")
-def test_sigterm_to_evaluate_stops_its_forked_part(ckpt, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_a_signal_to_evaluate_stops_its_forked_part(ckpt, tmp_path, sig):
     run_dir = tmp_path / "eval"
     # Both parts last far longer than the test: the checkpoint's (forked) and the control part.
     proc = start(
@@ -172,4 +183,4 @@ def test_sigterm_to_evaluate_stops_its_forked_part(ckpt, tmp_path):
         tmp_path / "out.log",
     )
     # The forked part has started once its TensorBoard events file is there.
-    stop_and_check(proc, tmp_path / "out.log", run_dir, lambda: any(run_dir.glob("events.*.checkpoint")))
+    stop_and_check(proc, tmp_path / "out.log", run_dir, lambda: any(run_dir.glob("events.*.checkpoint")), sig=sig)
