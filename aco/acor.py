@@ -69,7 +69,7 @@ class ACOR:
 
         The archive is the best min(n, k) of `init`; it is filled to k by sampling around them.
         `callback(iteration, best, mean)` is called after every iteration. `on_state(state)`
-        receives after every iteration a snapshot (archive, values, iteration, histories and the
+        receives after every iteration a snapshot (archive, values, iteration, of iterations, histories and the
         generator's state) that, passed back as `state`, continues the run exactly where it was.
         """
         if state is not None:
@@ -118,6 +118,7 @@ class ACOR:
                         "archive": arch.cpu(),
                         "values": vals.cpu(),
                         "iteration": it + 1,
+                        "iterations": self.iterations,
                         "best_history": list(res.best_history),
                         "mean_history": list(res.mean_history),
                         "generator": generator.get_state() if generator is not None else torch.get_rng_state(),

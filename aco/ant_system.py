@@ -60,7 +60,7 @@ class AntSystem:
 
         eta: optional heuristic desirability (N,) of each candidate. Returns ACOResult whose
         `best` is the best subset's indices (M,), sorted. `on_state(state)` receives after every
-        iteration a snapshot (pheromone, best, iteration, histories, generator state) that,
+        iteration a snapshot (pheromone, best, iteration, of iterations, histories, generator state) that,
         passed back as `state`, continues the run exactly where it was.
         """
         if not 1 <= subset_size <= n_candidates:
@@ -124,6 +124,7 @@ class AntSystem:
                         "best": res.best.clone(),
                         "best_value": res.best_value,
                         "iteration": it + 1,
+                        "iterations": self.iterations,
                         "best_history": list(res.best_history),
                         "mean_history": list(res.mean_history),
                         "converged": res.converged,

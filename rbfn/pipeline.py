@@ -32,6 +32,7 @@ from .growth import grow, growth_schedule
 from .layer import RBFNetwork, assemble
 from .lms import lms_fit
 from .objectives import FitObjective
+from .progress import Progress
 from .refine import Refined, refine, refine_mode
 from .resume import StateFile, TrainState
 from .select import select
@@ -170,14 +171,16 @@ def train_ik(
     states: StateFile | None = None,
     state: TrainState | None = None,
     robot: Robot | None = None,
+    progress: Progress | None = None,
 ) -> TrainResult:
     """Train the IK network of `cfg` on `data` (targets (N, 3 or 7) -> joints (N, n)).
 
-    With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
-    the running colony's snapshots) and an interrupted run continues where it stopped, ending with
-    exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
-    mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`). An arm with more
-    free joints than its targets' degrees of freedom is refused first (check_ik_is_function).
+        With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
+        the running colony's snapshots) and an interrupted run continues where it stopped, ending with
+        exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
+        mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`). `progress`, where
+    given, follows the colonies' iterations and the refinement's steps. An arm with more
+        free joints than its targets' degrees of freedom is refused first (check_ik_is_function).
     """
     n_q = data.train.q.shape[1]
     joints = robot.joint_names if robot is not None else [f"joint {i + 1}" for i in range(n_q)]
@@ -225,6 +228,8 @@ def train_ik(
             assert state.current is not None  # the growth step's state, set above
             state.current["colony"] = colony_state
             save(force=False)
+            if progress is not None:
+                progress.at(f"M = {m}: colony", colony_state["iteration"], colony_state["iterations"], "iterations")
 
         sel = select(cfg.centers, objective, m, cfg.seed, cfg.rbfn.max_width, cfg.progress, gen, resume, on_state)
         fit = fit_weights(cfg, data, feats, offset, scale, sel.centers, sel.widths, gen)
@@ -287,6 +292,7 @@ def train_ik(
             cfg.seed,
             jacobians,
             rule=float32_rule(cfg),
+            progress=progress,
         )
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history

@@ -33,6 +33,7 @@ import torch
 
 from .fit import RoundingRule, design_matrix, ridge_fit, ridge_solve
 from .layer import LOG2E, distance_rows
+from .progress import Progress
 
 __all__ = [
     "Refined",
@@ -92,12 +93,13 @@ def refine(
     seed: int = 0,
     jacobians: tuple[torch.Tensor, torch.Tensor] | None = None,
     rule: RoundingRule | None = None,
+    progress: Progress | None = None,
 ) -> Refined:
     """Refine by `refine_mode` of `cfg` (a `RefineConfig`). weights (P, out): the current fit's, the
     mini-batch start. jacobians: (J_train (N, r, out), J_val (Nv, r, out)), the task Jacobians
     at the rows' joints, rows weighted as the task error is measured; the mini-batch loss then
     is the task error (`cfg.minibatch.loss=task`), else the joint error. rule: the float32 rule
-    the full way's ridge follows (`refine_full`)."""
+    the full way's ridge follows (`refine_full`). progress: where given, follows the steps (epochs)."""
     p = centers.shape[0] + (z_train.shape[1] + 1 if tail else 0)
     if refine_mode(cfg, z_train.shape[0], p) == "full":
         return refine_full(
@@ -115,6 +117,7 @@ def refine(
             max_width,
             rule=rule,
             min_ridge=cfg.min_ridge,
+            progress=progress,
         )
     mb = cfg.minibatch
     return refine_minibatch(
@@ -134,6 +137,7 @@ def refine(
         seed,
         huber=mb.huber,
         jacobians=jacobians,
+        progress=progress,
     )
 
 
@@ -153,6 +157,7 @@ def refine_full(
     eval_every: int = 10,
     rule: RoundingRule | None = None,
     min_ridge: float = 0.0,
+    progress: Progress | None = None,
 ) -> Refined:
     """Adam on (centres, log widths, log input scales), weights solved inside the loss with a
     relative ridge; returns the best-on-validation iterate.
@@ -198,6 +203,8 @@ def refine_full(
     best = (e, c.detach().clone(), log_w.detach().clone(), log_s.detach().clone())
     history = [best[0]]
     for step in range(1, steps + 1):
+        if progress is not None:
+            progress.at("refinement", step - 1, steps)
         opt.zero_grad()
         a = design_matrix(z_train / log_s.exp(), c, log_w.clamp(max=log_max).exp(), tail)
         loss = (a @ ridge_solve(a, y_train, ridge) - y_train).square().sum(-1).mean()
@@ -296,6 +303,7 @@ def refine_minibatch(
     dtype: torch.dtype = torch.float32,
     huber: float = 0.0,
     jacobians: tuple[torch.Tensor, torch.Tensor] | None = None,
+    progress: Progress | None = None,
 ) -> Refined:
     """Adam on (centres, log widths, log input scales, output weights (P, out)) over mini-batches
     of `batch` shuffled training rows for `epochs` passes, the step size cosine-annealed from `lr`
@@ -341,6 +349,8 @@ def refine_minibatch(
     history = [best[0]]
     diverged = False
     for epoch in range(1, epochs + 1):
+        if progress is not None:
+            progress.at("refinement", epoch - 1, epochs, "epochs")
         for rows in torch.randperm(n, generator=g).to(z_tr.device).split(batch):
             jac = None if j_tr is None else j_tr[rows]
             loss = row_loss(predict(z_tr[rows]) - y_tr[rows], jac, huber).mean()

@@ -26,6 +26,7 @@ from ..config import (
     Objective,
     RobotConfig,
 )
+from ..progress import Progress
 from ..robots.scara import ScaraParams
 from .batch import Stacked
 from .controllers import Model, make_controller
@@ -78,12 +79,14 @@ def compare_controllers(
     robot: RobotConfig | None = None,
     setup: ControlRobot | None = None,
     loop: LoopConfig | None = None,
+    progress: Progress | None = None,
 ) -> ControlComparison:
     """Run `cfg.controllers` on the payload cases (kg) along the robot's desired trajectory.
 
     robot: the robot (default: the SCARA); setup: an already checked `control_robot(robot, cfg)`;
     loop: how real the loop is (None: ideal). In the realistic loop the controllers act every
-    control period (their adaptation steps gamma times it), the pilot run stays ideal."""
+    control period (their adaptation steps gamma times it), the pilot run stays ideal. progress:
+    where given, follows the closed-loop tuning's batches."""
     setup = setup or control_robot(robot or RobotConfig(), cfg, params)
     dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
@@ -152,7 +155,9 @@ def compare_controllers(
                 args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
                 if cost is None:  # the tuning's scenarios, and smc's reference errors on them
                     cost = _closed_loop_cost(*args)
-                found = tune_network(method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor)
+                found = tune_network(
+                    method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor, progress=progress
+                )
                 if confirm is None:  # the same scenarios, as long as the evaluation's episode
                     confirm = _closed_loop_cost(*args, full_length=True)
                 tuned[name] = confirmed(found, cost, confirm)

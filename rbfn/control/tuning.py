@@ -41,6 +41,7 @@ from aco import ACOR
 from ..config import ACORConfig, TuneConfig
 from ..fit import design_matrix, ridge_fit
 from ..layer import gaussian_features
+from ..progress import Progress
 from .controllers import Gains, JointRates, Model, make_controller
 from .loop import RealLoop
 from .network import ControlNet, desired_states
@@ -297,10 +298,14 @@ class Tuned:
 
 
 class _Tally:
-    """Counts a search's episodes and keeps its best candidate and best-so-far curve."""
+    """Counts a search's episodes and keeps its best candidate and best-so-far curve; tells
+    `progress` how many of `batches` batches of candidates are done."""
 
-    def __init__(self, cost: ClosedLoopCost) -> None:
+    def __init__(
+        self, cost: ClosedLoopCost, batches: int = 0, what: str = "", progress: Progress | None = None
+    ) -> None:
         self.cost, self.episodes = cost, 0
+        self.batches, self.what, self.progress = batches, what, progress
         self.curve: list[float] = []
         self.best_x: torch.Tensor | None = None
         self.best = math.inf
@@ -312,6 +317,8 @@ class _Tally:
         if self.best_x is None or float(values[i]) < self.best:
             self.best, self.best_x = float(values[i]), x[i].clone()
         self.curve.append(self.best)
+        if self.progress is not None:
+            self.progress.at(self.what, len(self.curve), self.batches, "batches of candidates")
         return values
 
 
@@ -346,17 +353,18 @@ def tune_network(
     tune: TuneConfig,
     seed: int,
     acor: ACORConfig | None = None,
+    progress: Progress | None = None,
 ) -> Tuned:
     """The best network `search` (one of SEARCHES) finds in tune.iterations batches of
     tune.population candidates, starting at the twin (x = 0): `aco`, ACO_R (its archive
     min(acor.archive_size, population), q and xi from `acor`) whose first ants are the twin and
     population - 1 draws N(0, spread^2) around it; `random`, the same first batch, then batch after
     batch of such draws; `cmaes`, CMA-ES from mean 0 with step size `spread`. Every candidate is
-    clipped to the same box (cost.lower, cost.upper)."""
+    clipped to the same box (cost.lower, cost.upper). progress: where given, follows the batches."""
     if search not in SEARCHES:
         raise ValueError(f"unknown closed-loop search {search!r}; choose one of {list(SEARCHES)}")
     g = torch.Generator().manual_seed(seed)
-    tally = _Tally(cost)
+    tally = _Tally(cost, tune.iterations, f"tuning the network by {search}", progress)
     lo, hi, dim, pop = cost.lower, cost.upper, cost.dimension, tune.population
     t0 = time.perf_counter()
 

@@ -9,8 +9,9 @@ keeps its traceback. In a multirun every error is left to Hydra, which runs the 
 reports the first failure at the end.
 
 Progress: each part of a run that takes more than a few seconds says what it will do and how big
-when it starts, and its time when it ends (`announced`); while it runs, a line every 30 s says it
-is still at work (with `progress` on and stderr a terminal: quiet in tests, pipes and batch logs).
+when it starts, and its time when it ends (`announced`); while it runs, a line every 30 s (with
+`progress` on) says it is still at work, what its loop has done of how much, and about how long
+the rest takes, on the terminal and in the job's log file.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 
 from ..control.simulator import SimulationDiverged
+from ..progress import Progress
 from ..resume import DifferentRun
 from .rundir import RunDirInUse
 from .stop import Stopped
@@ -90,22 +92,26 @@ HEARTBEAT_S = 30.0  # seconds between a running part's "still at work" lines
 @contextmanager
 def announced(log: logging.Logger, part: str, what: str, progress: bool = True) -> Iterator[dict]:
     """Log `part: what` on entry and `part: done in T s` on a normal exit; yields a dict whose
-    "seconds" holds the wall seconds once the block ends. Between, with `progress` and stderr a
-    terminal, `part: still running (T so far)` every HEARTBEAT_S seconds (the library loops inside
-    a part report nothing themselves)."""
+    "seconds" holds the wall seconds once the block ends, and whose "progress" is a
+    `rbfn.progress.Progress` for the library loops inside to advance. Between, with `progress`,
+    `part: still running (T s so far); <where the loop stands, and about how long it has left>`
+    every HEARTBEAT_S seconds: on the terminal and in the job's log file alike, so that output
+    sent to a file or a batch system's log says it too."""
     log.info("%s: %s", part, what)
     t0 = time.perf_counter()
     stop = threading.Event()
+    timing: dict = {"progress": Progress()}
 
     def beat() -> None:
         while not stop.wait(HEARTBEAT_S):
-            log.info("%s: still running (%.0f s so far)", part, time.perf_counter() - t0)
+            where = timing["progress"].line()
+            log.info(
+                "%s: still running (%.0f s so far)%s", part, time.perf_counter() - t0, f"; {where}" if where else ""
+            )
 
-    beats = progress and sys.stderr.isatty()
-    thread = threading.Thread(target=beat, name=f"{part}-progress", daemon=True) if beats else None
+    thread = threading.Thread(target=beat, name=f"{part}-progress", daemon=True) if progress else None
     if thread is not None:
         thread.start()
-    timing: dict = {}
     try:
         yield timing
     finally:

@@ -11,6 +11,7 @@ from torch.utils.tensorboard import SummaryWriter
 from ..config import ControlConfig, GainsConfig, LoopConfig, RobotConfig, plain
 from ..control.comparison import ControlComparison, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
+from ..progress import Progress
 from .beside import Beside, can_fork
 from .plots import robot_label, tracking_figure
 from .rundir import write_figure
@@ -37,6 +38,7 @@ def evaluate_control(
     parallel: bool = True,
     loop: LoopConfig | None = None,
     urdf_text: str | None = None,
+    progress: Progress | None = None,
 ) -> dict:
     """metrics.json's `control` (controller -> case -> metric -> per joint) and `control_info`;
     `parallel`: half the figures drawn in a forked process where the machine allows; `urdf_text`
@@ -45,7 +47,7 @@ def evaluate_control(
     setup = check_control(cfg, robot, urdf_text)
     source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
     label = robot_label(robot.name, source)
-    res = compare_controllers(cfg, gains, device, setup=setup, loop=loop)
+    res = compare_controllers(cfg, gains, device, setup=setup, loop=loop, progress=progress)
     metrics = {name: run.metrics for name, run in res.runs.items()}
     gain_record: dict[str, Any] = {
         k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()

@@ -169,9 +169,9 @@ def _torch_threads(n: int | None):
 @contextmanager
 def _timed(seconds: dict, part: str, cfg: EvalConfig):
     """One part announced (what and how big) and timed (rbfn.studies.cli.announced); its wall
-    seconds recorded under `seconds[part]`."""
+    seconds recorded under `seconds[part]`; yields the part's `Progress` for its loops."""
     with announced(log, part, _what(part, cfg), cfg.progress) as timing:
-        yield
+        yield timing["progress"]
     seconds[part] = timing["seconds"]
 
 
@@ -296,7 +296,7 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
         if cfg.control.enabled:
             writer = SummaryWriter(log_dir=str(out_dir))
             try:
-                with _timed(seconds, "control", cfg):
+                with _timed(seconds, "control", cfg) as progress:
                     control = evaluate_control(
                         cfg.control,
                         cfg.gains,
@@ -307,6 +307,7 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
                         cfg.parallel,
                         cfg.loop,
                         urdf_text=ckpt["robot"]["urdf"] if ckpt is not None else None,
+                        progress=progress,
                     )
             finally:
                 writer.close()

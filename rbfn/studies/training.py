@@ -63,8 +63,8 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         # 2-5. Centres and widths, weights, growth, refinement (rbfn.pipeline); 6. outputs.
         writer = SummaryWriter(log_dir=str(out_dir))
         try:
-            with announced(log, "fit", _fit_what(cfg), cfg.progress):
-                result = train_ik(cfg, data, states, state, robot)
+            with announced(log, "fit", _fit_what(cfg), cfg.progress) as fit:
+                result = train_ik(cfg, data, states, state, robot, progress=fit["progress"])
             outputs = "checkpoint.pt" + (", ik.onnx, ik.pt2" if cfg.export else "") + ", metrics.json"
             with announced(log, "outputs", f"test accuracy (raw and polished), {outputs}", cfg.progress):
                 metrics = training_metrics(cfg, result, robot, data)

@@ -49,8 +49,8 @@ def test_a_run_directory_below_a_file_is_named(tmp_path):
     assert (tmp_path / "afile").read_text() == "keep"
 
 
-@pytest.mark.parametrize("progress,tty,beats", [(True, True, True), (False, True, False), (True, False, False)])
-def test_a_part_says_what_it_does_how_long_it_took_and_on_a_terminal_that_it_runs(
+@pytest.mark.parametrize("progress,tty,beats", [(True, True, True), (False, True, False), (True, False, True)])
+def test_a_part_says_what_it_does_how_long_it_took_and_that_it_runs(
     monkeypatch, caplog, progress, tty, beats
 ):
     import logging
@@ -71,6 +71,26 @@ def test_a_part_says_what_it_does_how_long_it_took_and_on_a_terminal_that_it_run
     assert t["seconds"] >= 0.15
     assert any(line.startswith("control: still running (") for line in lines[1:-1]) == beats
     assert len(lines) == 2 or beats
+
+
+def test_a_running_part_says_where_its_loop_stands_in_the_log(monkeypatch, caplog):
+    """Written to a file (no terminal), a long part still says what is done, what remains and about
+    how long that takes, from the Progress its library loop advances."""
+    import logging
+    import time
+
+    from rbfn.studies import cli
+
+    monkeypatch.setattr(cli, "HEARTBEAT_S", 0.05)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: False)
+    log = logging.getLogger("test_cli")
+    with caplog.at_level(logging.INFO, logger="test_cli"), cli.announced(log, "fit", "M = 80") as t:
+        for step in range(4):
+            t["progress"].at("refinement", step, 2000)
+            time.sleep(0.06)
+    beats = [r.getMessage() for r in caplog.records if "still running" in r.getMessage()]
+    assert beats and all("; refinement: " in b and " / 2000 steps" in b for b in beats), beats
+    assert any("s left" in b for b in beats), beats
 
 
 def test_a_failed_part_logs_no_end_line(caplog):
