@@ -39,13 +39,13 @@ from typing import cast
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from rbfn.config import EvalConfig, register_configs
-from rbfn.studies.cli import one_line_errors
+from rbfn.studies.cli import one_line_errors, run_main, settings
 from rbfn.studies.evaluation import for_checkpoint, run
 from rbfn.studies.rundir import hydra_run_dir, hydra_run_files
-from rbfn.studies.stop import job, stop_on_signals
+from rbfn.studies.stop import job
 
 __all__ = ["main", "run"]
 
@@ -56,13 +56,11 @@ register_configs()
 def main(dcfg: DictConfig) -> None:
     with one_line_errors(HydraConfig.get().mode == RunMode.RUN), job(), hydra_run_dir(own=True) as out_dir:
         dcfg = for_checkpoint(dcfg, HydraConfig.get().overrides.task)  # the checkpoint's robot, before any work
-        run(cast(EvalConfig, OmegaConf.to_object(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
+        run(cast(EvalConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
 
 
 if __name__ == "__main__":
     # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
     # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
     atexit.register(gc.freeze)
-    with one_line_errors():  # a stop by a signal outside the job (Hydra composing, say): one line too
-        stop_on_signals()
-        main()
+    run_main(main)

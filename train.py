@@ -29,13 +29,13 @@ from typing import cast
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from rbfn.config import TrainConfig, register_configs
 from rbfn.resume import DifferentRun
-from rbfn.studies.cli import one_line_errors
+from rbfn.studies.cli import one_line_errors, run_main, settings
 from rbfn.studies.rundir import RunDirInUse, hydra_run_dir, hydra_run_files, write_json
-from rbfn.studies.stop import job, stop_on_signals
+from rbfn.studies.stop import job
 from rbfn.studies.training import run
 
 __all__ = ["main", "run"]
@@ -46,11 +46,10 @@ log = logging.getLogger("train")
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="train")
 def main(dcfg: DictConfig) -> float:
-    cfg = cast(TrainConfig, OmegaConf.to_object(dcfg))
     hc = HydraConfig.get()
     with one_line_errors(hc.mode == RunMode.RUN), job(), hydra_run_dir() as out_dir:
         try:
-            metrics = run(cfg, out_dir, hydra_run_files(dcfg, out_dir))
+            metrics = run(cast(TrainConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
         except Exception as e:
             # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json
             # for `python -m rbfn.summarize` (never into a directory another process is using).
@@ -69,6 +68,4 @@ if __name__ == "__main__":
     # Exit without the interpreter's final garbage collections over the ~300k objects torch, Hydra
     # and matplotlib hold (0.6-0.8 s a run, measured): frozen objects are not scanned.
     atexit.register(gc.freeze)
-    with one_line_errors():  # a stop by a signal outside the job (Hydra composing, say): one line too
-        stop_on_signals()
-        main()
+    run_main(main)

@@ -16,22 +16,37 @@ the rest takes, on the terminal and in the job's log file.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
+from typing import Any
+
+from hydra.errors import HydraException, OverrideParseException
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from ..control.simulator import SimulationDiverged
 from ..progress import Progress
 from ..resume import DifferentRun
-from .rundir import RunDirInUse
-from .stop import Stopped
+from .rundir import FULL_ERROR, RunDirInUse
+from .stop import Stopped, stop_on_signals
 
-__all__ = ["REFUSALS", "ConsoleHandler", "announced", "one_line_errors", "report_stop"]
+__all__ = [
+    "REFUSALS",
+    "ConsoleHandler",
+    "announced",
+    "one_line_errors",
+    "report_stop",
+    "run_main",
+    "hydra_error",
+    "settings",
+]
 
 REFUSALS = (ValueError, OSError, RunDirInUse, DifferentRun, SimulationDiverged)
 
@@ -54,7 +69,7 @@ def report_stop(e: Stopped) -> None:
 @contextmanager
 def one_line_errors(enabled: bool = True):
     """Inside, a refusal (REFUSALS) ends the process with `error: <message>` on stderr and exit
-    status 1 (where `enabled` and HYDRA_FULL_ERROR is not 1); a stop by a signal
+    status 1 (where `enabled` and the user did not set HYDRA_FULL_ERROR=1); a stop by a signal
     (rbfn.studies.stop) says so in one line, keeping its exit status."""
     try:
         yield
@@ -63,10 +78,83 @@ def one_line_errors(enabled: bool = True):
             report_stop(e)
         raise
     except REFUSALS as e:
-        if not enabled or os.environ.get("HYDRA_FULL_ERROR") == "1":
+        if not enabled or FULL_ERROR:
             raise
         _say(f"error: {e}", getattr(e, "__notes__", ()))
         sys.exit(1)
+
+
+def run_main(main: Callable[[], Any]) -> None:
+    """Run an entry point's `@hydra.main` function `main` so that every way it ends is one line:
+    SIGTERM, SIGHUP and SIGINT stop it (rbfn.studies.stop) with `stopped by ...`; Hydra's own
+    errors (an override it cannot parse, a config group option that does not exist, a key the
+    schema lacks) and a multirun's failed job, which Hydra prints with a traceback, are
+    `error: <message>` (and exit status 1) too. With HYDRA_FULL_ERROR=1 Hydra's tracebacks stay."""
+    if not FULL_ERROR:
+        os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its trace and exiting
+    with one_line_errors():
+        stop_on_signals()
+        try:
+            main()
+        except (HydraException, OmegaConfBaseException) as e:
+            if FULL_ERROR:
+                raise
+            _say(f"error: {hydra_error(e)}", getattr(e, "__notes__", ()))
+            sys.exit(1)
+
+
+def settings(dcfg: DictConfig) -> Any:
+    """The typed settings (the schema's dataclasses) of a composed config, refusing a key the schema
+    lacks: `+rbfn.num_centres=40` is added by Hydra and would be silently dropped here."""
+    obj = OmegaConf.to_object(dcfg)
+    extra = _unknown(OmegaConf.to_container(dcfg, resolve=False), obj)
+    if extra:
+        raise ValueError(
+            f"{', '.join(extra)} {'is not a setting' if len(extra) == 1 else 'are not settings'} of this command "
+            "(misspelt?); --help lists the config groups, --cfg job every key"
+        )
+    return obj
+
+
+def _unknown(node: Any, obj: Any, prefix: str = "") -> list[str]:
+    """Dotted keys of container `node` that dataclass `obj` (built from it) has no field for."""
+    if not (dataclasses.is_dataclass(obj) and isinstance(node, dict)):
+        return []
+    names = {f.name for f in dataclasses.fields(obj)}
+    extra = [f"{prefix}{k}" for k in node if k not in names]
+    for k in node:
+        if k in names:
+            extra += _unknown(node[k], getattr(obj, k), f"{prefix}{k}.")
+    return extra
+
+
+def hydra_error(e: BaseException) -> str:
+    """One line for an error Hydra or OmegaConf raised while composing the config: its message,
+    then its cause's first line (what was wrong with the value), options listed inline, without
+    the search path and the schemas' internal entries."""
+    if isinstance(e, OverrideParseException):
+        return (
+            f"cannot parse the override {e.override!r}; quote a value holding spaces or other special "
+            """characters ('key="a b"'); see --help"""
+        )
+    parts: list[str] = []  # sentences, or a heading ending in ':' with its list of options
+    listing = False
+    for line in str(e).splitlines():
+        line = line.strip()
+        if line.startswith("Config search path") or "hydra.cc/docs" in line:
+            break
+        if not line or line.endswith("_schema"):
+            continue
+        if listing:
+            parts[-1] += (" " if parts[-1].endswith(":") else ", ") + line
+        else:
+            parts.append(line)
+            listing = line.endswith(":")
+    text = "; ".join(part.rstrip(".") for part in parts)
+    cause = e.__cause__
+    if cause is not None and str(cause).strip():
+        text += f": {str(cause).strip().splitlines()[0]}"
+    return text
 
 
 class ConsoleHandler(logging.StreamHandler):

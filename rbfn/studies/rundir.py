@@ -28,6 +28,7 @@ import logging
 import math
 import os
 import shutil
+import stat
 import struct
 import sys
 import time
@@ -44,6 +45,9 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 from ..files import atomic_write_bytes
 
 _STARTED = time.time()  # this process's start, near enough: the entry points import this module first
+# Whether the user asked for tracebacks (HYDRA_FULL_ERROR=1), read before the entry point asks Hydra
+# to raise its errors for it to report in one line (rbfn.studies.cli.run_main).
+FULL_ERROR = os.environ.get("HYDRA_FULL_ERROR") == "1"
 
 __all__ = [
     "MadeRunDir",
@@ -299,7 +303,7 @@ def _make_or_exit(key: str, value: str) -> None:
         path.mkdir(parents=True, exist_ok=True)
         return
     except OSError as e:
-        if os.environ.get("HYDRA_FULL_ERROR") == "1":
+        if FULL_ERROR:
             return  # Hydra's own attempt raises it again, with the traceback
         why = _why_not_made(path, e)
     print(f"error: {key}={value}: cannot make the run directory: {why}; give another {key}", file=sys.stderr)
@@ -320,9 +324,21 @@ def _why_not_made(path: Path, e: OSError) -> str:
                 return f"{up} is a symbolic link to {os.readlink(up)}, which does not exist"
             break
         if not up.is_dir():
-            return f"{up} is a file, not a directory"
+            return f"{up} is {_kind(up)}, not a directory"
     where = f" ({e.filename})" if e.filename else ""
     return f"{e.strerror or e}{where}"
+
+
+def _kind(path: Path) -> str:
+    """What `path` (an existing entry, not a directory) is, in words: 'a file', 'a device', ..."""
+    mode = os.stat(path).st_mode
+    kinds = (
+        (stat.S_ISREG, "a file"),
+        (stat.S_ISCHR, "a device"),
+        (stat.S_ISBLK, "a device"),
+        (stat.S_ISFIFO, "a FIFO"),
+    )
+    return next((word for test, word in kinds if test(mode)), "not a directory but a socket or the like")
 
 
 def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:

@@ -50,9 +50,7 @@ def test_a_run_directory_below_a_file_is_named(tmp_path):
 
 
 @pytest.mark.parametrize("progress,tty,beats", [(True, True, True), (False, True, False), (True, False, True)])
-def test_a_part_says_what_it_does_how_long_it_took_and_that_it_runs(
-    monkeypatch, caplog, progress, tty, beats
-):
+def test_a_part_says_what_it_does_how_long_it_took_and_that_it_runs(monkeypatch, caplog, progress, tty, beats):
     import logging
     import time
 
@@ -210,3 +208,48 @@ def test_ctrl_c_to_train_is_one_line_and_keeps_the_state_to_resume(tmp_path):
         f"stopped by SIGINT (exit status 130); {run_dir} keeps what this run wrote before it stopped (last.pt); "
         "run the same command again to resume it"
     ], err
+
+
+@pytest.mark.parametrize(
+    "override,message",
+    [
+        (
+            "seed=abc",
+            "error: Error merging override seed=abc: Value 'abc' of type 'str' could not be converted to Integer",
+        ),
+        (
+            "foo=1",
+            "error: Could not override 'foo'; To append to your config use +foo=1: Key 'foo' not in 'TrainConfig'",
+        ),
+        (
+            "centers=nonexistent",
+            "error: In 'train': Could not find 'centers/nonexistent'; Available options in 'centers': aco, aco_paper, "
+            "kmeans, kmeans_refine, ols, random",
+        ),
+        ("seed=[1", "error: cannot parse the override 'seed=[1'; quote a value holding spaces"),
+        (
+            "+rbfn.num_centres=40",
+            "error: rbfn.num_centres is not a setting of this command (misspelt?); --help lists the config groups, "
+            "--cfg job every key",
+        ),
+    ],
+    ids=["type", "unknown key", "unknown option", "unparsable", "added key"],
+)
+def test_hydras_own_errors_and_added_keys_are_one_line(tmp_path, override, message):
+    """What Hydra refuses while composing (printed with a traceback by Hydra itself) is one line too,
+    and a key the schema lacks, which Hydra adds with +, is refused instead of silently dropped."""
+    r = _run("train.py", override, f"hydra.run.dir={tmp_path / 'run'}", env={"HYDRA_FULL_ERROR": "0"})
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1 and lines[0].startswith(message), r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_failed_multirun_job_ends_the_sweep_with_its_error_not_a_traceback(tmp_path):
+    r = _run(
+        "train.py", "-m", *TINY, "seed=0,-1", f"hydra.sweep.dir={tmp_path / 'sweep'}", env={"HYDRA_FULL_ERROR": "0"}
+    )
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "error: seed=-1 is not allowed: use an integer in [0, 4294967295]" in r.stderr.splitlines(), r.stderr
+    assert (tmp_path / "sweep" / "0" / "metrics.json").is_file() and (
+        tmp_path / "sweep" / "1" / "failed.json"
+    ).is_file()
