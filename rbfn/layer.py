@@ -69,6 +69,7 @@ __all__ = [
     "sq_distances",
     "distance_rows",
     "assemble",
+    "row_blocks",
     "MIN_WIDTH",
     "LOG2E",
 ]
@@ -194,6 +195,19 @@ def _expand(
         cover_weight,
         head_scale,
     )
+
+
+def row_blocks(fn: Callable, rows: int, *xs: torch.Tensor):
+    """fn applied to blocks of `rows` rows of tensors xs (B, ...) and concatenated: fn's tensor, or
+    tuple of tensors, (B, ...). One call where B <= rows. So a row-wise computation holds its
+    temporaries for `rows` rows at a time, whatever B (the network's eager calls, `rbfn.solver`)."""
+    n = xs[0].shape[0]
+    if n <= rows:
+        return fn(*xs)
+    outs = [fn(*parts) for parts in zip(*(t.split(rows) for t in xs))]
+    if isinstance(outs[0], tuple):
+        return tuple(torch.cat(o) for o in zip(*outs))
+    return torch.cat(outs)
 
 
 def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
@@ -352,13 +366,9 @@ class RBFNetwork(nn.Module):
 
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
         """fn applied to blocks of `rows_per_block` rows of xs and concatenated (one call when traced)."""
-        n, rows = xs[0].shape[0], self.rows_per_block
-        if torch.compiler.is_compiling() or n <= rows:
+        if torch.compiler.is_compiling():
             return fn(*xs)
-        outs = [fn(*parts) for parts in zip(*(t.split(rows) for t in xs))]
-        if isinstance(outs[0], tuple):
-            return tuple(torch.cat(o) for o in zip(*outs))
-        return torch.cat(outs)
+        return row_blocks(fn, self.rows_per_block, *xs)
 
     def _rows(self, fn: Callable, x: torch.Tensor) -> torch.Tensor:
         """fn (rows (N, d) -> (N, k)) on inputs (..., d) in blocks, as (..., k)."""
