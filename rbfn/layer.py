@@ -231,8 +231,8 @@ class RBFNetwork(nn.Module):
     """
 
     # Which way `forward` computes: True, the Gaussians' exponents by one matrix product
-    # (`_expansion`) in row blocks; False, the plain equation, all rows at once (a reference: it
-    # holds (B, M, d) differences). `solve`, `in_workspace` and `design` take the fast path either way.
+    # (`_expansion`); False, the plain equation (a reference: it holds (rows, M, d) differences).
+    # Both in row blocks. `solve`, `in_workspace` and `design` take the fast path either way.
     fast: bool = True
     # Rows per block in eager calls; None: about `block_elements` (rows, M) exponents a block
     # (2 MB in float32: fastest measured at M = 80 and M = 2000, twice as fast as 16384 rows at M = 2000).
@@ -484,8 +484,10 @@ class RBFNetwork(nn.Module):
         (rad, m) of float64 on networks fitted by the float32 rule (tested), with exp2 and no
         (B, M, d) differences. Training, evaluation and the exports take the fast path."""
         x = self._inputs(x)
-        if self.fast:
-            return self._blocks(self._forward_rows, x)
+        return self._blocks(self._forward_rows if self.fast else self._plain_rows, x)
+
+    def _plain_rows(self, x: torch.Tensor) -> torch.Tensor:
+        """`forward`'s plain equation on rows (B, d) in one piece (it holds (B, M, d) differences)."""
         z = self._scaled(x)  # (B, d)
         h = gaussian_features(z, self.centers, self.widths)  # (B, M)
         y = self.head(h)  # W h + b (B, out)
