@@ -42,8 +42,8 @@ MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the po
 STEP_SCALES = (2.0, 1.4, 1.0, 0.6, 0.3)  # the line search's multiples of a step (measured on the UR5)
 PROGRESS = 0.25  # a full step that leaves more than this share of the error is searched along
 FAR = 100.0  # a network answer this many tolerances off (10 mm at the default 0.1 mm) tries the base turns
-BLOCK_ROWS = 8192  # targets a block of `IKSolver.solve`: its Jacobians, chains and line-search trials
-# take 2.3 KB a target on the SCARA, about 13 KB on the UR5, so a block holds some 20-110 MB
+BLOCK_ROWS = 4096  # targets a block of `IKSolver.solve`: its Jacobians, chains, base turns and line-search
+# trials take up to 6 KB a target on the SCARA and 28 KB on the UR5 (measured), so a block holds at most ~120 MB
 WHOLE_BATCH_VALUES = 8  # float64 joint vectors a target `solve` holds for the whole batch at most
 # (answers, `near`, restarts' starts and answers, indices and masks), besides the targets
 

@@ -11,15 +11,19 @@ table: for jobs that differ only in that key (same seed, so the same data), A - 
 
 Jobs without a metrics.json are listed after the table with their error: "failed" when the job
 recorded one in failed.json (train.py does so in a multirun), "unfinished" otherwise (running,
-or killed or timed out; the last ERROR line of its log, if any, is shown). So are "malformed" jobs,
-whose metrics.json is not a JSON object (NaN and Infinity are not JSON) or holds something other than
-a finite number under a summarized metric (null is a blank cell: train.py writes it where a metric
-does not apply); they are left out of the tables.
+or killed or timed out; the last ERROR line of its log's last MiB, if any, is shown). So are
+"malformed" jobs, whose metrics.json is not a JSON object (NaN and Infinity are not JSON), holds
+something other than a finite number under a summarized metric (null is a blank cell: train.py
+writes it where a metric does not apply), is no regular file or larger than MAX_READ_BYTES (never
+read), or whose overrides cannot be read; "unreadable" directories (they cannot be listed); and
+the jobs the sweep's multirun.yaml lists without a directory (`find_jobs`: "failed" where a later
+job started, else "missing"). They are left out of the tables, and counted and named.
 
-A bad argument (a SWEEP_DIR without jobs, a metric no job has, a --compare key that is not swept or
+A bad argument (a SWEEP_DIR without jobs or that cannot be read, a metric no job has, a --compare key that is not swept or
 values it does not take, an output that is a directory or write-protected without --force) is a
 one-line error, exit status 2, and nothing is written. The outputs are written all or none: each to
-a temporary file beside it, renamed over the old one once every output is written.
+a temporary file beside it, renamed over the old one once every output is written; an earlier
+summary.png this summary does not draw is removed with them.
 """
 
 from __future__ import annotations
