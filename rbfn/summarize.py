@@ -21,9 +21,9 @@ job started, else "missing"). They are left out of the tables, and counted and n
 
 A bad argument (a SWEEP_DIR without jobs or that cannot be read, a metric no job has, a --compare
 key that is not swept or values it does not take, an output that is a directory or write-protected
-without --force) is a one-line error, exit status 2, and nothing is written. The outputs are written all or none: each to
-a temporary file beside it, renamed over the old one once every output is written; an earlier
-summary.png this summary does not draw is removed with them.
+without --force) is a one-line error, exit status 2, and nothing is written. The outputs are
+written all or none: each to a temporary file beside it, renamed over the old one once every
+output is written; an earlier summary.png this summary does not draw is removed with them.
 """
 
 from __future__ import annotations
