@@ -270,6 +270,8 @@ class IKSolver:
         dev = self.robot.chain.device
         x = self.model.check_inputs(targets)
         b, rows = x.shape[0], self.block_rows
+        if isinstance(rows, bool) or not isinstance(rows, int) or rows < 1:
+            raise ValueError(f"IKSolver.block_rows={rows!r} is not allowed: use a positive integer (targets a block)")
         if b > rows:
             n = len(self.robot.joint_names)
             check_fits(
@@ -317,12 +319,12 @@ class IKSolver:
         both, ok2 = self._polish(
             torch.cat([q, near_q.clamp(self.low.to(dev), self.high.to(dev))]), x.repeat(2, 1), iterations
         )
-        both = both.reshape(2, b, -1)
+        both = both.reshape(2, b, q.shape[1])
         if self.yaw is not None:
             both[..., 0] = nearest_turn(self.yaw, both[..., 0].reshape(-1), near_q[:, 0].repeat(2))[0].reshape(2, b)
         width = (self.robot.high - self.robot.low).to(dev)
         # Converged answers by their distance to `near`; where neither converged, the closer to the target.
-        miss = self._cost(both.reshape(2 * b, -1), x.repeat(2, 1)).reshape(2, b)
+        miss = self._cost(both.reshape(2 * b, q.shape[1]), x.repeat(2, 1)).reshape(2, b)
         dist = torch.where(ok2.reshape(2, b), ((both - near_q) / width).norm(dim=-1), 1e9 + miss)
         pick = dist.argmin(0)
         rows = torch.arange(b, device=dev)

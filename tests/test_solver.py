@@ -141,6 +141,22 @@ def test_solve_checks_its_arguments(panda_ckpt, kwargs, message):
         solver.solve(torch.full_like(x, float("nan")))
 
 
+def test_no_targets_and_a_bad_block_size(panda_ckpt):
+    from rbfn.checkpoint import model_from_checkpoint
+    from rbfn.robots.robot import robot_from_record
+    from rbfn.solver import IKSolver
+
+    robot = robot_from_record(panda_ckpt["robot"])
+    solver = IKSolver(model_from_checkpoint(panda_ckpt), robot)
+    x, n = robot.targets(0.5 * (robot.low + robot.high)[None])[:0], len(robot.joint_names)
+    for near in (None, torch.zeros(0, n, dtype=torch.float64)):
+        q, ok = solver.solve(x, near=near)
+        assert q.shape == (0, n) and ok.shape == (0,)
+    solver.block_rows = 0
+    with pytest.raises(ValueError, match=r"IKSolver.block_rows=0 is not allowed: use a positive integer"):
+        solver.solve(x)
+
+
 @pytest.mark.parametrize(
     "kwargs,message",
     [
