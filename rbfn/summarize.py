@@ -683,8 +683,10 @@ def main(argv: list[str] | None = None) -> None:
     prefix = a.out or a.sweep_dir / "summary"
     files = {Path(f"{prefix}.md"): md.encode(), Path(f"{prefix}.csv"): to_csv(swept, rows, metrics).encode()}
     png = plot_against_m(swept, rows, metrics[0]) if jobs and metrics else None
-    # A figure of an earlier summary that this one does not draw goes with the tables it belonged to.
-    stale = [] if png is not None or not os.path.lexists(f"{prefix}.png") else [Path(f"{prefix}.png")]
+    # A figure of an earlier summary that this one does not draw goes with the tables it belonged to
+    # (a file or a link; a directory of that name is no figure of ours).
+    old_png = Path(f"{prefix}.png")
+    stale = [old_png] if png is None and (old_png.is_symlink() or old_png.is_file()) else []
     if png is not None:
         files[Path(f"{prefix}.png")] = png
     where = f"--out {a.out}" if a.out else f"SWEEP_DIR {a.sweep_dir} (the default output folder; --out picks another)"
