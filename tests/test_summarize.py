@@ -401,7 +401,7 @@ def test_a_stale_figure_is_removed_with_the_tables_it_belonged_to(tmp_path, caps
     assert not list(tmp_path.glob("*.tmp"))
     png.mkdir()  # a directory of that name is no figure: left alone
     main([str(tmp_path)])
-    assert png.is_dir() and "removed" not in capsys.readouterr().out
+    assert png.is_dir() and "removed the stale" not in capsys.readouterr().out
 
 
 def _multirun(root, task, params=None, launcher="hydra._internal.core_plugins.basic_launcher.BasicLauncher"):
