@@ -85,19 +85,35 @@ def atomic_write_bytes(path: str | Path, write: Callable[[BinaryIO], object]) ->
         raise
 
 
-def write_files(files: dict[Path, bytes]) -> None:
-    """Write every file of `files` (path -> content) or none: each is written to a temporary file
-    beside it and, once all are complete, each is renamed over its target. On an error before the
-    renames no target has changed; no temporary file is left in any case."""
+def write_files(files: dict[Path, bytes], remove: Iterable[Path] = ()) -> None:
+    """Write every file of `files` (path -> content) or none, and remove the files `remove` (an
+    output of an earlier run that this one does not make: absent ones are skipped) with them: each
+    is written to a temporary file beside it and, once all are complete, the files to remove are
+    moved aside, each new one is renamed over its target, and those moved aside are deleted. On an
+    error before the renames no target has changed (a file moved aside is put back); no temporary
+    file is left in any case."""
     temps: list[Path] = []
+    aside: list[tuple[Path, Path]] = []  # (target, its temporary name)
+    done = False
     try:
         for path, data in files.items():
             temps.append(_complete_temp(Path(path), lambda f, data=data: f.write(data)))  # type: ignore[misc]
+        for path in map(Path, remove):
+            if os.path.lexists(path):
+                moved = path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp")
+                os.replace(path, moved)
+                aside.append((path, moved))
         for tmp, path in zip(temps, files):
             os.replace(tmp, path)
+        done = True
     finally:
         for tmp in temps:
             tmp.unlink(missing_ok=True)
+        for path, moved in aside:
+            if done:
+                moved.unlink(missing_ok=True)
+            else:
+                os.replace(moved, path)
 
 
 def _write_protected(path: Path) -> bool:

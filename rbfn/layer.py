@@ -69,6 +69,7 @@ __all__ = [
     "sq_distances",
     "distance_rows",
     "assemble",
+    "row_blocks",
     "MIN_WIDTH",
     "LOG2E",
 ]
@@ -196,6 +197,19 @@ def _expand(
     )
 
 
+def row_blocks(fn: Callable, rows: int, *xs: torch.Tensor):
+    """fn applied to blocks of `rows` rows of tensors xs (B, ...) and concatenated: fn's tensor, or
+    tuple of tensors, (B, ...). One call where B <= rows. So a row-wise computation holds its
+    temporaries for `rows` rows at a time, whatever B (the network's eager calls, `rbfn.solver`)."""
+    n = xs[0].shape[0]
+    if n <= rows:
+        return fn(*xs)
+    outs = [fn(*parts) for parts in zip(*(t.split(rows) for t in xs))]
+    if isinstance(outs[0], tuple):
+        return tuple(torch.cat(o) for o in zip(*outs))
+    return torch.cat(outs)
+
+
 def _within(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
     """Rows (B,) of x (B, k) with low <= x <= high (k,) throughout: the gaps [x - low, high - x] by
     one matrix product, all >= 0 (fl(x - low) >= 0 exactly when x >= low; NaN fails). One product
@@ -217,8 +231,8 @@ class RBFNetwork(nn.Module):
     """
 
     # Which way `forward` computes: True, the Gaussians' exponents by one matrix product
-    # (`_expansion`) in row blocks; False, the plain equation, all rows at once (a reference: it
-    # holds (B, M, d) differences). `solve`, `in_workspace` and `design` take the fast path either way.
+    # (`_expansion`); False, the plain equation (a reference: it holds (rows, M, d) differences).
+    # Both in row blocks. `solve`, `in_workspace` and `design` take the fast path either way.
     fast: bool = True
     # Rows per block in eager calls; None: about `block_elements` (rows, M) exponents a block
     # (2 MB in float32: fastest measured at M = 80 and M = 2000, twice as fast as 16384 rows at M = 2000).
@@ -352,13 +366,9 @@ class RBFNetwork(nn.Module):
 
     def _blocks(self, fn: Callable, *xs: torch.Tensor):
         """fn applied to blocks of `rows_per_block` rows of xs and concatenated (one call when traced)."""
-        n, rows = xs[0].shape[0], self.rows_per_block
-        if torch.compiler.is_compiling() or n <= rows:
+        if torch.compiler.is_compiling():
             return fn(*xs)
-        outs = [fn(*parts) for parts in zip(*(t.split(rows) for t in xs))]
-        if isinstance(outs[0], tuple):
-            return tuple(torch.cat(o) for o in zip(*outs))
-        return torch.cat(outs)
+        return row_blocks(fn, self.rows_per_block, *xs)
 
     def _rows(self, fn: Callable, x: torch.Tensor) -> torch.Tensor:
         """fn (rows (N, d) -> (N, k)) on inputs (..., d) in blocks, as (..., k)."""
@@ -474,8 +484,10 @@ class RBFNetwork(nn.Module):
         (rad, m) of float64 on networks fitted by the float32 rule (tested), with exp2 and no
         (B, M, d) differences. Training, evaluation and the exports take the fast path."""
         x = self._inputs(x)
-        if self.fast:
-            return self._blocks(self._forward_rows, x)
+        return self._blocks(self._forward_rows if self.fast else self._plain_rows, x)
+
+    def _plain_rows(self, x: torch.Tensor) -> torch.Tensor:
+        """`forward`'s plain equation on rows (B, d) in one piece (it holds (B, M, d) differences)."""
         z = self._scaled(x)  # (B, d)
         h = gaussian_features(z, self.centers, self.widths)  # (B, M)
         y = self.head(h)  # W h + b (B, out)

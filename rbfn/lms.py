@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 
 from .config import Learner
+from .memory import check_fits
 
 __all__ = ["NLMS", "RLS", "make_learner", "lms_fit"]
 
@@ -52,7 +53,10 @@ class NLMS:
 
 
 class RLS:
-    """Recursive least squares with exponential forgetting; weights (B, P, out), P (B, P, P)."""
+    """Recursive least squares with exponential forgetting; weights (B, P, out), P (B, P, P).
+
+    It holds B (P, P) matrices and an update makes one more: weights whose matrices cannot fit
+    in the memory available are refused when the learner is made, naming them with the estimate."""
 
     def __init__(self, weights: torch.Tensor, forgetting: float = 0.999, delta: float = 1e2) -> None:
         if not 0.0 < forgetting <= 1.0:
@@ -60,6 +64,15 @@ class RLS:
         if not delta > 0:
             raise ValueError(f"delta={delta} must be > 0 (initial inverse-covariance scale)")
         b, p, _ = weights.shape
+        check_fits(
+            "weights",
+            tuple(weights.shape),
+            2 * b * p * p * weights.element_size(),
+            str(weights.device),
+            f"the inverse covariance, {b} ({p}, {p}) matrices of the weights' dtype, and an update's "
+            "outer product of that size",
+            advice="adapt fewer environments B or fewer design columns P at once",
+        )
         self.w, self.lam = weights.clone(), forgetting
         self.p = delta * torch.eye(p, dtype=weights.dtype, device=weights.device).expand(b, p, p).clone()
         self.rejected = 0
@@ -76,7 +89,7 @@ class RLS:
             k = k * oki[:, None]
             self.w = self.w + k[..., None] * e[:, None, :]
             lam = torch.where(oki, self.lam, 1.0)[:, None, None]
-            self.p = (self.p - k[..., None] * pa[:, None, :]) / lam
+            self.p.sub_(k[..., None] * pa[:, None, :]).div_(lam)  # in place: one (B, P, P) temporary
             errs.append(e * oki[:, None])
         self.rejected += int((~ok).sum())
         return torch.stack(errs, 1)

@@ -17,7 +17,7 @@ import math
 import os
 from pathlib import Path
 
-__all__ = ["available_bytes", "check_fits", "FLOAT64"]
+__all__ = ["available_bytes", "check_fits", "size_text", "FLOAT64"]
 
 FLOAT64 = 8  # bytes
 
@@ -59,7 +59,8 @@ def available_bytes(device: str = "cpu") -> int | None:
     return max(0, min(found))
 
 
-def _size(n: float) -> str:
+def size_text(n: float) -> str:
+    """`n` bytes in words: "512 B", "1.5 GiB"."""
     if not math.isfinite(n):
         return "an unbounded amount"
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"):
@@ -69,13 +70,14 @@ def _size(n: float) -> str:
     return f"{n:.3g} EiB"
 
 
-def check_fits(key: str, value, need: float, device: str = "cpu", what: str = "") -> None:
+def check_fits(key: str, value, need: float, device: str = "cpu", what: str = "", advice: str = "") -> None:
     """ValueError naming `key`=`value` when `need` bytes (a lower bound, described by `what`)
-    exceed the memory available on `device` (the host's memory for "cpu")."""
+    exceed the memory available on `device` (the host's memory for "cpu"); it ends with `advice`
+    (default: use a smaller `key`)."""
     have = available_bytes(device)
     if have is not None and need > have:
         where = "this machine's available memory" if str(device) == "cpu" else f"the free memory of {device}"
         raise ValueError(
-            f"{key}={value!r} needs at least {_size(need)}{f' ({what})' if what else ''}, "
-            f"more than {where} ({_size(have)}); use a smaller {key}"
+            f"{key}={value!r} needs at least {size_text(need)}{f' ({what})' if what else ''}, "
+            f"more than {where} ({size_text(have)}); {advice or f'use a smaller {key}'}"
         )

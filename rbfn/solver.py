@@ -29,7 +29,8 @@ from pytorch_kinematics import transforms as tf
 
 from .checkpoint import model_from_checkpoint, read_checkpoint
 from .config import Target, finite, validate_device
-from .layer import RBFNetwork
+from .layer import RBFNetwork, row_blocks
+from .memory import FLOAT64, check_fits
 from .robots.kinematics import joint_limits
 from .robots.robot import Robot, robot_from_record
 from .yaw import answer as yaw_answer, base_yaw as yaw_of, nearest_turn
@@ -41,6 +42,10 @@ MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the po
 STEP_SCALES = (2.0, 1.4, 1.0, 0.6, 0.3)  # the line search's multiples of a step (measured on the UR5)
 PROGRESS = 0.25  # a full step that leaves more than this share of the error is searched along
 FAR = 100.0  # a network answer this many tolerances off (10 mm at the default 0.1 mm) tries the base turns
+BLOCK_ROWS = 4096  # targets a block of `IKSolver.solve`: its Jacobians, chains, base turns and line-search
+# trials take up to 6 KB a target on the SCARA and 28 KB on the UR5 (measured), so a block holds at most ~120 MB
+WHOLE_BATCH_VALUES = 8  # float64 joint vectors a target `solve` holds for the whole batch at most
+# (answers, `near`, restarts' starts and answers, indices and masks), besides the targets
 
 
 def _count(name: str, v) -> int:
@@ -64,6 +69,9 @@ class IKSolver:
     share of the box's width (kept inside the URDF limits). base_yaw: turn targets around the base
     into the trained range where the arm allows it (`rbfn.yaw`; False: as trained, targets unturned).
     """
+
+    # Targets per block of `solve` and `network` (memory: see BLOCK_ROWS).
+    block_rows: int = BLOCK_ROWS
 
     def __init__(
         self,
@@ -175,13 +183,17 @@ class IKSolver:
 
     def network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the network's joints (B, n) float64, within the polish's range; the base turn d (B,) rad,
-        0 without it) for targets x (B, 3 or 7) float64."""
-        q, d, _ = self._network(x)
-        return q, d
+        0 without it) for targets x (B, 3 or 7) float64, in blocks of `block_rows` targets."""
+        model = self._model64()
+        return row_blocks(lambda xb: self._network(xb, model)[:2], self.block_rows, x)
 
-    def _network(self, x: torch.Tensor):
-        """`network`'s (joints, turn) and `_errors` at those joints (None without the base turn)."""
-        model = self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
+    def _model64(self) -> RBFNetwork:
+        """The network in float64 (itself, or a float64 copy)."""
+        return self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
+
+    def _network(self, x: torch.Tensor, model: RBFNetwork):
+        """`network`'s (joints, turn) for one block of targets x, from the float64 network `model`,
+        and `_errors` at those joints (None without the base turn)."""
         low, high = self.low.to(x.device), self.high.to(x.device)
         q = model(x).clamp(low, high)
         d = torch.zeros(x.shape[0], dtype=torch.float64, device=x.device)
@@ -245,32 +257,39 @@ class IKSolver:
         up to this many rounds of `restart_iterations` steps from joints drawn uniformly in the
         trained box (turned with the target; generator seeded by `seed`); a target keeps the first
         start that converges.
+
+        Any B: the targets are solved in blocks of `block_rows` (each target's answer is its own,
+        so the blocks give what one whole batch gives); what the call holds for the whole batch
+        is a few float64 numbers a target (`WHOLE_BATCH_VALUES`), checked against the memory
+        available before any work where B is above one block.
         """
         for name, v in (("iterations", iterations), ("restarts", restarts), ("restart_iterations", restart_iterations)):
             _count(name, v)
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
             raise ValueError(f"seed={seed!r} is not allowed: use an integer in [0, 2**63)")
         dev = self.robot.chain.device
-        x = self.model.check_inputs(targets).to(dtype=torch.float64, device=dev)
-        b = x.shape[0]
-        near_q = None if near is None else self._near(near, b, dev)
-        q, d, first = self._network(x)
-        if near_q is None:
-            q, ok = self._polish(q, x, iterations, first)
-        else:
-            both, ok2 = self._polish(
-                torch.cat([q, near_q.clamp(self.low.to(dev), self.high.to(dev))]), x.repeat(2, 1), iterations
+        x = self.model.check_inputs(targets)
+        b, rows = x.shape[0], self.block_rows
+        if isinstance(rows, bool) or not isinstance(rows, int) or rows < 1:
+            raise ValueError(f"IKSolver.block_rows={rows!r} is not allowed: use a positive integer (targets a block)")
+        if b > rows:
+            n = len(self.robot.joint_names)
+            check_fits(
+                "targets",
+                tuple(x.shape),
+                b * (x.shape[1] + WHOLE_BATCH_VALUES * n) * FLOAT64,
+                str(dev),
+                f"the targets in float64 and the answers, {WHOLE_BATCH_VALUES} float64 joint vectors a target; "
+                f"the polish itself runs in blocks of {rows} targets",
+                advice="solve fewer targets a call",
             )
-            both = both.reshape(2, b, -1)
-            if self.yaw is not None:
-                both[..., 0] = nearest_turn(self.yaw, both[..., 0].reshape(-1), near_q[:, 0].repeat(2))[0].reshape(2, b)
-            width = (self.robot.high - self.robot.low).to(dev)
-            # Converged answers by their distance to `near`; where neither converged, the closer to the target.
-            miss = self._cost(both.reshape(2 * b, -1), x.repeat(2, 1)).reshape(2, b)
-            dist = torch.where(ok2.reshape(2, b), ((both - near_q) / width).norm(dim=-1), 1e9 + miss)
-            pick = dist.argmin(0)
-            rows = torch.arange(b, device=dev)
-            q, ok = both[pick, rows], ok2.reshape(2, b)[pick, rows]
+        x = x.to(dtype=torch.float64, device=dev)
+        near_q = None if near is None else self._near(near, b, dev)
+        model = self._model64()
+        if near_q is None:
+            q, ok, d = row_blocks(lambda xb: self._first(model, xb, None, iterations), rows, x)
+        else:
+            q, ok, d = row_blocks(lambda xb, nb: self._first(model, xb, nb, iterations), rows, x, near_q)
         low, high = self.robot.low.to(dev), self.robot.high.to(dev)
         g = torch.Generator(device=dev).manual_seed(seed)
         for _ in range(restarts):
@@ -282,9 +301,34 @@ class IKSolver:
             )
             if self.yaw is not None:
                 start[:, 0] += self.yaw.sign * d[todo]
-            q_r, ok_r = self._polish(start, x[todo], restart_iterations)
+            q_r, ok_r = row_blocks(lambda sb, xb: self._polish(sb, xb, restart_iterations), rows, start, x[todo])
             q[todo[ok_r]], ok[todo[ok_r]] = q_r[ok_r], True
         return q, ok
+
+    def _first(
+        self, model: RBFNetwork, x: torch.Tensor, near_q: torch.Tensor | None, iterations: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """`solve` before its restarts, for one block of targets x (B, 3 or 7) float64 (and `near`'s
+        joints (B, n)): (joints (B, n), converged (B,), the base turn (B,) rad) from the float64
+        network `model`."""
+        b, dev = x.shape[0], x.device
+        q, d, first = self._network(x, model)
+        if near_q is None:
+            q, ok = self._polish(q, x, iterations, first)
+            return q, ok, d
+        both, ok2 = self._polish(
+            torch.cat([q, near_q.clamp(self.low.to(dev), self.high.to(dev))]), x.repeat(2, 1), iterations
+        )
+        both = both.reshape(2, b, q.shape[1])
+        if self.yaw is not None:
+            both[..., 0] = nearest_turn(self.yaw, both[..., 0].reshape(-1), near_q[:, 0].repeat(2))[0].reshape(2, b)
+        width = (self.robot.high - self.robot.low).to(dev)
+        # Converged answers by their distance to `near`; where neither converged, the closer to the target.
+        miss = self._cost(both.reshape(2 * b, q.shape[1]), x.repeat(2, 1)).reshape(2, b)
+        dist = torch.where(ok2.reshape(2, b), ((both - near_q) / width).norm(dim=-1), 1e9 + miss)
+        pick = dist.argmin(0)
+        rows = torch.arange(b, device=dev)
+        return both[pick, rows], ok2.reshape(2, b)[pick, rows], d
 
 
 def load_solver(

@@ -11,15 +11,19 @@ table: for jobs that differ only in that key (same seed, so the same data), A - 
 
 Jobs without a metrics.json are listed after the table with their error: "failed" when the job
 recorded one in failed.json (train.py does so in a multirun), "unfinished" otherwise (running,
-or killed or timed out; the last ERROR line of its log, if any, is shown). So are "malformed" jobs,
-whose metrics.json is not a JSON object (NaN and Infinity are not JSON) or holds something other than
-a finite number under a summarized metric (null is a blank cell: train.py writes it where a metric
-does not apply); they are left out of the tables.
+or killed or timed out; the last ERROR line of its log's last MiB, if any, is shown). So are
+"malformed" jobs, whose metrics.json is not a JSON object (NaN and Infinity are not JSON), holds
+something other than a finite number under a summarized metric (null is a blank cell: train.py
+writes it where a metric does not apply), is no regular file or larger than MAX_READ_BYTES (never
+read), or whose overrides cannot be read; "unreadable" directories (they cannot be listed); and
+the jobs the sweep's multirun.yaml lists without a directory (`find_jobs`: "failed" where a later
+job started, else "missing"). They are left out of the tables, and counted and named.
 
-A bad argument (a SWEEP_DIR without jobs, a metric no job has, a --compare key that is not swept or
-values it does not take, an output that is a directory or write-protected without --force) is a
-one-line error, exit status 2, and nothing is written. The outputs are written all or none: each to
-a temporary file beside it, renamed over the old one once every output is written.
+A bad argument (a SWEEP_DIR without jobs or that cannot be read, a metric no job has, a --compare
+key that is not swept or values it does not take, an output that is a directory or write-protected
+without --force) is a one-line error, exit status 2, and nothing is written. The outputs are
+written all or none: each to a temporary file beside it, renamed over the old one once every
+output is written; an earlier summary.png this summary does not draw is removed with them.
 """
 
 from __future__ import annotations
@@ -27,19 +31,27 @@ from __future__ import annotations
 import argparse
 import csv
 import difflib
+import errno
 import io
 import json
 import math
+import os
 import re
+import stat
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import Any, NamedTuple, cast
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+from yaml import YAMLError  # type: ignore[import-untyped]
 
 from .files import unwritable, write_files
+from .memory import size_text
 from .scripts import fail
 
-__all__ = ["Job", "compare", "find_jobs", "load_jobs", "main", "summarize"]
+__all__ = ["Job", "SweepList", "compare", "find_jobs", "load_jobs", "main", "summarize", "sweep_list"]
 
 DEFAULT_METRICS = (
     "test_pos_err_mm_median",
@@ -49,6 +61,48 @@ DEFAULT_METRICS = (
     "select_seconds",
     "train_seconds",
 )
+
+
+MAX_READ_BYTES = 64 << 20
+"""The most read of a job's metrics.json, failed.json or overrides.yaml, or of the sweep's
+multirun.yaml (they hold kilobytes): a larger file is named as unreadable, never read."""
+LOG_TAIL_BYTES = 1 << 20  # the end of a job's log searched for its last error line
+
+
+def _read(path: Path, limit: int = MAX_READ_BYTES, tail: bool = False) -> bytes:
+    """The bytes of the regular file `path`, at most `limit` of them (with `tail`, its last `limit`
+    bytes); else OSError saying why: it cannot be opened, is no regular file (a directory, a FIFO
+    or a device is never read or waited on), or holds more than `limit` bytes."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO opens without waiting for a writer
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise IsADirectoryError(errno.EISDIR, "Is a directory")
+        if not stat.S_ISREG(st.st_mode):
+            raise OSError(errno.EINVAL, f"it is {_file_kind(st.st_mode)}, not a regular file; not read")
+        if st.st_size > limit:
+            if not tail:
+                raise OSError(errno.EFBIG, f"it holds {size_text(st.st_size)}, more than {size_text(limit)}; not read")
+            os.lseek(fd, st.st_size - limit, os.SEEK_SET)
+        data = bytearray()
+        while len(data) <= limit and (chunk := os.read(fd, limit + 1 - len(data))):
+            data += chunk
+    finally:
+        os.close(fd)
+    if len(data) > limit:  # grown since
+        if not tail:
+            raise OSError(errno.EFBIG, f"it holds more than {size_text(limit)}; not read")
+        del data[:-limit]
+    return bytes(data)
+
+
+def _file_kind(mode: int) -> str:
+    kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+    return next((name for test, name in kinds if test(mode)), "a special file")
+
+
+def _why(e: OSError) -> str:
+    return str(e.strerror or e)
 
 
 def _parse_overrides(lines) -> dict[str, str]:
@@ -61,27 +115,37 @@ def _parse_overrides(lines) -> dict[str, str]:
     return out
 
 
-def _overrides(job: Path) -> dict[str, str]:
+def _overrides(job: Path) -> tuple[dict[str, str], str]:
+    """The job's overrides from .hydra/overrides.yaml ({} without one), and why it could not be read ('')."""
     f = job / ".hydra" / "overrides.yaml"
+    if not os.path.lexists(f):
+        return {}, ""
     try:
-        return _parse_overrides(f.read_text(errors="replace").splitlines())
-    except OSError:
-        return {}
+        return _parse_overrides(_read(f).decode(errors="replace").splitlines()), ""
+    except OSError as e:
+        return {}, f".hydra/overrides.yaml cannot be read: {_why(e)}"
 
 
 @dataclass
 class Job:
-    """One job directory of a sweep: its overrides, and its metrics or why it has none."""
+    """One job of a sweep: its overrides, and its metrics or why it has none."""
 
     path: Path
     overrides: dict[str, str]
-    status: str  # "completed", "failed", "unfinished" or "malformed"
+    status: str  # one of STATUSES
     metrics: dict | None = None
     error: str = ""
 
 
+# Summarized, then the ways a job is left out: "failed" (its failed.json, or its directory gone
+# although a later job of the sweep started), "unfinished" (running, killed, timed out),
+# "malformed" (its metrics.json or overrides cannot be used), "missing" (the sweep lists it, it
+# has no directory: not started, or failed leaving no record), "unreadable" (a directory that
+# cannot be listed, or a job's path that is no directory).
+STATUSES = ("completed", "failed", "unfinished", "malformed", "missing", "unreadable")
+
 # A job directory holds one of these (the log: Hydra opens RUN_DIR/<job name>.log at the start).
-_MARKERS = ("metrics.json", "failed.json", ".hydra/overrides.yaml", "last.pt", "*.log")
+_MARKERS = ("metrics.json", "failed.json", "last.pt")
 _LOG_ERROR = re.compile(r"\]\[(?:ERROR|CRITICAL)\] - (.*)$")
 
 
@@ -89,54 +153,67 @@ def _job_number(path: Path, root: Path) -> tuple:
     return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in path.relative_to(root).parts)
 
 
-def _last_log_error(job: Path) -> str:
-    found = ""
+def _last_log_error(job: Path) -> tuple[str, str]:
+    """The last ERROR line of the job's logs (each searched in its last LOG_TAIL_BYTES), and the
+    logs that could not be read ('' when all could)."""
+    found, unreadable = "", []
     for log in sorted(job.glob("*.log")):
         try:
-            text = log.read_text(errors="replace")
-        except OSError:
+            text = _read(log, LOG_TAIL_BYTES, tail=True).decode(errors="replace")
+        except OSError as e:
+            unreadable.append(f"{log.name} cannot be read: {_why(e)}")
             continue
         for line in text.splitlines():
             m = _LOG_ERROR.search(line)
             if m:
                 found = m.group(1).strip()
-    return found
+    return found, "; ".join(unreadable)
+
+
+def _mtime(path: Path) -> int:
+    try:
+        return os.stat(path).st_mtime_ns
+    except OSError:
+        return -1
 
 
 def _load_job(d: Path) -> Job:
     metrics, failed = d / "metrics.json", d / "failed.json"
+    over, over_error = _overrides(d)
+
+    def job(status: str, error: str = "", got: dict | None = None, overrides: dict | None = None) -> Job:
+        if over_error:
+            error = f"{error}; {over_error}" if error else over_error
+        return Job(d, overrides or over, status, got, error)
+
     # A rerun that completed after a recorded failure leaves a metrics.json newer than failed.json.
-    if metrics.exists() and not (failed.is_file() and failed.stat().st_mtime_ns > metrics.stat().st_mtime_ns):
+    if os.path.lexists(metrics) and not (os.path.lexists(failed) and _mtime(failed) > _mtime(metrics)):
         try:
-            got = json.loads(metrics.read_text(), parse_constant=_not_json)
+            got = json.loads(_read(metrics), parse_constant=_not_json)
         except OSError as e:
-            return Job(d, _overrides(d), "malformed", error=f"metrics.json cannot be read: {e.strerror or e}")
+            return job("malformed", f"metrics.json cannot be read: {_why(e)}")
         except ValueError as e:
-            return Job(d, _overrides(d), "malformed", error=f"metrics.json is not valid JSON: {e}")
+            return job("malformed", f"metrics.json is not valid JSON: {e}")
         if not isinstance(got, dict):
-            return Job(
-                d,
-                _overrides(d),
-                "malformed",
-                error=f"metrics.json holds a JSON {_json_type(got)}, not an object of metrics",
-            )
-        return Job(d, _overrides(d), "completed", got)
-    if failed.is_file():
+            return job("malformed", f"metrics.json holds a JSON {_json_type(got)}, not an object of metrics")
+        if over_error:  # its setting unknown: it belongs in no row
+            return job("malformed", "its overrides are unknown")
+        return job("completed", got=got)
+    if os.path.lexists(failed):
         try:
-            rec = json.loads(failed.read_text())
+            rec = json.loads(_read(failed))
         except (OSError, ValueError) as e:
-            return Job(d, _overrides(d), "failed", error=f"unreadable failed.json: {e}")
+            return job("failed", f"unreadable failed.json: {_why(e) if isinstance(e, OSError) else e}")
         if not isinstance(rec, dict):
-            return Job(
-                d, _overrides(d), "failed", error=f"unreadable failed.json: a JSON {_json_type(rec)}, not an object"
-            )
-        over = _parse_overrides(rec["overrides"]) if isinstance(rec.get("overrides"), list) else {}
-        return Job(d, over or _overrides(d), "failed", error=f"{rec.get('error', 'error')}: {rec.get('message', '')}")
-    error = _last_log_error(d) or (
+            return job("failed", f"unreadable failed.json: a JSON {_json_type(rec)}, not an object")
+        recorded = _parse_overrides(rec["overrides"]) if isinstance(rec.get("overrides"), list) else {}
+        return job("failed", f"{rec.get('error', 'error')}: {rec.get('message', '')}", overrides=recorded)
+    logged, bad_logs = _last_log_error(d)
+    error = logged or (
         "no metrics.json: still running, or stopped without an error (killed, "
         "timed out)" + ("; a rerun resumes from its last.pt" if (d / "last.pt").is_file() else "")
     )
-    return Job(d, _overrides(d), "unfinished", error=error)
+    return job("unfinished", f"{error}; {bad_logs}" if bad_logs else error)
 
 
 def _not_json(token: str):
@@ -176,20 +253,127 @@ def _bad_metric(metrics: dict, keys) -> str:
     return ""
 
 
-def find_jobs(sweep_dir: Path) -> list[Job]:
-    """Every job directory under `sweep_dir` (itself included), in job-number order.
+def _walk(sweep_dir: Path) -> tuple[list[Path], list[Job]]:
+    """The job directories under `sweep_dir` (itself included) and, as "unreadable" jobs, the
+    directories that could not be listed. Hidden directories (.submitit, .hydra) are not jobs, and
+    symbolic links to directories are not followed."""
+    dirs, unreadable, todo = [], [], [sweep_dir]
+    while todo:
+        d = todo.pop()
+        try:
+            with os.scandir(d) as it:
+                entries = list(it)
+        except OSError as e:
+            if d == sweep_dir:
+                raise
+            unreadable.append(Job(d, {}, "unreadable", error=f"the directory cannot be read: {_why(e)}"))
+            continue
+        names = {e.name for e in entries}
+        if (
+            names.intersection(_MARKERS)
+            or any(n.endswith(".log") for n in names)
+            or os.path.lexists(d / ".hydra" / "overrides.yaml")
+        ):
+            dirs.append(d)
+        todo += [Path(e.path) for e in entries if not e.name.startswith(".") and e.is_dir(follow_symlinks=False)]
+    return dirs, unreadable
 
-    Hidden directories (.submitit, .hydra) are not jobs; a directory is a job when it holds a
-    metrics.json, failed.json, .hydra/overrides.yaml, last.pt or a log file.
+
+class SweepList(NamedTuple):
+    """What a multirun's multirun.yaml says of its jobs: each job number's overrides (None where
+    unknown), whether its launcher starts them in order, and why no list could be made ('')."""
+
+    overrides: list[dict[str, str]] | None
+    in_order: bool
+    note: str
+
+
+def sweep_list(sweep_dir: Path) -> SweepList:
+    """The jobs of the Hydra multirun in `sweep_dir`, from its multirun.yaml (which Hydra writes
+    before the first job starts): the basic sweeper's product of the swept values, in job-number
+    order, or a sweeper's n_trials jobs (Optuna's; their overrides unknown). Job N's directory is
+    SWEEP_DIR/N (hydra.sweep.subdir=${hydra.job.num}, the default)."""
+    path = Path(sweep_dir) / "multirun.yaml"
+    if not os.path.lexists(path):
+        return SweepList(None, True, "")
+    cannot = "jobs without a directory cannot be counted"
+    try:
+        cfg: Any = OmegaConf.to_container(OmegaConf.create(_read(path).decode(errors="replace")), resolve=False)
+        hydra = cfg["hydra"]
+        subdir, sweeper, launcher = hydra["sweep"]["subdir"], hydra["sweeper"], hydra.get("launcher") or {}
+        task = list(hydra["overrides"]["task"] or [])
+    except OSError as e:
+        return SweepList(None, True, f"multirun.yaml cannot be read: {_why(e)}; {cannot}")
+    except (YAMLError, OmegaConfBaseException, TypeError, KeyError, AttributeError) as e:
+        why = f"no {e}" if isinstance(e, KeyError) else " ".join(str(e).split())
+        return SweepList(None, True, f"multirun.yaml is not a Hydra multirun's ({why}); {cannot}")
+    in_order = "submitit" not in str(launcher.get("_target_", ""))  # a SLURM array starts its tasks in any order
+    if subdir != "${hydra.job.num}":
+        return SweepList(None, in_order, f"multirun.yaml: hydra.sweep.subdir={subdir} is not job numbers; {cannot}")
+    if str(sweeper.get("_target_", "")).endswith(".BasicSweeper"):
+        from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+        from hydra.core.override_parser.overrides_parser import OverridesParser
+
+        params = [f"{k}={v}" for k, v in (sweeper.get("params") or {}).items()]
+        try:
+            parsed = OverridesParser.create().parse_overrides([*params, *map(str, task)])
+            batches = BasicSweeper.split_arguments(parsed, None)
+        except Exception as e:  # noqa: BLE001  (Hydra's parser raises its own types)
+            return SweepList(None, in_order, f"multirun.yaml: its sweep cannot be listed ({e}); {cannot}")
+        return SweepList([_parse_overrides(job) for batch in batches for job in batch], in_order, "")
+    trials = sweeper.get("n_trials")
+    if isinstance(trials, int) and not isinstance(trials, bool) and trials >= 0:
+        return SweepList([{}] * trials, in_order, "")
+    return SweepList(None, in_order, f"multirun.yaml: sweeper {sweeper.get('_target_')} lists no jobs; {cannot}")
+
+
+def find_jobs(sweep_dir: Path, listed: SweepList | None = None) -> list[Job]:
+    """Every job under `sweep_dir` (itself included), in job-number order; `listed`: the sweep's
+    `sweep_list` where already read.
+
+    A directory is a job when it holds a metrics.json, failed.json, .hydra/overrides.yaml, last.pt
+    or a log file (whatever their kind: one that cannot be read is reported). The jobs the sweep's
+    multirun.yaml lists (`sweep_list`) are all reported: one without a directory is "failed" where
+    a later job of the sweep has started (its launcher starts them in order, so it started too,
+    and its directory was tidied away: it failed before writing any result or its failed.json, as
+    on a full disk), else "missing" (not started, or gone so); a listed directory without any of
+    the files is "unfinished". OSError where `sweep_dir` itself cannot be listed.
     """
     sweep_dir = Path(sweep_dir)
-    dirs = set()
-    for pattern in _MARKERS:
-        for f in sweep_dir.glob(f"**/{pattern}"):
-            d = f.parents[pattern.count("/")]
-            if f.is_file() and not any(p.startswith(".") for p in d.relative_to(sweep_dir).parts):
-                dirs.add(d)
-    return [_load_job(d) for d in sorted(dirs, key=lambda d: _job_number(d, sweep_dir))]
+    dirs, jobs = _walk(sweep_dir)
+    jobs += [_load_job(d) for d in dirs]
+    listed = sweep_list(sweep_dir) if listed is None else listed
+    if listed.overrides is not None:
+        known = {j.path for j in jobs}
+        for j in jobs:  # a job killed at its start, or whose overrides cannot be read: the sweep's
+            if not j.overrides and j.path.parent == sweep_dir and j.path.name.isdigit():
+                j.overrides = (
+                    dict(listed.overrides[int(j.path.name)]) if int(j.path.name) < len(listed.overrides) else {}
+                )
+        numbers = [int(p.name) for p in known if p.parent == sweep_dir and p.name.isdigit()]
+        last = max(numbers, default=-1)
+        for n, over in enumerate(listed.overrides):
+            d = sweep_dir / str(n)
+            if d in known:
+                continue
+            if os.path.islink(d) or (os.path.lexists(d) and not d.is_dir()):
+                what = "a symbolic link (not followed)" if os.path.islink(d) else "not a directory"
+                jobs.append(Job(d, over, "unreadable", error=f"the job's path is {what}"))
+            elif d.is_dir():
+                jobs.append(Job(d, over, "unfinished", error="its directory holds no record yet: starting, or stopped"))
+            elif listed.in_order and n < last:
+                error = (
+                    "no job directory: it started (a later job did) and failed before writing any result or "
+                    "its failed.json (a full disk?), so its directory was tidied away"
+                )
+                jobs.append(Job(d, over, "failed", error=error))
+            else:
+                error = (
+                    "no job directory: not started (the sweep is running, or was stopped), or failed before "
+                    "writing any result or its failed.json (a full disk?) and tidied away"
+                )
+                jobs.append(Job(d, over, "missing", error=error))
+    return sorted(jobs, key=lambda j: _job_number(j.path, sweep_dir))
 
 
 def load_jobs(sweep_dir: Path) -> list[tuple[dict[str, str], dict]]:
@@ -468,7 +652,11 @@ def main(argv: list[str] | None = None) -> None:
     a = p.parse_args(argv)
     if not a.sweep_dir.is_dir():
         fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))
-    found = find_jobs(a.sweep_dir)
+    try:
+        listed = sweep_list(a.sweep_dir)
+        found = find_jobs(a.sweep_dir, listed)
+    except OSError as e:
+        fail(p, f"SWEEP_DIR {a.sweep_dir}: cannot be read: {_why(e)}")
     if not found:
         fail(
             p,
@@ -490,23 +678,29 @@ def main(argv: list[str] | None = None) -> None:
             fail(p, f"--compare {spec}: {e}")
     if len(jobs) < len(found):
         md += "\n" + failures_to_markdown(found, a.sweep_dir)
+    if listed.note:
+        md += f"\nNot counted: {listed.note}.\n"
     prefix = a.out or a.sweep_dir / "summary"
     files = {Path(f"{prefix}.md"): md.encode(), Path(f"{prefix}.csv"): to_csv(swept, rows, metrics).encode()}
     png = plot_against_m(swept, rows, metrics[0]) if jobs and metrics else None
+    # A figure of an earlier summary that this one does not draw goes with the tables it belonged to
+    # (a file or a link; a directory of that name is no figure of ours).
+    old_png = Path(f"{prefix}.png")
+    stale = [old_png] if png is None and (old_png.is_symlink() or old_png.is_file()) else []
     if png is not None:
         files[Path(f"{prefix}.png")] = png
     where = f"--out {a.out}" if a.out else f"SWEEP_DIR {a.sweep_dir} (the default output folder; --out picks another)"
-    problem = unwritable(files, a.force)
+    problem = unwritable([*files, *stale], a.force)
     if problem:
         fail(p, f"{where}: {problem}")
     try:
-        write_files(files)
+        write_files(files, remove=stale)
     except OSError as e:
         fail(p, f"{where}: cannot write the summary, nothing was replaced: {e}", status=1)
-    counts = {s: sum(j.status == s for j in found) for s in ("completed", "failed", "unfinished", "malformed")}
+    counts = {s: sum(j.status == s for j in found) for s in STATUSES}
     print(md)
-    print(f"{len(found)} jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n or s != "malformed"))
-    print("wrote " + ", ".join(map(str, files)))
+    print(f"{len(found)} jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n or s in STATUSES[:3]))
+    print("wrote " + ", ".join(map(str, files)) + "".join(f"; removed the stale {f}" for f in stale))
 
 
 if __name__ == "__main__":

@@ -448,3 +448,18 @@ def test_non_finite_output_weights_are_refused():
     net = RBFNetwork(torch.rand(4, 3), torch.ones(4), 2)
     with pytest.raises(ValueError, match="output weights must be finite"):
         net.set_output_weights(torch.full((net.num_design, 2), float("nan")))
+
+
+def test_the_plain_path_runs_in_blocks_too(monkeypatch):
+    """`fast = False` holds (rows, M, d) differences a block, not (B, M, d): any batch is bounded."""
+    from rbfn import layer
+
+    net = _net()
+    x = torch.randn(50, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    ref = _plain(net, x)
+    calls = []
+    sq = layer.sq_distances
+    monkeypatch.setattr(layer, "sq_distances", lambda z, c: calls.append(z.shape[0]) or sq(z, c))
+    net.block_rows = 16
+    assert torch.allclose(_plain(net, x), ref, rtol=0, atol=1e-12)
+    assert calls == [16, 16, 16, 2]

@@ -56,3 +56,18 @@ def test_bad_settings():
         RLS(w, forgetting=1.5)
     with pytest.raises(ValueError, match="unknown learner 'adam'"):
         make_learner("adam", w)
+
+
+def test_rls_weights_whose_matrices_cannot_fit_are_refused_before_any_work(monkeypatch):
+    """RLS holds B (P, P) matrices and an update one more: too many is an error naming the weights
+    and the estimate, not the allocator's."""
+    import rbfn.memory
+
+    monkeypatch.setattr(rbfn.memory, "available_bytes", lambda device="cpu": 10**6)
+    with pytest.raises(
+        ValueError,
+        match=r"weights=\(100, 500, 3\) needs at least 191 MiB \(the inverse covariance, 100 \(500, 500\) matrices.*"
+        r"more than this machine's available memory \(977 KiB\); adapt fewer environments B or fewer design columns",
+    ):
+        RLS(torch.zeros(100, 500, 3))
+    assert RLS(torch.zeros(1, 20, 3)).p.shape == (1, 20, 20)  # 3.1 KiB: fits

@@ -141,6 +141,22 @@ def test_solve_checks_its_arguments(panda_ckpt, kwargs, message):
         solver.solve(torch.full_like(x, float("nan")))
 
 
+def test_no_targets_and_a_bad_block_size(panda_ckpt):
+    from rbfn.checkpoint import model_from_checkpoint
+    from rbfn.robots.robot import robot_from_record
+    from rbfn.solver import IKSolver
+
+    robot = robot_from_record(panda_ckpt["robot"])
+    solver = IKSolver(model_from_checkpoint(panda_ckpt), robot)
+    x, n = robot.targets(0.5 * (robot.low + robot.high)[None])[:0], len(robot.joint_names)
+    for near in (None, torch.zeros(0, n, dtype=torch.float64)):
+        q, ok = solver.solve(x, near=near)
+        assert q.shape == (0, n) and ok.shape == (0,)
+    solver.block_rows = 0
+    with pytest.raises(ValueError, match=r"IKSolver.block_rows=0 is not allowed: use a positive integer"):
+        solver.solve(x)
+
+
 @pytest.mark.parametrize(
     "kwargs,message",
     [
@@ -300,3 +316,52 @@ def test_an_arm_without_the_symmetry_is_not_turned(old, new):
     box = torch.tensor([0.0, 0.3, 0.5], dtype=torch.float64), torch.tensor([2.0, 2.0, 1.5], dtype=torch.float64)
     robot = Robot(chain, text, scara.END_LINK, *box)
     assert robot.base_yaw_sign() == 0 and base_yaw(robot) is None
+
+
+def test_any_batch_is_solved_in_blocks_as_one_batch_is(ur5_run, monkeypatch):
+    """`solve` and `network` run their targets in blocks of `block_rows`, so any batch takes bounded
+    memory: no polish sees more than a block (twice it with `near`), and blocks of 7 give one whole
+    batch's answers (turned around the base, near given joints, restarted) up to the network's
+    rounding: its float64 products round by batch size, 1e-15 rad here; the polish itself is row by row."""
+    from rbfn.solver import IKSolver
+
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, robot = _targets(60)
+    q_true, x = _turned(split, robot)
+    near = q_true + 0.05 * torch.randn(q_true.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    calls = (
+        lambda: solver.solve(x, iterations=2, restarts=2, restart_iterations=5),
+        lambda: solver.solve(x, iterations=2, near=near),
+        lambda: solver.network(x),
+    )
+    whole = [c() for c in calls]
+    seen = []
+    polish = IKSolver._polish
+    monkeypatch.setattr(IKSolver, "_polish", lambda self, q, *a: seen.append(q.shape[0]) or polish(self, q, *a))
+    solver.block_rows = 7
+    for c, (a, b) in zip(calls, whole):
+        got_a, got_b = c()
+        assert torch.allclose(got_a, a, rtol=0, atol=1e-12)
+        assert torch.equal(got_b, b) if b.dtype == torch.bool else torch.allclose(got_b, b, rtol=0, atol=1e-12)
+    assert max(seen) == 14 and 7 in seen
+    assert not whole[0][1].all() and whole[0][1].any()  # some targets restarted, some converged
+
+
+def test_a_batch_beyond_the_memory_available_is_refused_before_any_work(panda_ckpt, monkeypatch):
+    import rbfn.memory
+    from rbfn.checkpoint import model_from_checkpoint
+    from rbfn.robots.robot import robot_from_record
+    from rbfn.solver import IKSolver
+
+    robot = robot_from_record(panda_ckpt["robot"])
+    solver = IKSolver(model_from_checkpoint(panda_ckpt), robot)
+    x = robot.targets((0.5 * (robot.low + robot.high))[None].repeat(20, 1))
+    monkeypatch.setattr(rbfn.memory, "available_bytes", lambda device="cpu": 1000)
+    monkeypatch.setattr(IKSolver, "_polish", lambda *a: pytest.fail("no work before the memory check"))
+    solver.block_rows = 8
+    with pytest.raises(
+        ValueError,
+        match=r"targets=\(20, 7\) needs at least .* KiB .*more than this machine's "
+        r"available memory \(1000 B\); solve fewer targets a call",
+    ):
+        solver.solve(x)

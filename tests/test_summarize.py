@@ -1,5 +1,6 @@
 import json
 import os
+import shutil
 
 import pytest
 
@@ -169,15 +170,21 @@ def _error_line(capsys, *argv, status=2):
         ('{"test_pos_err_mm_median": {"a": 1}}', 'test_pos_err_mm_median is a JSON object ({"a": 1}), not a number'),
         ('{"test_pos_err_mm_median": true}', "test_pos_err_mm_median is a JSON boolean (true), not a number"),
         (None, "metrics.json cannot be read: Is a directory"),
+        ("fifo", "metrics.json cannot be read: it is a FIFO, not a regular file; not read"),
+        ("big", "metrics.json cannot be read: it holds 3 GiB, more than 64 MiB; not read"),
+        ("dangling", "metrics.json cannot be read: No such file or directory"),
     ],
 )
 def test_a_malformed_job_is_listed_and_the_good_ones_summarized(tmp_path, capsys, text, why):
+    """Also a metrics.json that is no file or too large to read: never read (a FIFO is not waited on)."""
     _sweep(tmp_path)
     bad = tmp_path / "4" / "metrics.json"
     _job(tmp_path, 4, ["centers=random", "seed=0"], {})
-    if text is None:
+    if text in (None, "fifo", "dangling"):
         bad.unlink()
-        bad.mkdir()
+        {None: bad.mkdir, "fifo": lambda: os.mkfifo(bad), "dangling": lambda: bad.symlink_to("gone")}[text]()
+    elif text == "big":
+        os.truncate(bad, 3 << 30)  # sparse: no disk used
     else:
         bad.write_bytes(text if isinstance(text, bytes) else text.encode())
     main([str(tmp_path), "--metrics", "test_pos_err_mm_median"])
@@ -335,3 +342,119 @@ def test_a_malformed_failed_json_is_listed(tmp_path, capsys, record, error):
     main([str(tmp_path)])
     out = capsys.readouterr().out
     assert "| aco | 2 |" in out and f"| 4 | failed |  | {error} |" in out
+
+
+def _scandir_failing_at(monkeypatch, where):
+    """os.scandir raising PermissionError for directory `where` (as a mode-000 directory does for a
+    user who is not root)."""
+    scandir = os.scandir
+
+    def fake(path="."):
+        if os.path.realpath(path) == os.path.realpath(where):
+            raise PermissionError(13, "Permission denied")
+        return scandir(path)
+
+    monkeypatch.setattr(os, "scandir", fake)
+
+
+def test_an_unreadable_job_or_sweep_directory_is_named_not_skipped(tmp_path, capsys, monkeypatch):
+    _sweep(tmp_path)
+    _scandir_failing_at(monkeypatch, tmp_path / "3")
+    main([str(tmp_path), "--metrics", "test_pos_err_mm_median"])
+    out = capsys.readouterr().out
+    assert "| 3 | unreadable |  | the directory cannot be read: Permission denied |" in out
+    assert "4 jobs: 3 completed, 0 failed, 0 unfinished, 1 unreadable" in out
+    _scandir_failing_at(monkeypatch, tmp_path)
+    assert f"SWEEP_DIR {tmp_path}: cannot be read: Permission denied" in _error_line(capsys, tmp_path)
+
+
+def test_a_log_is_searched_in_its_tail_only(tmp_path, monkeypatch):
+    import rbfn.summarize
+
+    (tmp_path / "0").mkdir()
+    first, last = "[t][train][ERROR] - early\n", "[t][train][ERROR] - the last\n"
+    (tmp_path / "0" / "train.log").write_text(first + "x" * 5000 + "\n" + last)
+    monkeypatch.setattr(rbfn.summarize, "LOG_TAIL_BYTES", 200)
+    assert find_jobs(tmp_path)[0].error == "the last"
+
+
+def test_a_stale_figure_is_removed_with_the_tables_it_belonged_to(tmp_path, capsys, monkeypatch):
+    """A summary without a figure (here: a single M left) removes the earlier summary.png, in the same
+    all-or-none step as the tables; a write-protected one is kept unless --force."""
+    for n, m in enumerate((10, 40)):
+        _job(tmp_path, n, [f"rbfn.num_centers={m}", "seed=0"], {"test_pos_err_mm_median": 1.0})
+    main([str(tmp_path)])
+    png = tmp_path / "summary.png"
+    assert png.is_file()
+    shutil.rmtree(tmp_path / "1")
+    png.chmod(0o444)
+    assert f"{png} is write-protected" in _error_line(capsys, tmp_path)
+    png.chmod(0o644)
+    old = _outputs(tmp_path)
+    monkeypatch.setattr(os, "fsync", lambda fd: (_ for _ in ()).throw(OSError(28, "No space left on device")))
+    assert "nothing was replaced" in _error_line(capsys, tmp_path, status=1)
+    assert _outputs(tmp_path) == old  # the figure kept with its tables
+    monkeypatch.undo()
+    main([str(tmp_path)])
+    assert f"removed the stale {png}" in capsys.readouterr().out
+    assert not png.exists() and {"summary.md", "summary.csv"} <= set(_outputs(tmp_path))
+    assert not list(tmp_path.glob("*.tmp"))
+    png.mkdir()  # a directory of that name is no figure: left alone
+    main([str(tmp_path)])
+    assert png.is_dir() and "removed the stale" not in capsys.readouterr().out
+
+
+def _multirun(root, task, params=None, launcher="hydra._internal.core_plugins.basic_launcher.BasicLauncher"):
+    """The parts of Hydra's multirun.yaml the summarizer reads."""
+    (root / "multirun.yaml").write_text(
+        "hydra:\n"
+        f"  sweep:\n    dir: {root}\n    subdir: ${{hydra.job.num}}\n"
+        f"  launcher:\n    _target_: {launcher}\n"
+        "  sweeper:\n    _target_: hydra._internal.core_plugins.basic_sweeper.BasicSweeper\n"
+        "    max_batch_size: null\n"
+        + (f"    params:\n{''.join(f'      {k}: {v}' + chr(10) for k, v in params.items())}" if params else "")
+        + "  overrides:\n    task:\n"
+        + "".join(f"    - {t}\n" for t in task)
+    )
+
+
+def test_a_job_whose_directory_is_gone_is_counted_from_the_sweeps_list(tmp_path, capsys):
+    """A job that failed before writing any result and could not write its failed.json (a full disk)
+    is tidied away: the sweep's multirun.yaml still lists it. Failed where a later job started (the
+    launcher starts them in order), missing where none did (not started, or lost so)."""
+    _multirun(tmp_path, ["centers=aco,kmeans", "data.n_train=300"], params={"seed": "0,1,2"})
+    jobs = [(c, s) for s in (0, 1, 2) for c in ("aco", "kmeans")]  # params first, then the command line
+    for n in (0, 2, 3):
+        c, s = jobs[n]
+        _job(tmp_path, n, [f"centers={c}", "data.n_train=300", f"seed={s}"], {"test_pos_err_mm_median": 1.0})
+    (tmp_path / "4").mkdir()  # made by Hydra, nothing written yet
+    main([str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "| 1 | failed | centers=kmeans seed=0 | no job directory: it started (a later job did)" in out
+    assert "| 4 | unfinished | centers=aco seed=2 | its directory holds no record yet" in out
+    assert "| 5 | missing | centers=kmeans seed=2 | no job directory: not started" in out
+    assert "6 jobs: 3 completed, 1 failed, 1 unfinished, 1 missing" in out
+    # A SLURM array starts its tasks in any order: a gone job is missing, whatever started after it.
+    _multirun(tmp_path, ["centers=aco,kmeans", "seed=0,1,2"], launcher="hydra_plugins.submitit_launcher.SlurmLauncher")
+    main([str(tmp_path)])
+    assert "| 1 | missing |" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "text, note",
+    [
+        ("{{{", "multirun.yaml is not a Hydra multirun's"),
+        ("hydra: {}\n", "multirun.yaml is not a Hydra multirun's (no 'sweep')"),
+        (None, "multirun.yaml cannot be read: Is a directory"),
+    ],
+)
+def test_an_unreadable_sweep_list_is_named(tmp_path, capsys, text, note):
+    _sweep(tmp_path)
+    if text is None:
+        (tmp_path / "multirun.yaml").mkdir()
+    else:
+        (tmp_path / "multirun.yaml").write_text(text)
+    main([str(tmp_path)])
+    out = capsys.readouterr().out
+    assert f"Not counted: {note}" in out and "jobs without a directory cannot be counted" in out
+    assert "4 jobs: 4 completed" in out
