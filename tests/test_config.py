@@ -332,3 +332,42 @@ def test_the_entry_points_refuse_a_bool_given_as_anything_else(tmp_path, script,
         f"error: {override} is not allowed: must be true or false"
     ], r.stderr
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        (
+            ["robot=ur5", "robot.home=[0,-1.2,1.5,-1.9,9.0,0]"],
+            "robot.home=[0.0, -1.2, 1.5, -1.9, 9.0, 0.0] is not allowed: joint wrist_2_joint at 9 lies outside "
+            "its URDF limits [-6.28319, 6.28319]",
+        ),
+        (
+            ["robot=panda", "robot.locked.panda_joint3=3.5"],
+            "robot.locked.panda_joint3=3.5 is not allowed: joint panda_joint3 at 3.5 lies outside its URDF limits "
+            "[-2.8973, 2.8973]",
+        ),
+    ],
+)
+def test_joint_values_outside_the_urdf_limits_are_named(overrides, message):
+    """Every joint-valued key (robot.home, robot.locked.*, the box) lies within the URDF's limits:
+    training (load_robot) and the closed loop (check_control) refuse it naming the key, the joint,
+    the value and the limits."""
+    from rbfn.robots.robot import load_robot
+    from rbfn.studies.control import check_control
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        load_robot(_cfg(*overrides).robot)
+    cfg = compose_config("evaluate", "ik=false", "online.enabled=false", *overrides)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_control(cfg.control, cfg.robot)
+
+
+def test_the_closed_loop_checks_the_box_against_the_urdf_limits_too():
+    from rbfn.studies.control import check_control
+
+    cfg = compose_config("evaluate", "ik=false", "online.enabled=false", "robot.joint_high=[2.0,3.0,1.5]")
+    with pytest.raises(
+        ValueError, match=re.escape("robot.joint_high=[2.0, 3.0, 1.5] is not allowed: joint joint2 at 3")
+    ):
+        check_control(cfg.control, cfg.robot)

@@ -23,6 +23,7 @@ import torch
 from ..config import ControlConfig, GainsConfig, RobotConfig, Trajectory
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
+from ..robots.robot import check_joint_values
 from .controllers import JointRates
 from .loop import RealLoop, crossover_limit, integration_limit
 from .models import ArmModel, NominalModel
@@ -254,6 +255,8 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
             f"robot.joint_low/joint_high give {len(robot.joint_low)} joints; the chain to "
             f"{robot.end_link!r} has {free} free joints ({arm.n} in all, {len(robot.locked)} locked)"
         )
+    given = {f"robot.{k}": list(getattr(robot, k)) for k in ("home", "joint_low", "joint_high")}
+    check_joint_values(robot.locked, arm.joint_names, *arm.joint_limits(), given)
     return arm
 
 

@@ -48,7 +48,7 @@ from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, Target, TrainConfig
 from .dynamics import Arm, load_arm, urdf_source
 from .kinematics import urdf_tree
 from .registry import closed_form
-from .robot import Robot, load_robot
+from .robot import Robot, check_joint_values, load_robot
 
 __all__ = [
     "CONTROL_RATE",
@@ -275,9 +275,7 @@ def _home_and_box(
     box = bool(cfg.joint_low) and bool(cfg.joint_high)
     if cfg.home:
         home, why = [float(v) for v in cfg.home], "given"
-        outside = [j for j, v, a, b in zip(joints, home, lo.tolist(), hi.tolist()) if not a <= v <= b]
-        if outside:
-            raise ValueError(f"robot.home={home} is not allowed: joints {outside} lie outside their URDF limits")
+        check_joint_values({}, joints, lo, hi, {"robot.home": home})
     elif box:
         home = [(a + b) / 2 for a, b in zip(cfg.joint_low, cfg.joint_high)]
         why = "the given box's centre"

@@ -90,6 +90,9 @@ def test_a_singular_middle_moves_the_home_off_it_and_a_given_singular_home_is_wa
     assert not any("singular" in m for m in caplog.messages)
     with pytest.raises(ValueError, match=r"robot\.rated_payload: no joint is both loaded"):
         derive_train(compose_config("train", *scara, "robot.gravity=0"))
+    with pytest.raises(ValueError, match=r"robot\.home=\[1\.0, 1\.0, 2\.5\] is not allowed: joint joint3 at 2\.5 lies "
+                       r"outside its URDF limits \[0, 2\]"):  # fmt: skip
+        derive_train(compose_config("train", *scara, "robot.home=[1.0,1.0,2.5]"))
 
 
 def test_an_arm_pointing_straight_up_at_the_middle_of_its_limits_gets_a_home_it_can_learn_and_carry_from():
