@@ -231,7 +231,9 @@ def control_robot(
 
 
 def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text: str | None):
-    """The URDF arm of `source`: the text, else robot.urdf (a file), else the preset robot.name."""
+    """The URDF arm of `source`: the text, else robot.urdf (a file), else the preset robot.name;
+    ValueError with the first of its `problems` where its dynamics cannot be simulated (its notes
+    logged as warnings)."""
     try:
         arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity)
     except (FileNotFoundError, ValueError) as e:
@@ -239,6 +241,14 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
         raise type(e)(
             f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link={robot.end_link!r}): {e}"
         ) from None
+    if arm.problems:  # (e.g. a link without mass at the end of the chain: M(q) has no inverse)
+        urdf = repr(robot.urdf) if urdf_text is None else "(the checkpoint's URDF text)"
+        raise ValueError(
+            f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link={robot.end_link!r}): the closed "
+            f"loop cannot simulate this arm's dynamics: {arm.problems[0]}"
+        )
+    for note in arm.notes:
+        log.warning("robot.urdf: %s", note)
     if cfg.payload_link:
         try:
             arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity, payload_link=cfg.payload_link)

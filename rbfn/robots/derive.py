@@ -21,7 +21,8 @@ line per key, saying what it chose and why ("given" for a key the user gave, whi
   whose static gravity torque at home stays within PAYLOAD_MARGIN of every joint's URDF effort
   limit (where a payload loads no joint at home, an arm pointing straight up: at home and
   BOX_SAMPLES seeded joint vectors in the box); the control part's payload cases are 0, half and
-  all of it.
+  all of it. 0 where the URDF's inertials are unusable for dynamics (`Arm.problems`: a warning
+  says so; the IK trains, the closed loop refuses the arm).
 * control_rate, encoder_counts: 500 Hz and 2^20 counts per revolution (per metre, prismatic) on
   every chain joint, typical values, for the realistic loop.
 
@@ -120,6 +121,15 @@ def load_urdf_arm(cfg: RobotConfig) -> tuple[Arm, str]:
         arm = load_arm(path, end_link=cfg.end_link, gravity=GRAVITY if cfg.gravity is None else cfg.gravity)
     except ValueError as e:
         raise ValueError(f"robot.end_link={cfg.end_link!r} (robot.urdf={cfg.urdf!r}): {e}") from None
+    for note in arm.notes:
+        log.warning("robot.urdf=%s: %s", cfg.urdf, note)
+    if arm.problems:  # the IK needs no dynamics: it trains; the closed loop refuses the arm
+        log.warning(
+            "robot.urdf=%s: the closed loop (evaluate.py's control part) cannot simulate this arm's dynamics "
+            "and will refuse it; the IK needs none and trains: %s",
+            cfg.urdf,
+            arm.problems[0],
+        )
     return arm, str(root.get("name") or path.stem)
 
 
@@ -217,7 +227,10 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     said("gravity", gravity, "given" if cfg.gravity is not None else "standard gravity, m/s^2")
 
     payload = cfg.rated_payload
-    if payload < 0:
+    if payload < 0 and arm.problems:  # no meaningful gravity torques to bound it by
+        payload = 0.0
+        said("rated_payload", "0 kg", "not derived: the URDF's inertials are unusable for dynamics (above)")
+    elif payload < 0:
         full = torch.zeros(arm.n, dtype=torch.float64)
         for j, v in cfg.locked.items():
             full[arm.joint_names.index(j)] = v
