@@ -247,8 +247,7 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
             f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link={robot.end_link!r}): the closed "
             f"loop cannot simulate this arm's dynamics: {arm.problems[0]}"
         )
-    for note in arm.notes:
-        log.warning("robot.urdf: %s", note)
+    arm.warn_notes(log, f"robot.urdf={robot.urdf or robot.name}")
     if cfg.payload_link:
         try:
             arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity, payload_link=cfg.payload_link)

@@ -121,8 +121,7 @@ def load_urdf_arm(cfg: RobotConfig) -> tuple[Arm, str]:
         arm = load_arm(path, end_link=cfg.end_link, gravity=GRAVITY if cfg.gravity is None else cfg.gravity)
     except ValueError as e:
         raise ValueError(f"robot.urdf={cfg.urdf!r} (robot.end_link={cfg.end_link!r}): {e}") from None
-    for note in arm.notes:
-        log.warning("robot.urdf=%s: %s", cfg.urdf, note)
+    arm.warn_notes(log, f"robot.urdf={cfg.urdf}")
     if arm.problems:  # the IK needs no dynamics: it trains; the closed loop refuses the arm
         log.warning(
             "robot.urdf=%s: the closed loop (evaluate.py's control part) cannot simulate this arm's dynamics "

@@ -58,6 +58,7 @@ a file only from a `pathlib.Path`, a str is a preset's name or URDF text, never 
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import reprlib
@@ -84,6 +85,7 @@ SINGULAR = 1e-12
 """M(q)'s smallest eigenvalue at or below this share of its largest: singular (no inverse)."""
 
 Payload = float | torch.Tensor
+_WARNED: set[str] = set()  # the notes `Arm.warn_notes` logged
 
 
 # ----------------------------------------------------------------------------- URDF parsing
@@ -424,6 +426,14 @@ class Arm:
         """Links whose own inertia is unphysical while the body they are lumped into is not (the
         simulation is fine; the URDF is worth a look), one line each."""
         return list(self._model.notes)
+
+    def warn_notes(self, logger: logging.Logger, where: str) -> None:
+        """Log each of `notes` as a warning, prefixed by `where`, once per process (the same URDF is
+        loaded by the derivation and by each check of the closed loop)."""
+        for note in self.notes:
+            if note not in _WARNED:
+                _WARNED.add(note)
+                logger.warning("%s: %s", where, note)
 
     def _mass_matrix_problems(self, samples: int = 16, seed: int = 0) -> list[str]:
         """[the first joint that moves no mass or inertia, in words] where M(q) is singular or

@@ -423,7 +423,7 @@ def test_unusable_inertials_are_named_and_no_closed_loop_runs_on_them(changes, m
     load_serial_chain(text, "ee_link")  # the IK needs none of it
 
 
-def test_massless_frames_and_unphysical_links_that_do_not_move_pass():
+def test_massless_frames_and_unphysical_links_that_do_not_move_pass(monkeypatch, caplog):
     """A massless base or tool frame, or a fixed-to-the-root link with an unphysical inertia, leave
     M(q) positive definite: no problem (a root link's inertia is a note). Every shipped arm and
     every example-robot-data arm of these tests passes."""
@@ -432,6 +432,17 @@ def test_massless_frames_and_unphysical_links_that_do_not_move_pass():
     assert arm.problems == [] and len(arm.notes) == 1
     assert arm.notes[0].startswith("link 'base_link' has an <inertia> with principal moments [-1.0,")
     assert arm.notes[0].endswith("(fixed to the root: no dynamics use it)")
+    import logging
+
+    import rbfn.robots.dynamics as dynamics
+
+    monkeypatch.setattr(dynamics, "_WARNED", set())
+    with caplog.at_level(logging.WARNING):
+        arm.warn_notes(logging.getLogger("test"), "robot.urdf=ur5.urdf")
+        load_arm(text.replace(_UR5_BASE, _UR5_BASE.replace('ixx="0.004433333333"', 'ixx="-1"')), "ee_link").warn_notes(
+            logging.getLogger("test"), "again"
+        )  # the same URDF loaded again (the derivation, each check of the closed loop): said once
+    assert caplog.messages == ["robot.urdf=ur5.urdf: " + arm.notes[0]]
     for name in ["scara", "ur5", "panda", "test_arm", *ERD]:
         if name in ERD:
             _erd_urdf(ERD[name][0])  # skips without example-robot-data
