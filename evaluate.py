@@ -41,7 +41,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from rbfn.config import EvalConfig, register_configs
+from rbfn.config import EvalConfig, check_overrides, register_configs
 from rbfn.studies.cli import one_line_errors, run_main, settings
 from rbfn.studies.evaluation import for_checkpoint, run
 from rbfn.studies.rundir import hydra_run_dir, hydra_run_files
@@ -55,6 +55,7 @@ register_configs()
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(dcfg: DictConfig) -> None:
     with one_line_errors(HydraConfig.get().mode == RunMode.RUN), job(), hydra_run_dir(own=True) as out_dir:
+        check_overrides(EvalConfig, HydraConfig.get().overrides.task)  # as typed: OmegaConf would take ik=2 for true
         dcfg = for_checkpoint(dcfg, HydraConfig.get().overrides.task)  # the checkpoint's robot, before any work
         run(cast(EvalConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
 

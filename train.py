@@ -31,7 +31,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from rbfn.config import TrainConfig, register_configs
+from rbfn.config import TrainConfig, check_overrides, register_configs
 from rbfn.resume import DifferentRun
 from rbfn.studies.cli import one_line_errors, run_main, settings
 from rbfn.studies.rundir import RunDirInUse, hydra_run_dir, hydra_run_files, write_json
@@ -49,6 +49,7 @@ def main(dcfg: DictConfig) -> float:
     hc = HydraConfig.get()
     with one_line_errors(hc.mode == RunMode.RUN), job(), hydra_run_dir() as out_dir:
         try:
+            check_overrides(TrainConfig, hc.overrides.task)  # as typed: OmegaConf would take export=2 for true
             metrics = run(cast(TrainConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
         except Exception as e:
             # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+import typing
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from enum import Enum
 from typing import Any, Optional
 
@@ -66,6 +68,8 @@ __all__ = [
     "EvalConfig",
     "validate_train",
     "validate_evaluate",
+    "check_types",
+    "check_overrides",
     "validate_device",
     "finite",
     "plain",
@@ -546,7 +550,8 @@ class TrainConfig:
     export: bool = True  # write ik.onnx and ik.pt2 next to checkpoint.pt
 
     def check(self) -> None:
-        """Every value, then whether the run fits in memory."""
+        """Every value's type, every value, then whether the run fits in memory."""
+        check_types(self)
         self.data.check()
         self.rbfn.check(self.data.n_train)
         self.centers.check(self.rbfn.num_centers)
@@ -1047,7 +1052,8 @@ class EvalConfig:
     loop: LoopConfig = field(default_factory=LoopConfig)
 
     def check(self) -> None:
-        """Every value of every enabled part, then whether the parts fit in memory."""
+        """Every value's type, every value of every enabled part, then whether the parts fit in memory."""
+        check_types(self)
         _need(self.n_test > 0, "n_test", self.n_test, "must be > 0")
         if self.seed is not None:
             _seed("seed", self.seed)
@@ -1098,6 +1104,85 @@ def validate_train(cfg: TrainConfig) -> None:
 def validate_evaluate(cfg: EvalConfig) -> None:
     """Raise ValueError naming the first bad value of an evaluation config (`EvalConfig.check`)."""
     cfg.check()
+
+
+def _type_error(annotation: Any, value: Any) -> str | None:
+    """What is allowed where `value` is not of the field type `annotation` (None where it is): a
+    bool field takes only true or false (not 1, 2 or "yes", which OmegaConf would take for true),
+    an int field only integers (not 1.5, not true), a float field only numbers (not true), a str
+    field no bool (true would become "True"), a choice one of its names; lists and dicts element by
+    element. Nested config schemas are checked field by field by `check_types`."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Union:  # Optional[X]
+        inner = [a for a in args if a is not type(None)]
+        return None if value is None else _type_error(inner[0], value)
+    if annotation is bool:
+        return None if isinstance(value, bool) else "must be true or false"
+    if annotation is int:
+        return None if isinstance(value, int) and not isinstance(value, bool) else "must be an integer"
+    if annotation is float:
+        return None if isinstance(value, (int, float)) and not isinstance(value, bool) else "must be a number"
+    if annotation is str:
+        return "must be a string (on the command line, quote it: 'true')" if isinstance(value, bool) else None
+    if isinstance(annotation, type) and issubclass(annotation, Enum):
+        names = [m.value for m in annotation]
+        return None if value in names else f"expected one of {names}"
+    if origin is list and isinstance(value, (list, tuple)):
+        errors = (_type_error(args[0], v) for v in value)
+        return next((f"each entry {e}" for e in errors if e), None)
+    if origin is dict and isinstance(value, dict):
+        errors = (_type_error(args[1], v) for v in value.values())
+        return next((f"each value {e}" for e in errors if e), None)
+    if origin in (list, dict):
+        return f"must be a {origin.__name__}"
+    return None
+
+
+def check_types(cfg: Any, key: str = "") -> None:
+    """ValueError naming the full key and value of the first field of the config dataclass `cfg`
+    (nested ones included) whose value is not of its declared type (`_type_error`): the Python API's
+    counterpart of what Hydra's composition and `check_overrides` refuse on the command line."""
+    hints = typing.get_type_hints(type(cfg))
+    for f in fields(cfg):
+        value, name = getattr(cfg, f.name), f"{key}{f.name}"
+        if is_dataclass(value):
+            check_types(value, f"{name}.")
+            continue
+        error = _type_error(hints[f.name], value)
+        if error:
+            raise ValueError(f"{name}={value!r} is not allowed: {error}")
+
+
+def check_overrides(schema: type, overrides: Sequence[str]) -> None:
+    """ValueError naming the first command-line override (`key=value`, as Hydra parses it) that sets
+    a key of the config dataclass `schema` to a value of another type (`_type_error`), before
+    OmegaConf converts it: `export=2`, `export=yes` and `progress=1` would each become true, and
+    `robot.name=true` "True". Overrides of groups, of keys outside `schema` (hydra.*), sweeps and
+    interpolations are left to Hydra."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    for o in OverridesParser.create().parse_overrides(list(overrides)):
+        if o.is_delete() or o.is_sweep_override():
+            continue
+        annotation: Any = schema
+        for part in o.key_or_group.split("."):
+            origin = typing.get_origin(annotation)
+            if is_dataclass(annotation):
+                hints = typing.get_type_hints(annotation)
+                annotation = hints.get(part)
+            elif origin is dict:
+                annotation = typing.get_args(annotation)[1]
+            else:
+                annotation = None
+            if annotation is None:
+                break
+        value = o.value()
+        if annotation is None or is_dataclass(annotation) or (isinstance(value, str) and "${" in value):
+            continue
+        error = _type_error(annotation, value)
+        if error:
+            line = o.input_line or f"{o.key_or_group}={value!r}"
+            raise ValueError(f"{line} is not allowed: {error}")
 
 
 def _check_sensing(rate: float | None, counts: list[float], key: str) -> None:

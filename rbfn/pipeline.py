@@ -50,7 +50,9 @@ log = logging.getLogger(__name__)
 @dataclass
 class TrainResult:
     """The trained network, its final fit, the growth curve (M, E), each colony's best/mean
-    objective per iteration (by M), the refinement's validation curve and the time spent."""
+    objective per iteration (by M), the refinement's validation curve and the time spent;
+    `chosen_by`, the method that chose the final network's centres (`rbfn.select.Selection`), and
+    `selection_note`, why it is not the configured one ("" where it is)."""
 
     model: RBFNetwork
     fit: RidgeFit
@@ -59,6 +61,8 @@ class TrainResult:
     refine_history: list[float] = field(default_factory=list)
     select_seconds: float = 0.0
     train_seconds: float = 0.0
+    chosen_by: str = ""
+    selection_note: str = ""
 
 
 def fit_weights(
@@ -241,6 +245,8 @@ def train_ik(
                 "select_seconds": sel.seconds,
                 "aco_best": list(sel.aco_best),
                 "aco_mean": list(sel.aco_mean),
+                "chosen_by": sel.chosen_by,
+                "selection_note": sel.note,
             }
         )
         state.last_fit = {
@@ -307,4 +313,6 @@ def train_ik(
         refine_history=history,
         select_seconds=sum(d["select_seconds"] for d in state.done),
         train_seconds=elapsed_before + time.perf_counter() - t_start,
+        chosen_by=state.done[-1].get("chosen_by", str(cfg.centers.method)),  # (a last.pt from before it was kept)
+        selection_note=state.done[-1].get("selection_note", ""),
     )

@@ -35,7 +35,8 @@ _FREE_KEYS = ("progress", "num_threads", "device")
 @dataclass
 class TrainState:
     config: dict
-    # done: {"num_centers", "val_E", "select_seconds", "aco_best", "aco_mean"} per growth step
+    # done: {"num_centers", "val_E", "select_seconds", "aco_best", "aco_mean", "chosen_by",
+    # "selection_note"} per growth step
     done: list[dict] = field(default_factory=list)
     last_fit: dict | None = None  # {"centers", "widths", "weights", "ridge", "val_mse"}
     gen_after: Any = None  # generator state after the last completed step

@@ -31,13 +31,18 @@ __all__ = ["Selection", "select", "choose_widths", "colony_objective", "visibili
 
 @dataclass
 class Selection:
-    """Centres (M, d), widths (M,), seconds spent, and ACO best/mean objective per iteration."""
+    """Centres (M, d), widths (M,), seconds spent, and ACO best/mean objective per iteration;
+    `chosen_by`, the method that actually chose the centres (`kmeans` where the colony skipped
+    itself or searched widths only, else `cfg.method`), and `note`, why it differs from the
+    configured one ("" where it does not)."""
 
     centers: torch.Tensor
     widths: torch.Tensor
     seconds: float
     aco_best: list[float] = field(default_factory=list)
     aco_mean: list[float] = field(default_factory=list)
+    chosen_by: str = ""
+    note: str = ""
 
 
 def choose_widths(
@@ -76,6 +81,7 @@ def select(
     t0 = time.perf_counter()
     aco_best: list[float] = []
     aco_mean: list[float] = []
+    chosen_by, note = str(cfg.method), ""
     if cfg.method == "random":
         centers = random_centers(z, m, g)
         widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
@@ -95,9 +101,10 @@ def select(
         centers, widths, res = _ant_system(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
         aco_best, aco_mean = res.best_history, res.mean_history
     else:
-        centers, widths, res = _acor(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
+        centers, widths, res, note = _acor(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
         aco_best, aco_mean = res.best_history, res.mean_history
-    return Selection(centers, widths, time.perf_counter() - t0, aco_best, aco_mean)
+        chosen_by = "kmeans" if note else chosen_by
+    return Selection(centers, widths, time.perf_counter() - t0, aco_best, aco_mean, chosen_by, note)
 
 
 # The colony's subset keeps at least this many rows per design column P (the fit's excess
@@ -181,7 +188,8 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
 
     The archive is seeded with k-means centres and their validation-tuned widths, plus
     perturbations of them (so archive members share one centre ordering and the Gaussian
-    sampling compares like with like).
+    sampling compares like with like). Returns (centres, widths, the colony's result, note): the
+    note says why k-means chose the centres ("" where the colony searched them).
     """
     a, r = cfg.aco, cfg.aco.acor
     z = objective.z_train
@@ -191,26 +199,29 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     ranked = colony_objective(objective, m, a.fit_rows, seed) if a.objective == "fit" else objective
     full_cost = (r.archive_size + a.ants * a.iterations) * ranked.cost(m)
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
+        why = (
+            f"M * d = {m * d} > {FULL_SEARCH_MAX}"
+            if m * d > FULL_SEARCH_MAX
+            else f"its fits would cost {full_cost:.2g} flops > {FULL_FLOPS:.2g}"
+        )
         if cfg.refine.enabled and refine_mode(cfg.refine, z.shape[0], objective.width(m)) == "minibatch":
             # The reduced colony's two global width quantities are a subset of what the mini-batch
             # refinement then trains per centre from the same k-means start, over many epochs, and
             # it erased their gain (UR5, M = 2000: 2-4 % worse than without them, docs/results.md):
             # the colony skips itself. Before the `full` refinement (the SCARA at M = 160) it still
             # helps (0.125 against 0.142 mm over five seeds), so it runs there.
-            why = (
-                f"M * d = {m * d} > {FULL_SEARCH_MAX}"
-                if m * d > FULL_SEARCH_MAX
-                else f"its fits would cost {full_cost:.2g} flops > {FULL_FLOPS:.2g}"
+            what = (
+                "it could search two global width quantities only, which the mini-batch refinement trains "
+                "per centre; the k-means centres and their validation-tuned widths go to the refinement as they are"
             )
-            log.info(
-                "colony: skipped at M = %d (%s): it could search two global width quantities only, which "
-                "the mini-batch refinement trains per centre; the k-means centres and their "
-                "validation-tuned widths go to the refinement as they are",
-                m,
-                why,
-            )
-            return c0, w0, ACOResult(best=torch.empty(0), best_value=math.nan, iterations=0)
-        return _acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state)
+            log.info("colony: skipped at M = %d (%s): %s", m, why, what)
+            note = f"the colony skipped itself at M = {m} ({why}): {what}"
+            return c0, w0, ACOResult(best=torch.empty(0), best_value=math.nan, iterations=0), note
+        note = (
+            f"the colony searched two global width quantities only at M = {m} ({why}); the centres are "
+            "k-means' (rbfn.select._acor_reduced)"
+        )
+        return (*_acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state), note)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
     # Width coordinates: M log widths, one log scale of the seed widths, or none.
@@ -262,7 +273,7 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
     )
     res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
     c, w = unpack(res.best[None])
-    return c[0], w[0].clamp(max=max_width), res
+    return c[0], w[0].clamp(max=max_width), res, ""
 
 
 def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, on_state=None):

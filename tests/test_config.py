@@ -237,3 +237,137 @@ def test_the_centers_presets_are_the_files_of_the_group():
     assert files == sorted(SELECTORS)
     for name in files:
         assert _cfg(f"centers={name}").centers.name == name
+
+
+def _bool_keys(schema, prefix: str = "") -> list[str]:
+    """Every bool key of a config schema, by its full name."""
+    import dataclasses
+    import typing
+
+    hints, out = typing.get_type_hints(schema), []
+    for f in dataclasses.fields(schema):
+        if dataclasses.is_dataclass(hints[f.name]):
+            out += _bool_keys(hints[f.name], f"{prefix}{f.name}.")
+        elif hints[f.name] is bool:
+            out.append(prefix + f.name)
+    return out
+
+
+@pytest.mark.parametrize("schema", ["TrainConfig", "EvalConfig"])
+def test_a_bool_key_takes_only_true_or_false(schema):
+    """OmegaConf takes export=2, export=yes or progress=1 for true: every bool key of either entry
+    point refuses anything but true and false on the command line, naming the key and the value."""
+    import rbfn.config as config
+
+    cls = getattr(config, schema)
+    keys = _bool_keys(cls)
+    some = {"TrainConfig": {"export", "progress"}, "EvalConfig": {"ik", "control.enabled", "loop.torque_limits"}}
+    assert some[schema] <= set(keys)
+    for key in keys:
+        config.check_overrides(cls, [f"{key}=true", f"{key}=false", f"++{key}=True"])
+        for bad in ("2", "0", "yes", "'no'", "1.0"):
+            with pytest.raises(ValueError, match=re.escape(f"{key}={bad} is not allowed: must be true or false")):
+                config.check_overrides(cls, [f"{key}={bad}"])
+
+
+def test_overrides_of_other_types_are_checked_as_typed():
+    from rbfn.config import TrainConfig, check_overrides
+
+    check_overrides(  # groups, lists, dicts, null, interpolations and keys outside the schema pass
+        TrainConfig,
+        ["robot=urdf", "centers=kmeans", "robot.home=[1,2,3]", "+robot.locked.j=1", "robot.target=null",
+         "export=${progress}", "hydra.run.dir=x", "robot.end_link=7", "seed=3", "data.n_train=2,3"],
+    )  # fmt: skip
+    for bad, allowed in [
+        ("robot.name=true", "must be a string"),
+        ("robot.gravity=true", "must be a number"),
+        ("robot.joint_low=[0,true,1]", "each entry must be a number"),
+        ("seed=1.5", "must be an integer"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(f"{bad} is not allowed: {allowed}")):
+            check_overrides(TrainConfig, [bad])
+
+
+def test_the_python_api_checks_every_field_type():
+    from dataclasses import replace
+
+    from rbfn.config import DataConfig, TrainConfig
+
+    cfg = _cfg()
+    validate_train(cfg)
+    for bad, message in [
+        (replace(cfg, export=2), "export=2 is not allowed: must be true or false"),
+        (replace(cfg, progress="yes"), "progress='yes' is not allowed: must be true or false"),
+        (replace(cfg, data=DataConfig(n_train=1500.5)), "data.n_train=1500.5 is not allowed: must be an integer"),
+        (replace(cfg, seed=True), "seed=True is not allowed: must be an integer"),
+        (replace(cfg, robot=replace(cfg.robot, gravity=True)), "robot.gravity=True is not allowed: must be a number"),
+        (replace(cfg, robot=replace(cfg.robot, home=[1.0, "a", 2.0])), "robot.home=[1.0, 'a', 2.0] is not allowed"),
+        (replace(cfg, centers=replace(cfg.centers, method="magic")), "centers.method='magic' is not allowed: expected"),
+        (replace(cfg, robot=replace(cfg.robot, locked={"j": None})), "robot.locked={'j': None} is not allowed"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            validate_train(bad)
+    assert isinstance(TrainConfig(), TrainConfig)
+    with pytest.raises(ValueError, match=re.escape("control.aot=1 is not allowed: must be true or false")):
+        validate_evaluate(replace(EvalConfig(), control=replace(EvalConfig().control, aot=1)))
+
+
+@pytest.mark.parametrize(
+    "script,override", [("train.py", "export=2"), ("evaluate.py", "ik=yes"), ("evaluate.py", "control.enabled=1")]
+)
+def test_the_entry_points_refuse_a_bool_given_as_anything_else(tmp_path, script, override):
+    import subprocess
+    import sys
+
+    from .conftest import ROOT
+
+    r = subprocess.run(
+        [sys.executable, script, override, f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 1 and r.stderr.strip().splitlines() == [
+        f"error: {override} is not allowed: must be true or false"
+    ], r.stderr
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        (
+            ["robot=ur5", "robot.home=[0,-1.2,1.5,-1.9,9.0,0]"],
+            "robot.home=[0.0, -1.2, 1.5, -1.9, 9.0, 0.0] is not allowed: joint wrist_2_joint at 9 lies outside "
+            "its URDF limits [-6.28319, 6.28319]",
+        ),
+        (
+            ["robot=panda", "robot.locked.panda_joint3=3.5"],
+            "robot.locked.panda_joint3=3.5 is not allowed: joint panda_joint3 at 3.5 lies outside its URDF limits "
+            "[-2.8973, 2.8973]",
+        ),
+    ],
+)
+def test_joint_values_outside_the_urdf_limits_are_named(overrides, message):
+    """Every joint-valued key (robot.home, robot.locked.*, the box) lies within the URDF's limits:
+    training (load_robot) and the closed loop (check_control) refuse it naming the key, the joint,
+    the value and the limits."""
+    from rbfn.robots.robot import load_robot
+    from rbfn.studies.control import check_control
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        load_robot(_cfg(*overrides).robot)
+    cfg = compose_config("evaluate", "ik=false", "online.enabled=false", *overrides)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_control(cfg.control, cfg.robot)
+
+
+def test_the_closed_loop_checks_the_box_against_the_urdf_limits_too():
+    from rbfn.studies.control import check_control
+
+    cfg = compose_config("evaluate", "ik=false", "online.enabled=false", "robot.joint_high=[2.0,3.0,1.5]")
+    with pytest.raises(
+        ValueError, match=re.escape("robot.joint_high=[2.0, 3.0, 1.5] is not allowed: joint joint2 at 3")
+    ):
+        check_control(cfg.control, cfg.robot)

@@ -2,6 +2,7 @@
 refinement, and an arm with more free joints than its targets' degrees of freedom refused in every
 refinement mode before any work."""
 
+import json
 import math
 
 import pytest
@@ -180,6 +181,21 @@ def test_minibatch_run_reports_how_its_weights_were_found(tmp_path):
         tmp_path / "joint",
     )
     assert joint["test_pos_err_mm_median"] != m["test_pos_err_mm_median"]
+
+
+def test_metrics_name_the_method_that_chose_the_centres(tmp_path, monkeypatch):
+    """`selector` is the configured preset; where the `aco` colony skips itself (M d too large for
+    it, the mini-batch refinement next) `centers_chosen_by` says k-means chose them, and why."""
+    import rbfn.select
+
+    monkeypatch.setattr(rbfn.select, "FULL_SEARCH_MAX", 0)  # the UR5's M = 2000 case, on a small problem
+    m = train.run(compose_config("train", *UR5_SMALL, "centers=aco"), tmp_path)
+    assert (m["selector"], m["centers_chosen_by"]) == ("aco", "kmeans")
+    assert m["selection_note"].startswith("the colony skipped itself at M = 40 (M * d = 360 > 0)")
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert on_disk["centers_chosen_by"] == "kmeans" and on_disk["selection_note"] == m["selection_note"]
+    km = train.run(compose_config("train", *UR5_SMALL), tmp_path / "kmeans")
+    assert (km["selector"], km["centers_chosen_by"], km["selection_note"]) == ("kmeans_refine", "kmeans", None)
 
 
 def test_full_refinement_optimises_the_weights_the_float32_rule_deploys(small_data):

@@ -127,10 +127,16 @@ def test_the_large_m_colony_skips_itself_where_the_minibatch_refinement_follows(
     assert torch.equal(aco.centers, km.centers) and torch.equal(aco.widths, km.widths)
     assert aco.aco_best == [] and aco.aco_mean == []
     assert "colony: skipped at M = 10" in caplog.text
+    # The record says what ran: k-means chose the centres, and why.
+    assert aco.chosen_by == "kmeans" and aco.note.startswith("the colony skipped itself at M = 10 (")
     cfg.refine.mode = "auto"  # full at this size
-    assert 1 <= len(select(cfg, objective, 10, seed=0, max_width=2.0).aco_best) <= 4
+    reduced = select(cfg, objective, 10, seed=0, max_width=2.0)
+    assert 1 <= len(reduced.aco_best) <= 4
+    assert reduced.chosen_by == "kmeans" and "two global width quantities only at M = 10" in reduced.note
     monkeypatch.undo()  # the full colony at this size: it searches every coordinate
-    assert len(select(cfg, objective, 10, seed=0, max_width=2.0).aco_best) == 4
+    full = select(cfg, objective, 10, seed=0, max_width=2.0)
+    assert len(full.aco_best) == 4 and (full.chosen_by, full.note) == ("aco", "")
+    assert select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0).chosen_by == "kmeans"
 
 
 def test_objective_subset_is_the_objective_on_seeded_rows(objective):

@@ -50,6 +50,7 @@ def test_outputs_written(trained):
     assert on_disk["num_centers"] == 12
     assert [g["num_centers"] for g in on_disk["growth"]] == [6, 12]
     assert 0 < on_disk["select_seconds"] <= on_disk["train_seconds"]
+    assert (on_disk["selector"], on_disk["centers_chosen_by"], on_disk["selection_note"]) == ("aco", "aco", None)
     assert not list(out.glob("*.tmp"))
 
 

@@ -216,6 +216,7 @@ class ArmPlant(Plant):
         disturbance_freq: float = 2.0,
         gravity: bool = True,
     ) -> None:
+        arm.check_physics("ArmPlant")  # M qdd = ... needs M(q) positive definite
         self.arm, self.n = arm, arm.n
         self.terms = ArmTerms(arm)
         self.scalar_terms = ArmScalarTerms(self.terms)  # built eagerly: tracing stays on tensors of B

@@ -23,6 +23,7 @@ import torch
 from ..config import ControlConfig, GainsConfig, RobotConfig, Trajectory
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
+from ..robots.robot import check_joint_values
 from .controllers import JointRates
 from .loop import RealLoop, crossover_limit, integration_limit
 from .models import ArmModel, NominalModel
@@ -230,7 +231,9 @@ def control_robot(
 
 
 def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text: str | None):
-    """The URDF arm of `source`: the text, else robot.urdf (a file), else the preset robot.name."""
+    """The URDF arm of `source`: the text, else robot.urdf (a file), else the preset robot.name;
+    ValueError with the first of its `problems` where its dynamics cannot be simulated (its notes
+    logged as warnings)."""
     try:
         arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity)
     except (FileNotFoundError, ValueError) as e:
@@ -238,6 +241,13 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
         raise type(e)(
             f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link={robot.end_link!r}): {e}"
         ) from None
+    if arm.problems:  # (e.g. a link without mass at the end of the chain: M(q) has no inverse)
+        urdf = repr(robot.urdf) if urdf_text is None else "(the checkpoint's URDF text)"
+        raise ValueError(
+            f"robot.urdf={urdf} (robot.name={robot.name!r}, robot.end_link={robot.end_link!r}): the closed "
+            f"loop cannot simulate this arm's dynamics: {arm.problems[0]}"
+        )
+    arm.warn_notes(log, f"robot.urdf={robot.urdf or robot.name}")
     if cfg.payload_link:
         try:
             arm = load_arm(source, end_link=robot.end_link, gravity=robot.gravity, payload_link=cfg.payload_link)
@@ -254,6 +264,8 @@ def _load(robot: RobotConfig, cfg: ControlConfig, source: str | Path, urdf_text:
             f"robot.joint_low/joint_high give {len(robot.joint_low)} joints; the chain to "
             f"{robot.end_link!r} has {free} free joints ({arm.n} in all, {len(robot.locked)} locked)"
         )
+    given = {f"robot.{k}": list(getattr(robot, k)) for k in ("home", "joint_low", "joint_high")}
+    check_joint_values(robot.locked, arm.joint_names, *arm.joint_limits(), given)
     return arm
 
 

@@ -21,7 +21,8 @@ line per key, saying what it chose and why ("given" for a key the user gave, whi
   whose static gravity torque at home stays within PAYLOAD_MARGIN of every joint's URDF effort
   limit (where a payload loads no joint at home, an arm pointing straight up: at home and
   BOX_SAMPLES seeded joint vectors in the box); the control part's payload cases are 0, half and
-  all of it.
+  all of it. 0 where the URDF's inertials are unusable for dynamics (`Arm.problems`: a warning
+  says so; the IK trains, the closed loop refuses the arm).
 * control_rate, encoder_counts: 500 Hz and 2^20 counts per revolution (per metre, prismatic) on
   every chain joint, typical values, for the realistic loop.
 
@@ -48,7 +49,7 @@ from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, Target, TrainConfig
 from .dynamics import Arm, load_arm, urdf_source
 from .kinematics import urdf_tree
 from .registry import closed_form
-from .robot import Robot, load_robot
+from .robot import Robot, check_joint_values, load_robot
 
 __all__ = [
     "CONTROL_RATE",
@@ -119,7 +120,15 @@ def load_urdf_arm(cfg: RobotConfig) -> tuple[Arm, str]:
     try:
         arm = load_arm(path, end_link=cfg.end_link, gravity=GRAVITY if cfg.gravity is None else cfg.gravity)
     except ValueError as e:
-        raise ValueError(f"robot.end_link={cfg.end_link!r} (robot.urdf={cfg.urdf!r}): {e}") from None
+        raise ValueError(f"robot.urdf={cfg.urdf!r} (robot.end_link={cfg.end_link!r}): {e}") from None
+    arm.warn_notes(log, f"robot.urdf={cfg.urdf}")
+    if arm.problems:  # the IK needs no dynamics: it trains; the closed loop refuses the arm
+        log.warning(
+            "robot.urdf=%s: the closed loop (evaluate.py's control part) cannot simulate this arm's dynamics "
+            "and will refuse it; the IK needs none and trains: %s",
+            cfg.urdf,
+            arm.problems[0],
+        )
     return arm, str(root.get("name") or path.stem)
 
 
@@ -217,7 +226,10 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     said("gravity", gravity, "given" if cfg.gravity is not None else "standard gravity, m/s^2")
 
     payload = cfg.rated_payload
-    if payload < 0:
+    if payload < 0 and arm.problems:  # no meaningful gravity torques to bound it by
+        payload = 0.0
+        said("rated_payload", "0 kg", "not derived: the URDF's inertials are unusable for dynamics (above)")
+    elif payload < 0:
         full = torch.zeros(arm.n, dtype=torch.float64)
         for j, v in cfg.locked.items():
             full[arm.joint_names.index(j)] = v
@@ -275,9 +287,7 @@ def _home_and_box(
     box = bool(cfg.joint_low) and bool(cfg.joint_high)
     if cfg.home:
         home, why = [float(v) for v in cfg.home], "given"
-        outside = [j for j, v, a, b in zip(joints, home, lo.tolist(), hi.tolist()) if not a <= v <= b]
-        if outside:
-            raise ValueError(f"robot.home={home} is not allowed: joints {outside} lie outside their URDF limits")
+        check_joint_values({}, joints, lo, hi, {"robot.home": home})
     elif box:
         home = [(a + b) / 2 for a, b in zip(cfg.joint_low, cfg.joint_high)]
         why = "the given box's centre"

@@ -58,6 +58,7 @@ a file only from a `pathlib.Path`, a str is a preset's name or URDF text, never 
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import reprlib
@@ -72,11 +73,19 @@ from .kinematics import _matrix, _path_to, is_urdf_text, parse_urdf, urdf_path, 
 from .registry import preset
 from .spatial import SIX, cross, dot, matvec, outer
 
-__all__ = ["Arm", "load_arm", "urdf_source"]
+__all__ = ["Arm", "MAX_MASS", "load_arm", "urdf_source"]
 
 _MOVING = ("revolute", "continuous", "prismatic")
+MAX_MASS = 1e6
+"""Heaviest link a moving body may carry, kg (1000 t: far beyond any arm's link; 1e30 kg is a typo)."""
+INERTIA_TOL = 1e-6
+"""Relative tolerance of the inertia checks (a URDF's rounded digits): a principal moment may fall
+below 0, or exceed the sum of the other two, by this share of the largest."""
+SINGULAR = 1e-12
+"""M(q)'s smallest eigenvalue at or below this share of its largest: singular (no inverse)."""
 
 Payload = float | torch.Tensor
+_WARNED: set[str] = set()  # the notes `Arm.warn_notes` logged
 
 
 # ----------------------------------------------------------------------------- URDF parsing
@@ -136,6 +145,89 @@ class _Model:
     upper: torch.Tensor
     effort: torch.Tensor  # (n,) the URDF's effort limits, N m or N (inf where not given)
     end_pose: torch.Tensor  # (4, 4): the end link's frame in body n-1's frame
+    body_links: tuple[tuple[str, ...], ...] = ()  # (n,): the links lumped into each body
+    problems: tuple[str, ...] = ()  # why these dynamics cannot be simulated, one line each (`Arm.problems`)
+    notes: tuple[str, ...] = ()  # inertials that are not physical but do not matter here (`Arm.notes`)
+
+
+def _moments(inertia: torch.Tensor) -> list[float]:
+    """Principal moments (3,) kg m^2, ascending, of a symmetric inertia (3, 3)."""
+    return torch.linalg.eigvalsh(inertia).tolist()
+
+
+def _unphysical(moments: list[float]) -> str:
+    """What is wrong with principal moments (ascending, kg m^2) of an inertia about a centre of mass
+    ("" where nothing is): one below 0 (not positive semi-definite), or the largest above the sum
+    of the other two (the triangle inequality, which every real mass distribution meets), each
+    beyond INERTIA_TOL of the largest (and 1e-12 kg m^2)."""
+    a, b, c = moments
+    tol = INERTIA_TOL * max(abs(c), abs(a)) + 1e-12  # (and an absolute 1e-12 kg m^2: zero, rounded)
+    if a < -tol:
+        return (
+            f"principal moments {[float(f'{v:.4g}') for v in moments]} kg m^2, one below 0 (not positive semi-definite)"
+        )
+    if c > a + b + tol:
+        return (
+            f"principal moments {[float(f'{v:.4g}') for v in moments]} kg m^2, the largest above the sum of the "
+            "other two (the triangle inequality)"
+        )
+    return ""
+
+
+def _com_inertia(mass: float, first: torch.Tensor, inertia: torch.Tensor) -> torch.Tensor:
+    """Rotational inertia (3, 3) about the centre of mass of a body of `mass` kg, first moment
+    (3,) kg m and rotational inertia (3, 3) kg m^2 about its origin."""
+    if mass <= 0:
+        return inertia
+    c = first / mass
+    return inertia - mass * (c.dot(c) * torch.eye(3, dtype=torch.float64) - torch.outer(c, c))
+
+
+def _inertial_problems(
+    robot: URDF, located: dict, names: list[str], mass: torch.Tensor, first: torch.Tensor, inertia: torch.Tensor
+) -> tuple[tuple[tuple[str, ...], ...], tuple[str, ...], tuple[str, ...]]:
+    """(the links lumped into each body, problems, notes) of the URDF's inertials: a moving body's
+    link with a negative mass or one above MAX_MASS, and a body whose lumped inertia about its centre
+    of mass is unphysical (`_unphysical`), are problems naming the link(s); a link whose own
+    inertia is unphysical while its body's lumped one is not, or that is fixed to the root (which
+    carries no dynamics), is a note. `located`: link -> (body, pose)."""
+    n = len(names)
+    links: list[list[str]] = [[] for _ in range(n)]
+    problems: list[str] = []
+    notes: list[str] = []
+    own: dict[str, str] = {}
+    allowed = "allowed: principal moments >= 0, each at most the sum of the other two (a physical body)"
+    for name, link in robot.link_map.items():
+        body, inertial = located[name][0], link.inertial
+        if body >= 0:
+            links[body].append(name)
+        if inertial is None:
+            continue
+        m = float(inertial.mass or 0.0)
+        if body >= 0 and not 0 <= m <= MAX_MASS:
+            problems.append(
+                f"link {name!r} (moved by joint {names[body]!r}) has mass {m:g} kg; allowed: a mass in "
+                f"[0, {MAX_MASS:g}] kg"
+            )
+        i = inertial.inertia
+        if i is not None:
+            t = torch.tensor([[i.ixx, i.ixy, i.ixz], [i.ixy, i.iyy, i.iyz], [i.ixz, i.iyz, i.izz]], dtype=torch.float64)
+            wrong = _unphysical(_moments(t))
+            if wrong and body < 0:
+                notes.append(f"link {name!r} has an <inertia> with {wrong} (fixed to the root: no dynamics use it)")
+            elif wrong:
+                own[name] = f"link {name!r} has an <inertia> with {wrong}"
+    for b in range(n):
+        wrong = _unphysical(_moments(_com_inertia(float(mass[b]), first[b], inertia[b])))
+        bad = [own[k] for k in links[b] if k in own]
+        if wrong:
+            what = "; ".join(bad) if bad else f"the links {links[b]} lumped together have {wrong}"
+            problems.append(f"{what} (the body that joint {names[b]!r} moves); {allowed}")
+        else:
+            notes += [
+                f"{k} (lumped into the body that joint {names[b]!r} moves, which as a whole is physical)" for k in bad
+            ]
+    return tuple(tuple(k) for k in links), tuple(problems), tuple(notes)
 
 
 def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) -> _Model:
@@ -204,6 +296,7 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
         first[body] += h
         inertia[body] += j
     pbody, ppose = locate(payload_link)
+    body_links, problems, notes = _inertial_problems(robot, where, names, mass, first, inertia)
     return _Model(
         names,
         torch.tensor(prismatic),
@@ -218,6 +311,9 @@ def _build(robot: URDF, source: str, end_link: str, payload_link: str | None) ->
         torch.tensor(upper, dtype=torch.float64),
         torch.tensor(effort, dtype=torch.float64),
         where[end_link][1].clone(),
+        body_links,
+        problems,
+        notes,
     )
 
 
@@ -310,6 +406,64 @@ class Arm:
     def joint_limits(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(lower, upper) (n,) float64 in rad or m; -inf, inf for continuous joints."""
         return self._model.lower.clone(), self._model.upper.clone()
+
+    @property
+    def problems(self) -> list[str]:
+        """Why these dynamics cannot be simulated (M qdd = tau - C qd - G has no solution, or a
+        meaningless one), one line each naming the link or joint and what is allowed; empty where
+        they can: a moving body's link with a mass outside [0, MAX_MASS] kg, a body whose inertia
+        about its centre of mass is unphysical (a principal moment below 0, or one above the sum of
+        the other two), and a mass matrix M(q) that is not positive definite at seeded joint
+        vectors within the limits (a joint that moves no mass or inertia: a massless last link, a
+        URDF without inertials). Links fixed to the root, and zero-mass links beyond which some
+        mass moves (a tool frame), are fine."""
+        if "problems" not in self._cache:
+            self._cache["problems"] = list(self._model.problems) or self._mass_matrix_problems()
+        return list(self._cache["problems"])
+
+    @property
+    def notes(self) -> list[str]:
+        """Links whose own inertia is unphysical while the body they are lumped into is not (the
+        simulation is fine; the URDF is worth a look), one line each."""
+        return list(self._model.notes)
+
+    def warn_notes(self, logger: logging.Logger, where: str) -> None:
+        """Log each of `notes` as a warning, prefixed by `where`, once per process (the same URDF is
+        loaded by the derivation and by each check of the closed loop)."""
+        for note in self.notes:
+            if note not in _WARNED:
+                _WARNED.add(note)
+                logger.warning("%s: %s", where, note)
+
+    def _mass_matrix_problems(self, samples: int = 16, seed: int = 0) -> list[str]:
+        """[the first joint that moves no mass or inertia, in words] where M(q) is singular or
+        indefinite at one of `samples` seeded joint vectors within the limits ([-pi, pi] rad or
+        [-1, 1] m where there are none), else []."""
+        md = self._model
+        span = torch.where(md.prismatic, 1.0, math.pi).to(torch.float64)
+        lo = torch.where(torch.isfinite(md.lower), md.lower, -span)
+        hi = torch.where(torch.isfinite(md.upper), md.upper, span)
+        g = torch.Generator().manual_seed(seed)
+        q = lo + (hi - lo) * torch.rand(samples, self.n, generator=g, dtype=torch.float64)
+        values, vectors = torch.linalg.eigh(self.mass_matrix(q))
+        ratio = values[:, 0] / values[:, -1].abs().clamp_min(1e-300)
+        k = int(ratio.argmin())
+        if float(ratio[k]) > SINGULAR:
+            return []
+        j = int(vectors[k, :, 0].abs().argmax())  # the joint the null motion turns most
+        carried = [link for body in md.body_links[j:] for link in body] if md.body_links else []
+        return [
+            f"joint {self.joint_names[j]!r} moves no mass or inertia: the mass matrix M(q) is "
+            f"{'singular' if float(values[k, 0]) >= 0 else 'not positive definite'} (eigenvalues "
+            f"{float(values[k, 0]):.3g} to {float(values[k, -1]):.3g}) at q = {[round(v, 3) for v in q[k].tolist()]}, "
+            f"and the links it carries ({carried}) have no mass or inertia it can move; allowed: "
+            "every moving joint carrying some mass or inertia beyond it (the URDF's <inertial> elements)"
+        ]
+
+    def check_physics(self, what: str = "the closed loop") -> None:
+        """ValueError with the first of `problems` (what `what` cannot do with this arm)."""
+        if self.problems:
+            raise ValueError(f"{what} cannot simulate this arm's dynamics: {self.problems[0]}")
 
     def effort_limits(self) -> torch.Tensor:
         """The URDF's effort limits (n,) float64 in N m (N for a prismatic joint); inf where a

@@ -250,8 +250,10 @@ MAX_LENGTH = 1e3
 
 
 def _check_numbers(root: etree._Element, source: str) -> None:
-    """ValueError naming the element and attribute of a non-finite number, a length beyond MAX_LENGTH
-    m or a negative mass (text that is no number is left to the parser's own message)."""
+    """ValueError naming the element and attribute of a non-finite number or a length beyond
+    MAX_LENGTH m (text that is no number is left to the parser's own message). Masses and inertias
+    are physics, checked by the dynamics (`rbfn.robots.dynamics.Arm.problems`): the kinematics
+    need none of them."""
     for el in root.iter():
         for key in _NUMBERS:
             text = el.get(key)
@@ -269,8 +271,6 @@ def _check_numbers(root: etree._Element, source: str) -> None:
                 raise ValueError(f"{source}: {where}: allowed are finite numbers")
             if el.tag == "origin" and key == "xyz" and max(map(abs, values), default=0.0) > MAX_LENGTH:
                 raise ValueError(f"{source}: {where}: allowed are offsets within {MAX_LENGTH:g} m")
-            if el.tag == "mass" and values and values[0] < 0:
-                raise ValueError(f"{source}: {where}: allowed is a mass >= 0 kg")
 
 
 def parse_urdf(text: str, source: str, inertials: bool = False) -> URDF:

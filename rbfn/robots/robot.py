@@ -20,7 +20,15 @@ from pytorch_kinematics import transforms as tf
 from ..config import RobotConfig, Target, finite
 from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, read_urdf, urdf_path
 
-__all__ = ["Robot", "load_robot", "robot_from_record", "pose_targets", "unit_quaternions", "rotation_error_deg"]
+__all__ = [
+    "Robot",
+    "check_joint_values",
+    "load_robot",
+    "robot_from_record",
+    "pose_targets",
+    "unit_quaternions",
+    "rotation_error_deg",
+]
 
 
 def unit_quaternions(rot: torch.Tensor) -> torch.Tensor:
@@ -177,9 +185,46 @@ def _check_box(robot: Robot, where: str) -> None:
         )
 
 
+def _outside(
+    key: str, values: list[float], joints: list[str], lower: list[float], upper: list[float], shown: object
+) -> None:
+    """ValueError naming `key`=`shown`, the first of `joints` whose value lies outside its URDF limits
+    [lower, upper] (rad or m; +-inf where none), the value and the limits."""
+    for v, j, lo, hi in zip(values, joints, lower, upper):
+        if not lo - 1e-12 <= v <= hi + 1e-12:
+            raise ValueError(
+                f"{key}={shown!r} is not allowed: joint {j} at {v:.6g} lies outside its URDF limits "
+                f"[{lo:.6g}, {hi:.6g}]; allowed: a value within them"
+            )
+
+
+def check_joint_values(
+    locked: dict[str, float],
+    names: list[str],
+    lower: torch.Tensor,
+    upper: torch.Tensor,
+    free: dict[str, list[float]] | None = None,
+) -> None:
+    """ValueError where a joint-valued key puts a joint outside its URDF limits, naming the key, the
+    joint, the value and the limits: robot.locked.JOINT (`locked`, the held values) and each key of
+    `free` (key -> one value per free joint, e.g. robot.home: the closed loop's nominal pose, the
+    sinusoid about it; an empty list: not given). `names`: the chain's joints in order, `lower`,
+    `upper` (n,) their limits, rad or m, +-inf where none."""
+    lo, hi = lower.tolist(), upper.tolist()
+    for j, v in locked.items():
+        if j in names:
+            i = names.index(j)
+            _outside(f"robot.locked.{j}", [float(v)], [j], [lo[i]], [hi[i]], v)
+    idx = [i for i, j in enumerate(names) if j not in locked]
+    for key, values in (free or {}).items():
+        if values and len(values) == len(idx):
+            listed = [float(v) for v in values]
+            _outside(key, listed, [names[i] for i in idx], [lo[i] for i in idx], [hi[i] for i in idx], listed)
+
+
 def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
-    """The robot of `cfg` (the packaged URDF of `cfg.name` when `cfg.urdf` is empty), its box
-    checked against the URDF's joint limits. A robot.urdf that is missing (FileNotFoundError) or
+    """The robot of `cfg` (the packaged URDF of `cfg.name` when `cfg.urdf` is empty), its box, home
+    and locked values checked against the URDF's joint limits. A robot.urdf that is missing (FileNotFoundError) or
     no regular file (ValueError: a directory, FIFO or device, named as such) is refused unread."""
     path = Path(cfg.urdf) if cfg.urdf else urdf_path(cfg.name)
     try:
@@ -198,6 +243,8 @@ def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
         cfg.name,
     )
     _check_box(robot, str(path))
+    names = robot.chain.get_joint_parameter_names()
+    check_joint_values(cfg.locked, names, *joint_limits(robot.chain), {"robot.home": list(cfg.home)})
     return robot
 
 
@@ -262,6 +309,7 @@ def robot_from_record(record: dict, device: str = "cpu") -> Robot:
         record.get("name", ""),
     )
     _check_box(robot, "robot entry")
+    check_joint_values(robot.locked, robot.chain.get_joint_parameter_names(), *joint_limits(robot.chain))
     names = record.get("joint_names")
     if names is not None and list(names) != robot.joint_names:
         raise ValueError(

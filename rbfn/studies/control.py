@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,7 @@ def evaluate_control(
     label = robot_label(robot.name, source)
     res = compare_controllers(cfg, gains, device, setup=setup, loop=loop, progress=progress)
     metrics = {name: run.metrics for name, run in res.runs.items()}
+    limits, undefined = torque_limits(setup, loop, metrics)
     gain_record: dict[str, Any] = {
         k: (str(v) if not isinstance(v, (int, float)) else v) for k, v in vars(gains).items()
     }
@@ -58,6 +60,7 @@ def evaluate_control(
         "gains": gain_record,
         "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
         "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()},
+        "torque_limits": limits,
     }
     tuned = {n: r.tuned for n, r in res.runs.items() if r.tuned is not None}
     if tuned:  # the closed-loop tuning: the cost each network reached on the tuning's scenarios
@@ -82,7 +85,8 @@ def evaluate_control(
         for case, m in cases.items():
             for key, vals in m.items():
                 for j, v in enumerate(vals):
-                    writer.add_scalar(f"control/{name}/{case}/{key}_j{j + 1}", v)
+                    if v is not None:  # (no torque limit on that joint)
+                        writer.add_scalar(f"control/{name}/{case}/{key}_j{j + 1}", v)
     # The second half of the figures is drawn in a forked process beside this one where it can be
     # (rbfn.studies.beside), with a TensorBoard writer of its own.
     names = list(metrics)
@@ -91,8 +95,40 @@ def evaluate_control(
     with Beside(_figures, res, names[half:], label, cfg, gains, out_dir, None if fork else writer, fork=fork) as other:
         _figures(res, names[:half], label, cfg, gains, out_dir, writer)
         other.result()
-    log.info("%s", control_table(metrics, setup.units))
-    return {"control": metrics, "control_info": info}
+    log.info("%s", control_table(metrics, setup.units, setup.joint_names))
+    out = {"control": metrics, "control_info": info}
+    return {**out, "undefined": undefined} if undefined else out
+
+
+def torque_limits(setup: ControlRobot, loop: LoopConfig | None, metrics: dict) -> tuple[list, dict[str, str]]:
+    """(control_info's `torque_limits`: per joint the effort limit the realistic loop saturated
+    the torque at, N m (N), or None where it had none; metrics.json's `undefined` entries naming
+    why). A joint without a limit (the URDF gives none, or the loop applies none:
+    `loop.torque_limits=false`) never saturates, so its `saturated` entries in `metrics` are set to
+    None (undefined: not 0 %) in place."""
+    limited = loop is not None and not loop.ideal and loop.torque_limits
+    effort = setup.effort or [math.inf] * setup.n
+    limits = [e if limited and math.isfinite(e) else None for e in effort]
+    why = [
+        "the realistic loop applies no torque limit (loop.torque_limits=false)"
+        if not limited
+        else f"{setup.joint_names[j]} has no effort limit in the URDF (none given, or 0)"
+        for j in range(setup.n)
+    ]
+    undefined: dict[str, str] = {}
+    if loop is None or loop.ideal:
+        return limits, undefined  # the ideal loop records no saturation
+    for j, e in enumerate(limits):
+        if e is None:
+            undefined[f"control_info.torque_limits[{j}]"] = why[j]
+    for name, cases in metrics.items():
+        for case, m in cases.items():
+            if "saturated" in m:
+                for j, e in enumerate(limits):
+                    if e is None:
+                        m["saturated"][j] = None
+                        undefined[f"control.{name}.{case}.saturated[{j}]"] = why[j]
+    return limits, undefined
 
 
 def held_out(metrics: dict, name: str) -> float | None:
@@ -150,18 +186,22 @@ def _figure(
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
 
-def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> str:
+def control_table(
+    metrics: dict, units: list[tuple[str, str]] | None = None, joint_names: list[str] | None = None
+) -> str:
     """RMS error per joint (t > 0.5 s), max error of the last joint in the payload window, peak
-    torques; in the realistic loop the largest share of time a joint spent saturated, where
+    torques; in the realistic loop the largest share of time a joint with a torque limit spent
+    saturated ("no limit" where no joint has one: `saturated` None, `torque_limits`), where
     `smc_exact` ran the smallest share of the smc -> smc_exact gap closed over the joints, and the
-    largest share of time a joint spent beyond its URDF position limit."""
+    largest share of time a joint spent beyond its URDF position limit. `joint_names` name the
+    joints without a limit below the table."""
     units = units or [("rad", "N m"), ("rad", "N m"), ("m", "N")]
     n = len(units)
     pos = ", ".join(f"e{j + 1}" for j in range(n)) + " [" + ", ".join(u for u, _ in units) + "]"
     tq = "peak |tau| [" + ", ".join(u for _, u in units) + "]"
     last = f"max e{n} window [{units[-1][0]}]"
     first: dict = next(iter(next(iter(metrics.values())).values()), {}) if metrics else {}
-    extra = ("  sat max" if "saturated" in first else "") + ("  gap min" if "gap_closure" in first else "")
+    extra = ("   sat max" if "saturated" in first else "") + ("  gap min" if "gap_closure" in first else "")
     extra += "  beyond limit" if "limit_breach" in first else ""
     lines = [f"{'controller':14s} {'case':>6s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}{extra}"]
     for name, cases in metrics.items():
@@ -170,10 +210,15 @@ def control_table(metrics: dict, units: list[tuple[str, str]] | None = None) -> 
             peak = " ".join(f"{v:8.1f}" for v in m["peak_tau"])
             row = f"{name:14s} {case:>6s}  {rms:>{10 * n}s}  {m['max_err_payload'][-1]:17.3e}  {peak:>{9 * n}s}"
             if "saturated" in m:
-                row += f"  {100 * max(m['saturated']):6.2f}%"
+                sat = [v for v in m["saturated"] if v is not None]
+                row += f"  {100 * max(sat):7.2f}%" if sat else "  no limit"
             if "gap_closure" in m:
                 row += f"  {min(m['gap_closure']):7.2f}"
             if "limit_breach" in m:
                 row += f"  {100 * max(m['limit_breach']):12.2f}%"
             lines.append(row)
+    unlimited = [j for j, v in enumerate(first.get("saturated", [])) if v is None]
+    if unlimited:
+        names = [joint_names[j] if joint_names else f"joint {j + 1}" for j in unlimited]
+        lines.append(f"sat max: over the joints with a torque limit; no limit on {names} (never counted as saturated)")
     return "\nClosed loop\n" + "\n".join(lines)

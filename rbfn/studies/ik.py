@@ -51,12 +51,16 @@ def _weights_from(cfg: TrainConfig, ridge) -> str:
 
 def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: Dataset) -> dict:
     """metrics.json of a training run: test accuracy in float64 and float32, raw and polished, E
-    against M, times."""
+    against M, times; `selector` the configured preset (`centers.name`), `centers_chosen_by` the
+    method that actually chose the final network's centres (`kmeans` where the `aco` colony skipped
+    itself or searched widths only) and `selection_note` why it differs (null where it does not)."""
     acc, _, _ = ik_metrics_both(result.model, robot, data.test.x, data.test.q)
     acc.update(polished_metrics(result.model, robot, data.test.x))
     return {
         "num_centers": result.model.num_centers,
         "selector": cfg.centers.name,
+        "centers_chosen_by": result.chosen_by or str(cfg.centers.method),
+        "selection_note": result.selection_note or None,
         "target": str(robot.target),
         **acc,
         "val_E": 0.5 * float(result.fit.val_mse),

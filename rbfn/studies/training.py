@@ -75,12 +75,13 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         states.save(state)
     log.info(
         "M = %d, test position error median %.3f mm, p95 %.3f mm, max %.3f mm (float32 median %.3f mm); "
-        "selection %.1f s, total %.1f s -> %s",
+        "centres chosen by %s, selection %.1f s, total %.1f s -> %s",
         metrics["num_centers"],
         metrics["test_pos_err_mm_median"],
         metrics["test_pos_err_mm_p95"],
         metrics["test_pos_err_mm_max"],
         metrics["test_pos_err_mm_median_float32"],
+        metrics.get("centers_chosen_by", cfg.centers.method),  # (a finished run's metrics from before it)
         metrics["select_seconds"],
         metrics["train_seconds"],
         out_dir,

@@ -90,6 +90,9 @@ def test_a_singular_middle_moves_the_home_off_it_and_a_given_singular_home_is_wa
     assert not any("singular" in m for m in caplog.messages)
     with pytest.raises(ValueError, match=r"robot\.rated_payload: no joint is both loaded"):
         derive_train(compose_config("train", *scara, "robot.gravity=0"))
+    with pytest.raises(ValueError, match=r"robot\.home=\[1\.0, 1\.0, 2\.5\] is not allowed: joint joint3 at 2\.5 lies "
+                       r"outside its URDF limits \[0, 2\]"):  # fmt: skip
+        derive_train(compose_config("train", *scara, "robot.home=[1.0,1.0,2.5]"))
 
 
 def test_an_arm_pointing_straight_up_at_the_middle_of_its_limits_gets_a_home_it_can_learn_and_carry_from():
@@ -207,3 +210,32 @@ def test_train_then_evaluate_a_urdf_arm(tmp_path):
             for m in cases.values():
                 assert all(math.isfinite(t) and t <= e + 1e-9 for t, e in zip(m["peak_tau"], effort)), m["peak_tau"]
     assert metrics["control_info"]["loop"]["encoder_counts"] == [float(ENCODER_COUNTS)] * 6
+
+
+def test_an_arm_whose_inertials_are_unusable_trains_its_ik_with_a_warning(tmp_path, caplog):
+    """The IK needs no dynamics: a URDF whose last link has no mass (M(q) singular) still derives
+    every key, the warning naming the joint and saying the closed loop will refuse the arm; the
+    rated payload is not derived from meaningless gravity torques (0 kg, said why)."""
+    from rbfn.robots.kinematics import urdf_path
+
+    text = urdf_path("ur5").read_text().replace('<mass value="0.1879"/>', '<mass value="0"/>')
+    text = text.replace(
+        'ixx="0.00039459" ixy="0" ixz="0" iyy="0.00039459" iyz="0" izz="0.00033822"',
+        'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"',
+    )
+    (tmp_path / "arm.urdf").write_text(text)
+    with caplog.at_level(logging.INFO, logger="rbfn.robots.derive"):
+        cfg = derive_train(
+            compose_config("train", "robot=urdf", f"robot.urdf={tmp_path / 'arm.urdf'}", "robot.end_link=ee_link")
+        )
+    assert cfg.robot.rated_payload == 0.0 and len(cfg.robot.home) == 6
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any(
+        "the closed loop (evaluate.py's control part) cannot simulate this arm's dynamics and will refuse it; the IK "
+        "needs none and trains: joint 'wrist_3_joint' moves no mass or inertia" in m
+        for m in warned
+    ), warned
+    assert (
+        "robot.rated_payload = 0 kg (not derived: the URDF's inertials are unusable for dynamics (above))"
+        in caplog.messages
+    )

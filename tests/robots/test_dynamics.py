@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
+import re
 import reprlib
 from pathlib import Path
 
@@ -361,6 +362,91 @@ def test_loader_errors():
         load_arm("no_such_robot")
     with pytest.raises(TypeError, match=r"urdf=42 is a int; allowed: a pathlib\.Path"):
         load_arm(42, TEST_END)
+
+
+_UR5_WRIST3 = 'ixx="0.00039459" ixy="0" ixz="0" iyy="0.00039459" iyz="0" izz="0.00033822"'
+_UR5_FOREARM = 'ixx="0.004194" ixy="0" ixz="0" iyy="0.050638666667" iyz="0" izz="0.050638666667"'
+_UR5_BASE = 'ixx="0.004433333333" ixy="0" ixz="0" iyy="0.004433333333" iyz="0" izz="0.0072"'
+_NO_INERTIA = 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'
+
+
+@pytest.mark.parametrize(
+    "changes,message",
+    [
+        (  # the last link massless: its joint moves nothing, M(q) is singular
+            [('<mass value="0.1879"/>', '<mass value="0"/>'), (_UR5_WRIST3, _NO_INERTIA)],
+            r"joint 'wrist_3_joint' moves no mass or inertia: the mass matrix M\(q\) is singular .*"
+            r"\['wrist_3_link', 'tool0', 'ee_link'\]",
+        ),
+        (  # a URDF without inertials
+            [("<inertial>", "<!--"), ("</inertial>", "-->")],
+            r"joint 'shoulder_pan_joint' moves no mass or inertia",
+        ),
+        (
+            [(_UR5_FOREARM, _UR5_FOREARM.replace('ixx="0.004194"', 'ixx="-0.004194"'))],
+            r"link 'forearm_link' has an <inertia> with principal moments \[-0.004194, 0.05064, 0.05064\] kg m\^2, "
+            r"one below 0 \(not positive semi-definite\) \(the body that joint 'elbow_joint' moves\); allowed: "
+            r"principal moments >= 0, each at most the sum of the other two",
+        ),
+        (
+            [(_UR5_FOREARM, _UR5_FOREARM.replace('izz="0.050638666667"', 'izz="0.5"'))],
+            r"link 'forearm_link' has an <inertia> with .* the largest above the sum of the other two",
+        ),
+        (
+            [('<mass value="2.33"/>', '<mass value="1e30"/>')],
+            r"link 'forearm_link' \(moved by joint 'elbow_joint'\) has mass 1e\+30 kg; allowed: a mass in "
+            r"\[0, 1e\+06\] kg",
+        ),
+        ([('<mass value="2.33"/>', '<mass value="-2.33"/>')], r"link 'forearm_link' .* has mass -2.33 kg"),
+    ],
+)
+def test_unusable_inertials_are_named_and_no_closed_loop_runs_on_them(changes, message):
+    """What the closed loop cannot simulate is named, link or joint, value and what is allowed:
+    `Arm.problems`; ArmPlant and the control part refuse it before any step (no raw `linalg`
+    error halfway through), while the kinematics still load."""
+    from rbfn.config import ControlConfig, RobotConfig
+    from rbfn.control.plants import ArmPlant
+    from rbfn.control.robot_setup import control_robot
+    from rbfn.robots.kinematics import load_serial_chain
+
+    text = read_urdf(urdf_path("ur5"))
+    for old, new in changes:
+        assert old in text
+        text = text.replace(old, new)
+    arm = load_arm(text, "ee_link")
+    assert len(arm.problems) >= 1 and re.search(message, arm.problems[0]), arm.problems
+    with pytest.raises(ValueError, match="ArmPlant cannot simulate this arm's dynamics: " + message):
+        ArmPlant(arm)
+    robot = RobotConfig(name="ur5", end_link="ee_link", target="pose", joint_low=[-1.0] * 6, joint_high=[1.0] * 6)
+    with pytest.raises(ValueError, match="the closed loop cannot simulate this arm's dynamics: " + message):
+        control_robot(robot, ControlConfig(), urdf_text=text)
+    load_serial_chain(text, "ee_link")  # the IK needs none of it
+
+
+def test_massless_frames_and_unphysical_links_that_do_not_move_pass(monkeypatch, caplog):
+    """A massless base or tool frame, or a fixed-to-the-root link with an unphysical inertia, leave
+    M(q) positive definite: no problem (a root link's inertia is a note). Every shipped arm and
+    every example-robot-data arm of these tests passes."""
+    text = read_urdf(urdf_path("ur5"))
+    arm = load_arm(text.replace(_UR5_BASE, _UR5_BASE.replace('ixx="0.004433333333"', 'ixx="-1"')), "ee_link")
+    assert arm.problems == [] and len(arm.notes) == 1
+    assert arm.notes[0].startswith("link 'base_link' has an <inertia> with principal moments [-1.0,")
+    assert arm.notes[0].endswith("(fixed to the root: no dynamics use it)")
+    import logging
+
+    import rbfn.robots.dynamics as dynamics
+
+    monkeypatch.setattr(dynamics, "_WARNED", set())
+    with caplog.at_level(logging.WARNING):
+        arm.warn_notes(logging.getLogger("test"), "robot.urdf=ur5.urdf")
+        load_arm(text.replace(_UR5_BASE, _UR5_BASE.replace('ixx="0.004433333333"', 'ixx="-1"')), "ee_link").warn_notes(
+            logging.getLogger("test"), "again"
+        )  # the same URDF loaded again (the derivation, each check of the closed loop): said once
+    assert caplog.messages == ["robot.urdf=ur5.urdf: " + arm.notes[0]]
+    for name in ["scara", "ur5", "panda", "test_arm", *ERD]:
+        if name in ERD:
+            _erd_urdf(ERD[name][0])  # skips without example-robot-data
+        assert _arm(name).problems == [], name
 
 
 @pytest.mark.parametrize("kind", ["fifo", "file"])

@@ -581,11 +581,18 @@ def test_non_finite_or_absurd_urdf_numbers_are_named(old, new, message):
 
 
 def test_inertial_numbers_are_checked_where_the_dynamics_read_them():
+    """A negative mass is physics, not a number the kinematics need: the tree parses, and the
+    dynamics name it (rbfn.robots.dynamics.Arm.problems; tests/robots/test_dynamics.py)."""
     import re
 
+    from rbfn.robots.dynamics import load_arm
     from rbfn.robots.kinematics import urdf_tree
 
     text = re.sub(r'<mass value="[^"]*"', '<mass value="-2"', urdf_path("scara").read_text(), count=1)
     urdf_tree(text, "scara.urdf")  # kinematics drop the inertials
-    with pytest.raises(ValueError, match=r"<mass value=\"-2\"> of link '\w+': allowed is a mass >= 0 kg"):
-        urdf_tree(text, "scara.urdf", inertials=True)
+    urdf_tree(text, "scara.urdf", inertials=True)
+    assert load_arm(text, "quill").problems[0] == (
+        "link 'link1' (moved by joint 'joint1') has mass -2 kg; allowed: a mass in [0, 1e+06] kg"
+    )
+    with pytest.raises(ValueError, match=r"<inertia ixx=\"nan\".* of link 'link1': allowed are finite numbers"):
+        urdf_tree(text.replace('ixx="0"', 'ixx="nan"', 1), "scara.urdf", inertials=True)

@@ -200,3 +200,44 @@ def test_each_robot_has_its_paper_and_tuned_gains(robot, gains):
     paper = compose_config("evaluate", f"robot={robot}", "gains=paper").gains
     assert paper.K == 15.0 and paper.Lambda == 10.0 and str(paper.robust) == "sign"
     assert cfg.gains.Lambda <= 20
+
+
+def test_a_joint_without_a_torque_limit_is_never_reported_at_one(tmp_path):
+    """A URDF joint without an effort limit (none given, or 0) cannot saturate: its `saturated`
+    entries are null with the reason under `undefined`, `control_info.torque_limits` holds null for
+    it, and the table says "no limit" where no joint has one, never 0 %."""
+    import math
+    import re
+
+    from rbfn.config import LoopConfig, RobotConfig
+    from rbfn.control.robot_setup import control_robot
+    from rbfn.studies.control import control_table, torque_limits
+
+    setup = control_robot(RobotConfig(), ControlConfig())
+    setup.effort = [math.inf, 100.0, math.inf]
+    loop = LoopConfig(name="realistic", torque_limits=True)
+
+    def metrics() -> dict:
+        return {"pd": {"0kg": {"rms_err": [1e-3] * 3, "max_err_payload": [1e-3] * 3, "peak_tau": [1.0] * 3,
+                               "saturated": [0.0, 0.25, 0.0]}}}  # fmt: skip
+
+    m = metrics()
+    limits, undefined = torque_limits(setup, loop, m)
+    assert limits == [None, 100.0, None] and m["pd"]["0kg"]["saturated"] == [None, 0.25, None]
+    assert undefined["control.pd.0kg.saturated[0]"] == "joint1 has no effort limit in the URDF (none given, or 0)"
+    assert set(undefined) == {f"control.pd.0kg.saturated[{j}]" for j in (0, 2)} | {
+        f"control_info.torque_limits[{j}]" for j in (0, 2)
+    }
+    table = control_table(m, setup.units, setup.joint_names)
+    assert re.search(r"25\.00%", table) and "no limit on ['joint1', 'joint3']" in table
+    setup.effort = [math.inf] * 3  # no limit at all: "no limit", not 0 %
+    m = metrics()
+    assert torque_limits(setup, loop, m)[0] == [None] * 3
+    table = control_table(m, setup.units, setup.joint_names)
+    row = table.splitlines()[-2]
+    assert row.startswith("pd") and row.endswith("  no limit") and "%" not in row
+    setup.effort = [100.0] * 3  # limits in the URDF, but the loop applies none
+    m = metrics()
+    limits, undefined = torque_limits(setup, replace(loop, torque_limits=False, control_rate=500.0), m)
+    assert limits == [None] * 3 and "loop.torque_limits=false" in undefined["control.pd.0kg.saturated[1]"]
+    assert torque_limits(setup, LoopConfig(), metrics()) == ([None] * 3, {})  # the ideal loop: no saturation kept
