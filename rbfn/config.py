@@ -546,7 +546,7 @@ class TrainConfig:
     seed: int = 0
     device: str = "cpu"
     num_threads: int = 0  # torch threads; 0 leaves torch's default
-    progress: bool = True
+    progress: bool = True  # progress bars on a terminal; each part's "still running" line every 30 s (terminal and log)
     export: bool = True  # write ik.onnx and ik.pt2 next to checkpoint.pt
 
     def check(self) -> None:
@@ -1044,7 +1044,7 @@ class EvalConfig:
     # run side by side
     parallel: bool = True  # checkpoint parts, half the control figures in forked processes
     # (fork, CPU, >= 2 cores)
-    progress: bool = True  # each part's "still running" line every 30 s on a terminal
+    progress: bool = True  # each part's "still running" line every 30 s (terminal and log), with where it stands
     robot: RobotConfig = field(default_factory=RobotConfig)  # the control part's robot (IK: the checkpoint's)
     gains: GainsConfig = field(default_factory=GainsConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
