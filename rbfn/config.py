@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import typing
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
@@ -1207,12 +1208,15 @@ def finite(x: Any) -> bool:
 
 
 def validate_device(device: str, num_threads: int, prefix: str = "") -> None:
-    """`device` is cpu or an available cuda[:N]; `num_threads` >= 0."""
+    """`device` is cpu or an available cuda[:N]; `num_threads` in [0, MAX_THREADS_PER_CPU x the
+    machine's CPUs] (torch's thread pool crashes the process far above that: 100 000 segfaults)."""
+    most = MAX_THREADS_PER_CPU * (os.cpu_count() or 1)
     _need(
-        isinstance(num_threads, int) and num_threads >= 0,
+        isinstance(num_threads, int) and 0 <= num_threads <= most,
         f"{prefix}num_threads",
         num_threads,
-        "use 0 (torch's default) or a positive number of threads",
+        f"use 0 (torch's default) or a number of threads up to {most} ({MAX_THREADS_PER_CPU} x this machine's "
+        f"{os.cpu_count() or 1} CPUs)",
     )
     d = str(device)
     ok = d == "cpu" or d == "cuda" or (d.startswith("cuda:") and d[5:].isdigit())
@@ -1228,6 +1232,9 @@ def validate_device(device: str, num_threads: int, prefix: str = "") -> None:
         n = torch.cuda.device_count()
         if d.startswith("cuda:") and int(d[5:]) >= n:
             raise ValueError(f"{prefix}device={device!r}: only {n} CUDA device(s) (cuda:0..cuda:{n - 1})")
+
+
+MAX_THREADS_PER_CPU = 4  # num_threads' ceiling: more threads than that only contend for the CPUs
 
 
 def _seed(key: str, seed: Any) -> None:

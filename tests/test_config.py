@@ -371,3 +371,15 @@ def test_the_closed_loop_checks_the_box_against_the_urdf_limits_too():
         ValueError, match=re.escape("robot.joint_high=[2.0, 3.0, 1.5] is not allowed: joint joint2 at 3")
     ):
         check_control(cfg.control, cfg.robot)
+
+
+def test_num_threads_beyond_what_the_machine_can_run_is_refused():
+    """torch's thread pool crashed the process (a segfault) at num_threads=100000."""
+    import os
+
+    from rbfn.config import MAX_THREADS_PER_CPU, validate_device
+
+    most = MAX_THREADS_PER_CPU * (os.cpu_count() or 1)
+    validate_device("cpu", most)
+    with pytest.raises(ValueError, match=rf"num_threads=100000 is not allowed: .* up to {most} "):
+        validate_device("cpu", 100_000)

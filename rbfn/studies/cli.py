@@ -44,7 +44,7 @@ __all__ = [
     "one_line_errors",
     "report_stop",
     "run_main",
-    "hydra_error",
+    "one_line",
     "settings",
 ]
 
@@ -80,7 +80,7 @@ def one_line_errors(enabled: bool = True):
     except REFUSALS as e:
         if not enabled or FULL_ERROR:
             raise
-        _say(f"error: {e}", getattr(e, "__notes__", ()))
+        _say(f"error: {one_line(e)}", getattr(e, "__notes__", ()))
         sys.exit(1)
 
 
@@ -99,7 +99,7 @@ def run_main(main: Callable[[], Any]) -> None:
         except (HydraException, OmegaConfBaseException) as e:
             if FULL_ERROR:
                 raise
-            _say(f"error: {hydra_error(e)}", getattr(e, "__notes__", ()))
+            _say(f"error: {one_line(e)}", getattr(e, "__notes__", ()))
             sys.exit(1)
 
 
@@ -128,10 +128,10 @@ def _unknown(node: Any, obj: Any, prefix: str = "") -> list[str]:
     return extra
 
 
-def hydra_error(e: BaseException) -> str:
-    """One line for an error Hydra or OmegaConf raised while composing the config: its message,
-    then its cause's first line (what was wrong with the value), options listed inline, without
-    the search path and the schemas' internal entries."""
+def one_line(e: BaseException) -> str:
+    """`e`'s message in one line: its lines joined by '; ' (an OmegaConf error's full_key and
+    object_type, Hydra's options listed inline, without the search path and the schemas' internal
+    entries), then its cause's first line (for Hydra: what was wrong with the value)."""
     if isinstance(e, OverrideParseException):
         return (
             f"cannot parse the override {e.override!r}; quote a value holding spaces or other special "
@@ -152,7 +152,7 @@ def hydra_error(e: BaseException) -> str:
             listing = line.endswith(":")
     text = "; ".join(part.rstrip(".") for part in parts)
     cause = e.__cause__
-    if cause is not None and str(cause).strip():
+    if isinstance(e, HydraException) and cause is not None and str(cause).strip():
         text += f": {str(cause).strip().splitlines()[0]}"
     return text
 

@@ -40,6 +40,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from tensorboard.compat.proto.summary_pb2 import Summary
 
 from ..files import atomic_write_bytes
@@ -291,14 +292,19 @@ class MadeRunDir(Callback):
     Hydra's traceback (with HYDRA_FULL_ERROR=1, the traceback)."""
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        _make_or_exit("hydra.run.dir", config.hydra.run.dir)
+        _make_or_exit(config, "run")
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        _make_or_exit("hydra.sweep.dir", config.hydra.sweep.dir)
+        _make_or_exit(config, "sweep")
 
 
-def _make_or_exit(key: str, value: str) -> None:
-    path = Path(str(value))
+def _make_or_exit(config: DictConfig, mode: str) -> None:
+    key = f"hydra.{mode}.dir"
+    try:
+        value = str(config.hydra[mode].dir)
+    except OmegaConfBaseException:
+        return  # an interpolation that does not resolve: Hydra's own error, in one line (run_main)
+    path = Path(value)
     try:
         path.mkdir(parents=True, exist_ok=True)
         return

@@ -232,13 +232,14 @@ def test_ctrl_c_to_train_is_one_line_and_keeps_the_state_to_resume(tmp_path):
             "error: rbfn.num_centres is not a setting of this command (misspelt?); --help lists the config groups, "
             "--cfg job every key",
         ),
+        ("hydra.run.dir=${foo}", "error: Interpolation key 'foo' not found; full_key: hydra.run.dir"),
     ],
-    ids=["type", "unknown key", "unknown option", "unparsable", "added key"],
+    ids=["type", "unknown key", "unknown option", "unparsable", "added key", "interpolation"],
 )
 def test_hydras_own_errors_and_added_keys_are_one_line(tmp_path, override, message):
     """What Hydra refuses while composing (printed with a traceback by Hydra itself) is one line too,
     and a key the schema lacks, which Hydra adds with +, is refused instead of silently dropped."""
-    r = _run("train.py", override, f"hydra.run.dir={tmp_path / 'run'}", env={"HYDRA_FULL_ERROR": "0"})
+    r = _run("train.py", f"hydra.run.dir={tmp_path / 'run'}", override, env={"HYDRA_FULL_ERROR": "0"})
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 1 and len(lines) == 1 and lines[0].startswith(message), r.stderr
     assert not (tmp_path / "run").exists()
