@@ -138,8 +138,11 @@ def test_rows_in_blocks_match_one_piece(monkeypatch):
     net.block_rows = 16
     with torch.no_grad():
         out = (net(x), net.solve(x), net.in_workspace(x), net.design(x), net.features(x))
-    assert torch.equal(out[0], ref[0]) and torch.equal(out[1][0], ref[1][0]) and torch.equal(out[1][1], ref[1][1])
-    assert torch.equal(out[2], ref[2]) and torch.equal(out[3], ref[3]) and torch.equal(out[4], ref[4])
+    # Equal up to the matrix products' rounding, which BLAS may take differently for 16 rows than
+    # for 50 (the flags, from the same exponents, equal).
+    for a, b in ((out[0], ref[0]), (out[1][0], ref[1][0]), (out[3], ref[3]), (out[4], ref[4])):
+        torch.testing.assert_close(a, b, rtol=1e-13, atol=1e-13)
+    assert torch.equal(out[1][1], ref[1][1]) and torch.equal(out[2], ref[2])
     assert max(calls) == 16 and not ref[2].all() and ref[2].any()
     # solve takes the exponents once per block, for the features and the workspace test alike.
     calls.clear()
