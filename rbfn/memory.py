@@ -69,13 +69,14 @@ def _size(n: float) -> str:
     return f"{n:.3g} EiB"
 
 
-def check_fits(key: str, value, need: float, device: str = "cpu", what: str = "") -> None:
+def check_fits(key: str, value, need: float, device: str = "cpu", what: str = "", advice: str = "") -> None:
     """ValueError naming `key`=`value` when `need` bytes (a lower bound, described by `what`)
-    exceed the memory available on `device` (the host's memory for "cpu")."""
+    exceed the memory available on `device` (the host's memory for "cpu"); it ends with `advice`
+    (default: use a smaller `key`)."""
     have = available_bytes(device)
     if have is not None and need > have:
         where = "this machine's available memory" if str(device) == "cpu" else f"the free memory of {device}"
         raise ValueError(
             f"{key}={value!r} needs at least {_size(need)}{f' ({what})' if what else ''}, "
-            f"more than {where} ({_size(have)}); use a smaller {key}"
+            f"more than {where} ({_size(have)}); {advice or f'use a smaller {key}'}"
         )
