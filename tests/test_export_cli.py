@@ -59,7 +59,7 @@ def _files(folder):
 
 def test_a_missing_or_bad_checkpoint_is_one_line(tmp_path, capsys, fake_export):
     assert f"CHECKPOINT {tmp_path / 'nope.pt'}: no such file" in _error_line(capsys, tmp_path / "nope.pt")
-    assert f"CHECKPOINT {tmp_path}: is a directory" in _error_line(capsys, tmp_path)
+    assert f"CHECKPOINT: {tmp_path} is a directory, not a checkpoint" in _error_line(capsys, tmp_path)
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     err = _error_line(capsys, tmp_path / "junk.pt")
     assert f"CHECKPOINT: {tmp_path / 'junk.pt'} is not a readable checkpoint (truncated or corrupted?)" in err
