@@ -12,6 +12,14 @@ import rbfn.files
 from rbfn.files import file_kind, signals_raised, unwritable, write_files
 
 
+@pytest.fixture(autouse=True)
+def _sigint_raises_keyboard_interrupt():
+    """SIGINT as Python sets it, whatever handler an earlier test left (rbfn.studies.stop's)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _interrupt_on_first_replace(monkeypatch):
     """os.replace that sends this process SIGINT (Ctrl-C) as it renames the first file."""
     replace = os.replace
