@@ -202,7 +202,8 @@ def local_file(path: str | os.PathLike[str], what: str = "checkpoint") -> Path:
     directory, FIFO, device, socket or dangling link, each named; FileNotFoundError where nothing is."""
     if not isinstance(path, (str, os.PathLike)) or isinstance(os.fspath(path), bytes):
         raise TypeError(
-            f"{what} path {reprlib.repr(path)} is a {type(path).__name__}; expected a file path (str or pathlib.Path)"
+            f"{what} path {reprlib.repr(path)} is of type {type(path).__name__}; "
+            "expected a file path (str or pathlib.Path)"
         )
     refuse_url(path, str(path))
     if not os.fspath(path):
@@ -210,7 +211,8 @@ def local_file(path: str | os.PathLike[str], what: str = "checkpoint") -> Path:
     path = Path(path)
     kind = file_kind(path)
     if kind is None:
-        raise FileNotFoundError(f"no {what} at {path}")
+        unexpanded = " (~ is not expanded: give the full path)" if str(path).startswith("~") else ""
+        raise FileNotFoundError(f"no {what} at {path}{unexpanded}")
     if kind:
         raise ValueError(f"{path} is {kind}, not a {what}: a {what} is a regular file")
     return path
@@ -301,7 +303,7 @@ def load_sealed(path: str | os.PathLike[str], what: str = "checkpoint", advice: 
         held = t.untyped_storage().nbytes() // t.element_size()
         raise ValueError(
             f"{path}: {where} declares shape {tuple(t.shape)} ({t.numel():,} values, "
-            f"{t.numel() * t.element_size() / 2**30:.3g} GiB), but the file holds {held:,} "
+            f"{t.numel() * t.element_size():,} bytes), but the file holds {held:,} "
             f"value{'s' * (held != 1)} for it (an expanded or overlapping tensor); aco-rbfn writes every value "
             f"of a tensor, so it did not write this file. {advice}"
         )

@@ -226,10 +226,17 @@ def load_pt2(path: str | os.PathLike[str], extra_files: dict[str, Any] | None = 
         return torch.export.load(io.BytesIO(original), extra_files=extra_files)
 
 
+def _local(path: str | os.PathLike[str], name: str) -> Path:
+    """`path` as a Path, refused where it is a URL (as a path, its "//" would fold into a local name)."""
+    refuse_url(path, f"{name}={path}")
+    return Path(path)
+
+
 def export_pt2(net: RBFNetwork, path: str | Path, *, robot: Robot | None = None, base_yaw: bool = True) -> Path:
     """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
-    write_files({Path(path): pt2_bytes(net, robot=robot, base_yaw=base_yaw)})
-    return Path(path)
+    path = _local(path, "path")
+    write_files({path: pt2_bytes(net, robot=robot, base_yaw=base_yaw)})
+    return path
 
 
 @contextlib.contextmanager
@@ -264,8 +271,9 @@ def export_onnx(
     """Write a single-file ONNX model (input "positions" (B, 3) or "poses" (B, 7), outputs "joints",
     "in_workspace") that runs the rows in blocks of `block_rows` (default `net.rows_per_block`),
     atomically; its `metadata(net, robot)` in the model's metadata_props."""
-    write_files({Path(path): onnx_bytes(net, block_rows, robot=robot, base_yaw=base_yaw)})
-    return Path(path)
+    path = _local(path, "path")
+    write_files({path: onnx_bytes(net, block_rows, robot=robot, base_yaw=base_yaw)})
+    return path
 
 
 def onnx_bytes(
@@ -414,7 +422,7 @@ def export_all(
     before either is written, and written all or none, so a failure leaves the old files as they were.
     A stop signal while they are built (Ctrl-C: KeyboardInterrupt) writes nothing, even where torch's
     exporter swallowed its exception (`rbfn.files.signals_raised`)."""
-    out_dir = Path(out_dir)
+    out_dir = _local(out_dir, "out_dir")
     with signals_raised():
         files = {
             out_dir / f"{stem}.onnx": onnx_bytes(net, robot=robot, base_yaw=base_yaw),
@@ -485,6 +493,7 @@ def main(argv: list[str] | None = None) -> None:
             )
     except (KeyboardInterrupt, Stopped) as e:
         signum = e.signum if isinstance(e, Stopped) else signal.SIGINT
+        signal.signal(signum, signal.SIG_IGN)  # ending now: a second Ctrl-C would cut the exit short (as stop's)
         written = bool(targets) and all(_identity(t) != b for t, b in zip(targets, before))
         what = (
             f"{targets[0]} and {targets[1]} were written (the signal came as they were renamed)"

@@ -556,7 +556,7 @@ for load in (read_checkpoint, load_model, load_solver):
     assert all(
         line.startswith(
             f"ValueError: {path}: state_dict centers declares shape (2000000000, 3) (6,000,000,000 values, "
-            "44.7 GiB), but the file holds 1 value for it (an expanded or overlapping tensor)"
+            "48,000,000,000 bytes), but the file holds 1 value for it (an expanded or overlapping tensor)"
         )
         for line in lines
     ), out
@@ -625,7 +625,9 @@ def test_what_is_not_a_checkpoint_file_is_named(tmp_path):
             load_model(path)
     with pytest.raises(ValueError, match=r"an empty path names no checkpoint"):
         load_model("")
-    with pytest.raises(TypeError, match=r"checkpoint path 42 is a int; expected a file path"):
+    with pytest.raises(FileNotFoundError, match=r"no checkpoint at ~/nowhere.pt \(~ is not expanded: give the full"):
+        load_model("~/nowhere.pt")
+    with pytest.raises(TypeError, match=r"checkpoint path 42 is of type int; expected a file path"):
         load_model(42)
 
 

@@ -24,9 +24,11 @@ def _signals_as_python_sets_them(monkeypatch):
     handlers would stay for the rest of the session); SIGINT raises KeyboardInterrupt. The commands
     run as processes below use the real ones."""
     monkeypatch.setattr(rbfn.export, "stop_on_signals", lambda: None)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
-    signal.signal(signal.SIGINT, previous)
+    for s, handler in previous.items():
+        signal.signal(s, handler)
 
 
 @pytest.fixture()
@@ -237,6 +239,7 @@ def test_ctrl_c_writes_nothing_and_says_so_in_one_line(ckpt, capsys, monkeypatch
         "were left as they were\n"
     )
     assert _files(ckpt.parent) == {"checkpoint.pt": ckpt.read_bytes(), "ik.onnx": b"old onnx"}
+    assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # a second Ctrl-C cannot cut its exit short
 
 
 def test_ctrl_c_as_the_files_are_renamed_writes_both_and_says_so(ckpt, capsys, monkeypatch, fake_export):
