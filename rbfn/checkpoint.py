@@ -63,6 +63,7 @@ _UNBOUNDED = {
 }
 _ADVICE = "Re-run training or restore the file from a copy."
 MAX_SEALED_BYTES = 2 << 30  # read whole before unpickling: a larger file is refused before it is read
+MAX_PICKLE_BYTES = 64 << 20  # a sealed file's data.pkl: the URDF text (at most 16 MiB), config, metrics
 
 
 _SEAL = b"aco-rbfn-sha256:"
@@ -218,15 +219,27 @@ def local_file(path: str | os.PathLike[str], what: str = "checkpoint") -> Path:
     return path
 
 
-def _packed_record(data: bytes) -> zipfile.ZipInfo | None:
-    """A compressed record of zip archive `data`, if it has one: torch.load would inflate it
-    (up to about 1000 times its size) before anything could check it. torch.save stores every
-    record uncompressed."""
+def _record_problem(data: bytes, what: str) -> str | None:
+    """What is wrong with the records of zip archive `data` before torch.load reads them, if
+    anything: a compressed record (torch.load would inflate it, up to about 1000 times its size,
+    before anything could check it; torch.save stores every record whole), or a pickle (data.pkl)
+    larger than MAX_PICKLE_BYTES (unpickling can make some 70 bytes of objects of each of its bytes)."""
     try:
         infos = zipfile.ZipFile(io.BytesIO(data)).infolist()
     except Exception:  # noqa: BLE001 - a damaged directory: torch.load reports it
         return None
-    return next((i for i in infos if i.compress_type != zipfile.ZIP_STORED), None)
+    for i in infos:
+        if i.compress_type != zipfile.ZIP_STORED:
+            return (
+                f"its record {i.filename} is compressed ({i.compress_size} B inflating to {i.file_size} B); "
+                f"aco-rbfn stores every record of a {what} uncompressed, as torch.save does"
+            )
+        if i.filename.rpartition("/")[2] == "data.pkl" and i.file_size > MAX_PICKLE_BYTES:
+            return (
+                f"its pickled part {i.filename} holds {i.file_size} B; a {what}'s (its config, metrics and URDF text, "
+                f"the tensors apart) is at most MAX_PICKLE_BYTES = {MAX_PICKLE_BYTES} B"
+            )
+    return None
 
 
 def _overdeclared(obj: Any) -> tuple[str, torch.Tensor] | None:
@@ -268,13 +281,9 @@ def load_sealed(path: str | os.PathLike[str], what: str = "checkpoint", advice: 
     if export in (ONNX_MODEL, PT2_PROGRAM):
         raise ValueError(f"{path} is {export}, not a {what}: {_EXPORT_ADVICE}")
     data = unseal(data, path, what, advice)
-    packed = _packed_record(data)
-    if packed is not None:
-        raise ValueError(
-            f"{path}: its record {packed.filename} is compressed ({packed.compress_size} B inflating to "
-            f"{packed.file_size} B); aco-rbfn stores every record of a {what} uncompressed, "
-            f"as torch.save does, so it did not write this file. {advice}"
-        )
+    problem = _record_problem(data, what)
+    if problem:
+        raise ValueError(f"{path}: {problem}, so it did not write this file. {advice}")
     try:
         obj = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated or corrupted archives raise various errors

@@ -590,6 +590,18 @@ def test_a_compressed_record_is_refused_before_it_inflates(ckpt):
         load_model(path)
 
 
+def test_a_pickle_larger_than_a_checkpoints_is_refused_before_unpickling(ckpt, monkeypatch):
+    """Unpickling makes up to some 70 bytes of objects of each byte (an empty list of one opcode):
+    data.pkl, which holds no tensor, is bounded before it is unpickled."""
+    import rbfn.checkpoint
+
+    monkeypatch.setattr(rbfn.checkpoint, "MAX_PICKLE_BYTES", 1000)
+    with pytest.raises(
+        ValueError, match=rf"^{ckpt[0]}: its pickled part archive/data.pkl holds \d+ B; .* MAX_PICKLE_BYTES = 1000 B"
+    ):
+        load_model(ckpt[0])
+
+
 def test_a_network_too_large_for_memory_is_refused_naming_its_size(ckpt, monkeypatch):
     import rbfn.memory
 
