@@ -480,17 +480,18 @@ def main(argv: list[str] | None = None) -> None:
     targets: list[Path] = []
     before: list[tuple[int, int] | None] = []
     try:
-        targets = _checked_outputs(p, a)
-        before = [_identity(t) for t in targets]
-        net, robot = _network(p, a.checkpoint)
-        try:
-            export_all(net, targets[0].parent, robot=robot, base_yaw=not a.no_base_yaw)
-        except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
-            fail(
-                p,
-                f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
-                status=1,
-            )
+        with signals_raised():  # a signal's exception that torch swallowed or replaced: raised here
+            targets = _checked_outputs(p, a)
+            before = [_identity(t) for t in targets]
+            net, robot = _network(p, a.checkpoint)
+            try:
+                export_all(net, targets[0].parent, robot=robot, base_yaw=not a.no_base_yaw)
+            except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
+                fail(
+                    p,
+                    f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
+                    status=1,
+                )
     except (KeyboardInterrupt, Stopped) as e:
         signum = e.signum if isinstance(e, Stopped) else signal.SIGINT
         signal.signal(signum, signal.SIG_IGN)  # ending now: a second Ctrl-C would cut the exit short (as stop's)
