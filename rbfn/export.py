@@ -447,6 +447,8 @@ def _identity(path: Path) -> tuple[int, int] | None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    if signal.getsignal(signal.SIGINT) == signal.SIG_DFL:  # as rbfn/__init__.py set it for the imports
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     stop_on_signals()  # SIGTERM, SIGHUP (and SIGINT where rbfn.studies.stop handles it) raise Stopped
     p = argparse.ArgumentParser(
         prog="python -m rbfn.export",

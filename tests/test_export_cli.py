@@ -313,3 +313,23 @@ def test_a_closed_stdout_is_no_traceback(ckpt):
     err = proc.stderr.read().decode()
     assert proc.wait() == 0 and err == "", err
     assert (ckpt.parent / "ik.onnx").read_bytes() == b"onnx" and (ckpt.parent / "ik.pt2").read_bytes() == b"pt2"
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_the_imports_load_ends_at_once_without_a_traceback(ckpt):
+    """Before the command's main runs, Python imports the package (torch: seconds); Ctrl-C there
+    ends the process by SIGINT (status 130 in a shell), with nothing on stderr."""
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rbfn.export", str(ckpt)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal starts it
+    )
+    time.sleep(0.5)  # inside `import torch`
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate()
+    assert proc.returncode == -signal.SIGINT and err == b"", err.decode()
+    assert sorted(p.name for p in ckpt.parent.iterdir()) == ["checkpoint.pt"]
