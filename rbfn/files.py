@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import signal
 import stat
+import sys
 import tempfile
 import threading
 from collections.abc import Callable, Iterable, Iterator
@@ -122,7 +123,9 @@ def signals_raised(defer: bool = False) -> Iterator[list[int]]:
     raises (KeyboardInterrupt for SIGINT, rbfn.studies.stop's `Stopped`), even where a library
     swallowed it (it is raised again on leaving) or replaced it by another (torch's exporters: a
     KeyboardInterrupt raised in a callback from C++ can come back as a TypeError, and torch.onnx then
-    tries its next way to capture the model). Yields the signals that came, in order. With `defer`,
+    tries its next way to capture the model); one raised where Python ignores exceptions (a weakref
+    callback, __del__) is not printed as "Exception ignored", and is raised again on leaving too.
+    Yields the signals that came, in order. With `defer`,
     the first signal is handled only on leaving (a signal whose default is to end the process ends
     it then), so that the work inside is never cut in two. Python runs signal handlers in the main
     thread only: elsewhere nothing changes. A signal set to be ignored stays ignored."""
@@ -149,13 +152,21 @@ def signals_raised(defer: bool = False) -> Iterator[list[int]]:
         if not defer:
             handle(signum, frame)
 
+    hook = sys.unraisablehook
+
+    def unraisable(info) -> None:
+        if not any(info.exc_value is e for e in raised):
+            hook(info)
+
     for s in handled:
         signal.signal(s, note)
+    sys.unraisablehook = unraisable
     error: BaseException | None = None
     try:
         yield noted
     except BaseException as e:  # noqa: BLE001 - raised again below, or replaced by the signal's own
         error = e
+    sys.unraisablehook = hook
     for s in handled:
         signal.signal(s, previous[s])
     if defer and noted:

@@ -85,6 +85,26 @@ def test_a_stop_signal_is_never_swallowed_inside_signals_raised(library):
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is back
 
 
+def test_an_interrupt_python_ignores_is_raised_on_leaving_and_not_printed(monkeypatch):
+    """Raised in a weakref callback (or __del__), KeyboardInterrupt is "Exception ignored": Python
+    prints it (sys.unraisablehook) and goes on. Inside signals_raised it is neither printed nor lost."""
+    import sys
+    import weakref
+
+    class Thing:
+        pass
+
+    printed = []
+    monkeypatch.setattr(sys, "unraisablehook", printed.append)
+    after = []
+    with pytest.raises(KeyboardInterrupt), signals_raised():
+        thing = Thing()
+        ref = weakref.ref(thing, lambda _: signal.raise_signal(signal.SIGINT))
+        del thing  # the callback runs, and gets Ctrl-C
+        after.append(ref() is None)
+    assert after == [True] and printed == []
+
+
 def test_signals_raised_keeps_other_errors_and_changes_nothing_without_a_signal():
     with pytest.raises(ValueError, match="mine"), signals_raised() as noted:
         raise ValueError("mine")
