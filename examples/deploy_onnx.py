@@ -14,16 +14,65 @@ targets around the base (metadata "base_yaw": "true": arms whose first joint tur
 base's vertical axis), it also solves the first example turned 2 rad about the base, far outside
 the trained range of that joint, and prints the first joint's change (2 rad).
 
+Before onnxruntime sees the file, it is checked (`checked_model`): a regular file, an ONNX model
+rather than a checkpoint or .pt2 program, and its SHA-256 (the metadata entry "sha256", the
+file's SHA-256 with that value blank: 64 zeros in its place) matching, so a changed byte stops it
+with one line instead of giving other joints. rbfn.export.read_onnx does the same with the package.
+
 The exported model is the network alone (no robot model, so no polish): to polish its answer to
 0.1 mm / 0.1 deg or pick the solution nearest the robot's current joints (`near`), use the torch
 solver, `rbfn.load_solver(checkpoint).solve(targets, near=q)` (docs/deployment.md).
 """
 
+import hashlib
 import json
+import os
+import re
+import stat
 import sys
 
 import numpy as np
 import onnxruntime as ort
+
+# The metadata entry "sha256" as protobuf writes it (key, then a 64-byte value): the file's SHA-256,
+# computed with that value blank (64 zeros).
+CHECKSUM_ENTRY = b"\x0a\x06sha256\x12\x40"
+BLANK = b"0" * 64
+REEXPORT = "Export it again: python -m rbfn.export CHECKPOINT"
+
+
+def checked_model(path: str) -> bytes:
+    """The bytes of the exported ONNX model at `path`, checked; SystemExit with one line naming the
+    file when it is no regular file, another kind of file, damaged or without its checksum."""
+    if re.match(r"[A-Za-z][A-Za-z0-9+.-]*://", path):
+        sys.exit(f"{path} is a URL; this example reads a local file: download it first")
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as e:
+        sys.exit(f"{path}: {e.strerror}")
+    if not stat.S_ISREG(mode):
+        kinds = {stat.S_ISDIR: "a directory", stat.S_ISFIFO: "a FIFO (named pipe)", stat.S_ISCHR: "a character device"}
+        kind = next((name for test, name in kinds.items() if test(mode)), "not a regular file")
+        sys.exit(f"{path} is {kind}, not an ONNX model: give the ik.onnx file that train.py or rbfn.export wrote")
+    if os.path.getsize(path) > 2 << 30:
+        sys.exit(f"{path} holds more than 2 GiB, more than an ONNX model in one file can")
+    with open(path, "rb") as f:
+        data = f.read()
+    if data[:4] == b"PK\x03\x04":
+        sys.exit(
+            f"{path} is a zip archive (an aco-rbfn checkpoint.pt or ik.pt2 program), not an ONNX model: give the "
+            "ik.onnx exported beside it"
+        )
+    i = data.rfind(CHECKSUM_ENTRY)
+    at = i + len(CHECKSUM_ENTRY)
+    if i < 0 or len(data) < at + len(BLANK):
+        sys.exit(
+            f"{path} holds no sha256 checksum in its metadata: not an ONNX model exported by aco-rbfn, damaged, "
+            f"or exported before exports carried one. {REEXPORT}"
+        )
+    if hashlib.sha256(data[:at] + BLANK + data[at + len(BLANK) :]).hexdigest().encode() != data[at : at + len(BLANK)]:
+        sys.exit(f"{path} is corrupted: its bytes do not match the SHA-256 in its metadata. {REEXPORT}")
+    return data
 
 
 def turned(x: np.ndarray, angle: float) -> np.ndarray:
@@ -40,7 +89,7 @@ def turned(x: np.ndarray, angle: float) -> np.ndarray:
 
 
 def main(path: str) -> None:
-    session = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(checked_model(path), providers=["CPUExecutionProvider"])
     (inp,) = session.get_inputs()  # "positions" ["batch", 3] or "poses" ["batch", 7]
     meta = session.get_modelmeta().custom_metadata_map
     if "example_targets" not in meta:

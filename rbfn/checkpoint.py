@@ -13,14 +13,18 @@ from __future__ import annotations
 import hashlib
 import io
 import math
+import os
 import pickle
 import re
+import reprlib
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from .files import atomic_write_bytes
+from . import memory
+from .files import atomic_write_bytes, file_kind
 from .layer import MIN_WIDTH, RBFNetwork
 from .robots.robot import robot_from_record
 from .targets import TargetFeatures
@@ -29,10 +33,16 @@ __all__ = [
     "FORMAT_VERSION",
     "KIND",
     "MIN_WIDTH",
+    "ONNX_MODEL",
+    "PT2_PROGRAM",
+    "TORCH_ARCHIVE",
+    "file_format",
     "load_model",
     "load_sealed",
+    "local_file",
     "model_from_checkpoint",
     "read_checkpoint",
+    "refuse_url",
     "save_checkpoint",
     "save_sealed",
 ]
@@ -53,6 +63,7 @@ _UNBOUNDED = {
 }
 _ADVICE = "Re-run training or restore the file from a copy."
 MAX_SEALED_BYTES = 2 << 30  # read whole before unpickling: a larger file is refused before it is read
+MAX_PICKLE_BYTES = 64 << 20  # a sealed file's data.pkl: the URDF text (at most 16 MiB), config, metrics
 
 
 _SEAL = b"aco-rbfn-sha256:"
@@ -142,27 +153,139 @@ def _refused_global(message: str) -> str | None:
     return m.group(1) if m else None
 
 
-def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVICE) -> Any:
+_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://")
+# Where a file of an export is given to a checkpoint's reader: what to give instead.
+_EXPORT_ADVICE = (
+    "exports run without aco-rbfn (docs/deployment.md); rbfn.load_model, rbfn.load_solver, evaluate.py "
+    "and python -m rbfn.export read the checkpoint.pt they were exported from"
+)
+ONNX_MODEL = "an ONNX model (an export such as ik.onnx)"
+PT2_PROGRAM = "a torch.export program (an export such as ik.pt2)"
+TORCH_ARCHIVE = "a torch.save archive (a checkpoint such as checkpoint.pt)"
+
+
+def refuse_url(path: object, name: str) -> None:
+    """ValueError when `path`, as given (`name` names it in the message), is a URL: aco-rbfn reads
+    and writes files on disk only (as a path, a URL's "//" would fold into a local name)."""
+    if isinstance(path, str) and _URL.match(path):
+        raise ValueError(
+            f"{name} is a URL; aco-rbfn reads and writes local files only, never downloading or uploading: "
+            "give a local path (download the file first)"
+        )
+
+
+def file_format(data: bytes) -> str | None:
+    """Which of the files aco-rbfn writes `data` looks like, for messages: ONNX_MODEL, PT2_PROGRAM
+    (a zip archive naming its format "pt2"), TORCH_ARCHIVE (a zip archive with a data.pkl record);
+    None for anything else. A file can look like one and still be damaged: this only names it."""
+    if data[:4] == b"PK\x03\x04":
+        try:
+            with zipfile.ZipFile(io.BytesIO(data)) as z:
+                names = {n.rpartition("/")[2]: n for n in z.namelist()}
+                if "archive_format" in names and z.read(names["archive_format"]).strip() == b"pt2":
+                    return PT2_PROGRAM
+        except Exception:  # noqa: BLE001 - a damaged archive raises various errors; its reader reports it
+            return None
+        return TORCH_ARCHIVE if "data.pkl" in names else None
+    try:
+        import onnx
+
+        model = onnx.ModelProto()
+        model.ParseFromString(data)
+    except Exception:  # noqa: BLE001 - not protobuf (DecodeError), or no onnx installed
+        return None
+    return ONNX_MODEL if model.ir_version > 0 and model.HasField("graph") else None
+
+
+def local_file(path: str | os.PathLike[str], what: str = "checkpoint") -> Path:
+    """`path` as a Path, checked to name a regular file (or a link to one) before anything opens it:
+    TypeError for a value that is no path, ValueError for a URL (never fetched), an empty path, a
+    directory, FIFO, device, socket or dangling link, each named; FileNotFoundError where nothing is."""
+    if not isinstance(path, (str, os.PathLike)) or isinstance(os.fspath(path), bytes):
+        raise TypeError(
+            f"{what} path {reprlib.repr(path)} is of type {type(path).__name__}; "
+            "expected a file path (str or pathlib.Path)"
+        )
+    refuse_url(path, str(path))
+    if not os.fspath(path):
+        raise ValueError(f"an empty path names no {what}; give the {what} file's path")
+    path = Path(path)
+    kind = file_kind(path)
+    if kind is None:
+        unexpanded = " (~ is not expanded: give the full path)" if str(path).startswith("~") else ""
+        raise FileNotFoundError(f"no {what} at {path}{unexpanded}")
+    if kind:
+        raise ValueError(f"{path} is {kind}, not a {what}: a {what} is a regular file")
+    return path
+
+
+def _record_problem(data: bytes, what: str) -> str | None:
+    """What is wrong with the records of zip archive `data` before torch.load reads them, if
+    anything: a compressed record (torch.load would inflate it, up to about 1000 times its size,
+    before anything could check it; torch.save stores every record whole), or a pickle (data.pkl)
+    larger than MAX_PICKLE_BYTES (unpickling can make some 70 bytes of objects of each of its bytes)."""
+    try:
+        infos = zipfile.ZipFile(io.BytesIO(data)).infolist()
+    except Exception:  # noqa: BLE001 - a damaged directory: torch.load reports it
+        return None
+    for i in infos:
+        if i.compress_type != zipfile.ZIP_STORED:
+            return (
+                f"its record {i.filename} is compressed ({i.compress_size} B inflating to {i.file_size} B); "
+                f"aco-rbfn stores every record of a {what} uncompressed, as torch.save does"
+            )
+        if i.filename.rpartition("/")[2] == "data.pkl" and i.file_size > MAX_PICKLE_BYTES:
+            return (
+                f"its pickled part {i.filename} holds {i.file_size} B; a {what}'s (its config, metrics and URDF text, "
+                f"the tensors apart) is at most MAX_PICKLE_BYTES = {MAX_PICKLE_BYTES} B"
+            )
+    return None
+
+
+def _overdeclared(obj: Any) -> tuple[str, torch.Tensor] | None:
+    """The first tensor in `obj` (nested dicts, lists, tuples) that declares more values than its
+    data holds (an expanded, stride-0 view: small on disk, its full size once anything copies
+    it), or that is not dense; with where it is (its keys, space-separated)."""
+    todo: list[tuple[Any, str]] = [(obj, "")]
+    while todo:
+        item, where = todo.pop()
+        if isinstance(item, torch.Tensor):
+            if item.layout != torch.strided or item.numel() * item.element_size() > item.untyped_storage().nbytes():
+                return where, item
+        elif isinstance(item, dict):
+            todo.extend((v, f"{where} {k}".strip()) for k, v in reversed(item.items()))
+        elif isinstance(item, (list, tuple)):
+            todo.extend((v, f"{where} {i}".strip()) for i, v in reversed(list(enumerate(item))))
+    return None
+
+
+def load_sealed(path: str | os.PathLike[str], what: str = "checkpoint", advice: str = _ADVICE) -> Any:
     """What `save_sealed` wrote at `path` (weights-only unpickling); clear errors when damaged.
 
     `what` names the file's role and `advice` says what to do about a bad file, in messages;
     callers set them because the remedy differs (retrain for a checkpoint, delete a state).
+    Before anything is allocated for it, the file is checked to be a regular file of at most
+    MAX_SEALED_BYTES, none of aco-rbfn's exports, sealed, with its records stored uncompressed;
+    after unpickling (which makes tensors as views of the records' bytes), every tensor is
+    checked to be dense and to hold every value its shape declares.
     """
-    path = Path(path)
-    if not path.is_file():
-        if path.exists():
-            kind = "a directory" if path.is_dir() else "not a regular file (a device, FIFO or socket)"
-            raise ValueError(f"{path} is {kind}; a {what} is a file")
-        raise FileNotFoundError(f"no {what} at {path}")
+    path = local_file(path, what)
     size = path.stat().st_size
     if size > MAX_SEALED_BYTES:
         raise ValueError(
             f"{path} holds {size / 2**30:.3g} GiB; a {what} aco-rbfn writes is at most "
             f"{MAX_SEALED_BYTES / 2**30:g} GiB (tens of MB at M = 2000), so this is not one. {advice}"
         )
-    data = unseal(path.read_bytes(), path, what, advice)
+    data = path.read_bytes()
+    export = file_format(data)
+    if export in (ONNX_MODEL, PT2_PROGRAM):
+        raise ValueError(f"{path} is {export}, not a {what}: {_EXPORT_ADVICE}")
+    data = unseal(data, path, what, advice)
+    problem = _record_problem(data, what)
+    if problem:
+        raise ValueError(f"{path}: {problem}, so it did not write this file. {advice}")
     try:
-        return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        obj = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - truncated or corrupted archives raise various errors
         text = str(e)
         if isinstance(e, pickle.UnpicklingError) and ("Weights only" in text or "WeightsUnpickler" in text):
@@ -178,6 +301,22 @@ def load_sealed(path: str | Path, what: str = "checkpoint", advice: str = _ADVIC
         raise ValueError(f"{path} is not a readable {what} (truncated or corrupted?){detail}. {advice}") from (
             None if unsafe else e
         )
+    bad = _overdeclared(obj)
+    if bad is not None:
+        where, t = bad
+        if t.layout != torch.strided:
+            raise ValueError(
+                f"{path}: {where} is a {t.layout} tensor of shape {tuple(t.shape)}; aco-rbfn writes dense "
+                f"tensors only, so it did not write this file. {advice}"
+            )
+        held = t.untyped_storage().nbytes() // t.element_size()
+        raise ValueError(
+            f"{path}: {where} declares shape {tuple(t.shape)} ({t.numel():,} values, "
+            f"{t.numel() * t.element_size():,} bytes), but the file holds {held:,} "
+            f"value{'s' * (held != 1)} for it (an expanded or overlapping tensor); aco-rbfn writes every value "
+            f"of a tensor, so it did not write this file. {advice}"
+        )
+    return obj
 
 
 def _model_problem(ckpt: dict[str, Any]) -> str | None:
@@ -229,6 +368,16 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
             return f"state_dict {k} is {kind}; expected a floating-point tensor"
         if tuple(t.shape) != shape:
             return f"state_dict {k} has shape {tuple(t.shape)}, but model_args {a} give {shape}"
+    try:  # the network copies every tensor (in float64) before anything else runs
+        memory.check_fits(
+            "model_args num_centers",
+            m,
+            sum(t.numel() for t in sd.values()) * memory.FLOAT64,
+            what="the network's weights in float64",
+            advice="load it on a machine with more free memory",
+        )
+    except ValueError as e:
+        return str(e)
     for k, t in sd.items():
         bad = torch.isnan(t) | (torch.isinf(t) & (t != _UNBOUNDED.get(k, math.nan)))
         if bool(bad.any()):
@@ -255,8 +404,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """The checkpoint dict at `path`, checked for format, kind, shapes and finite weights, and its robot
     entry field by field (`robot_from_record`: the URDF text parses, never read as a file name), so
     a bad file fails here with a ValueError naming it and the field."""
+    ckpt = load_sealed(path)  # the path as given: a URL is refused, not folded into a file name
     path = Path(path)
-    ckpt = load_sealed(path)
     if not isinstance(ckpt, dict):
         raise ValueError(
             f"{path} holds a {type(ckpt).__name__}, not a checkpoint dict; it was not written "

@@ -18,24 +18,39 @@ calls do (above `RBFNetwork.rows_per_block` rows, one Scan over equal blocks, so
 (rows, M) intermediates stay in cache); the .pt2 program is one pass over all B rows. TorchScript is
 deprecated in current torch and is not used.
 
+Both files carry a SHA-256 their readers check (`read_onnx`, `load_pt2`, examples/deploy_onnx.py),
+so a changed byte is an error instead of other joints: the ONNX model in its metadata entry
+"sha256", the SHA-256 of the file with that entry's value blank (64 zeros; the value replaces the
+zeros in place, so the check needs no ONNX parser: `onnx_checksum`); the .pt2 file in its zip
+archive's comment, as a checkpoint's (rbfn.checkpoint.seal: torch.export.load reads it as it is).
+
 Both files are built in memory first and written only when both are built, all or none (each to a
 temporary file beside it, renamed over the old one once both are written): an export that fails
-leaves the old ik.onnx and ik.pt2 as they were. A write-protected ik.onnx or ik.pt2 is not replaced,
-nor a write-protected directory written into, unless --force is given (a replaced file keeps its
-mode). A bad argument (no such checkpoint, a damaged or
-foreign one, an --out-dir that is a file or write-protected) is a one-line error with exit status 2;
-a failed export or write, one with exit status 1.
+or is interrupted leaves the old ik.onnx and ik.pt2 as they were. A write-protected ik.onnx or
+ik.pt2 is not replaced, nor a write-protected directory written into, unless --force is given (a
+replaced file keeps its mode). Every path is checked before any work: a bad argument (a checkpoint
+that is missing, no regular file, a URL, damaged, foreign or an export; an --out-dir that is a file,
+a dangling link or write-protected) is a one-line error with exit status 2; a failed export or write,
+one with exit status 1. A stop signal (Ctrl-C's SIGINT, SIGTERM, SIGHUP) ends it with one line saying
+what was written (nothing, unless the signal came while the finished files were being renamed) and
+exit status 128 + the signal's number (130 for SIGINT), even where torch's exporter swallowed the
+KeyboardInterrupt (`rbfn.files.signals_raised`).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import io
 import json
 import logging
+import os
+import signal
+import sys
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnx
@@ -43,15 +58,28 @@ import torch
 from onnx import helper, numpy_helper
 from torch import nn
 
-from .checkpoint import model_from_checkpoint, read_checkpoint
+from .checkpoint import (
+    MAX_SEALED_BYTES,
+    ONNX_MODEL,
+    PT2_PROGRAM,
+    file_format,
+    local_file,
+    model_from_checkpoint,
+    read_checkpoint,
+    refuse_url,
+    seal,
+    unseal,
+)
 from .data import sample_joints
-from .files import unwritable, write_files
+from .files import signals_raised, unwritable, write_files
 from .layer import RBFNetwork
 from .robots.robot import Robot, robot_from_record
 from .scripts import fail
+from .studies.stop import Stopped, stop_on_signals
 from .yaw import BaseYaw, answer as yaw_answer, base_yaw as yaw_of
 
 __all__ = [
+    "CHECKSUM_KEY",
     "INPUTS",
     "DeployedIK",
     "DeployedPoseIK",
@@ -59,10 +87,13 @@ __all__ = [
     "export_all",
     "export_onnx",
     "export_pt2",
+    "load_pt2",
     "main",
     "metadata",
     "onnx_bytes",
+    "onnx_checksum",
     "pt2_bytes",
+    "read_onnx",
 ]
 
 # The exported input's name and layout by the network's target kind ("positions": the name since the first export).
@@ -75,6 +106,12 @@ INPUTS = {
     ),
 }
 EXAMPLE_TARGETS = 4  # how many example joint vectors and their targets the metadata holds
+CHECKSUM_KEY = "sha256"  # the ONNX model's metadata entry holding the file's SHA-256 (hex)
+# That entry as protobuf writes it (a StringStringEntryProto: field 1 the key, then field 2, 64
+# bytes): the hex digest follows, in place of 64 zeros while it is computed.
+_CHECKSUM_ENTRY = b"\x0a\x06" + CHECKSUM_KEY.encode() + b"\x12\x40"
+_BLANK = b"0" * 64
+_REEXPORT = "Export it again: python -m rbfn.export CHECKPOINT"
 
 
 class DeployedIK(nn.Module):
@@ -167,13 +204,39 @@ def pt2_bytes(net: RBFNetwork, *, robot: Robot | None = None, base_yaw: bool = T
         module = deployed(net, robot, base_yaw)
         prog = torch.export.export(module, (_example(net),), dynamic_shapes={name: {0: batch}})
         torch.export.save(prog, buf, extra_files={"rbfn.json": json.dumps(metadata(net, robot, base_yaw))})
-    return buf.getvalue()
+    return seal(buf.getvalue())
+
+
+def load_pt2(path: str | os.PathLike[str], extra_files: dict[str, Any] | None = None) -> torch.export.ExportedProgram:
+    """The torch.export program of the .pt2 file at `path` (`torch.export.load(path, extra_files)`:
+    `extra_files={"rbfn.json": ""}` is filled with its metadata), after checking its SHA-256:
+    ValueError naming the file when it is damaged, not a .pt2 export of aco-rbfn, or no regular file."""
+    path = local_file(path, "torch.export program")
+    size = path.stat().st_size
+    if size > MAX_SEALED_BYTES:
+        raise ValueError(f"{path} holds {size / 2**30:.3g} GiB; a .pt2 program aco-rbfn exports is far smaller")
+    data = path.read_bytes()
+    kind = file_format(data)
+    if kind not in (None, PT2_PROGRAM):
+        raise ValueError(f"{path} is {kind}, not {PT2_PROGRAM}")
+    original = unseal(data, path, "torch.export program", advice=_REEXPORT)
+    if kind is None:  # sealed, so as written: but by something else than torch.export.save
+        raise ValueError(f"{path} is not {PT2_PROGRAM}: it names no archive_format pt2")
+    with _quiet_exporter():
+        return torch.export.load(io.BytesIO(original), extra_files=extra_files)
+
+
+def _local(path: str | os.PathLike[str], name: str) -> Path:
+    """`path` as a Path, refused where it is a URL (as a path, its "//" would fold into a local name)."""
+    refuse_url(path, f"{name}={path}")
+    return Path(path)
 
 
 def export_pt2(net: RBFNetwork, path: str | Path, *, robot: Robot | None = None, base_yaw: bool = True) -> Path:
     """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
-    write_files({Path(path): pt2_bytes(net, robot=robot, base_yaw=base_yaw)})
-    return Path(path)
+    path = _local(path, "path")
+    write_files({path: pt2_bytes(net, robot=robot, base_yaw=base_yaw)})
+    return path
 
 
 @contextlib.contextmanager
@@ -208,8 +271,9 @@ def export_onnx(
     """Write a single-file ONNX model (input "positions" (B, 3) or "poses" (B, 7), outputs "joints",
     "in_workspace") that runs the rows in blocks of `block_rows` (default `net.rows_per_block`),
     atomically; its `metadata(net, robot)` in the model's metadata_props."""
-    write_files({Path(path): onnx_bytes(net, block_rows, robot=robot, base_yaw=base_yaw)})
-    return Path(path)
+    path = _local(path, "path")
+    write_files({path: onnx_bytes(net, block_rows, robot=robot, base_yaw=base_yaw)})
+    return path
 
 
 def onnx_bytes(
@@ -235,9 +299,46 @@ def onnx_bytes(
     joints, inside = model.graph.output
     joints.doc_string = "joints (B, n) float32: the free joints in URDF order and units (rad, or m if prismatic)"
     inside.doc_string = "in_workspace (B,) bool: the target lies in the trained workspace"
-    helper.set_model_props(model, metadata(net, robot, base_yaw))
+    helper.set_model_props(model, {**metadata(net, robot, base_yaw), CHECKSUM_KEY: _BLANK.decode()})
     onnx.checker.check_model(model)
-    return model.SerializeToString()
+    data = model.SerializeToString()
+    at = data.rfind(_CHECKSUM_ENTRY + _BLANK) + len(_CHECKSUM_ENTRY)
+    return data[:at] + hashlib.sha256(data).hexdigest().encode() + data[at + len(_BLANK) :]
+
+
+def onnx_checksum(data: bytes) -> tuple[bytes, bytes] | None:
+    """(the SHA-256 (hex) an exported ONNX model `data` holds, the SHA-256 its bytes have with that
+    value blank); None when it holds none. Equal for a file as `onnx_bytes` wrote it."""
+    i = data.rfind(_CHECKSUM_ENTRY)
+    if i < 0 or len(data) < i + len(_CHECKSUM_ENTRY) + len(_BLANK):
+        return None
+    at = i + len(_CHECKSUM_ENTRY)
+    blank = data[:at] + _BLANK + data[at + len(_BLANK) :]
+    return data[at : at + len(_BLANK)], hashlib.sha256(blank).hexdigest().encode()
+
+
+def read_onnx(path: str | os.PathLike[str]) -> bytes:
+    """The bytes of the exported ONNX model at `path`, its SHA-256 checked (give them to
+    `onnxruntime.InferenceSession`): ValueError naming the file when it is damaged, holds no
+    checksum (exported before exports had one, or by another program), is another kind of file
+    (a checkpoint, a .pt2 program) or no regular file."""
+    path = local_file(path, "ONNX model")
+    size = path.stat().st_size
+    if size > MAX_SEALED_BYTES:
+        raise ValueError(f"{path} holds {size / 2**30:.3g} GiB; an ONNX model in one file is at most 2 GiB")
+    data = path.read_bytes()
+    kind = file_format(data)
+    if kind not in (None, ONNX_MODEL):
+        raise ValueError(f"{path} is {kind}, not {ONNX_MODEL}")
+    sums = onnx_checksum(data)
+    if sums is None:
+        raise ValueError(
+            f"{path} holds no {CHECKSUM_KEY} checksum in its metadata: damaged, exported before exports carried "
+            f"one, or not exported by aco-rbfn. {_REEXPORT}"
+        )
+    if sums[0] != sums[1]:
+        raise ValueError(f"{path} is corrupted: its bytes do not match the SHA-256 in its metadata. {_REEXPORT}")
+    return data
 
 
 def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
@@ -318,12 +419,15 @@ def export_all(
 ) -> list[Path]:
     """Write `stem`.onnx and `stem`.pt2 into `out_dir`, with `metadata(net, robot)` (pass the
     network's robot for the example targets and the base rotation, `base_yaw`): both are built
-    before either is written, and written all or none, so a failure leaves the old files as they were."""
-    out_dir = Path(out_dir)
-    files = {
-        out_dir / f"{stem}.onnx": onnx_bytes(net, robot=robot, base_yaw=base_yaw),
-        out_dir / f"{stem}.pt2": pt2_bytes(net, robot=robot, base_yaw=base_yaw),
-    }
+    before either is written, and written all or none, so a failure leaves the old files as they were.
+    A stop signal while they are built (Ctrl-C: KeyboardInterrupt) writes nothing, even where torch's
+    exporter swallowed its exception (`rbfn.files.signals_raised`)."""
+    out_dir = _local(out_dir, "out_dir")
+    with signals_raised():
+        files = {
+            out_dir / f"{stem}.onnx": onnx_bytes(net, robot=robot, base_yaw=base_yaw),
+            out_dir / f"{stem}.pt2": pt2_bytes(net, robot=robot, base_yaw=base_yaw),
+        }
     write_files(files)
     return list(files)
 
@@ -333,19 +437,31 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {text.splitlines()[0]}" if text else type(e).__name__
 
 
+def _identity(path: Path) -> tuple[int, int] | None:
+    """Which file is at `path` now (device, inode; None for none): a renamed-over file is another."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
 def main(argv: list[str] | None = None) -> None:
+    if signal.getsignal(signal.SIGINT) == signal.SIG_DFL:  # as rbfn/__init__.py set it for the imports
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    stop_on_signals()  # SIGTERM, SIGHUP (and SIGINT where rbfn.studies.stop handles it) raise Stopped
     p = argparse.ArgumentParser(
         prog="python -m rbfn.export",
         description="Export a trained IK network (a checkpoint.pt written by train.py) as ik.onnx, an ONNX model "
         "in one file, and ik.pt2, a torch.export program, to run without this package.",
-        epilog="Both files are written all or none: a failed export leaves the old ones as they were. An existing "
-        "write-protected ik.onnx or ik.pt2 is refused unless --force. A bad argument is an error with exit "
-        "status 2, a failed export or write one with exit status 1.",
+        epilog="Both files are written all or none: a failed or interrupted export leaves the old ones as they "
+        "were. An existing write-protected ik.onnx or ik.pt2 is refused unless --force. A bad argument is an "
+        "error with exit status 2, a failed export or write one with exit status 1, a stop by a signal one "
+        "with 128 + its number (130 for Ctrl-C).",
     )
-    p.add_argument("checkpoint", type=Path, metavar="CHECKPOINT", help="the checkpoint.pt that train.py wrote")
+    p.add_argument("checkpoint", metavar="CHECKPOINT", help="the checkpoint.pt that train.py wrote")
     p.add_argument(
         "--out-dir",
-        type=Path,
         default=None,
         metavar="DIR",
         help="where to write ik.onnx and ik.pt2, created if missing (default: the checkpoint's directory)",
@@ -363,39 +479,82 @@ def main(argv: list[str] | None = None) -> None:
         "(the default does, for arms whose first joint turns about the base's vertical axis)",
     )
     a = p.parse_args(argv)
-    if not a.checkpoint.is_file():
-        fail(
-            p,
-            f"CHECKPOINT {a.checkpoint}: "
-            + ("is a directory, not a checkpoint file" if a.checkpoint.is_dir() else "no such file"),
+    targets: list[Path] = []
+    before: list[tuple[int, int] | None] = []
+    try:
+        with signals_raised():  # a signal's exception that torch swallowed or replaced: raised here
+            targets = _checked_outputs(p, a)
+            before = [_identity(t) for t in targets]
+            net, robot = _network(p, a.checkpoint)
+            try:
+                export_all(net, targets[0].parent, robot=robot, base_yaw=not a.no_base_yaw)
+            except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
+                fail(
+                    p,
+                    f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
+                    status=1,
+                )
+    except (KeyboardInterrupt, Stopped) as e:
+        signum = e.signum if isinstance(e, Stopped) else signal.SIGINT
+        signal.signal(signum, signal.SIG_IGN)  # ending now: a second Ctrl-C would cut the exit short (as stop's)
+        written = bool(targets) and all(_identity(t) != b for t, b in zip(targets, before))
+        what = (
+            f"{targets[0]} and {targets[1]} were written (the signal came as they were renamed)"
+            if written
+            else "nothing was written; ik.onnx and ik.pt2 were left as they were"
         )
-    out_dir = a.out_dir or a.checkpoint.parent
+        status = 128 + signum
+        p.exit(status, f"{p.prog}: stopped by {signal.Signals(signum).name} (exit status {status}): {what}\n")
+    try:
+        for path in targets:
+            print(f"wrote {path}", flush=True)
+    except BrokenPipeError:  # the reader left (| head -1): the files are written; the rest goes nowhere
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # also for the interpreter's last flush
+        os.close(devnull)
+
+
+def _checked_outputs(p: argparse.ArgumentParser, a: argparse.Namespace) -> list[Path]:
+    """ik.onnx and ik.pt2 in the output directory, after checking every path given, before any work:
+    a one-line error (status 2) for a checkpoint that is no regular file or a URL, and an --out-dir
+    that is a URL, empty, or cannot or must not be written (`rbfn.files.unwritable`)."""
+    try:
+        checkpoint = local_file(a.checkpoint)
+    except FileNotFoundError:
+        fail(p, f"CHECKPOINT {a.checkpoint}: no such file")
+    except ValueError as e:
+        fail(p, f"CHECKPOINT: {e}")
+    if a.out_dir is not None:
+        try:
+            refuse_url(a.out_dir, f"--out-dir {a.out_dir}")
+        except ValueError as e:
+            fail(p, str(e))
+        if not a.out_dir:
+            fail(p, "--out-dir '' names no directory; give one, or leave --out-dir out for the checkpoint's")
+    out_dir = Path(a.out_dir) if a.out_dir else checkpoint.parent
     where = (
         f"--out-dir {out_dir}"
         if a.out_dir
         else f"the output directory {out_dir} (the checkpoint's; --out-dir picks another)"
     )
-    problem = unwritable([out_dir / "ik.onnx", out_dir / "ik.pt2"], a.force)
+    targets = [out_dir / "ik.onnx", out_dir / "ik.pt2"]
+    problem = unwritable(targets, a.force)
     if problem:
         fail(p, f"{where}: {problem}")
+    return targets
+
+
+def _network(p: argparse.ArgumentParser, checkpoint: str) -> tuple[RBFNetwork, Robot]:
+    """The checkpoint's network and robot; a one-line error when it cannot be read (status 2) or
+    passes its checks and still does not build (status 1: a bug)."""
     try:
-        ckpt = read_checkpoint(a.checkpoint)
-        net, robot = model_from_checkpoint(ckpt), robot_from_record(ckpt["robot"])
+        ckpt = read_checkpoint(checkpoint)
+        return model_from_checkpoint(ckpt), robot_from_record(ckpt["robot"])
     except (OSError, ValueError) as e:
         message = str(e) if isinstance(e, ValueError) else _first_line(e)
-        fail(p, f"CHECKPOINT: {message}" if str(a.checkpoint) in message else f"CHECKPOINT {a.checkpoint}: {message}")
+        fail(p, f"CHECKPOINT: {message}" if str(checkpoint) in message else f"CHECKPOINT {checkpoint}: {message}")
     except Exception as e:  # noqa: BLE001 (a checkpoint that passes its checks but does not build: a bug)
-        fail(p, f"CHECKPOINT {a.checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
-    try:
-        paths = export_all(net, out_dir, robot=robot, base_yaw=not a.no_base_yaw)
-    except Exception as e:  # noqa: BLE001 (torch's and onnx's exporters raise many kinds; writing, OSError)
-        fail(
-            p,
-            f"exporting {a.checkpoint} failed ({_first_line(e)}); ik.onnx and ik.pt2 were left as they were",
-            status=1,
-        )
-    for path in paths:
-        print(f"wrote {path}")
+        fail(p, f"CHECKPOINT {checkpoint}: cannot rebuild its network ({_first_line(e)})", status=1)
 
 
 if __name__ == "__main__":

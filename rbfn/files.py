@@ -1,12 +1,15 @@
-"""Files written whole: one file (`atomic_write_bytes`), several all or none (`write_files`), and
-whether a set of paths may be written (`unwritable`).
+"""Files written whole: one file (`atomic_write_bytes`), several all or none (`write_files`),
+whether a set of paths may be written (`unwritable`), and what is at a path (`file_kind`).
 
 A file is written under a temporary name beside its target and renamed over it once complete, so a
 reader never sees half a file and an interrupted write leaves the old file as it was. Where the
 system allows (Linux's O_TMPFILE), the temporary file has no name while it is being written and gets
 one (NAME.xxxxxxxx.tmp) only once complete, for the rename: a process killed in the middle of a
 write, even by SIGKILL, leaves nothing behind. Elsewhere it is named so from the start. Either is
-removed on any exception, a signal turned into one included (rbfn.studies.stop).
+removed on any exception, a signal turned into one included (rbfn.studies.stop). `write_files`
+holds the stop signals (SIGINT, SIGTERM, SIGHUP) back until it is done (`signals_raised`), so a
+signal never leaves some files renamed and others not, nor a temporary file: one that came before
+the renames stops them all, one that comes during them is handled once they are done.
 
 Written files get the permissions a plain open() would give them: those of the file they replace,
 else 0o666 minus the umask (mkstemp's 0o600 would hide outputs from the user's group).
@@ -15,12 +18,19 @@ else 0o666 minus the umask (mkstemp's 0o600 would hide outputs from the user's g
 from __future__ import annotations
 
 import os
+import signal
+import stat
+import sys
 import tempfile
-from collections.abc import Callable, Iterable
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import BinaryIO, cast
+from typing import Any, BinaryIO, cast
 
-__all__ = ["atomic_write_bytes", "unwritable", "write_files"]
+__all__ = ["STOP_SIGNALS", "atomic_write_bytes", "file_kind", "signals_raised", "unwritable", "write_files"]
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def _umask() -> int:
@@ -91,29 +101,117 @@ def write_files(files: dict[Path, bytes], remove: Iterable[Path] = ()) -> None:
     is written to a temporary file beside it and, once all are complete, the files to remove are
     moved aside, each new one is renamed over its target, and those moved aside are deleted. On an
     error before the renames no target has changed (a file moved aside is put back); no temporary
-    file is left in any case."""
+    file is left in any case. A stop signal (SIGINT, SIGTERM, SIGHUP; main thread) waits for the
+    file being written: one that came before the renames renames nothing, one that comes during
+    them is handled after the last; either is handled (its KeyboardInterrupt or `Stopped` raised)
+    once the temporary files are gone."""
     temps: list[Path] = []
     aside: list[tuple[Path, Path]] = []  # (target, its temporary name)
     done = False
+    with signals_raised(defer=True) as noted:
+        try:
+            for path, data in files.items():
+                if noted:
+                    break
+                temps.append(_complete_temp(Path(path), lambda f, data=data: f.write(data)))  # type: ignore[misc]
+            if not noted:
+                for path in map(Path, remove):
+                    if os.path.lexists(path):
+                        moved = path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp")
+                        os.replace(path, moved)
+                        aside.append((path, moved))
+                for tmp, path in zip(temps, files):
+                    os.replace(tmp, path)
+                done = True
+        finally:
+            for tmp in temps:
+                tmp.unlink(missing_ok=True)
+            for path, moved in aside:
+                if done:
+                    moved.unlink(missing_ok=True)
+                else:
+                    os.replace(moved, path)
+
+
+@contextmanager
+def signals_raised(defer: bool = False) -> Iterator[list[int]]:
+    """Inside, a stop signal (STOP_SIGNALS) always ends the block with the exception its handler
+    raises (KeyboardInterrupt for SIGINT, rbfn.studies.stop's `Stopped`), even where a library
+    swallowed it (it is raised again on leaving) or replaced it by another (torch's exporters: a
+    KeyboardInterrupt raised in a callback from C++ can come back as a TypeError, and torch.onnx then
+    tries its next way to capture the model); one raised where Python ignores exceptions (a weakref
+    callback, __del__) is not printed as "Exception ignored", and is raised again on leaving too.
+    Yields the signals that came, in order. With `defer`,
+    the first signal is handled only on leaving (a signal whose default is to end the process ends
+    it then), so that the work inside is never cut in two. Python runs signal handlers in the main
+    thread only: elsewhere nothing changes. A signal set to be ignored stays ignored."""
+    noted: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield noted
+        return
+    previous: dict[int, Any] = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    handled = [s for s, h in previous.items() if callable(h) or (defer and h == signal.SIG_DFL)]
+    raised: list[BaseException] = []
+
+    def handle(signum: int, frame) -> None:
+        if not callable(previous[signum]):  # SIG_DFL, restored by now
+            os.kill(os.getpid(), signum)
+            return
+        try:
+            previous[signum](signum, frame)
+        except BaseException as e:
+            raised.append(e)
+            raise
+
+    def note(signum: int, frame) -> None:
+        noted.append(signum)
+        if not defer:
+            handle(signum, frame)
+
+    hook = sys.unraisablehook
+
+    def unraisable(info) -> None:
+        if not any(info.exc_value is e for e in raised):
+            hook(info)
+
+    for s in handled:
+        signal.signal(s, note)
+    sys.unraisablehook = unraisable
+    error: BaseException | None = None
     try:
-        for path, data in files.items():
-            temps.append(_complete_temp(Path(path), lambda f, data=data: f.write(data)))  # type: ignore[misc]
-        for path in map(Path, remove):
-            if os.path.lexists(path):
-                moved = path.with_name(f"{path.name}.{os.urandom(4).hex()}.tmp")
-                os.replace(path, moved)
-                aside.append((path, moved))
-        for tmp, path in zip(temps, files):
-            os.replace(tmp, path)
-        done = True
-    finally:
-        for tmp in temps:
-            tmp.unlink(missing_ok=True)
-        for path, moved in aside:
-            if done:
-                moved.unlink(missing_ok=True)
-            else:
-                os.replace(moved, path)
+        yield noted
+    except BaseException as e:  # noqa: BLE001 - raised again below, or replaced by the signal's own
+        error = e
+    sys.unraisablehook = hook
+    for s in handled:
+        signal.signal(s, previous[s])
+    if defer and noted:
+        handle(noted[0], None)
+    if raised and error is not raised[0]:  # swallowed, or replaced by another exception
+        raise raised[0] from error
+    if error is not None:
+        raise error
+
+
+def file_kind(path: Path) -> str | None:
+    """What is at `path`, links followed: "" for a regular file, None for nothing, else what it
+    is ("a directory", "a FIFO (named pipe)", "a character device", "a dangling symbolic link
+    (to ...)", ...), for messages."""
+    try:
+        mode = path.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return f"a dangling symbolic link (to {os.readlink(path)})" if path.is_symlink() else None
+    except OSError as e:  # a loop of links, a name too long, a folder on the way not searchable
+        return f"not readable ({e.strerror or e})"
+    kinds = (
+        (stat.S_ISREG, ""),
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    )
+    return next((kind for test, kind in kinds if test(mode)), "not a regular file")
 
 
 def _write_protected(path: Path) -> bool:
@@ -128,10 +226,11 @@ def unwritable(paths: Iterable[str | Path], force: bool = False) -> str:
     existing file or its folder is write-protected."""
     for path in map(Path, paths):
         folder = path.parent
-        while not folder.exists() and folder != folder.parent:
+        while file_kind(folder) is None and folder != folder.parent:  # nothing there: made on writing
             folder = folder.parent
-        if not folder.is_dir():
-            return f"{folder} is not a directory"
+        kind = file_kind(folder)
+        if kind != "a directory":
+            return f"{folder} is not a directory: it is {kind or 'a file'}"
         protected = f"{folder} is a write-protected directory (mode {folder.stat().st_mode & 0o777:#o})"
         if not os.access(folder, os.W_OK | os.X_OK):
             return f"{protected}: this process cannot write into it"

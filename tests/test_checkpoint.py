@@ -520,3 +520,144 @@ def test_a_file_too_large_to_be_a_checkpoint_is_refused_before_it_is_read(tmp_pa
         f.truncate(3 << 30)
     with pytest.raises(ValueError, match=r"big.pt holds 3 GiB; a checkpoint aco-rbfn writes is at most 2 GiB"):
         load_sealed(big)
+
+
+# --- Sizes a file declares are checked before anything is allocated for them -------------------------
+
+
+def _expanded(path, rows: int = 2_000_000_000):
+    """The sealed checkpoint at `path` rewritten (about 10 KB) with stride-0 views declaring `rows`
+    centres: 48 GB once anything copies them. Its shapes and model_args agree; only the data betrays it."""
+    raw = torch.load(path, weights_only=True)
+    for k, shape in {"centers": (rows, 3), "widths": (rows,), "head.weight": (3, rows)}.items():
+        raw["state_dict"][k] = torch.ones((1,) * len(shape), dtype=torch.float64).expand(*shape)
+    raw["model_args"]["num_centers"] = rows
+    _resave(raw, path)
+    return path
+
+
+def test_declared_sizes_beyond_the_file_are_refused_before_allocation(ckpt):
+    # Each loader used to copy the 2e9 x 3 view (48 GB): an allocator error or the OOM killer.
+    path = _expanded(ckpt[0])
+    assert path.stat().st_size < 20_000
+    out = run_guarded(f"""
+import torch
+from rbfn import load_model, load_solver
+from rbfn.checkpoint import read_checkpoint
+for load in (read_checkpoint, load_model, load_solver):
+    try:
+        load({str(path)!r})
+        print("loaded")
+    except ValueError as e:
+        print("ValueError:", e)
+""")
+    lines = out.strip().splitlines()
+    assert len(lines) == 3, out
+    assert all(
+        line.startswith(
+            f"ValueError: {path}: state_dict centers declares shape (2000000000, 3) (6,000,000,000 values, "
+            "48,000,000,000 bytes), but the file holds 1 value for it (an expanded or overlapping tensor)"
+        )
+        for line in lines
+    ), out
+
+
+def test_an_expanded_tensor_anywhere_in_a_sealed_file_is_refused(tmp_path):
+    path = tmp_path / "state.pt"
+    save_sealed(path, {"colony": {"archive": [torch.zeros(1).expand(10**9)]}})
+    with pytest.raises(ValueError, match=r"colony archive 0 declares shape \(1000000000,\) .* holds 1 value for it"):
+        load_sealed(path, what="training state")
+
+
+def test_a_compressed_record_is_refused_before_it_inflates(ckpt):
+    """torch.load inflates a deflated record (up to ~1000x) before anything could check it; torch.save
+    stores every record, so a sealed file with a compressed one was crafted."""
+    import io
+    import zipfile
+
+    from rbfn.checkpoint import unseal
+
+    path = ckpt[0]
+    archive = zipfile.ZipFile(io.BytesIO(unseal(path.read_bytes(), path)))
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
+        for name in archive.namelist():
+            z.writestr(name, archive.read(name))
+    path.write_bytes(seal(out.getvalue()))
+    with pytest.raises(
+        ValueError, match=rf"^{path}: its record archive/data.pkl is compressed \(\d+ B inflating to \d+ B\)"
+    ):
+        load_model(path)
+
+
+def test_a_pickle_larger_than_a_checkpoints_is_refused_before_unpickling(ckpt, monkeypatch):
+    """Unpickling makes up to some 70 bytes of objects of each byte (an empty list of one opcode):
+    data.pkl, which holds no tensor, is bounded before it is unpickled."""
+    import rbfn.checkpoint
+
+    monkeypatch.setattr(rbfn.checkpoint, "MAX_PICKLE_BYTES", 1000)
+    with pytest.raises(
+        ValueError, match=rf"^{ckpt[0]}: its pickled part archive/data.pkl holds \d+ B; .* MAX_PICKLE_BYTES = 1000 B"
+    ):
+        load_model(ckpt[0])
+
+
+def test_a_network_too_large_for_memory_is_refused_naming_its_size(ckpt, monkeypatch):
+    import rbfn.memory
+
+    monkeypatch.setattr(rbfn.memory, "available_bytes", lambda device="cpu": 100)
+    with pytest.raises(
+        ValueError,
+        match=rf"^{ckpt[0]}: model_args num_centers=5 needs at least \d+ B \(the network's weights in float64\), "
+        r"more than this machine's available memory \(100 B\); load it on a machine with more free memory",
+    ):
+        load_model(ckpt[0])
+
+
+# --- What is given as a checkpoint: said before it is read ---------------------------------------------
+
+
+def test_a_url_is_refused_not_folded_into_a_file_name():
+    for load in (load_model, read_checkpoint, load_sealed):
+        with pytest.raises(ValueError, match=r"^https://example\.com/run/checkpoint\.pt is a URL; aco-rbfn reads"):
+            load("https://example.com/run/checkpoint.pt")
+
+
+def test_what_is_not_a_checkpoint_file_is_named(tmp_path):
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "link").symlink_to(tmp_path / "gone.pt")
+    cases = {
+        tmp_path: "a directory",
+        tmp_path / "fifo": r"a FIFO \(named pipe\)",  # never opened: it would block
+        "/dev/null": "a character device",
+        tmp_path / "link": rf"a dangling symbolic link \(to {tmp_path / 'gone.pt'}\)",
+    }
+    for path, kind in cases.items():
+        with pytest.raises(ValueError, match=rf"^{path} is {kind}, not a checkpoint: a checkpoint is a regular file"):
+            load_model(path)
+    with pytest.raises(ValueError, match=r"an empty path names no checkpoint"):
+        load_model("")
+    with pytest.raises(FileNotFoundError, match=r"no checkpoint at ~/nowhere.pt \(~ is not expanded: give the full"):
+        load_model("~/nowhere.pt")
+    with pytest.raises(TypeError, match=r"checkpoint path 42 is of type int; expected a file path"):
+        load_model(42)
+
+
+def test_exports_given_as_a_checkpoint_say_what_they_are(tmp_path):
+    import io
+    import zipfile
+
+    from onnx import helper
+
+    graph = helper.make_graph([], "g", [], [])
+    (tmp_path / "ik.onnx").write_bytes(helper.make_model(graph).SerializeToString())
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as z:  # what torch.export.save writes, in short
+        z.writestr("archive/archive_format", "pt2")
+        z.writestr("archive/models/model.json", "{}")
+    (tmp_path / "ik.pt2").write_bytes(out.getvalue())
+    for name, kind in (("ik.onnx", "an ONNX model"), ("ik.pt2", "a torch.export program")):
+        with pytest.raises(
+            ValueError, match=rf"^{tmp_path / name} is {kind} \(an export such as {name}\), not a checkpoint"
+        ):
+            load_model(tmp_path / name)

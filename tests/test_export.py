@@ -158,27 +158,27 @@ def test_a_pose_network_is_solved_through_its_poses_input(pose_run):
 
     robot = robot_from_record(read_checkpoint(pose_run / "checkpoint.pt")["robot"])
     x = make_split(robot, 50, seed=5).x.float()
-    from rbfn.export import deployed
+    from rbfn.export import CHECKSUM_KEY, deployed, load_pt2, read_onnx
 
     with torch.no_grad():  # the exports turn targets around the base (the UR5's first joint) as this module does
         y_ref, in_ref = deployed(load_model(pose_run / "checkpoint.pt"), robot)(x)
     assert in_ref.any() and y_ref.shape == (50, 6)
 
-    sess = ort.InferenceSession(str(pose_run / "ik.onnx"), providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(read_onnx(pose_run / "ik.onnx"), providers=["CPUExecutionProvider"])
     (inp,) = sess.get_inputs()
     assert (inp.name, inp.shape) == ("poses", ["batch", 7])
     y_onnx, in_onnx = sess.run(["joints", "in_workspace"], {"poses": x.numpy()})
     assert abs(y_onnx - y_ref.numpy()).max() < 1e-5 and (in_onnx == in_ref.numpy()).all()
 
     files = {"rbfn.json": ""}
-    prog = torch.export.load(str(pose_run / "ik.pt2"), extra_files=files)
+    prog = load_pt2(pose_run / "ik.pt2", extra_files=files)
     assert prog.graph_signature.user_inputs == ("poses",)
     with torch.no_grad():
         y_pt2, in_pt2 = prog.module()(x)
     assert float((y_pt2 - y_ref).abs().max()) < 1e-5 and torch.equal(in_pt2, in_ref)
 
     meta = sess.get_modelmeta().custom_metadata_map
-    assert json.loads(files["rbfn.json"]) == meta
+    assert len(meta.pop(CHECKSUM_KEY)) == 64 and json.loads(files["rbfn.json"]) == meta  # the same, but the checksum
     assert meta["target"] == "pose" and meta["input"].startswith("poses (B, 7)") and meta["robot"] == "ur5"
     assert json.loads(meta["joint_names"]) == robot.joint_names
     q = torch.tensor(json.loads(meta["example_joints"]), dtype=torch.float64)
@@ -252,3 +252,99 @@ def test_exports_turn_targets_around_the_base_as_the_module_does(net, scara_robo
     net.double()
     assert abs(plain.run(None, {"positions": x.numpy()})[0] - y_net.numpy()).max() < 1e-5
     assert plain.get_modelmeta().custom_metadata_map["base_yaw"] == "false"
+
+
+# --- Integrity: a changed byte in an export stops its reader; a file of another kind says what it is ----
+
+
+def _flipped(path, tmp_path, where: float):
+    """A copy of `path` with one bit changed at fraction `where` of its length."""
+    data = bytearray(path.read_bytes())
+    i = min(int(where * len(data)), len(data) - 1)
+    data[i] ^= 0x04
+    copy = tmp_path / f"{where}{path.suffix}"
+    copy.write_bytes(bytes(data))
+    return copy
+
+
+_WHERE = [0.0, 0.001, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99, 0.999, 1.0]
+
+
+def test_a_changed_byte_in_an_export_stops_its_readers(pose_run, tmp_path, capsys):
+    """ik.onnx holds its SHA-256 in its metadata, ik.pt2 in its zip comment: read_onnx, load_pt2 and
+    examples/deploy_onnx.py (numpy and onnxruntime only) check it, so a changed byte anywhere is an
+    error naming the file instead of other joints."""
+    pytest.importorskip("onnxruntime")
+    from rbfn.export import load_pt2, onnx_checksum, read_onnx
+
+    onnx_file, pt2_file = pose_run / "ik.onnx", pose_run / "ik.pt2"
+    stored, actual = onnx_checksum(read_onnx(onnx_file))
+    assert stored == actual and len(stored) == 64
+    load_pt2(pt2_file)
+    for where in _WHERE:
+        bad = _flipped(onnx_file, tmp_path, where)
+        with pytest.raises(ValueError, match=rf"^{bad} (is corrupted|holds no sha256 checksum|is not an ONNX)"):
+            read_onnx(bad)
+        with pytest.raises(SystemExit, match=rf"^{bad} (is corrupted|holds no sha256 checksum)"):
+            _run_example(bad, capsys)
+        bad = _flipped(pt2_file, tmp_path, where)
+        with pytest.raises(ValueError, match=rf"^{bad} (is corrupted|is not a readable torch.export program)"):
+            load_pt2(bad)
+    assert capsys.readouterr().out == ""  # the example printed no joints
+
+
+def test_files_handed_to_the_wrong_reader_say_what_they_are(pose_run, tmp_path, capsys):
+    """An export given to a checkpoint's readers, a checkpoint or .pt2 given to the ONNX readers, and
+    a directory, FIFO, device or URL given to any: one line naming the file and what it is."""
+    pytest.importorskip("onnxruntime")
+    from rbfn import load_model, load_solver
+    from rbfn.checkpoint import read_checkpoint
+    from rbfn.export import load_pt2, read_onnx
+
+    onnx_file, pt2_file, ckpt = pose_run / "ik.onnx", pose_run / "ik.pt2", pose_run / "checkpoint.pt"
+    for load in (load_model, load_solver, read_checkpoint):
+        with pytest.raises(
+            ValueError,
+            match=rf"^{onnx_file} is an ONNX model \(an export such as ik.onnx\), not a checkpoint: exports run without aco-rbfn",
+        ):
+            load(onnx_file)
+        with pytest.raises(
+            ValueError, match=rf"^{pt2_file} is a torch.export program \(an export such as ik.pt2\), not a checkpoint"
+        ):
+            load(pt2_file)
+    with pytest.raises(
+        ValueError, match=rf"^{ckpt} is a torch.save archive \(a checkpoint such as checkpoint.pt\), not an ONNX model"
+    ):
+        read_onnx(ckpt)
+    with pytest.raises(ValueError, match=rf"^{pt2_file} is a torch.export program .*, not an ONNX model"):
+        read_onnx(pt2_file)
+    with pytest.raises(ValueError, match=rf"^{onnx_file} is an ONNX model .*, not a torch.export program"):
+        load_pt2(onnx_file)
+    with pytest.raises(ValueError, match=rf"^{ckpt} is a torch.save archive .*, not a torch.export program"):
+        load_pt2(ckpt)
+    for path in (ckpt, pt2_file):
+        with pytest.raises(
+            SystemExit,
+            match=rf"^{path} is a zip archive \(an aco-rbfn checkpoint.pt or ik.pt2 program\), not an ONNX model",
+        ):
+            _run_example(path, capsys)
+    import os
+
+    os.mkfifo(tmp_path / "fifo")
+    for path, kind in (
+        (tmp_path, "a directory"),
+        (tmp_path / "fifo", r"a FIFO \(named pipe\)"),
+        (os.devnull, "a character device"),
+    ):
+        with pytest.raises(SystemExit, match=rf"^{path} is {kind}, not an ONNX model"):
+            _run_example(path, capsys)
+        for read in (read_onnx, load_pt2):
+            with pytest.raises(ValueError, match=rf"^{path} is {kind}, not an? (ONNX model|torch.export program)"):
+                read(path)
+    url = "https://example.com/run/ik.onnx"
+    with pytest.raises(SystemExit, match=rf"^{url} is a URL; this example reads a local file: download it first"):
+        _run_example(url, capsys)
+    for read in (read_onnx, load_pt2):
+        with pytest.raises(ValueError, match=rf"^{url} is a URL; aco-rbfn reads and writes local files only"):
+            read(url)
+    assert capsys.readouterr().out == ""

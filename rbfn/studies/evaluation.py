@@ -24,7 +24,7 @@ from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
-from ..checkpoint import read_checkpoint
+from ..checkpoint import read_checkpoint, refuse_url
 from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, validate_evaluate
 from ..control.robot_setup import payload_cases
 from ..robots.derive import derive_evaluate
@@ -55,6 +55,7 @@ log = logging.getLogger("evaluate")
 def find_checkpoint(cfg: EvalConfig) -> Path | None:
     """`cfg.checkpoint`, or the newest checkpoint.pt under `cfg.outputs_dir` (None when there is none)."""
     if cfg.checkpoint:
+        refuse_url(cfg.checkpoint, f"checkpoint={cfg.checkpoint}")  # before the "//" folds into a path
         path = Path(to_absolute_path(cfg.checkpoint))
         if not path.exists():
             raise FileNotFoundError(f"checkpoint={cfg.checkpoint}: no such file ({path})")

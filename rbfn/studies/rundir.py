@@ -28,7 +28,6 @@ import logging
 import math
 import os
 import shutil
-import stat
 import struct
 import sys
 import time
@@ -43,7 +42,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from tensorboard.compat.proto.summary_pb2 import Summary
 
-from ..files import atomic_write_bytes
+from ..files import atomic_write_bytes, file_kind
 
 _STARTED = time.time()  # this process's start, near enough: the entry points import this module first
 # Whether the user asked for tracebacks (HYDRA_FULL_ERROR=1), read before the entry point asks Hydra
@@ -330,21 +329,9 @@ def _why_not_made(path: Path, e: OSError) -> str:
                 return f"{up} is a symbolic link to {os.readlink(up)}, which does not exist"
             break
         if not up.is_dir():
-            return f"{up} is {_kind(up)}, not a directory"
+            return f"{up} is {file_kind(up) or 'a file'}, not a directory"
     where = f" ({e.filename})" if e.filename else ""
     return f"{e.strerror or e}{where}"
-
-
-def _kind(path: Path) -> str:
-    """What `path` (an existing entry, not a directory) is, in words: 'a file', 'a device', ..."""
-    mode = os.stat(path).st_mode
-    kinds = (
-        (stat.S_ISREG, "a file"),
-        (stat.S_ISCHR, "a device"),
-        (stat.S_ISBLK, "a device"),
-        (stat.S_ISFIFO, "a FIFO"),
-    )
-    return next((word for test, word in kinds if test(mode)), "not a directory but a socket or the like")
 
 
 def hydra_run_files(dcfg, out_dir: Path) -> dict[str, str]:

@@ -34,9 +34,11 @@ import time
 from contextlib import contextmanager, suppress
 from typing import cast
 
+from ..files import STOP_SIGNALS
+
 __all__ = ["Stopped", "job", "stop_on_signals"]
 
-SIGNALS = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)
+SIGNALS = STOP_SIGNALS  # SIGINT, SIGTERM, SIGHUP: rbfn.files defers them while files are renamed
 CHILDREN_SECONDS = 10.0  # how long a stopped process waits for its children's cleanup
 _PR_SET_PDEATHSIG = 1
 _stopping = False

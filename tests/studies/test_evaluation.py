@@ -123,3 +123,10 @@ def test_a_users_arm_is_evaluated_from_the_checkpoints_urdf_text_when_its_file_i
     assert m["robots"] == {"ik": label, "control": label}
     half = f"{cfg.robot.rated_payload / 2:g}kg"
     assert list(m["control"]["smc"]) == ["0kg", half, f"{cfg.robot.rated_payload:g}kg"]
+
+
+def test_a_url_given_as_the_checkpoint_is_refused_as_a_url():
+    """As a path, the URL's "//" would fold into a local name, reported as a missing file."""
+    url = "https://example.com/run/checkpoint.pt"
+    with pytest.raises(ValueError, match=rf"^checkpoint={re.escape(url)} is a URL; aco-rbfn reads and writes local"):
+        composed(f"checkpoint={url}")
