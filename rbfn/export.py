@@ -207,18 +207,28 @@ def pt2_bytes(net: RBFNetwork, *, robot: Robot | None = None, base_yaw: bool = T
     return seal(buf.getvalue())
 
 
+def _read_export(path: str | os.PathLike[str], what: str, expected: str, bound: str) -> tuple[Path, bytes, str | None]:
+    """(the local path, its bytes, the kind of file they are (file_format)) of export `path`, read
+    only when it is a regular file of at most MAX_SEALED_BYTES (`bound` says why in the error) and
+    not another known kind of file than `expected`."""
+    local = local_file(path, what)
+    size = local.stat().st_size
+    if size > MAX_SEALED_BYTES:
+        raise ValueError(f"{local} holds {size / 2**30:.3g} GiB; {bound}")
+    data = local.read_bytes()
+    kind = file_format(data)
+    if kind not in (None, expected):
+        raise ValueError(f"{local} is {kind}, not {expected}")
+    return local, data, kind
+
+
 def load_pt2(path: str | os.PathLike[str], extra_files: dict[str, Any] | None = None) -> torch.export.ExportedProgram:
     """The torch.export program of the .pt2 file at `path` (`torch.export.load(path, extra_files)`:
     `extra_files={"rbfn.json": ""}` is filled with its metadata), after checking its SHA-256:
     ValueError naming the file when it is damaged, not a .pt2 export of aco-rbfn, or no regular file."""
-    path = local_file(path, "torch.export program")
-    size = path.stat().st_size
-    if size > MAX_SEALED_BYTES:
-        raise ValueError(f"{path} holds {size / 2**30:.3g} GiB; a .pt2 program aco-rbfn exports is far smaller")
-    data = path.read_bytes()
-    kind = file_format(data)
-    if kind not in (None, PT2_PROGRAM):
-        raise ValueError(f"{path} is {kind}, not {PT2_PROGRAM}")
+    path, data, kind = _read_export(
+        path, "torch.export program", PT2_PROGRAM, "a .pt2 program aco-rbfn exports is far smaller"
+    )
     original = unseal(data, path, "torch.export program", advice=_REEXPORT)
     if kind is None:  # sealed, so as written: but by something else than torch.export.save
         raise ValueError(f"{path} is not {PT2_PROGRAM}: it names no archive_format pt2")
@@ -322,14 +332,7 @@ def read_onnx(path: str | os.PathLike[str]) -> bytes:
     `onnxruntime.InferenceSession`): ValueError naming the file when it is damaged, holds no
     checksum (exported before exports had one, or by another program), is another kind of file
     (a checkpoint, a .pt2 program) or no regular file."""
-    path = local_file(path, "ONNX model")
-    size = path.stat().st_size
-    if size > MAX_SEALED_BYTES:
-        raise ValueError(f"{path} holds {size / 2**30:.3g} GiB; an ONNX model in one file is at most 2 GiB")
-    data = path.read_bytes()
-    kind = file_format(data)
-    if kind not in (None, ONNX_MODEL):
-        raise ValueError(f"{path} is {kind}, not {ONNX_MODEL}")
+    path, data, _ = _read_export(path, "ONNX model", ONNX_MODEL, "an ONNX model in one file is at most 2 GiB")
     sums = onnx_checksum(data)
     if sums is None:
         raise ValueError(

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from ..conftest import ROOT
+from ..conftest import ROOT, TINY_TRAIN
 
 
 def _run(*args, env=None):
@@ -151,23 +151,11 @@ def test_a_sweep_directory_that_cannot_be_made_is_one_line(tmp_path):
     ], r.stderr
 
 
-TINY = [
-    "data.n_train=300",
-    "data.n_val=200",
-    "data.n_test=200",
-    "rbfn.num_centers=10",
-    "centers=kmeans",
-    "progress=false",
-    "num_threads=1",
-    "export=false",
-]
-
-
 def test_a_closed_standard_output_is_one_note_and_the_run_goes_on(tmp_path):
     """`python train.py | head -1`: the reader goes away after the first line; the run ends as usual,
     with one note on stderr instead of a BrokenPipeError block a message."""
     proc = subprocess.Popen(
-        [sys.executable, "train.py", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
+        [sys.executable, "train.py", *TINY_TRAIN, f"hydra.run.dir={tmp_path / 'run'}"],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -189,7 +177,14 @@ def test_ctrl_c_to_train_is_one_line_and_keeps_the_state_to_resume(tmp_path):
     import time
 
     run_dir = tmp_path / "run"
-    args = [sys.executable, "train.py", *TINY, "centers=aco", "centers.aco.iterations=400", f"hydra.run.dir={run_dir}"]
+    args = [
+        sys.executable,
+        "train.py",
+        *TINY_TRAIN,
+        "centers=aco",
+        "centers.aco.iterations=400",
+        f"hydra.run.dir={run_dir}",
+    ]
     proc = subprocess.Popen(
         args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
     )
@@ -247,7 +242,12 @@ def test_hydras_own_errors_and_added_keys_are_one_line(tmp_path, override, messa
 
 def test_a_failed_multirun_job_ends_the_sweep_with_its_error_not_a_traceback(tmp_path):
     r = _run(
-        "train.py", "-m", *TINY, "seed=0,-1", f"hydra.sweep.dir={tmp_path / 'sweep'}", env={"HYDRA_FULL_ERROR": "0"}
+        "train.py",
+        "-m",
+        *TINY_TRAIN,
+        "seed=0,-1",
+        f"hydra.sweep.dir={tmp_path / 'sweep'}",
+        env={"HYDRA_FULL_ERROR": "0"},
     )
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
     assert "error: seed=-1 is not allowed: use an integer in [0, 4294967295]" in r.stderr.splitlines(), r.stderr
