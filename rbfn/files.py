@@ -203,6 +203,12 @@ def file_kind(path: Path) -> str | None:
         return f"a dangling symbolic link (to {os.readlink(path)})" if path.is_symlink() else None
     except OSError as e:  # a loop of links, a name too long, a folder on the way not searchable
         return f"not readable ({e.strerror or e})"
+    return mode_kind(mode)
+
+
+def mode_kind(mode: int) -> str:
+    """What a file of (st_)mode `mode` is, in words: "" for a regular file, else "a directory", "a
+    FIFO (named pipe)", "a character device", ..., for messages."""
     kinds = (
         (stat.S_ISREG, ""),
         (stat.S_ISDIR, "a directory"),

@@ -47,7 +47,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from yaml import YAMLError  # type: ignore[import-untyped]
 
-from .files import unwritable, write_files
+from .files import mode_kind, unwritable, write_files
 from .memory import size_text
 from .scripts import fail
 
@@ -79,7 +79,7 @@ def _read(path: Path, limit: int = MAX_READ_BYTES, tail: bool = False) -> bytes:
         if stat.S_ISDIR(st.st_mode):
             raise IsADirectoryError(errno.EISDIR, "Is a directory")
         if not stat.S_ISREG(st.st_mode):
-            raise OSError(errno.EINVAL, f"it is {_file_kind(st.st_mode)}, not a regular file; not read")
+            raise OSError(errno.EINVAL, f"it is {mode_kind(st.st_mode)}, not a regular file; not read")
         if st.st_size > limit:
             if not tail:
                 raise OSError(errno.EFBIG, f"it holds {size_text(st.st_size)}, more than {size_text(limit)}; not read")
@@ -94,11 +94,6 @@ def _read(path: Path, limit: int = MAX_READ_BYTES, tail: bool = False) -> bytes:
             raise OSError(errno.EFBIG, f"it holds more than {size_text(limit)}; not read")
         del data[:-limit]
     return bytes(data)
-
-
-def _file_kind(mode: int) -> str:
-    kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
-    return next((name for test, name in kinds if test(mode)), "a special file")
 
 
 def _why(e: OSError) -> str:

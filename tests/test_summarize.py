@@ -170,7 +170,7 @@ def _error_line(capsys, *argv, status=2):
         ('{"test_pos_err_mm_median": {"a": 1}}', 'test_pos_err_mm_median is a JSON object ({"a": 1}), not a number'),
         ('{"test_pos_err_mm_median": true}', "test_pos_err_mm_median is a JSON boolean (true), not a number"),
         (None, "metrics.json cannot be read: Is a directory"),
-        ("fifo", "metrics.json cannot be read: it is a FIFO, not a regular file; not read"),
+        ("fifo", "metrics.json cannot be read: it is a FIFO (named pipe), not a regular file; not read"),
         ("big", "metrics.json cannot be read: it holds 3 GiB, more than 64 MiB; not read"),
         ("dangling", "metrics.json cannot be read: No such file or directory"),
     ],
