@@ -31,10 +31,12 @@ class Progress:
         self.done = int(done)
 
     def line(self) -> str | None:
-        """'WHAT: DONE / TOTAL UNIT, about T s left' (the time from this stage's rate so far); None
-        before any stage started."""
+        """'WHAT: DONE / TOTAL UNIT, about T s left' (the time from this stage's rate so far); 'WHAT'
+        alone for a stage of no counted steps (total 0); None before any stage started."""
         if not self.what:
             return None
+        if not self.total:
+            return self.what
         text = f"{self.what}: {self.done} / {self.total} {self.unit}"
         ran = self.done - self._first
         if 0 < ran and self.done < self.total:

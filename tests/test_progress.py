@@ -25,3 +25,9 @@ def test_a_new_stage_restarts_the_rate_and_a_resumed_one_counts_from_where_it_wa
     assert p.line() == "M = 10: colony: 45 / 50 iterations, about 100 s left"  # 5 in 100 s
     p.at("refinement", 0, 10)
     assert p.what == "refinement" and p.line() == "refinement: 0 / 10 steps"
+
+
+def test_a_stage_of_no_counted_steps_is_named_alone():
+    p = Progress()
+    p.at("the pilot run", 0, 0)
+    assert p.line() == "the pilot run"

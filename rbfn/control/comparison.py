@@ -134,10 +134,15 @@ def compare_controllers(
             )
         return nets[method]
 
+    def stage(what: str) -> None:  # a step of no counted parts, for the progress line
+        if progress is not None:
+            progress.at(what, 0, 0)
+
     for name in cfg.controllers:
         features = w0 = None
         if name.startswith("arbfn_"):
             if pilot is None:
+                stage("the pilot run")
                 pilot = pilot_residuals(
                     plant,
                     sc,
@@ -154,10 +159,12 @@ def compare_controllers(
                 t_tune = time.perf_counter()
                 args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
                 if cost is None:  # the tuning's scenarios, and smc's reference errors on them
+                    stage("smc on the tuning scenarios")
                     cost = _closed_loop_cost(*args)
                 found = tune_network(
                     method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor, progress=progress
                 )
+                stage(f"confirming {name}'s network at the evaluation's length")
                 if confirm is None:  # the same scenarios, as long as the evaluation's episode
                     confirm = _closed_loop_cost(*args, full_length=True)
                 tuned[name] = confirmed(found, cost, confirm)
@@ -182,6 +189,7 @@ def compare_controllers(
         )
     k = len(controllers)
     ctrl = Stacked(controllers, [b] * k)
+    stage(f"simulating {k} controllers x {b} payload cases")
     t0 = time.perf_counter()
     try:
         roll = simulate(
