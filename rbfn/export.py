@@ -71,7 +71,7 @@ from .checkpoint import (
     unseal,
 )
 from .data import sample_joints
-from .files import signals_raised, unwritable, write_files
+from .files import discard, signals_raised, unwritable, write_files
 from .layer import RBFNetwork
 from .robots.robot import Robot, robot_from_record
 from .scripts import fail
@@ -512,9 +512,7 @@ def main(argv: list[str] | None = None) -> None:
         for path in targets:
             print(f"wrote {path}", flush=True)
     except BrokenPipeError:  # the reader left (| head -1): the files are written; the rest goes nowhere
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())  # also for the interpreter's last flush
-        os.close(devnull)
+        discard(sys.stdout)
 
 
 def _checked_outputs(p: argparse.ArgumentParser, a: argparse.Namespace) -> list[Path]:

@@ -193,6 +193,16 @@ def signals_raised(defer: bool = False) -> Iterator[list[int]]:
         raise error
 
 
+def discard(stream) -> None:
+    """Send the rest of what is written to `stream` (stdout, say, whose reader went away: `| head -1`)
+    to /dev/null, at the descriptor, so the interpreter's last flush finds nothing broken either."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, stream.fileno())
+    finally:
+        os.close(devnull)
+
+
 def file_kind(path: Path) -> str | None:
     """What is at `path`, links followed: "" for a regular file, None for nothing, else what it
     is ("a directory", "a FIFO (named pipe)", "a character device", "a dangling symbolic link

@@ -179,12 +179,12 @@ def train_ik(
 ) -> TrainResult:
     """Train the IK network of `cfg` on `data` (targets (N, 3 or 7) -> joints (N, n)).
 
-        With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
-        the running colony's snapshots) and an interrupted run continues where it stopped, ending with
-        exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
-        mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`). `progress`, where
-    given, follows the colonies' iterations and the refinement's steps. An arm with more
-        free joints than its targets' degrees of freedom is refused first (check_ik_is_function).
+    With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
+    the running colony's snapshots) and an interrupted run continues where it stopped, ending with
+    exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
+    mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`). `progress`, where
+    given, follows the colonies' iterations and the refinement's steps. An arm with more free
+    joints than its targets' degrees of freedom is refused first (check_ik_is_function).
     """
     n_q = data.train.q.shape[1]
     joints = robot.joint_names if robot is not None else [f"joint {i + 1}" for i in range(n_q)]

@@ -32,6 +32,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from ..control.simulator import SimulationDiverged
+from ..files import discard
 from ..progress import Progress
 from ..resume import DifferentRun
 from .rundir import FULL_ERROR, RunDirInUse
@@ -167,10 +168,8 @@ class ConsoleHandler(logging.StreamHandler):
         if not isinstance(sys.exc_info()[1], BrokenPipeError):
             super().handleError(record)
             return
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        with suppress(OSError, ValueError):
-            os.dup2(devnull, self.stream.fileno())  # also quiets the interpreter's final flush
-        os.close(devnull)
+        with suppress(OSError, ValueError):  # (a stream without a descriptor)
+            discard(self.stream)
         _say("note: standard output was closed; the run goes on, its messages go to its log file only")
 
 
