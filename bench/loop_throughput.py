@@ -16,9 +16,13 @@ import time
 import torch
 
 from rbfn.config import ControlConfig, GainsConfig, LoopConfig, RobotConfig
-from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
+from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.loop import real_loop
+from rbfn.control.models import NominalModel
 from rbfn.control.robot_setup import control_robot
+from rbfn.robots.scara import ScaraTerms
+
+SCARA_MODEL = NominalModel(ScaraTerms())  # the paper's nominal model of the SCARA
 
 # conf/loop/realistic.yaml with the SCARA's conf/robot values, and conf/gains/robot/scara_realistic.yaml
 REALISTIC = LoopConfig(
@@ -43,16 +47,18 @@ def measure(batch: int, repeats: int, device: str) -> dict[str, float]:
     real = real_loop(REALISTIC, sc.dt, [False, False, True], torch.tensor([100.0, 100.0, 500.0]))
     assert real is not None
     setup = control_robot(RobotConfig(), ControlConfig())  # the SCARA, rated 20 kg
-    factors = setup.gain_factors(GAINS, real, **kw)  # the controllers' per-joint factors, as evaluate.py's
+    factors = setup.gain_factors(GAINS, real, **kw)  # per-joint factors, as evaluate.py's
     loops = {"ideal": (None, sc.dt), "realistic": (real, real.period)}
     times: dict[str, list[float]] = {name: [] for name in loops}
     for _ in range(repeats):
         for name, (loop, period) in loops.items():  # turn by turn
-            ctrl = make_controller("smc_obs", GAINS, period, joint_scale=factors.scale, rates=factors.rates)
+            ctrl = make_controller(
+                "smc_obs", GAINS, period, SCARA_MODEL, joint_scale=factors.scale, rates=factors.rates
+            )
             if device != "cpu":
                 torch.cuda.synchronize()
             t0 = time.perf_counter()
-            simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, record=False, loop=loop)
+            simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, record=False, loop=loop)
             if device != "cpu":
                 torch.cuda.synchronize()
             times[name].append(time.perf_counter() - t0)

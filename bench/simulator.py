@@ -13,7 +13,8 @@ closed loop; friction is damping + frictionloss there.
 
 URDF arms (`arm_rows`, `arm_mujoco_rows`; the UR5 by default): the same closed loop (`smc_obs`, the
 robot's derived joint scale and scenario, 2.5 kg at the end link throughout, float32) through
-`rbfn.control.ArmPlant` (Cholesky solve) at B environments, against MuJoCo's rollout of the same
+`rbfn.control.Plant` over the URDF recursion (`rbfn.robots.arm_terms.ArmTerms`, Cholesky solve)
+at B environments, against MuJoCo's rollout of the same
 URDF (`rbfn.robots.mjcf.arm_model`, open loop: inverse dynamics along the reference plus the
 scenario's friction minus its disturbance), both on one thread:
 
@@ -35,11 +36,15 @@ import numpy as np
 import torch
 
 from rbfn.config import ControlConfig, RobotConfig
-from rbfn.control import ScaraPlant, Scenario, control_robot, make_controller, paper_trajectory, simulate
+from rbfn.control import Plant, Scenario, control_robot, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Gains
+from rbfn.control.models import NominalModel
 from rbfn.robots import scara
+from rbfn.robots.scara import ScaraTerms
 
 from .timing import median_seconds, timed
+
+SCARA_MODEL = NominalModel(ScaraTerms())  # the paper's nominal model of the SCARA
 
 __all__ = [
     "DT",
@@ -74,10 +79,10 @@ def closed_loop(
     on, off = payload_window or (0.0, duration)
     sc = Scenario(duration=duration, dt=DT, payload_on=on, payload_off=off, metrics_after=0.0)
     ref = tuple(r.to(device) for r in paper_trajectory(sc.times(torch.float32, device)))
-    ctrl = make_controller("smc_obs", Gains(), DT)
+    ctrl = make_controller("smc_obs", Gains(), DT, SCARA_MODEL)
     q0, qd0 = ref[0][0].expand(b, 3).clone(), ref[1][0].expand(b, 3).clone()
     payload = torch.full((b,), PAYLOAD, device=device)
-    plant = ScaraPlant()
+    plant = Plant(scara.ScaraTerms())
     return lambda: simulate(plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile, aot=aot)
 
 
@@ -185,7 +190,7 @@ def aot_scenario(device: str, threads: int, cap_s: float, duration: float = 10.0
 def numpy_rk4_row(duration: float = 10.0) -> dict:
     """One environment stepped by a plain numpy RK4 loop at dt = 1 ms (the same plant, PD in the
     right-hand side, torque held per step as in `simulate`): wall seconds."""
-    plant = ScaraPlant()
+    plant = Plant(scara.ScaraTerms())
     rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
     s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])
     n, h = int(round(duration / DT)), DT
@@ -210,7 +215,7 @@ def numpy_rk4_row(duration: float = 10.0) -> dict:
     }
 
 
-def _pd_rhs(p: scara.ScaraParams, plant: ScaraPlant, gains: Gains, on: float, off: float):
+def _pd_rhs(p: scara.ScaraParams, plant: Plant, gains: Gains, on: float, off: float):
     """Right-hand side of the closed loop (state (6,): q, qd) in numpy, PD inside."""
     kp, kd = gains.K * gains.Lambda, gains.K
 
@@ -246,7 +251,7 @@ def scipy_row(duration: float = 10.0, repeats: int = 1) -> dict:
     """One environment by scipy's solve_ivp (RK45, rtol 1e-6, atol 1e-8): wall seconds, RHS calls."""
     from scipy.integrate import solve_ivp
 
-    plant = ScaraPlant()
+    plant = Plant(scara.ScaraTerms())
     rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
     s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])  # the reference at t = 0
     sol = {}
@@ -298,7 +303,7 @@ def mujoco_rows(steps_for: dict[int, int], threads: int = 1, repeats: int = 3, i
 
     model = mujoco.MjModel.from_xml_string(scara_mjcf(payload=PAYLOAD, dt=DT, integrator=integrator))
     datas = [mujoco.MjData(model) for _ in range(max(threads, 1))]
-    plant = ScaraPlant()
+    plant = Plant(scara.ScaraTerms())
     rows = []
     for b, n in steps_for.items():
         t_grid = torch.arange(n, dtype=torch.float64) * DT
@@ -408,7 +413,7 @@ def arm_mujoco_rows(
     model = arm_model(
         Path(cfg.urdf) if cfg.urdf else cfg.name,
         payload=ARM_PAYLOAD,
-        payload_link=plant.arm.end_link,
+        payload_link=plant.dynamics.arm.end_link,
         viscous=plant.viscous,
         coulomb=plant.coulomb,
         dt=DT,
@@ -421,7 +426,7 @@ def arm_mujoco_rows(
         t_grid = torch.arange(n, dtype=torch.float64) * DT
         q, qd, qdd = setup.trajectory(t_grid)
         tau = (
-            plant.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd) - plant.disturbance(t_grid)
+            plant.dynamics.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd) - plant.disturbance(t_grid)
         )
         t, ts = _timed_rollout(model, datas, q[0], qd[0], tau, b, repeats)
         rows.append(

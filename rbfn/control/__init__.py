@@ -1,9 +1,9 @@
-"""Closed-loop control of any serial arm (the SCARA in closed form): batched simulator, controllers,
-the adaptive RBFN, online IK."""
+"""Closed-loop control of any serial arm: batched simulator, controllers, the adaptive RBFN,
+online IK."""
 
 from .controllers import Gains, make_controller
-from .models import ArmModel, NominalModel
-from .plants import ArmPlant, ScaraPlant
+from .models import ModelScales, NominalModel
+from .plants import Plant
 from .robot_setup import ControlRobot, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
@@ -12,10 +12,9 @@ __all__ = [
     "Reference",
     "Gains",
     "make_controller",
+    "ModelScales",
     "NominalModel",
-    "ArmModel",
-    "ScaraPlant",
-    "ArmPlant",
+    "Plant",
     "ControlRobot",
     "control_robot",
     "Rollout",

@@ -15,7 +15,7 @@ from typing import cast
 
 import torch
 
-from .controllers import Controller, Forces, NominalModel, Reference, SlidingMode, SlidingState
+from .controllers import Controller, Forces, Reference, SlidingMode, SlidingState
 from .loop import Applied
 
 __all__ = ["Stacked", "SlidingModeBatch"]
@@ -148,7 +148,7 @@ class Stacked(Controller):
         forces: Forces | None = None,
     ) -> tuple[torch.Tensor, tuple]:
         assert alpha is not None  # one column per unit (K,)
-        rows = [Forces(co, forces.dist) for co in zip(*(c.split(self.unit_sizes) for c in forces.co))] if forces else []
+        rows = [Forces(p, forces.dist) for p in forces.payload.split(self.unit_sizes)] if forces else []
         taus, states = [], []
         parts = (
             [None] * len(self.units)
@@ -170,14 +170,12 @@ class Stacked(Controller):
 
 def _batchable(a: Controller, b: Controller) -> bool:
     """Whether sliding-mode controllers a and b can run as one: equal gains, time step, joint
-    scale, joint rates and model (the same object, or the SCARA's with the same coefficients)."""
+    scale, joint rates and nominal model."""
     if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
         return False
     same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
     same_rates = a.rates is b.rates or (
         a.rates is not None and b.rates is not None and all(map(torch.equal, a.rates, b.rates))
     )
-    same_model = a.model is b.model or (
-        type(a.model) is type(b.model) is NominalModel and vars(a.model) == vars(b.model)
-    )
+    same_model = a.model is b.model or a.model == b.model  # (NominalModel: the same dynamics, factors and payload)
     return same_scale and same_rates and same_model

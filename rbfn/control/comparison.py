@@ -27,10 +27,10 @@ from ..config import (
     RobotConfig,
 )
 from ..progress import Progress
-from ..robots.scara import ScaraParams
 from .batch import Stacked
 from .controllers import Model, make_controller
 from .loop import RealLoop, real_loop
+from .models import model_scales
 from .network import ControlNet, control_network, desired_states, pilot_residuals
 from .robot_setup import ControlRobot, GainFactors, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
@@ -75,7 +75,6 @@ def compare_controllers(
     cfg: ControlConfig,
     gains: GainsConfig,
     device: str = "cpu",
-    params: ScaraParams = ScaraParams(),
     robot: RobotConfig | None = None,
     setup: ControlRobot | None = None,
     loop: LoopConfig | None = None,
@@ -87,13 +86,13 @@ def compare_controllers(
     loop: how real the loop is (None: ideal). In the realistic loop the controllers act every
     control period (their adaptation steps gamma times it), the pilot run stays ideal. progress:
     where given, follows the closed-loop tuning's batches."""
-    setup = setup or control_robot(robot or RobotConfig(), cfg, params)
+    setup = setup or control_robot(robot or RobotConfig(), cfg)
     dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
-    plant, model = setup.plant, setup.nominal_model(gains.nominal_payload)
+    plant, model = setup.plant, setup.nominal_model(gains.nominal_payload, model_scales(gains))
     real: RealLoop | None = None
     if loop is not None:
         effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)

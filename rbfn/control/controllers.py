@@ -2,7 +2,7 @@
 observer (`smc_obs`), and the adaptive RBFN on top of either.
 
 All but PD use the controller's nominal model M_hat = 0.9 M, C_hat = 0.8 C, G_hat = 0.85 G of
-the unloaded robot (`rbfn.control.models`: the SCARA's closed form or any URDF arm). With
+the unloaded robot (`rbfn.control.models.NominalModel`; the factors are the gains'). With
 e = q_d - q, s = de + Lambda e, the reference velocity qr' = qd_d + Lambda e and acceleration
 qr'' = qdd_d + Lambda de:
 
@@ -34,13 +34,12 @@ import torch
 
 from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
 from .loop import Applied
-from .models import ArmModel, NominalModel
+from .models import NominalModel
 from .trajectory import Reference
 
 __all__ = [
     "Gains",
     "NominalModel",
-    "ArmModel",
     "Reference",
     "Controller",
     "PD",
@@ -53,7 +52,7 @@ __all__ = [
     "make_controller",
 ]
 
-Model = NominalModel | ArmModel
+Model = NominalModel
 
 
 class SlidingState(NamedTuple):
@@ -73,11 +72,10 @@ class SlidingState(NamedTuple):
 
 
 class Forces(NamedTuple):
-    """What only the perfect-knowledge controller is told each period: the plant's payload
-    coefficients (`Plant.coefficients`, each (B,)) and the disturbance torque now ((), or (n,)),
-    N m (N)."""
+    """What only the perfect-knowledge controller is told each period: the payload (B,) kg and the
+    disturbance torque now ((), or (n,)), N m (N)."""
 
-    co: tuple[torch.Tensor, ...]
+    payload: torch.Tensor
     dist: torch.Tensor
 
 
@@ -104,7 +102,8 @@ class Controller:
     def __init__(
         self, gains: Gains, dt: float, model: Model | None = None, joint_scale: torch.Tensor | None = None
     ) -> None:
-        self.gains, self.dt, self.model = gains, dt, model or NominalModel()
+        self.gains, self.dt = gains, dt
+        self.model: Any = model  # None only for a controller that needs no model (PD, smc_exact)
         self.scale = joint_scale
 
     def _scaled(self, gain: float):
@@ -296,9 +295,9 @@ class ExactSliding(Controller):
         s = de + g.Lambda * e
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
         zero = torch.zeros_like(q)
-        a0 = self.plant.accel(q, qd, zero, forces.co)  # -M^-1 (C qd + G + F)
+        a0 = self.plant.accel(q, qd, zero, forces.payload)  # -M^-1 (C qd + G + F)
         eye = torch.eye(n, dtype=q.dtype, device=q.device)
-        m_inv = torch.stack([self.plant.accel(q, qd, eye[j].expand_as(q), forces.co) - a0 for j in range(n)], -1)
+        m_inv = torch.stack([self.plant.accel(q, qd, eye[j].expand_as(q), forces.payload) - a0 for j in range(n)], -1)
         feedforward = torch.linalg.solve(m_inv, ref.qdd_d + g.Lambda * de - a0)  # M (qr'' ) + C qd + G + F
         tau = feedforward + forces.dist + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
         return tau, state
@@ -317,11 +316,14 @@ def make_controller(
     rates: JointRates | None = None,
 ) -> Controller:
     """Controller by name: pd, ctc, smc, smc_obs, smc_exact (needs the `plant`), or arbfn* (needs
-    `features`). `model`: the nominal model (default: the SCARA's); `joint_scale` (n,): per-joint
+    `features`). `model`: the nominal model (`rbfn.control.models.NominalModel`; all but pd and
+    smc_exact need it); `joint_scale` (n,): per-joint
     factor of the torque gains; `rates`: per-joint factors of the sliding-mode law's observer gain
     and adaptation rate (None: 1)."""
     if name == "pd":
         return PD(gains, dt, model, joint_scale)
+    if model is None and name != "smc_exact":
+        raise ValueError(f"controller {name!r} needs the nominal model (model=rbfn.control.models.NominalModel)")
     if name == "ctc":
         return ComputedTorque(gains, dt, model, joint_scale)
     if name == "smc":

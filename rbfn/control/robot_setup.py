@@ -4,8 +4,9 @@ checked here, before any simulation, with errors naming the key.
 
 Every robot takes one path: its URDF chain (`rbfn.robots.dynamics.load_arm`) root ->
 robot.end_link is loaded and checked, then `rbfn.robots.registry.closed_form` is asked for faster
-closed forms of exactly that chain (the packaged SCARA's, with the payload at its end link);
-without them the plant and nominal model are the URDF's. Every joint of the chain is controlled:
+closed forms of exactly that chain (the packaged SCARA's, with the payload at its end link); the
+plant and the nominal model use their dynamics backend, else the URDF recursion's
+(`rbfn.robots.arm_terms.ArmTerms`). Every joint of the chain is controlled:
 joints in robot.locked are held at their value (desired amplitude 0). The joint box
 (robot.joint_low/high) and robot.home list the free joints.
 """
@@ -16,18 +17,20 @@ import logging
 import reprlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple
 
 import torch
 
 from ..config import ControlConfig, GainsConfig, RobotConfig, Trajectory
+from ..robots.arm_terms import ArmTerms
+from ..robots.backend import Dynamics
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
 from ..robots.robot import check_joint_values
 from .controllers import JointRates
 from .loop import RealLoop, crossover_limit, integration_limit
-from .models import ArmModel, NominalModel
-from .plants import ArmPlant, Plant
+from .models import PAPER, ModelScales, NominalModel, model_scales
+from .plants import Plant
 from .trajectory import paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
@@ -53,7 +56,7 @@ class ControlRobot:
     joint_names: list[str]
     prismatic: list[bool]
     plant: Plant
-    model: NominalModel | ArmModel
+    model: NominalModel  # the unloaded robot's, at the default `ModelScales`
     scale: list[float] | None  # torque-gain and scenario factor per joint; None: 1 on every joint
     trajectory_kind: str
     home: list[float]  # per joint, rad or m (sinusoid)
@@ -70,21 +73,25 @@ class ControlRobot:
     def n(self) -> int:
         return len(self.joint_names)
 
-    def nominal_model(self, payload: float = 0.0) -> NominalModel | ArmModel:
-        """The controllers' nominal model carrying `payload` kg (`gains.nominal_payload`; 0: the
-        unloaded robot's, `model`), closed-form where the robot has one."""
-        if not payload:
-            return self.model
-        if self.closed is not None:
-            return self.closed.model(payload)
-        return ArmModel(cast(ArmPlant, self.plant).terms, payload=payload)
+    @property
+    def dynamics(self) -> Dynamics:
+        """The arm's equations of motion (the plant's backend)."""
+        return self.plant.dynamics
 
-    def home_inertia(self, payload: float = 0.0) -> torch.Tensor:
+    def nominal_model(self, payload: float = 0.0, scales: ModelScales = PAPER) -> NominalModel:
+        """The controllers' nominal model carrying `payload` kg (`gains.nominal_payload`; 0: the
+        unloaded robot's) with factors `scales` (`model_scales(gains)`); `model` where both are the
+        defaults."""
+        if not payload and scales == self.model.scales:
+            return self.model
+        return NominalModel(self.dynamics, scales, payload)
+
+    def home_inertia(self, payload: float = 0.0, scales: ModelScales = PAPER) -> torch.Tensor:
         """The nominal model's inertia matrix M_hat (n, n) at home carrying `payload` kg, float64,
         kg m^2 (kg)."""
         home = torch.tensor([self.home], dtype=torch.float64)
         eye = torch.eye(self.n, dtype=torch.float64)
-        return self.nominal_model(payload).at(home.expand(self.n, -1), torch.zeros_like(eye)).m_times(eye)
+        return self.nominal_model(payload, scales).at(home.expand(self.n, -1), torch.zeros_like(eye)).m_times(eye)
 
     def gain_factors(self, gains: GainsConfig, loop: RealLoop | None, dt: float | None = None, **kw) -> GainFactors:
         """The controllers' per-joint factors in `loop` (None: the ideal loop, stepping dt s): the
@@ -112,7 +119,7 @@ class ControlRobot:
         noise keep the joint scale."""
         if crossover is None:
             return self.scale
-        apparent = 1.0 / torch.linalg.inv(self.home_inertia(gains.nominal_payload)).diagonal()
+        apparent = 1.0 / torch.linalg.inv(self.home_inertia(gains.nominal_payload, model_scales(gains))).diagonal()
         scale = torch.ones(self.n, dtype=torch.float64) if self.scale is None else torch.tensor(self.scale)
         capped = torch.minimum(scale, crossover * apparent / gains.K)
         return self.scale if torch.equal(capped, scale) else capped.tolist()
@@ -133,8 +140,9 @@ class ControlRobot:
         the crossover likewise. Dimensionless (n,), dtype and device from kw."""
         if not gains.inertia_scaling:
             return None
-        base = self.home_inertia(gains.nominal_payload).diagonal()
-        rated = self.home_inertia(max(self.rated_payload, gains.nominal_payload)).diagonal()
+        scales = model_scales(gains)
+        base = self.home_inertia(gains.nominal_payload, scales).diagonal()
+        rated = self.home_inertia(max(self.rated_payload, gains.nominal_payload), scales).diagonal()
         if scale is None:
             scale = self.joint_scale(dtype=torch.float64)
         s = torch.ones(self.n, dtype=torch.float64) if scale is None else scale.double().cpu()
@@ -165,11 +173,8 @@ def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]
     return cases, (rated / 2 if cfg.figure_payload is None else cfg.figure_payload)
 
 
-def control_robot(
-    robot: RobotConfig, cfg: ControlConfig, params: Any = None, urdf_text: str | None = None
-) -> ControlRobot:
+def control_robot(robot: RobotConfig, cfg: ControlConfig, urdf_text: str | None = None) -> ControlRobot:
     """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key).
-    `params`: constants for the robot's closed forms, if it has any (None: theirs, at robot.gravity).
     `urdf_text`: the URDF's text (a checkpoint's robot entry: data, never a file name), used
     instead of the file robot.urdf or the preset robot.name."""
     payloads, figure_payload = payload_cases(cfg, robot.rated_payload)
@@ -186,7 +191,7 @@ def control_robot(
     source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
     arm = _load(robot, cfg, source, urdf_text)
     n, names, prismatic = arm.n, arm.joint_names, arm.prismatic
-    known = closed_form(urdf_source(source)[0], robot.end_link, robot.locked, robot.gravity, params)
+    known = closed_form(urdf_source(source)[0], robot.end_link, robot.locked, robot.gravity)
     closed = known if cfg.payload_link in ("", robot.end_link) else None  # they carry the payload at the end link
     scale = _scale(cfg, robot, None if closed is not None else arm, n)
     home, amplitude = _sinusoid(robot, cfg, names)
@@ -204,13 +209,9 @@ def control_robot(
         disturbance=per(cfg.disturbance),
         disturbance_freq=cfg.disturbance_freq,
     )
-    plant: Plant
-    model: NominalModel | ArmModel
-    if closed is not None:
-        plant, model = closed.plant(**kw), closed.model()
-    else:
-        plant = ArmPlant(arm, **kw)
-        model = ArmModel(plant.terms)
+    dynamics = closed.dynamics() if closed is not None else ArmTerms(arm)
+    plant = Plant(dynamics, **kw)
+    model = NominalModel(dynamics)
     return ControlRobot(
         robot.name,
         names,

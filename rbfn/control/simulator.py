@@ -1,5 +1,5 @@
-"""The closed-loop simulator: a "real" robot (`rbfn.control.plants`: the SCARA in closed form or
-any URDF arm, with friction, disturbance and payload) driven by a controller along a desired
+"""The closed-loop simulator: a "real" robot (`rbfn.control.plants.Plant`: an arm's dynamics with
+friction, disturbance and payload) driven by a controller along a desired
 trajectory, B environments at once, n joints.
 
 A scenario is a time grid, an integrator (RK4, or semi-implicit Euler) and a payload window;
@@ -22,13 +22,11 @@ from ..config import Integrator
 from .aot import aot_chunk, chunk_key, serializable
 from .controllers import Controller, Forces, SlidingState
 from .loop import Actuation, Applied, RealLoop, Sensing, filtered_velocity, quantise, saturate
-from .plants import ArmPlant, Plant, ScaraPlant
+from .plants import Plant
 from .trajectory import Reference
 
 __all__ = [
     "Plant",
-    "ScaraPlant",
-    "ArmPlant",
     "Reference",
     "Scenario",
     "Rollout",
@@ -41,7 +39,7 @@ __all__ = [
     "metric_tensors",
     "make_chunk",
     "stage_disturbances",
-    "payload_coefficients",
+    "payload_schedule",
     "CHECK_EVERY",
 ]
 
@@ -126,13 +124,13 @@ def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
     return torch.stack([d[0:-1:2], d[1::2], d[2::2]], 1)
 
 
-def payload_coefficients(plant: Plant, scenario: Scenario, steps: int, payload: torch.Tensor, **kw) -> tuple:
-    """The plant's payload coefficients at each of `steps` integration steps, each (steps, B): the
-    payload (B,) kg inside the scenario's window, none outside (`Plant.coefficients`)."""
+def payload_schedule(scenario: Scenario, steps: int, payload: torch.Tensor, **kw) -> torch.Tensor:
+    """The payload at each of `steps` integration steps (steps, B) kg: the payload (B,) inside the
+    scenario's window, none outside; dtype and device from kw."""
     k = torch.arange(steps, device=kw.get("device"))
     dt = scenario.dt
     inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(kw["dtype"])
-    return tuple(plant.coefficients(inside[:, None] * payload.to(**kw)[None, :]))
+    return inside[:, None] * payload.to(**kw)[None, :]
 
 
 class Loop(NamedTuple):
@@ -149,13 +147,13 @@ class Periods(NamedTuple):
     the reference (each (m, n), or per environment (m, B, n)), the features h (m, M) or None,
     the adaptation steps alpha (m,) (a Stacked controller's: (m, K)), the disturbance torque at
     each period's start, middle and end dist (m, 3) or (m, 3, n) (`stage_disturbances`), and the
-    plant's payload coefficients co (each (m, B))."""
+    payload (m, B) kg (`payload_schedule`)."""
 
     ref: Reference
     h: torch.Tensor | None
     alpha: torch.Tensor
     dist: torch.Tensor
-    co: tuple[torch.Tensor, ...]
+    payload: torch.Tensor
 
 
 class Recorded(NamedTuple):
@@ -169,11 +167,11 @@ class Recorded(NamedTuple):
     tau: torch.Tensor
 
 
-def _forces(controller: Controller, co: tuple, dist: torch.Tensor) -> Forces | None:
+def _forces(controller: Controller, payload: torch.Tensor, dist: torch.Tensor) -> Forces | None:
     """What the perfect-knowledge ceiling is told this step (`Controller.needs_forces`): the payload
-    coefficients (each (B,)) and the disturbance at the step's start (dist[0] of the step's (3,)
+    (B,) kg and the disturbance at the step's start (dist[0] of the step's (3,)
     or (3, n)); None for every other controller."""
-    return Forces(co, dist[0]) if controller.needs_forces else None
+    return Forces(payload, dist[0]) if controller.needs_forces else None
 
 
 def make_chunk(
@@ -191,14 +189,14 @@ def make_chunk(
             hs,
             periods.alpha.unbind(0),
             periods.dist.unbind(0),
-            *(c.unbind(0) for c in periods.co),
+            periods.payload.unbind(0),
         )
-        for q_d, qd_d, qdd_d, h, alpha, dist, *co in rows:
+        for q_d, qd_d, qdd_d, h, alpha, dist, payload in rows:
             qs.append(q)
             qds.append(qd)
-            forces = _forces(controller, tuple(co), dist)
+            forces = _forces(controller, payload, dist)
             tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha, forces=forces)
-            q, qd = plant.step(q, qd, tau, dist, dt, co, integrator)
+            q, qd = plant.step(q, qd, tau, dist, dt, payload, integrator)
             taus.append(tau)
         return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
 
@@ -269,9 +267,9 @@ def simulate(
     kg applies inside the window.
 
     Returns a Rollout, or with record=False only the final (q, qd). `chunk` periods run per call
-    (default 100 eager; compiled, the plant's `compile_chunk`: 25 for the SCARA, 1 for a URDF arm,
-    whose step alone is a large graph); `compile` fuses them into one torch.compile'd call, which
-    removes most of the per-operation overhead at small B and, for a URDF arm, streams its
+    (default 100 eager; compiled, the plant's `compile_chunk`: 25 for the SCARA's closed form, 1
+    for the URDF recursion, whose step alone is a large graph); `compile` fuses them into one
+    torch.compile'd call, which removes most of the per-operation overhead at small B and, for a URDF arm, streams its
     dynamics through registers instead of memory (compiling takes minutes). `aot` runs the same
     chunks compiled ahead of time and cached on disk (`rbfn.control.aot`): minutes the first time
     for a configuration, milliseconds to load after that. Raises SimulationDiverged naming the
@@ -307,8 +305,8 @@ def simulate(
         h=controller.features.to(**kw) if controller.features is not None else None,
         alpha=controller.alphas(torch.arange(n, **kw) * dt),
         dist=stage_disturbances(plant, n, dt, **kw),  # (n, 3) or (n, 3, joints)
-        co=payload_coefficients(plant, scenario, n, payload, **kw),
-    )  # each (n, B)
+        payload=payload_schedule(scenario, n, payload, **kw),
+    )
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
@@ -400,14 +398,14 @@ class RealPeriods(NamedTuple):
     """The inputs of m consecutive control periods (first dimension m): the reference at each
     period's start, features h (m, M) or None, adaptation steps alpha, the disturbance torque at
     each integration step's start, middle and end dist (m, substeps, 3[, n]), the payload
-    coefficients co (each (m, substeps, B)), and the noise: positions (m, B, n) rad (m) and
+    (m, substeps, B) kg, and the noise: positions (m, B, n) rad (m) and
     torques (m, B, n) N m (N), or None."""
 
     ref: Reference
     h: torch.Tensor | None
     alpha: torch.Tensor
     dist: torch.Tensor
-    co: tuple[torch.Tensor, ...]
+    payload: torch.Tensor
     position_noise: torch.Tensor | None
     torque_noise: torch.Tensor | None
 
@@ -442,7 +440,7 @@ def make_real_chunk(
             # Control, told what the last period applied.
             ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
             h = None if periods.h is None else periods.h[k]
-            forces = _forces(controller, tuple(c[k, 0] for c in periods.co), periods.dist[k, 0])
+            forces = _forces(controller, periods.payload[k, 0], periods.dist[k, 0])
             cmd, cstate = controller.torque(
                 ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, forces=forces
             )
@@ -464,7 +462,7 @@ def make_real_chunk(
             if periods.torque_noise is not None:
                 u = u + periods.torque_noise[k]
             for j in range(loop.substeps):
-                q, qd = plant.step(q, qd, u, periods.dist[k, j], dt, tuple(c[k, j] for c in periods.co), integrator)
+                q, qd = plant.step(q, qd, u, periods.dist[k, j], dt, periods.payload[k, j], integrator)
             taus.append(u)
         return Recorded(RealState(q, qd, cstate, sensing, act), torch.stack(qs), torch.stack(qds), torch.stack(taus))
 
@@ -492,7 +490,7 @@ def _simulate_real(
     n_steps = periods * sub
     b, nj = q0.shape
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
-    co = tuple(c.reshape(periods, sub, b) for c in payload_coefficients(plant, scenario, n_steps, payload, **kw))
+    schedule = payload_schedule(scenario, n_steps, payload, **kw).reshape(periods, sub, b)
     dist = stage_disturbances(plant, n_steps, dt, **kw)
     dist = dist.reshape(periods, sub, *dist.shape[1:])
     starts = slice(0, n_steps, sub)  # each period's first integration step
@@ -502,7 +500,7 @@ def _simulate_real(
         h=None if feats is None else feats[starts].to(**kw),
         alpha=controller.alphas(torch.arange(periods, **kw) * loop.period),
         dist=dist,
-        co=co,
+        payload=schedule,
         position_noise=None,
         torque_noise=None,
     )

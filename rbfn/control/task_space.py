@@ -29,6 +29,7 @@ from pytorch_kinematics import transforms as tf
 from ..config import ControlConfig, GainsConfig, OnlineConfig, PathName, RobotConfig, Target, Trajectory
 from ..layer import RBFNetwork
 from ..lms import make_learner
+from ..robots.arm_terms import ArmTerms
 from ..robots.dynamics import load_arm
 from ..robots.perturbed import PerturbedChain
 from ..robots.registry import ClosedForm, closed_form
@@ -36,8 +37,9 @@ from ..robots.robot import robot_from_record, rotation_error_deg, unit_quaternio
 from .aot import aot_chunk, chunk_key
 from .controllers import Controller, make_controller
 from .loop import integration_limit
+from .models import model_scales
 from .robot_setup import control_robot
-from .simulator import ArmPlant, Loop, Periods, Plant, Scenario, SimulationDiverged, make_chunk, stage_disturbances
+from .simulator import Loop, Periods, Plant, Scenario, SimulationDiverged, make_chunk, stage_disturbances
 from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
@@ -227,11 +229,11 @@ def online_robot(
     setup = control_robot(robot, ControlConfig(trajectory=Trajectory.sinusoid), urdf_text=record["urdf"])
     listed = setup.feedback_scale(gains, integration_limit(cfg.dt))  # capped where the step cannot follow
     scale = None if listed is None else torch.tensor(listed, **kw)
-    ctrl = make_controller("smc_obs", gains, cfg.dt, setup.model, joint_scale=scale)
+    ctrl = make_controller("smc_obs", gains, cfg.dt, setup.nominal_model(0.0, model_scales(gains)), joint_scale=scale)
     trained = robot_from_record(record, kw.get("device", "cpu"))  # its chain, free joints, targets
     closed, n = record_closed_form(record), setup.n
     if closed is None:
-        arm = cast(ArmPlant, setup.plant).arm
+        arm = cast(ArmTerms, setup.dynamics).arm  # no closed forms: the URDF recursion
         link, offset = perturbation_sizes(cfg, sizes, n, n, **kw)
         q_path = box_path(trained.low.to(**kw), trained.high.to(**kw), cfg.amplitude, t)  # (T, n_free)
         held = trained.full_joints(q_path[:1])[0]
@@ -326,7 +328,7 @@ def run_online(
     qd = rob.full(torch.einsum("p,bpj->bj", path[1, 0], learner.w), vel)
     loop = Loop(q, qd, ctrl.init_state(q, qd))
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
-    co = tuple(plant.coefficients(torch.zeros(cfg.update_every, b, **kw)))  # no payload
+    payload = torch.zeros(cfg.update_every, b, **kw)  # none
     alpha = torch.zeros(cfg.update_every, **kw)
     run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
     qs = torch.empty(n + 1, b, nj, **kw)
@@ -338,7 +340,7 @@ def run_online(
             sl = slice(k, k + m)
             stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
             ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
-            periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], co=tuple(c[:m] for c in co))
+            periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], payload=payload[:m])
             if cfg.aot and k == 0 and m == cfg.update_every:  # compiled ahead of time, cached on disk
                 run = aot_chunk(
                     run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods), log.info

@@ -26,8 +26,8 @@ from typing import Any
 
 import torch
 
-from .arm_terms import ArmTerms
-from .dynamics import Arm, Payload
+from .backend import Friction
+from .dynamics import Payload
 from .spatial import Spatial
 
 __all__ = ["ArmScalarTerms", "ScalarConfig"]
@@ -139,12 +139,11 @@ _SYM = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
 class ArmScalarTerms:
-    """Scalar-form terms of an `Arm`; the constants are those of `ArmTerms` (turned body frames)."""
+    """Scalar-form terms of an arm of n joints from `ArmTerms`'s float64 constants `c` (turned
+    body frames); `ArmTerms.at` serves them while torch.compile traces."""
 
-    def __init__(self, arm: Arm | ArmTerms) -> None:
-        self.terms = arm if isinstance(arm, ArmTerms) else ArmTerms(arm)
-        self.n = self.terms.n
-        c = self.terms._consts(torch.float64, torch.device("cpu"))
+    def __init__(self, c: dict, n: int) -> None:
+        self.n = n
 
         def snap(x: torch.Tensor) -> list:
             return torch.where(x.abs() < 1e-14, 0.0, x).tolist()  # cos(pi/2) = 6e-17 is a zero
@@ -342,6 +341,18 @@ class ScalarConfig:
             acc = mo.iv[i] if acc is None else _s_add(acc, mo.iv[i])
             out[i] = _s_dot(mo.sd[i], acc)
         return self._stack(out)
+
+    def momentum_rate(self, qd: torch.Tensor, mo: ScalarMotion | None = None) -> torch.Tensor:
+        mo = mo or self.motion(qd)
+        cqd = self.coriolis_qd(qd, mo)
+        return (cqd + self.coriolis_transpose_qd(qd, mo)) - cqd - self.gravity()
+
+    def accel(self, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool = True) -> torch.Tensor:
+        """M^-1 (friction(r - C qd) - G) by the scalar Cholesky solve (`solve`), fused with the
+        rest of the step (torch.linalg's batched LAPACK calls would run apart and cost as much as
+        the whole fused step)."""
+        r = friction(r - self.coriolis_qd(qd), qd)
+        return self.solve(r - self.gravity() if gravity else r)
 
 
 class ScalarMotion:

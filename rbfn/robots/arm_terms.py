@@ -27,6 +27,8 @@ from typing import Any
 
 import torch
 
+from .arm_scalar import ArmScalarTerms
+from .backend import Friction, Scaled
 from .dynamics import Arm, Payload
 from .spatial import Spatial
 
@@ -108,11 +110,17 @@ def _frame_to(axis: torch.Tensor) -> torch.Tensor:
 
 
 class ArmTerms:
-    """Batch-last dynamics of an `Arm` (its URDF constants, float64 at load, cast per dtype/device)."""
+    """The URDF backend of `rbfn.robots.backend.Dynamics` for an `Arm` (its constants, float64 at
+    load, cast per dtype and device): batch-last terms eagerly, their scalar form
+    (`rbfn.robots.arm_scalar`) while torch.compile traces, which fuses it."""
+
+    compile_chunk = 1  # control periods per compiled call: one step is thousands of fused scalar operations
 
     def __init__(self, arm: Arm) -> None:
+        arm.check_physics("the closed loop")  # M qdd = ... needs M(q) positive definite
         self.arm, self.n = arm, arm.n
         self._cache: dict = {}
+        self.scalar = ArmScalarTerms(self._consts(torch.float64, torch.device("cpu")), self.n)  # built eagerly
 
     def _consts(self, dtype: torch.dtype, device: torch.device) -> dict:
         key = (dtype, device)
@@ -153,11 +161,23 @@ class ArmTerms:
             self._cache[key] = c
         return self._cache[key]
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> Config:
-        """The arm at joints q (B, n) rad or m carrying `payload` kg (float or (B,)) at its payload link."""
+    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> Any:
+        """The arm at joints q (B, n) rad or m carrying `payload` kg (float or (B,)) at its payload
+        link: a `Config`, or while torch.compile traces an `arm_scalar.ScalarConfig`."""
         if q.dim() != 2 or q.shape[1] != self.n:
             raise ValueError(f"expected joint values (B, {self.n}), got {tuple(q.shape)}")
+        if torch.compiler.is_compiling():
+            return self.scalar.at(q, payload)
         return Config(self.n, self._consts(q.dtype, q.device), q, payload)
+
+    def scaled(self, m: float, c: float, g: float) -> Scaled:
+        """M, C and G scaled by m, c and g (a nominal model)."""
+        return Scaled(self, m, c, g)
+
+    def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: Payload, gravity: bool = True) -> torch.Tensor:
+        """Kinetic plus (with `gravity`) potential energy (B,) in J, zero height at the root."""
+        e = self.arm.kinetic_energy(q, qd, payload)
+        return e + self.arm.potential_energy(q, payload) if gravity else e
 
 
 class Config:
@@ -294,6 +314,24 @@ class Config:
         mo = mo or self.motion(qd)
         iv = mo.iv
         return ((mo.sd[0] * _suffix_sum(iv[0])).sum(1) + (mo.sd[1] * _suffix_sum(iv[1])).sum(1)).T
+
+    def momentum_rate(self, qd: torch.Tensor, mo: Motion | None = None) -> torch.Tensor:
+        """dM/dt qd - C qd - G = C^T qd - G (B, n) (dM/dt = C + C^T for the Christoffel C)."""
+        mo = mo or self.motion(qd)
+        cqd = self.coriolis_qd(qd, mo)
+        return (cqd + self.coriolis_transpose_qd(qd, mo)) - cqd - self.gravity()
+
+    def solve(self, r: torch.Tensor) -> torch.Tensor:
+        """M(q)^-1 r (B, n) by a batched Cholesky factorisation. A matrix that is not positive
+        definite (never, for a physical arm) gives non-finite values, which the simulator reports,
+        without a per-call error check (cholesky_ex)."""
+        chol = torch.linalg.cholesky_ex(self.mass_matrix())[0]
+        return torch.cholesky_solve(r.unsqueeze(-1), chol).squeeze(-1)
+
+    def accel(self, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool = True) -> torch.Tensor:
+        """Joint accelerations M^-1 (friction(r - C qd) - G) (B, n), friction(r, qd) = r - F(qd)."""
+        r = friction(r - self.coriolis_qd(qd), qd)
+        return self.solve(r - self.gravity() if gravity else r)
 
 
 class Motion:

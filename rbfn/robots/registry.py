@@ -17,17 +17,14 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
 import torch
 
 from ..config import ROBOT_PRESETS, RobotConfig
 from . import scara
+from .backend import Dynamics
 from .kinematics import read_urdf
-
-if TYPE_CHECKING:
-    from ..control.models import ArmModel, NominalModel
-    from ..control.plants import Plant
 
 __all__ = ["CONF_ROBOT", "WITH_CLOSED_FORMS", "ClosedForm", "closed_form", "preset"]
 
@@ -62,10 +59,10 @@ class ClosedForm(Protocol):
     fk(q, link_error=None): end-link positions (B, 3) in m of joints q (B, n); ik(x, link_error=None):
     joints (B, n) of the IK branch for positions x (B, 3) in m. link_error: relative errors of the
     first `links` link lengths (floats, or (B,) tensors: one robot per row), the online part's
-    kinematic perturbation; None: the nominal robot. plant(**kw): the closed loop's plant (kw: the
-    friction and disturbance settings of `rbfn.control.plants.Plant`); model(): the controllers'
-    nominal model. path: the online part's default desired path (online.path null); trajectory:
-    the closed loop's default desired joints (control.trajectory null); label: the robot in messages.
+    kinematic perturbation; None: the nominal robot. dynamics(): the equations of motion in closed
+    form (`rbfn.robots.backend.Dynamics`), which the closed loop's plant and nominal model use.
+    path: the online part's default desired path (online.path null); trajectory: the closed loop's
+    default desired joints (control.trajectory null); label: the robot in messages.
     """
 
     @property
@@ -93,9 +90,7 @@ class ClosedForm(Protocol):
 
     def ik(self, x: torch.Tensor, link_error: Sequence | None = None) -> torch.Tensor: ...
 
-    def plant(self, **kw) -> Plant: ...
-
-    def model(self, payload: float = 0.0) -> NominalModel | ArmModel: ...
+    def dynamics(self) -> Dynamics: ...
 
 
 # The robot folders that ship closed forms. Each gives URDF_PATH, END_LINK (the chain its forms

@@ -6,24 +6,28 @@ import pytest
 import torch
 import torch.utils._pytree as pytree
 
-from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
+from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.aot import fingerprint
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, SlidingState
+from rbfn.control.models import NominalModel
 from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
+from rbfn.robots.scara import ScaraTerms
+
+SCARA_MODEL = NominalModel(ScaraTerms())  # the paper's nominal model of the SCARA
 
 
 def test_fingerprint_follows_values_not_identity_or_caches():
-    a, b = ScaraPlant(), ScaraPlant()
+    a, b = Plant(ScaraTerms()), Plant(ScaraTerms())
     a._joint_values[1] = torch.ones(3)  # a private cache: not part of the value
     assert fingerprint(a, 1e-3) == fingerprint(b, 1e-3)
-    assert fingerprint(a, 1e-3) != fingerprint(ScaraPlant(viscous=11.0), 1e-3)
+    assert fingerprint(a, 1e-3) != fingerprint(Plant(ScaraTerms(), viscous=11.0), 1e-3)
     assert fingerprint(a, 1e-3) != fingerprint(a, 2e-3)
-    c1 = make_controller("smc_obs", Gains(), 1e-3)
-    c2 = make_controller("smc_obs", Gains(K=49.0), 1e-3)
+    c1 = make_controller("smc_obs", Gains(), 1e-3, SCARA_MODEL)
+    c2 = make_controller("smc_obs", Gains(K=49.0), 1e-3, SCARA_MODEL)
     assert fingerprint(c1) != fingerprint(c2)
-    f1 = make_controller("arbfn", Gains(), 1e-3, features=torch.zeros(5, 2))
-    f2 = make_controller("arbfn", Gains(), 1e-3, features=torch.ones(5, 2))
+    f1 = make_controller("arbfn", Gains(), 1e-3, SCARA_MODEL, features=torch.zeros(5, 2))
+    f2 = make_controller("arbfn", Gains(), 1e-3, SCARA_MODEL, features=torch.ones(5, 2))
     assert fingerprint(f1, skip=("features",)) == fingerprint(f2, skip=("features",))
     assert fingerprint(f1) != fingerprint(f2)
     assert fingerprint(torch.zeros(2)) != fingerprint(torch.zeros(2, dtype=torch.float64))
@@ -39,9 +43,13 @@ def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
     torch.export take) whose structure an AOT package's call spec can store and read back."""
     sc = Scenario(duration=0.01, payload_on=0.0, payload_off=0.005, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    plant, feats = ScaraPlant(), torch.rand(sc.steps + 1, 4, dtype=torch.float64)
+    plant, feats = Plant(ScaraTerms()), torch.rand(sc.steps + 1, 4, dtype=torch.float64)
     ctrl = Stacked(
-        [make_controller("smc_obs", Gains(), sc.dt), make_controller("arbfn", Gains(), sc.dt, features=feats)], [1, 1]
+        [
+            make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL),
+            make_controller("arbfn", Gains(), sc.dt, SCARA_MODEL, features=feats),
+        ],
+        [1, 1],
     )
     q, qd = ref.q_d[:2].clone(), ref.qd_d[:2].clone()
     n = sc.steps
@@ -50,7 +58,7 @@ def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
         h=feats,
         alpha=ctrl.alphas(sc.times()[:n]),
         dist=stage_disturbances(plant, n, sc.dt, dtype=torch.float64),
-        co=plant.coefficients(torch.zeros(n, 2, dtype=torch.float64)),
+        payload=torch.zeros(n, 2, dtype=torch.float64),
     )
     out = make_chunk(plant, ctrl, sc.dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
     for tree in ((Loop(q, qd, ctrl.init_state(q, qd)), periods), out):
@@ -68,15 +76,15 @@ def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
     monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
     sc = Scenario(duration=0.02, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("smc_obs", Gains(), sc.dt)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL)
     pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
-    eager = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, pay, chunk=4)
+    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, pay, chunk=4)
     with caplog.at_level("INFO", logger="rbfn.control.simulator"):
-        first = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, pay, chunk=4, aot=True)
+        first = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, pay, chunk=4, aot=True)
         (pkg,) = (tmp_path / "aot").glob("chunk-*.pt2")
         built = pkg.stat().st_mtime_ns
-        again = simulate(ScaraPlant(), ctrl, sc, ref, q0 + 1e-3, qd0, pay, chunk=4, aot=True)  # other values
+        again = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0 + 1e-3, qd0, pay, chunk=4, aot=True)  # other values
     assert sum("compiling the closed-loop step" in r.message for r in caplog.records) == 1
     assert pkg.stat().st_mtime_ns == built and len(list((tmp_path / "aot").iterdir())) == 1
     assert torch.allclose(first.q, eager.q, rtol=0, atol=1e-12)

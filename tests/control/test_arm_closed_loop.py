@@ -8,9 +8,7 @@ import torch
 
 from rbfn.config import ControlConfig, RobotConfig
 from rbfn.control import (
-    ArmModel,
-    ArmPlant,
-    ScaraPlant,
+    Plant,
     Scenario,
     SimulationDiverged,
     control_robot,
@@ -21,7 +19,9 @@ from rbfn.control import (
 )
 from rbfn.control.controllers import Gains, NominalModel
 from rbfn.control.robot_setup import payload_cases
+from rbfn.robots.arm_terms import ArmTerms
 from rbfn.robots.dynamics import load_arm
+from rbfn.robots.scara import ScaraTerms
 
 from ..conftest import compose_config
 
@@ -38,14 +38,14 @@ def _run(plant, model, name, sc, ref, payload, **kw):
 
 @pytest.mark.parametrize("name,integrator", [("smc_obs", "rk4"), ("ctc", "euler"), ("pd", "rk4")])
 def test_scara_urdf_path_equals_closed_form(name, integrator):
-    """The same controller on the SCARA's URDF (ArmPlant, ArmModel) and its closed form, with the
+    """The same controller on the SCARA's URDF (the URDF recursion) and its closed form, with the
     payload switched on and off inside the run."""
     sc = Scenario(duration=0.25, payload_on=0.05, payload_off=0.15, integrator=integrator, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
-    closed = _run(ScaraPlant(), NominalModel(), name, sc, ref, payload)
-    plant = ArmPlant(load_arm("scara"))
-    urdf = _run(plant, ArmModel(plant.terms), name, sc, ref, payload)
+    closed = _run(Plant(ScaraTerms()), NominalModel(ScaraTerms()), name, sc, ref, payload)
+    plant = Plant(ArmTerms(load_arm("scara")))
+    urdf = _run(plant, NominalModel(plant.dynamics), name, sc, ref, payload)
     assert float((closed.q - urdf.q).abs().max()) < 1e-9
     assert float((closed.tau - urdf.tau).abs().max()) < 1e-6
     assert float((closed.q[-1, 1] - closed.q[-1, 0]).abs().max()) > 1e-6  # the payload mattered
@@ -53,12 +53,12 @@ def test_scara_urdf_path_equals_closed_form(name, integrator):
 
 @pytest.mark.parametrize("robot", ["ur5", "panda"])
 def test_energy_conserved_without_friction_disturbance_and_gravity(robot):
-    plant = ArmPlant(load_arm(robot), viscous=0.0, coulomb=0.0, disturbance=0.0, gravity=False)
+    plant = Plant(ArmTerms(load_arm(robot)), viscous=0.0, coulomb=0.0, disturbance=0.0, gravity=False)
     g = torch.Generator().manual_seed(0)
     q = torch.rand(8, plant.n, generator=g, dtype=torch.float64) * 2 - 1
     qd = torch.randn(8, plant.n, generator=g, dtype=torch.float64)
     pay = torch.linspace(0.0, 3.0, 8, dtype=torch.float64)
-    co, zero, dist = plant.coefficients(pay), torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
+    co, zero, dist = pay, torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
     e0 = plant.energy(q, qd, pay)
     drift = []
     for dt in (2e-3, 1e-3):  # 0.2 s each
@@ -70,11 +70,11 @@ def test_energy_conserved_without_friction_disturbance_and_gravity(robot):
 
 
 def test_energy_conserved_with_gravity():
-    plant = ArmPlant(load_arm("ur5"), viscous=0.0, coulomb=0.0, disturbance=0.0)
+    plant = Plant(ArmTerms(load_arm("ur5")), viscous=0.0, coulomb=0.0, disturbance=0.0)
     g = torch.Generator().manual_seed(1)
     q, qd = torch.rand(4, 6, generator=g, dtype=torch.float64), torch.randn(4, 6, generator=g, dtype=torch.float64)
     pay = torch.full((4,), 2.5, dtype=torch.float64)
-    co = plant.coefficients(pay)
+    co = pay
     e0 = plant.energy(q, qd, pay)
     for _ in range(200):
         q, qd = plant.step(q, qd, torch.zeros_like(q), torch.zeros(3, dtype=torch.float64), 5e-4, co)
@@ -185,19 +185,19 @@ def test_a_payload_on_another_link_moves_it():
     other = _ur5(ControlConfig(payload_link="forearm_link"))
     q = torch.tensor([base.home], dtype=torch.float64)
     pay = torch.tensor([2.5], dtype=torch.float64)
-    g_end = base.plant.terms.at(q, pay).gravity()
-    g_fore = other.plant.terms.at(q, pay).gravity()
+    g_end = base.plant.dynamics.at(q, pay).gravity()
+    g_fore = other.plant.dynamics.at(q, pay).gravity()
     assert not torch.allclose(g_end, g_fore) and float(g_end[0, 3].abs()) > float(g_fore[0, 3].abs())
 
 
 def test_per_joint_friction_and_disturbance():
-    plant = ArmPlant(load_arm("ur5"), viscous=[1.0, 2, 3, 4, 5, 6], coulomb=0.5, disturbance=[0, 1, 0, 0, 0, 2])
+    plant = Plant(ArmTerms(load_arm("ur5")), viscous=[1.0, 2, 3, 4, 5, 6], coulomb=0.5, disturbance=[0, 1, 0, 0, 0, 2])
     qd = torch.ones(2, 6, dtype=torch.float64)
     assert torch.equal(plant.friction_torque(qd)[0], torch.tensor([1.5, 2.5, 3.5, 4.5, 5.5, 6.5], dtype=torch.float64))
     d = plant.disturbance(torch.tensor([torch.pi / 4], dtype=torch.float64))
     assert d.shape == (1, 6) and torch.allclose(d[0], torch.tensor([0, 1.0, 0, 0, 0, 2.0], dtype=torch.float64))
     with pytest.raises(ValueError, match=r"viscous=\[1.0, 2.0\] needs one value per joint \(6\)"):
-        ArmPlant(load_arm("ur5"), viscous=[1.0, 2.0])
+        Plant(ArmTerms(load_arm("ur5")), viscous=[1.0, 2.0])
 
 
 @pytest.mark.slow

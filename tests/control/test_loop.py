@@ -8,11 +8,15 @@ import pytest
 import torch
 
 from rbfn.config import GainsConfig, LoopConfig
-from rbfn.control import ScaraPlant, Scenario, make_controller, paper_trajectory, simulate
+from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Controller
 from rbfn.control.loop import RealLoop, filter_gain, filtered_velocity, quantise, real_loop, saturate
+from rbfn.control.models import NominalModel
+from rbfn.robots.scara import ScaraTerms
 
 from ..conftest import compose_config
+
+SCARA_MODEL = NominalModel(ScaraTerms())  # the paper's nominal model of the SCARA
 
 
 class Echo(Controller):
@@ -48,7 +52,7 @@ def _run(loop: RealLoop, ctrl: Controller, steps: int = 20, dt: float = 1e-3, re
         ref = (k, torch.zeros_like(k), torch.zeros_like(k))
     q0 = torch.tensor([[1.0, 1.0, 1.0]], dtype=torch.float64) if q0 is None else q0
     return simulate(
-        ScaraPlant(), ctrl, sc, ref, q0, torch.zeros_like(q0), torch.zeros(1, dtype=torch.float64), loop=loop
+        Plant(ScaraTerms()), ctrl, sc, ref, q0, torch.zeros_like(q0), torch.zeros(1, dtype=torch.float64), loop=loop
     )
 
 
@@ -148,8 +152,8 @@ def test_with_every_part_off_the_realistic_loop_is_the_ideal_one():
     payload = torch.tensor([10.0], dtype=torch.float64)
     runs = []
     for loop in (None, RealLoop()):
-        ctrl = make_controller("smc_obs", cfg.gains, sc.dt)
-        runs.append(simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, loop=loop))
+        ctrl = make_controller("smc_obs", cfg.gains, sc.dt, SCARA_MODEL)
+        runs.append(simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, loop=loop))
     ideal, real = runs
     assert torch.allclose(ideal.q, real.q, rtol=0, atol=1e-10)
     assert torch.allclose(ideal.tau, real.tau, rtol=1e-9, atol=1e-7)
@@ -230,7 +234,14 @@ def test_every_controller_meets_the_same_noise_in_a_case():
     k = torch.arange(11, dtype=torch.float64)[:, None].expand(-1, 3)
     q0 = torch.tensor([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5]] * 2, dtype=torch.float64)
     roll = simulate(
-        ScaraPlant(), Echo("measured"), sc, (k, 0 * k, 0 * k), q0, torch.zeros_like(q0), torch.zeros(4), loop=loop
+        Plant(ScaraTerms()),
+        Echo("measured"),
+        sc,
+        (k, 0 * k, 0 * k),
+        q0,
+        torch.zeros_like(q0),
+        torch.zeros(4),
+        loop=loop,
     )
     noise = roll.tau[:-1] - roll.q[:-1]  # what the controller saw less the truth
     assert torch.equal(noise[:, 0], noise[:, 2]) and torch.equal(noise[:, 1], noise[:, 3])
@@ -295,7 +306,7 @@ def test_joint_rates_scale_the_observer_and_the_adaptation_per_joint_alone_and_b
     alpha = torch.tensor(gains.gamma * dt, dtype=torch.float64)
 
     def step(r):
-        c = make_controller("arbfn_x", gains, dt, features=feats, rates=r)
+        c = make_controller("arbfn_x", gains, dt, SCARA_MODEL, features=feats, rates=r)
         st = c.init_state(q0, qd0)
         _, st = c.torque(ref, q0, qd0, st, h=feats[0], alpha=alpha)  # the observer integrates a period
         return c.torque(ref, q, qd, st, h=feats[1], alpha=alpha)[1]
@@ -304,7 +315,7 @@ def test_joint_rates_scale_the_observer_and_the_adaptation_per_joint_alone_and_b
     assert torch.allclose(scaled.d_hat, plain.d_hat * rates.observer, rtol=1e-12, atol=0)
     w0 = torch.zeros_like(plain.w)
     assert torch.allclose(scaled.w - w0, (plain.w - w0) * rates.gamma, rtol=1e-12, atol=1e-15)
-    parts = [make_controller(f"arbfn_{k}", gains, dt, features=feats, rates=rates) for k in ("a", "b")]
+    parts = [make_controller(f"arbfn_{k}", gains, dt, SCARA_MODEL, features=feats, rates=rates) for k in ("a", "b")]
     batch = Stacked(parts, [2, 2])
     assert len(batch.units) == 1  # one SlidingModeBatch
     st = batch.init_state(q0.repeat(2, 1), qd0.repeat(2, 1))

@@ -1,11 +1,22 @@
 import pytest
 import torch
 
-from rbfn.control import ScaraPlant, Scenario, SimulationDiverged, make_controller, paper_trajectory, simulate
+from rbfn.control import Plant, Scenario, SimulationDiverged, make_controller, paper_trajectory, simulate
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, NominalModel
 from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
-from rbfn.robots.scara import coriolis, gravity, m_solve, m_times, mass_matrix, mass_matrix_dot
+from rbfn.robots.scara import (
+    ScaraTerms,
+    coriolis,
+    gravity,
+    inertia_params,
+    m_solve,
+    m_times,
+    mass_matrix,
+    mass_matrix_dot,
+)
+
+SCARA_MODEL = NominalModel(ScaraTerms())  # the paper's nominal model of the SCARA
 
 
 def _states(b, seed, dtype=torch.float64):
@@ -18,7 +29,7 @@ def _states(b, seed, dtype=torch.float64):
 def test_elementwise_mass_products_match_the_matrix():
     q, v = _states(50, 0)
     pay = torch.linspace(0, 20, 50, dtype=torch.float64)
-    co = ScaraPlant().coefficients(pay)
+    co = inertia_params(pay)
     m = mass_matrix(q, pay)
     c2 = torch.cos(q[:, 1])
     assert torch.allclose(m_times(c2, co, v), (m @ v[..., None])[..., 0], atol=1e-12)
@@ -30,7 +41,7 @@ def test_nominal_model_terms_match_the_matrices():
     against the SCARA's matrices scaled 0.9, 0.8, 0.85."""
     q, qd = _states(40, 5)
     y = _states(40, 6)[1]
-    at = NominalModel().at(q, qd)
+    at = NominalModel(ScaraTerms()).at(q, qd)
     m, c = 0.9 * mass_matrix(q), 0.8 * coriolis(q, qd)
     g = 0.85 * gravity(q)
     assert torch.allclose(at.m_times(y), (m @ y[..., None])[..., 0], atol=1e-12)
@@ -42,10 +53,10 @@ def test_nominal_model_terms_match_the_matrices():
 
 @pytest.mark.parametrize("payload", [0.0, 10.0])
 def test_energy_conserved_without_friction_disturbance_and_gravity(payload):
-    plant = ScaraPlant(viscous=0.0, coulomb=0.0, disturbance=0.0, gravity=False)
+    plant = Plant(ScaraTerms(), viscous=0.0, coulomb=0.0, disturbance=0.0, gravity=False)
     q, qd = _states(64, 1)
     pay = torch.full((64,), payload, dtype=torch.float64)
-    co = plant.coefficients(pay)
+    co = pay
     e0 = plant.energy(q, qd, pay)
     zero, dist = torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
     drift = []
@@ -61,10 +72,10 @@ def test_energy_conserved_without_friction_disturbance_and_gravity(payload):
 
 def test_gravity_energy_exchange_is_conserved():
     # With gravity on (potential energy included) and no losses, total energy stays constant.
-    plant = ScaraPlant(viscous=0.0, coulomb=0.0, disturbance=0.0)
+    plant = Plant(ScaraTerms(), viscous=0.0, coulomb=0.0, disturbance=0.0)
     q, qd = _states(16, 2)
     pay = torch.zeros(16, dtype=torch.float64)
-    co = plant.coefficients(pay)
+    co = pay
     e0 = plant.energy(q, qd, pay)
     for _ in range(500):
         q, qd = plant.step(q, qd, torch.zeros_like(q), torch.zeros(3, dtype=torch.float64), 1e-3, co)
@@ -73,7 +84,7 @@ def test_gravity_energy_exchange_is_conserved():
 
 def test_observer_estimates_the_model_gravity_error():
     # Only unmodelled effect: G_hat = 0.85 G, so the observer must find 0.15 * (-m3 g) on joint 3.
-    plant = ScaraPlant(viscous=0.0, coulomb=0.0, disturbance=0.0)
+    plant = Plant(ScaraTerms(), viscous=0.0, coulomb=0.0, disturbance=0.0)
     model = NominalModel(m_scale=1.0, c_scale=1.0, g_scale=0.85)
     sc = Scenario(duration=1.0, payload_on=0.0, payload_off=1.0, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
@@ -89,10 +100,10 @@ def test_observer_estimates_the_model_gravity_error():
 def test_batched_run_matches_single_runs(integrator):
     sc = Scenario(duration=0.3, payload_on=0.1, payload_off=0.2, integrator=integrator, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    plant = ScaraPlant(friction="smooth")
+    plant = Plant(ScaraTerms(), friction="smooth")
     pay = torch.tensor([0.0, 10.0, 20.0], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(3, 3).clone(), ref.qd_d[:1].expand(3, 3).clone()
-    ctrl = make_controller("smc_obs", Gains(), sc.dt)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL)
     batch = simulate(plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
     for i in range(3):
         one = simulate(plant, ctrl, sc, ref, q0[i : i + 1], qd0[i : i + 1], pay[i : i + 1])
@@ -108,7 +119,7 @@ def test_stacked_controllers_equal_their_separate_runs():
     """One batch of several controllers (one with adaptive features) gives each controller's own run."""
     sc = Scenario(duration=0.2, payload_on=0.05, payload_off=0.15, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    plant = ScaraPlant()
+    plant = Plant(ScaraTerms())
     pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
     gen = torch.Generator().manual_seed(0)
@@ -118,12 +129,12 @@ def test_stacked_controllers_equal_their_separate_runs():
     # pd alone; then one batched sliding-mode unit of four (two networks of different sizes, one
     # warm-started, with and without the observer); then ctc alone.
     parts = [
-        make_controller("pd", Gains(), sc.dt),
-        make_controller("arbfn", Gains(), sc.dt, features=feats),
-        make_controller("smc_obs", Gains(), sc.dt),
-        make_controller("smc", Gains(), sc.dt),
-        make_controller("arbfn", Gains(), sc.dt, features=other, w0=w0, observer=False),
-        make_controller("ctc", Gains(), sc.dt),
+        make_controller("pd", Gains(), sc.dt, SCARA_MODEL),
+        make_controller("arbfn", Gains(), sc.dt, SCARA_MODEL, features=feats),
+        make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL),
+        make_controller("smc", Gains(), sc.dt, SCARA_MODEL),
+        make_controller("arbfn", Gains(), sc.dt, SCARA_MODEL, features=other, w0=w0, observer=False),
+        make_controller("ctc", Gains(), sc.dt, SCARA_MODEL),
     ]
     stacked = Stacked(parts, [2] * len(parts))
     assert len(stacked.units) == 3 and stacked.unit_sizes == [2, 8, 2]
@@ -143,15 +154,15 @@ def test_adaptive_law_moves_the_weights():
     t = torch.arange(n, dtype=torch.float64) * dt
     ref = paper_trajectory(t)
     h = torch.rand(n, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    ctrl = make_controller("arbfn_x", Gains(), dt, NominalModel(), features=h)
-    plant = ScaraPlant()
+    ctrl = make_controller("arbfn_x", Gains(), dt, NominalModel(ScaraTerms()), features=h)
+    plant = Plant(ScaraTerms())
     q, qd = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
     periods = Periods(
         ref=ref,
         h=h,
         alpha=ctrl.alphas(t),
         dist=stage_disturbances(plant, n, dt, dtype=torch.float64),
-        co=plant.coefficients(torch.full((n, 1), 10.0, dtype=torch.float64)),
+        payload=torch.full((n, 1), 10.0, dtype=torch.float64),
     )
     out = make_chunk(plant, ctrl, dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
     assert out.q.shape == out.tau.shape == (n, 1, 3)
@@ -162,10 +173,16 @@ def test_adaptive_law_moves_the_weights():
 def test_divergence_stops_with_step_and_state():
     sc = Scenario(duration=2.0, dt=0.05, payload_on=0.5, payload_off=1.0, integrator="euler")
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt)
+    ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, SCARA_MODEL)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = "):
         simulate(
-            ScaraPlant(), ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+            Plant(ScaraTerms()),
+            ctrl,
+            sc,
+            ref,
+            ref.q_d[:1].clone(),
+            ref.qd_d[:1].clone(),
+            torch.zeros(1, dtype=torch.float64),
         )
 
 
@@ -186,18 +203,26 @@ def test_bad_scenarios_fail_early(kwargs, match):
 def test_bad_inputs_fail_early():
     sc = Scenario(duration=0.1, payload_on=0.0, payload_off=0.05, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("smc", Gains(), sc.dt)
+    ctrl = make_controller("smc", Gains(), sc.dt, SCARA_MODEL)
     q0 = ref.q_d[:1].clone()
     with pytest.raises(ValueError, match="initial state"):
         simulate(
-            ScaraPlant(), ctrl, sc, ref, q0 * float("nan"), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+            Plant(ScaraTerms()),
+            ctrl,
+            sc,
+            ref,
+            q0 * float("nan"),
+            ref.qd_d[:1].clone(),
+            torch.zeros(1, dtype=torch.float64),
         )
     with pytest.raises(ValueError, match="payload masses"):
-        simulate(ScaraPlant(), ctrl, sc, ref, q0, ref.qd_d[:1].clone(), torch.tensor([-1.0], dtype=torch.float64))
+        simulate(
+            Plant(ScaraTerms()), ctrl, sc, ref, q0, ref.qd_d[:1].clone(), torch.tensor([-1.0], dtype=torch.float64)
+        )
     with pytest.raises(ValueError, match="friction='coulomb' is not allowed"):
-        ScaraPlant(friction="coulomb")
+        Plant(ScaraTerms(), friction="coulomb")
     with pytest.raises(ValueError, match="unknown controller 'lqr'"):
-        make_controller("lqr", Gains(), 1e-3)
+        make_controller("lqr", Gains(), 1e-3, SCARA_MODEL)
 
 
 @pytest.mark.slow
@@ -211,9 +236,9 @@ def test_compiled_step_equals_eager():
     ref = paper_trajectory(sc.times())
     q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
     payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
-    ctrl = make_controller("smc_obs", Gains(), sc.dt)
-    eager = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, chunk=5)
-    compiled = simulate(ScaraPlant(), ctrl, sc, ref, q0, qd0, payload, compile=True, chunk=5)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL)
+    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, chunk=5)
+    compiled = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, compile=True, chunk=5)
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-9)
 

@@ -30,7 +30,7 @@ def test_scara_through_its_urdf_equals_its_closed_form():
     record = _record("scara")
     copy = record["urdf"].replace('<robot name="scara">', '<robot name="my_scara">')  # not the packaged text
     urdf = online_robot({**record, "urdf": copy}, cfg, GainsConfig(), [0.0, 0.02, 0.04], t, **KW)
-    assert type(urdf.plant).__name__ == "ArmPlant" and type(closed.plant).__name__ == "ScaraPlant"
+    assert type(urdf.plant.dynamics).__name__ == "ArmTerms" and type(closed.plant.dynamics).__name__ == "ScaraTerms"
     assert torch.allclose(urdf.x_d, closed.x_d, atol=1e-12, rtol=0)
     q = closed.full(closed.q_nominal)[:, None].expand(-1, 6, 3)  # [adapted, frozen] x 3 sizes
     e_closed, e_urdf = closed.errors(*closed.measure(q)), urdf.errors(*urdf.measure(q))

@@ -26,9 +26,10 @@ from rbfn.control.comparison import compare_controllers
 from rbfn.control.loop import real_loop
 from rbfn.control.network import control_network, pilot_residuals
 from rbfn.control.robot_setup import control_robot
-from rbfn.control.simulator import ScaraPlant, Scenario, stage_disturbances
+from rbfn.control.simulator import Plant, Scenario, stage_disturbances
 from rbfn.control.trajectory import Reference
 from rbfn.control.tuning import ClosedLoopCost, tune_network, tuning_scenarios
+from rbfn.robots.scara import ScaraTerms
 from rbfn.studies.control import evaluate_control
 
 from ..conftest import compose_config
@@ -124,7 +125,7 @@ def test_the_twin_is_the_origin_and_smc_costs_one_per_joint():
 
 
 def test_a_varied_plant_feels_its_own_disturbance_in_each_environment():
-    plant = ScaraPlant(disturbance=5.0, disturbance_freq=2.0)
+    plant = Plant(ScaraTerms(), disturbance=5.0, disturbance_freq=2.0)
     amp = torch.tensor([[5.0, 5.0, 5.0], [1.0, 2.0, 3.0]], dtype=torch.float64)
     varied = plant.varied(amp, torch.tensor([2.0, 3.0]), torch.tensor([0.0, 0.5]))
     d = stage_disturbances(varied, 10, 1e-3, dtype=torch.float64)  # (10, 3, B, n)

@@ -402,11 +402,11 @@ _NO_INERTIA = 'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'
 )
 def test_unusable_inertials_are_named_and_no_closed_loop_runs_on_them(changes, message):
     """What the closed loop cannot simulate is named, link or joint, value and what is allowed:
-    `Arm.problems`; ArmPlant and the control part refuse it before any step (no raw `linalg`
+    `Arm.problems`; the URDF backend (ArmTerms) and the control part refuse it before any step (no raw `linalg`
     error halfway through), while the kinematics still load."""
     from rbfn.config import ControlConfig, RobotConfig
-    from rbfn.control.plants import ArmPlant
     from rbfn.control.robot_setup import control_robot
+    from rbfn.robots.arm_terms import ArmTerms
     from rbfn.robots.kinematics import load_serial_chain
 
     text = read_urdf(urdf_path("ur5"))
@@ -415,8 +415,8 @@ def test_unusable_inertials_are_named_and_no_closed_loop_runs_on_them(changes, m
         text = text.replace(old, new)
     arm = load_arm(text, "ee_link")
     assert len(arm.problems) >= 1 and re.search(message, arm.problems[0]), arm.problems
-    with pytest.raises(ValueError, match="ArmPlant cannot simulate this arm's dynamics: " + message):
-        ArmPlant(arm)
+    with pytest.raises(ValueError, match="the closed loop cannot simulate this arm's dynamics: " + message):
+        ArmTerms(arm)
     robot = RobotConfig(name="ur5", end_link="ee_link", target="pose", joint_low=[-1.0] * 6, joint_high=[1.0] * 6)
     with pytest.raises(ValueError, match="the closed loop cannot simulate this arm's dynamics: " + message):
         control_robot(robot, ControlConfig(), urdf_text=text)
@@ -505,7 +505,7 @@ def test_the_control_path_loads_what_the_kinematics_loads():
     setup = control_robot(robot, ControlConfig())
     assert setup.joint_names == chain.get_joint_parameter_names() and setup.n == 10
     q, _ = _states(load_arm(path, end), 4, seed=18)
-    assert torch.equal(setup.plant.arm.mass_matrix(q), load_arm(path, end).mass_matrix(q))
+    assert torch.equal(setup.dynamics.arm.mass_matrix(q), load_arm(path, end).mass_matrix(q))
 
 
 def test_a_declared_encoding_is_decoded(tmp_path):

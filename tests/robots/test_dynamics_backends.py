@@ -1,11 +1,13 @@
 """Every form of the rigid-body dynamics against the specification, `rbfn.robots.dynamics.Arm`.
 
 One table: backend x robot x payload. Each backend gives what it has of M, M y, C qd + G, G,
-C y, C^T qd (C the Christoffel matrix, y any joint vector) and M^-1 y at the same 600 random
-states in float64; the reference is `Arm` (M by CRBA, C qd + G by RNEA, G, the matrix C). Backends: `Arm`
-by its other routes (one kinematics pass, C qd + G from the matrix C, G as RNEA at rest), the
-simulator's batch-last `ArmTerms` (narrow and wide batches take different code), its scalar form
-`ArmScalarTerms` run eagerly, the SCARA's closed form, Pinocchio and MuJoCo where installed.
+C y, C^T qd (C the Christoffel matrix, y any joint vector), M^-1 y, dM/dt qd - C qd - G and the
+forward dynamics M^-1 (y - C qd - G) at the same 600 random states in float64; the reference is
+`Arm` (M by CRBA, C qd + G by RNEA, G, the matrices C and dM/dt). Backends: `Arm` by its other
+routes (one kinematics pass, C qd + G from the matrix C, G as RNEA at rest), the two backends of
+`rbfn.robots.backend.Dynamics` (the URDF recursion `ArmTerms`, whose narrow and wide batches take
+different code, and its scalar form `ArmScalarTerms` run eagerly; the SCARA's closed form
+`ScaraTerms`), the SCARA's closed-form matrices, Pinocchio and MuJoCo where installed.
 Payloads: none, 2.5 kg, and one per state, at the end link's origin.
 """
 
@@ -18,8 +20,9 @@ from typing import NamedTuple
 import pytest
 import torch
 
-from rbfn.robots.arm_scalar import ArmScalarTerms
 from rbfn.robots.arm_terms import ArmTerms
+from rbfn.robots.backend import Dynamics
+from rbfn.robots.scara import ScaraTerms
 from tests.robots import test_dynamics as dynamics_tests
 
 BATCH = 600  # above arm_terms.WIDE: its wide code paths
@@ -63,6 +66,8 @@ def _case(robot: str, payload: str) -> tuple[State, dict[str, torch.Tensor]]:
         "C y": _mv(c, y),
         "C^T qd": _mv(c.transpose(1, 2), qd),
         "M^-1 y": torch.linalg.solve(m, y),
+        "dM/dt qd - C qd - G": _mv(arm.mass_matrix_dot(q, qd, p), qd) - _mv(c, qd) - arm.gravity(q, p),
+        "M^-1 (y - C qd - G)": torch.linalg.solve(m, y - arm.bias(q, qd, p)),
     }
     return State(q, qd, y, p), ref
 
@@ -77,21 +82,23 @@ def _arm_routes(robot: str, s: State) -> dict[str, torch.Tensor]:
     return {"M": m, "C qd + G": _mv(c, s.qd) + g, "G": arm.inverse_dynamics(s.q, zero, zero, s.payload)}
 
 
-def _terms(form: type[ArmTerms] | type[ArmScalarTerms]) -> Callable[[str, State], dict[str, torch.Tensor]]:
+def _terms(make: Callable[[str], Dynamics]) -> Callable[[str, State], dict[str, torch.Tensor]]:
+    """A backend's every term (`rbfn.robots.backend.Terms`), the friction in its forward dynamics none."""
+
     def run(robot: str, s: State) -> dict[str, torch.Tensor]:
-        cfg = form(_arm(robot)).at(s.q, s.payload)
+        cfg = make(robot).at(s.q, s.payload)
         mo = cfg.motion(s.qd)
-        out = {
+        return {
             "M": cfg.mass_matrix(),
             "M y": cfg.mass_times(s.y),
             "C qd + G": cfg.bias(s.qd),
-            "G": cfg.gravity(),
+            "G": cfg.gravity().expand_as(s.q),  # (the SCARA's G is one (3,) vector for every q)
             "C y": cfg.coriolis_times(s.qd, s.y, mo),
             "C^T qd": cfg.coriolis_transpose_qd(s.qd, mo),
+            "M^-1 y": cfg.solve(s.y),
+            "dM/dt qd - C qd - G": cfg.momentum_rate(s.qd, mo),
+            "M^-1 (y - C qd - G)": cfg.accel(s.qd, s.y, lambda r, qd: r),
         }
-        if hasattr(cfg, "solve"):  # the scalar form's Cholesky solve (the compiled step's)
-            out["M^-1 y"] = cfg.solve(s.y)
-        return out
 
     return run
 
@@ -99,7 +106,7 @@ def _terms(form: type[ArmTerms] | type[ArmScalarTerms]) -> Callable[[str, State]
 def _narrow(robot: str, s: State) -> dict[str, torch.Tensor]:
     """ArmTerms on NARROW states at a time."""
     parts = [
-        _terms(ArmTerms)(robot, State(*(x[i : i + NARROW] if torch.is_tensor(x) and x.dim() else x for x in s)))
+        _terms(lambda r: ArmTerms(_arm(r)))(robot, State(*(x[i : i + NARROW] if torch.is_tensor(x) and x.dim() else x for x in s)))
         for i in range(0, BATCH, NARROW)
     ]
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
@@ -183,10 +190,11 @@ def _mujoco(robot: str, s: State) -> dict[str, torch.Tensor]:
 # backend -> (its quantities at a robot's states, the robots it models, the largest relative error)
 BACKENDS: dict[str, tuple[Callable[[str, State], dict[str, torch.Tensor]], list[str], float]] = {
     "Arm, other routes": (_arm_routes, ROBOTS, 1e-12),
-    "ArmTerms": (_terms(ArmTerms), ROBOTS, 1e-12),
+    "ArmTerms": (_terms(lambda r: ArmTerms(_arm(r))), ROBOTS, 1e-12),
     "ArmTerms, narrow": (_narrow, ROBOTS, 1e-12),
-    "ArmScalarTerms, eager": (_terms(ArmScalarTerms), ROBOTS, 1e-12),
-    "SCARA closed form": (_closed_form, ["scara"], 1e-12),
+    "ArmScalarTerms, eager": (_terms(lambda r: ArmTerms(_arm(r)).scalar), ROBOTS, 1e-12),
+    "ScaraTerms": (_terms(lambda r: ScaraTerms()), ["scara"], 1e-12),
+    "SCARA closed-form matrices": (_closed_form, ["scara"], 1e-12),
     "Pinocchio": (_pinocchio, ROBOTS, 1e-11),
     # MuJoCo refuses the SCARA URDF's rods (no inertia about their axis) and the test arm's joints
     # off the chain; its own SCARA model is tests/robots/test_mjcf.py's.
@@ -207,3 +215,32 @@ def test_backend_matches_the_specification(backend, robot, payload):
         d = (x - ref[key]).reshape(BATCH, -1).norm(dim=1)
         errors[key] = float((d / ref[key].reshape(BATCH, -1).norm(dim=1)).max())
     assert max(errors.values()) <= tol, errors
+
+
+@pytest.mark.parametrize("robot", ["scara", "ur5"])
+def test_a_scaled_backend_scales_each_term(robot):
+    """`Dynamics.scaled(m, c, g)` (a nominal model): M by m, C by c, G by g, through every term;
+    the SCARA's closed form folds the factors into its coefficients, the URDF recursion wraps it."""
+    state, _ = _case(robot, "2.5 kg")
+    base = ScaraTerms() if robot == "scara" else ArmTerms(_arm(robot))
+    one, scaled = base.at(state.q, state.payload), base.scaled(0.9, 0.8, 0.85).at(state.q, state.payload)
+    q, qd, y = state.q, state.qd, state.y
+    mdot = _mv(_arm(robot).mass_matrix_dot(q, qd, state.payload), qd)
+    want = {
+        "M y": 0.9 * one.mass_times(y),
+        "C y": 0.8 * one.coriolis_times(qd, y),
+        "G": 0.85 * one.gravity(),
+        "C^T qd": 0.8 * one.coriolis_transpose_qd(qd),
+        "M^-1 y": one.solve(y) / 0.9,
+        "dM/dt qd - C qd - G": 0.9 * mdot - 0.8 * one.coriolis_qd(qd) - 0.85 * one.gravity(),
+    }
+    got = {
+        "M y": scaled.mass_times(y),
+        "C y": scaled.coriolis_times(qd, y),
+        "G": scaled.gravity(),
+        "C^T qd": scaled.coriolis_transpose_qd(qd),
+        "M^-1 y": scaled.solve(y),
+        "dM/dt qd - C qd - G": scaled.momentum_rate(qd),
+    }
+    for key in want:
+        assert torch.allclose(got[key].expand_as(q), want[key].expand_as(q), rtol=1e-12, atol=1e-12), key

@@ -11,11 +11,13 @@ import pytest
 import torch
 
 from rbfn.config import ROBOT_PRESETS, ControlConfig, RobotConfig
-from rbfn.control import ArmPlant, ScaraPlant, control_robot
+from rbfn.control import control_robot
 from rbfn.robots import scara
+from rbfn.robots.arm_terms import ArmTerms
 from rbfn.robots.dynamics import load_arm
 from rbfn.robots.kinematics import parse_urdf, read_urdf, urdf_path
 from rbfn.robots.registry import CONF_ROBOT, closed_form, preset
+from rbfn.robots.scara import ScaraTerms
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -88,9 +90,9 @@ def test_the_closed_loop_asks_the_registry(tmp_path):
     by_file = control_robot(RobotConfig(name="any", urdf=str(scara.URDF_PATH)), ControlConfig())
     by_text = control_robot(RobotConfig(name="any"), ControlConfig(), urdf_text=read_urdf(scara.URDF_PATH))
     for setup in (by_name, by_file, by_text):
-        assert isinstance(setup.plant, ScaraPlant) and setup.scale is None
+        assert isinstance(setup.dynamics, ScaraTerms) and setup.scale is None
     other_link = control_robot(RobotConfig(), ControlConfig(payload_link="link2"))
     copy = tmp_path / "scara.urdf"
     copy.write_text(read_urdf(scara.URDF_PATH).replace('<robot name="scara">', '<robot name="copy">'))
     for setup in (other_link, control_robot(RobotConfig(urdf=str(copy)), ControlConfig())):
-        assert isinstance(setup.plant, ArmPlant) and setup.scale is not None
+        assert isinstance(setup.dynamics, ArmTerms) and setup.scale is not None

@@ -7,7 +7,8 @@
   the simulator's hot path), with constants `ScaraParams` equal to the URDF's (tests/robots check
   them against it).
 * `ScaraClosedForm`: what the rest of the package may ask of those closed forms (kinematics, the
-  closed loop's plant and nominal model, the online part's default path). `rbfn.robots.registry`
+  dynamics backend `ScaraTerms` that the closed loop's plant and nominal model use, the online
+  part's default path). `rbfn.robots.registry`
   hands it out for exactly this URDF, with end link `END_LINK` and no joint locked; nothing else
   chooses it.
 * Preset values (end link, IK branch box, gravity, home, rated payload): conf/robot/scara.yaml.
@@ -19,12 +20,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from importlib.resources import files
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 
 from .closed_form import (
     ScaraParams,
+    ScaraTerms,
     c_times,
     coriolis,
     fk,
@@ -43,12 +44,9 @@ from .closed_form import (
     with_link_errors,
 )
 
-if TYPE_CHECKING:
-    from ...control.models import NominalModel
-    from ...control.plants import ScaraPlant
-
 __all__ = [
     "ScaraParams",
+    "ScaraTerms",
     "ScaraClosedForm",
     "closed_form",
     "URDF_PATH",
@@ -102,18 +100,9 @@ class ScaraClosedForm:
     def ik(self, x: torch.Tensor, link_error: Sequence | None = None) -> torch.Tensor:
         return ik(x, self._params(link_error))
 
-    def plant(self, **kw) -> ScaraPlant:
-        """The closed loop's plant; kw: `rbfn.control.plants.Plant`'s friction and disturbance settings."""
-        from ...control.plants import ScaraPlant  # rbfn.control builds on rbfn.robots: imported on use
-
-        return ScaraPlant(self.params, **kw)
-
-    def model(self, payload: float = 0.0) -> NominalModel:
-        """The controllers' nominal model (scaled M, C, G of the robot carrying `payload` kg; 0:
-        unloaded)."""
-        from ...control.models import NominalModel
-
-        return NominalModel(self.params, payload=payload)
+    def dynamics(self) -> ScaraTerms:
+        """The equations of motion in closed form (`rbfn.robots.backend.Dynamics`)."""
+        return ScaraTerms(self.params)
 
 
 def closed_form(gravity: float | None = None, params: ScaraParams | None = None) -> ScaraClosedForm:

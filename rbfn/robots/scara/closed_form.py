@@ -40,6 +40,8 @@ __all__ = [
     "c_times",
     "m_solve",
     "m_solve_parts",
+    "ScaraTerms",
+    "ScaraAt",
 ]
 
 
@@ -205,3 +207,118 @@ def m_solve_parts(c2, co, r1: torch.Tensor, r2: torch.Tensor, r3: torch.Tensor) 
     m11, m12 = mass_entries(c2, co)
     det = m11 * p3 - m12 * m12
     return joint_vector([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3])
+
+
+class ScaraTerms:
+    """The SCARA's closed form as a backend of `rbfn.robots.backend.Dynamics`: elementwise terms
+    (no (B, 3, 3) matrix, no chain walk), with M, C and G scaled by `scales` (m, c, g) folded into
+    the coefficients (a nominal model: `scaled`). The payload model is `inertia_params`'s."""
+
+    n = 3
+    compile_chunk = 25  # control periods per compiled call: a step is a few dozen fused operations
+
+    def __init__(self, params: ScaraParams = ScaraParams(), scales: tuple[float, float, float] = (1.0, 1.0, 1.0)):
+        self.params, self.scales = params, scales
+        self._gravity: dict = {}
+
+    def at(self, q: torch.Tensor, payload: float | torch.Tensor = 0.0) -> ScaraAt:
+        """The arm at joints q (B, 3) carrying `payload` kg (float or (B,)) at the quill."""
+        return ScaraAt(self, q, payload)
+
+    def scaled(self, m: float, c: float, g: float) -> ScaraTerms:
+        s = self.scales
+        return ScaraTerms(self.params, (s[0] * m, s[1] * c, s[2] * g))
+
+    def energy(self, q: torch.Tensor, qd: torch.Tensor, payload, gravity: bool = True) -> torch.Tensor:
+        """Kinetic plus (with `gravity`) potential energy (B,) in J, zero height at q3 = 0."""
+        co = inertia_params(payload, self.params)
+        e = 0.5 * (qd * m_times(torch.cos(q[..., 1]), co, qd)).sum(-1)
+        return e - co[3] * self.params.g * q[..., 2] if gravity else e
+
+    def gravity_vector(self, g3, like: torch.Tensor) -> torch.Tensor:
+        """G (3,) = (0, 0, g3), the same at every q: it broadcasts against (B, 3). For a float g3
+        one tensor per dtype and device, made once (while torch.compile traces, a constant of the
+        graph: a cache would be a guard)."""
+        if isinstance(g3, torch.Tensor):
+            return joint_vector([torch.zeros_like(g3), torch.zeros_like(g3), g3])
+        if torch.compiler.is_compiling():
+            return torch.tensor([0.0, 0.0, g3], dtype=like.dtype, device=like.device)
+        key = (g3, like.dtype, like.device)
+        if key not in self._gravity:
+            self._gravity[key] = torch.tensor([0.0, 0.0, g3], dtype=like.dtype, device=like.device)
+        return self._gravity[key]
+
+
+class ScaraAt:
+    """`ScaraTerms` at joints q (B, 3) with a payload (kg, float or (B,)); the interface of
+    `rbfn.robots.backend.Terms`. What several terms share (M's entries) is computed once."""
+
+    def __init__(self, terms: ScaraTerms, q: torch.Tensor, payload) -> None:
+        self.terms, self.q, self.payload = terms, q, payload
+        p1, p2, p3, m3 = self.co = inertia_params(payload, terms.params)
+        ms, cs, gs = terms.scales
+        if terms.scales == (1.0, 1.0, 1.0):
+            self.m_co, self.c_co, self.g3 = self.co, (0.0, p2, 0.0, 0.0), -m3 * terms.params.g
+        else:
+            self.m_co = (ms * p1, ms * p2, ms * p3, ms * m3)
+            self.c_co, self.g3 = (0.0, cs * p2, 0.0, 0.0), -gs * m3 * terms.params.g
+        self.s2, self.c2 = torch.sin(q[..., 1]), torch.cos(q[..., 1])
+        self._entries: tuple | None = None
+
+    def motion(self, qd: torch.Tensor) -> None:
+        return None  # nothing the velocity terms share
+
+    def _mass_entries(self) -> tuple:
+        if self._entries is None:
+            self._entries = mass_entries(self.c2, self.m_co)
+        return self._entries
+
+    def mass_matrix(self) -> torch.Tensor:
+        m = mass_matrix(self.q, self.payload, self.terms.params)
+        return m if self.terms.scales[0] == 1.0 else self.terms.scales[0] * m
+
+    def mass_times(self, v: torch.Tensor) -> torch.Tensor:
+        return m_times(self.c2, self.m_co, v, self._mass_entries())
+
+    def solve(self, r: torch.Tensor) -> torch.Tensor:
+        return m_solve(self.c2, self.m_co, r)
+
+    def gravity(self) -> torch.Tensor:
+        return self.terms.gravity_vector(self.g3, self.q)
+
+    def coriolis_qd(self, qd: torch.Tensor, mo=None) -> torch.Tensor:
+        return c_times(self.s2, self.c_co, qd, qd)
+
+    def coriolis_times(self, qd: torch.Tensor, y: torch.Tensor, mo=None) -> torch.Tensor:
+        return c_times(self.s2, self.c_co, qd, y)
+
+    def coriolis_transpose_qd(self, qd: torch.Tensor, mo=None) -> torch.Tensor:
+        # C^T qd = (0, -h qd1 (qd1 + qd2), 0) with h = c p2 s2: column j of C times qd.
+        h = self.c_co[1] * self.s2
+        qd1, qd2, _ = qd.unbind(-1)
+        zero = torch.zeros_like(qd1)
+        return joint_vector([zero, -h * qd1 * (qd1 + qd2), zero])
+
+    def bias(self, qd: torch.Tensor) -> torch.Tensor:
+        return self.coriolis_qd(qd) + self.gravity()
+
+    def momentum_rate(self, qd: torch.Tensor, mo=None) -> torch.Tensor:
+        """dM/dt qd - C qd - G by component, with a = M's and c = C's cos q2 coefficients (p2,
+        scaled): dM/dt qd = -a s2 qd2 (2 qd1 + qd2, qd1, 0), C qd = c s2 (-qd2 (2 qd1 + qd2), qd1^2, 0)."""
+        a, c = self.m_co[1], self.c_co[1]
+        qd1, qd2, _ = qd.unbind(-1)
+        r1 = torch.add(qd2, qd1, alpha=2.0) * qd2 * (self.s2 * (c - a))
+        inner = qd2 * -a - c * qd1 if isinstance(c, torch.Tensor) else torch.add(qd2 * -a, qd1, alpha=-c)
+        r2 = (self.s2 * qd1) * inner
+        r3 = -self.g3 * torch.ones_like(r1) if isinstance(self.g3, torch.Tensor) else torch.full_like(r1, -self.g3)
+        return joint_vector([r1, r2, r3])
+
+    def accel(self, qd: torch.Tensor, r: torch.Tensor, friction, gravity: bool = True) -> torch.Tensor:
+        """M^-1 (friction(r) - C qd - G) (B, 3) component by component (the fewest tensor
+        operations: a step is overhead-bound at small B); friction(r, qd) = r - F(qd)."""
+        qd1, qd2, _ = qd.unbind(-1)
+        r1, r2, r3 = friction(r, qd).unbind(-1)
+        r1, r2 = minus_c_qd(self.s2, self.c_co, qd1, qd2, r1, r2)
+        if gravity:
+            r3 = r3 - self.g3  # the prismatic joint carries m3 g
+        return m_solve_parts(self.c2, self.m_co, r1, r2, r3)
