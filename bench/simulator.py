@@ -426,7 +426,9 @@ def arm_mujoco_rows(
         t_grid = torch.arange(n, dtype=torch.float64) * DT
         q, qd, qdd = setup.trajectory(t_grid)
         tau = (
-            plant.dynamics.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD) + plant.friction_torque(qd) - plant.disturbance(t_grid)
+            plant.dynamics.arm.inverse_dynamics(q, qd, qdd, ARM_PAYLOAD)
+            + plant.friction_torque(qd)
+            - plant.disturbance(t_grid)
         )
         t, ts = _timed_rollout(model, datas, q[0], qd[0], tau, b, repeats)
         rows.append(

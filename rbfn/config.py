@@ -381,30 +381,6 @@ class ACOConfig:
         self.acor.check(f"{key}.acor")
         self.ant_system.check(f"{key}.ant_system", num_centers if self.colony == Colony.ant_system else 1)
 
-    def check_fits(self, key: str, m: int, d: int, device: str, pool: int) -> None:
-        """One colony iteration fits in memory: every ant's M centres (d) and widths, and for the Ant
-        System its choice probabilities over the `pool` candidates, at once. (With the fit objective
-        ACO_R's ants are bounded by its budget; the objective ranks ants in batches of bounded memory.)"""
-        from .memory import FLOAT64, check_fits
-
-        if self.colony == Colony.ant_system:
-            check_fits(
-                f"{key}.ants",
-                self.ants,
-                self.ants * (pool + m * (d + 1)) * FLOAT64,
-                device,
-                f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and "
-                "widths per ant, in float64",
-            )
-        elif self.objective != Objective.fit:  # (the fit objective's budget bounds ACO_R's ants)
-            check_fits(
-                f"{key}.ants",
-                self.ants,
-                self.ants * m * (d + 1) * FLOAT64,
-                device,
-                f"one iteration's M = {m} centres and widths per ant, in float64",
-            )
-
 
 @dataclass
 class OLSConfig:
@@ -551,7 +527,8 @@ class TrainConfig:
     export: bool = True  # write ik.onnx and ik.pt2 next to checkpoint.pt
 
     def check(self) -> None:
-        """Every value's type, every value, then whether the run fits in memory."""
+        """Every value's type and every value (whether the run fits in memory:
+        `rbfn.memory.check_train`)."""
         check_types(self)
         self.data.check()
         self.rbfn.check(self.data.n_train)
@@ -559,35 +536,6 @@ class TrainConfig:
         self.robot.check()
         _seed("seed", self.seed)
         validate_device(self.device, self.num_threads)
-        self._check_fits()
-
-    def _check_fits(self) -> None:
-        """The training set and the least-squares design matrix (float64) fit in memory."""
-        from .memory import FLOAT64, check_fits  # a runtime fact, not a schema one
-
-        d, n_q = self.data, len(self.robot.joint_low)
-        pose = self.robot.target == Target.pose
-        row = (7 if pose else 3) + n_q  # target and joints of one sample
-        p = self.rbfn.num_centers + (9 if pose else 3) + 1  # design columns: M Gaussians, the tail, a bias
-        parts = {"n_train": d.n_train * (row + p), "n_val": d.n_val * row, "n_test": d.n_test * row}
-        key = max(parts, key=lambda k: parts[k])
-        check_fits(
-            f"data.{key}",
-            getattr(d, key),
-            sum(parts.values()) * FLOAT64,
-            self.device,
-            f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
-            f"design matrix of rbfn.num_centers={self.rbfn.num_centers}",
-        )
-        if self.centers.method == Method.aco:
-            a = self.centers.aco
-            a.check_fits(
-                "centers.aco",
-                self.rbfn.num_centers,
-                9 if pose else 3,
-                self.device,
-                pool=min(a.ant_system.candidates, d.n_train),
-            )
 
 
 # -------------------------------------------------------------------------------------- evaluate
@@ -896,10 +844,6 @@ class ControlConfig:
                 f"one sample per {PILOT_STRIDE} periods, half of them for training)",
             )
             n.check(f"{key}.network", self.duration, tuple(self.controllers), (self.payload_on, self.payload_off))
-            # (desired states of one joint at least: d >= 2; candidates at most the pilot's training samples)
-            n.aco.check_fits(
-                f"{key}.network.aco", n.num_centers, 2, "cpu", pool=min(n.aco.ant_system.candidates, n_train)
-            )
 
 
 @dataclass
@@ -1060,7 +1004,8 @@ class EvalConfig:
     loop: LoopConfig = field(default_factory=LoopConfig)
 
     def check(self) -> None:
-        """Every value's type, every value of every enabled part, then whether the parts fit in memory."""
+        """Every value's type and every value of every enabled part (whether the parts fit in
+        memory: `rbfn.memory.check_evaluate`)."""
         check_types(self)
         _need(self.n_test > 0, "n_test", self.n_test, "must be > 0")
         if self.seed is not None:
@@ -1080,27 +1025,6 @@ class EvalConfig:
                 )
         if self.online.enabled:
             self.online.check()
-        self._check_fits()
-
-    def _check_fits(self) -> None:
-        """The test set, the recorded closed loops and the online runs fit in memory (lower bounds)."""
-        from .memory import FLOAT64, check_fits
-
-        if self.ik:  # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
-            check_fits(
-                "n_test",
-                self.n_test,
-                self.n_test * (7 + 7 + 16) * FLOAT64,
-                self.device,
-                "float64 test targets, joints and forward-kinematics poses",
-            )
-        n = len(self.robot.joint_low)
-        c = self.control
-        if c.enabled:  # q, qd and tau (n each) recorded every step, for each payload case at least
-            _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, self.device)
-        o = self.online
-        if o.enabled:  # joints and task position recorded every step, for each perturbation size
-            _trajectory_fits("online.duration", o.duration, o.dt, len(o.sizes), 3 + 3, self.device)
 
 
 # ------------------------------------------------------------------------------------ validation
@@ -1246,21 +1170,6 @@ MAX_THREADS_PER_CPU = 4  # num_threads' ceiling: more threads than that only con
 
 def _seed(key: str, seed: Any) -> None:
     _need(isinstance(seed, int) and 0 <= seed <= MAX_SEED, key, seed, f"use an integer in [0, {MAX_SEED}]")
-
-
-def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: int, device: str) -> None:
-    """A run of duration / dt steps recording `columns` float64 values per step for `batch`
-    environments fits in memory."""
-    from .memory import FLOAT64, check_fits
-
-    steps = duration / dt + 1
-    check_fits(
-        key,
-        duration,
-        steps * batch * columns * FLOAT64,
-        device,
-        f"{steps:.3g} steps of {dt:g} s, each recording {columns} float64 values for {batch} run(s)",
-    )
 
 
 def plain(cfg: Any) -> dict:

@@ -8,7 +8,8 @@ so a setting that is refused cannot fit, and a setting that fits is never refuse
 the memory available now (Linux: MemAvailable, or the cgroup's limit where smaller; elsewhere the
 physical memory), or on CUDA the device's free memory.
 
-Like rbfn.config this module imports no other part of the package.
+`check_train` and `check_evaluate` hold a checked configuration (`rbfn.config`) against it;
+`check_fits` is the rule itself.
 """
 
 from __future__ import annotations
@@ -16,8 +17,14 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-__all__ = ["available_bytes", "check_fits", "size_text", "FLOAT64"]
+from .config import PILOT_STRIDE, Colony, Method, Objective, Target
+
+if TYPE_CHECKING:
+    from .config import ACOConfig, EvalConfig, TrainConfig
+
+__all__ = ["available_bytes", "check_fits", "check_train", "check_evaluate", "colony_fits", "size_text", "FLOAT64"]
 
 FLOAT64 = 8  # bytes
 
@@ -81,3 +88,96 @@ def check_fits(key: str, value, need: float, device: str = "cpu", what: str = ""
             f"{key}={value!r} needs at least {size_text(need)}{f' ({what})' if what else ''}, "
             f"more than {where} ({size_text(have)}); {advice or f'use a smaller {key}'}"
         )
+
+
+def colony_fits(aco: ACOConfig, key: str, m: int, d: int, device: str, pool: int) -> None:
+    """One iteration of the colony `aco` (config key `key`) fits in memory: every ant's M = `m`
+    centres (d) and widths, and for the Ant System its choice probabilities over the `pool`
+    candidates, at once. (With the fit objective ACO_R's ants are bounded by its budget; the
+    objective ranks ants in batches of bounded memory.)"""
+    if aco.colony == Colony.ant_system:
+        check_fits(
+            f"{key}.ants",
+            aco.ants,
+            aco.ants * (pool + m * (d + 1)) * FLOAT64,
+            device,
+            f"one iteration's choice probabilities over {pool} candidates and M = {m} centres and "
+            "widths per ant, in float64",
+        )
+    elif aco.objective != Objective.fit:  # (the fit objective's budget bounds ACO_R's ants)
+        check_fits(
+            f"{key}.ants",
+            aco.ants,
+            aco.ants * m * (d + 1) * FLOAT64,
+            device,
+            f"one iteration's M = {m} centres and widths per ant, in float64",
+        )
+
+
+def check_train(cfg: TrainConfig) -> None:
+    """A training run's data and least-squares design matrix (float64), and its colony, fit in
+    memory; ValueError naming the key to make smaller."""
+    d, n_q = cfg.data, len(cfg.robot.joint_low)
+    pose = cfg.robot.target == Target.pose
+    row = (7 if pose else 3) + n_q  # target and joints of one sample
+    p = cfg.rbfn.num_centers + (9 if pose else 3) + 1  # design columns: M Gaussians, the tail, a bias
+    parts = {"n_train": d.n_train * (row + p), "n_val": d.n_val * row, "n_test": d.n_test * row}
+    key = max(parts, key=lambda k: parts[k])
+    check_fits(
+        f"data.{key}",
+        getattr(d, key),
+        sum(parts.values()) * FLOAT64,
+        cfg.device,
+        f"float64 samples of data.n_train + n_val + n_test and the data.n_train x {p} least-squares "
+        f"design matrix of rbfn.num_centers={cfg.rbfn.num_centers}",
+    )
+    if cfg.centers.method == Method.aco:
+        a = cfg.centers.aco
+        colony_fits(
+            a,
+            "centers.aco",
+            cfg.rbfn.num_centers,
+            9 if pose else 3,
+            cfg.device,
+            min(a.ant_system.candidates, d.n_train),
+        )
+
+
+def check_evaluate(cfg: EvalConfig) -> None:
+    """An evaluation's test set, recorded closed loops, online runs and closed-loop colony fit in
+    memory (lower bounds); ValueError naming the key to make smaller."""
+    if cfg.ik:  # targets (up to 7), joints (up to 7 free ones assumed), FK poses (16) per sample
+        check_fits(
+            "n_test",
+            cfg.n_test,
+            cfg.n_test * (7 + 7 + 16) * FLOAT64,
+            cfg.device,
+            "float64 test targets, joints and forward-kinematics poses",
+        )
+    n = len(cfg.robot.joint_low)
+    c = cfg.control
+    if c.enabled:  # q, qd and tau (n each) recorded every step, for each payload case at least
+        _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, cfg.device)
+        if any(name.startswith("arbfn_") for name in c.controllers):
+            # desired states of one joint at least: d >= 2; candidates at most the pilot's training samples
+            n_train = (int(round(c.duration / c.dt)) // PILOT_STRIDE + 1) // 2
+            a = c.network.aco
+            colony_fits(
+                a, "control.network.aco", c.network.num_centers, 2, "cpu", min(a.ant_system.candidates, n_train)
+            )
+    o = cfg.online
+    if o.enabled:  # joints and task position recorded every step, for each perturbation size
+        _trajectory_fits("online.duration", o.duration, o.dt, len(o.sizes), 3 + 3, cfg.device)
+
+
+def _trajectory_fits(key: str, duration: float, dt: float, batch: int, columns: int, device: str) -> None:
+    """A run of duration / dt steps recording `columns` float64 values per step for `batch`
+    environments fits in memory."""
+    steps = duration / dt + 1
+    check_fits(
+        key,
+        duration,
+        steps * batch * columns * FLOAT64,
+        device,
+        f"{steps:.3g} steps of {dt:g} s, each recording {columns} float64 values for {batch} run(s)",
+    )

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, cast
 
@@ -35,6 +34,7 @@ from .objectives import FitObjective
 from .progress import Progress
 from .refine import Refined, refine, refine_mode
 from .resume import StateFile, TrainState
+from .robots.robot import check_ik_is_function
 from .select import select
 from .targets import TargetFeatures
 from .widths import check_max_width
@@ -42,7 +42,7 @@ from .widths import check_max_width
 if TYPE_CHECKING:
     from .robots.robot import Robot
 
-__all__ = ["TrainResult", "check_ik_is_function", "fit_weights", "task_jacobians", "train_ik"]
+__all__ = ["TrainResult", "fit_weights", "task_jacobians", "train_ik"]
 
 log = logging.getLogger(__name__)
 
@@ -127,31 +127,6 @@ def task_jacobians(cfg: TrainConfig, robot: Robot, data: Dataset) -> tuple[torch
     for j in jacs:
         j[:, 3:] *= cfg.robot.rotation_scale
     return jacs
-
-
-def check_ik_is_function(target: Target | str, joints: Sequence[str], locked: Mapping[str, float]) -> None:
-    """Refuse an arm whose free joints `joints` (the IK's outputs, by name, `locked` ones excluded)
-    outnumber the degrees of freedom of its targets: 3 for `position`, 6 for `pose`.
-
-    Many joint vectors then reach each target: the training data is no function of the target,
-    and a network fitted to it learns their average (a task Jacobian, 3 or 6 rows, has fewer rows
-    than joints: the same condition). ValueError naming robot.target, the free joints and
-    robot.locked, whatever the refinement mode; train_ik and rbfn.studies.training.run (train.py)
-    check it before any work."""
-    dof, n = (6 if target == Target.pose else 3), len(joints)
-    if n <= dof:
-        return
-    ways = (
-        f"lock {n - dof} of them with robot.locked (on the command line +robot.locked.NAME=VALUE, one per "
-        "joint) and drop their entries from robot.joint_low/joint_high"
-    )
-    if target != Target.pose and n <= 6:  # pose targets fix 6: an arm with at most 6 free joints
-        ways += ", or use robot.target=pose (position and orientation, 6 degrees of freedom)"
-    raise ValueError(
-        f"robot.target={target} has {dof} degrees of freedom but the arm has {n} free joints {list(joints)} "
-        f"(robot.locked={dict(locked)}): many joint vectors reach each target, so the IK map is not a "
-        f"function and the network would learn their average; {ways}"
-    )
 
 
 def _uses_task_loss(cfg: TrainConfig, data: Dataset, features: int, robot: Robot | None) -> bool:

@@ -9,6 +9,7 @@ from hydra.errors import MissingConfigException
 import train
 from rbfn.config import SELECTORS, EvalConfig, validate_evaluate, validate_train
 from rbfn.data import check_finite
+from rbfn.memory import check_evaluate, check_train
 
 from .conftest import compose_config
 
@@ -194,17 +195,17 @@ def test_training_sizes_that_cannot_fit_name_the_key_the_estimate_and_the_limit(
         match=rf"{re.escape(key)}=1000000000000 needs at least [\d.]+ TiB .*"
         r"more than this machine's available memory \([\d.]+ \w+\)",
     ):
-        validate_train(_cfg(override))
+        check_train(_cfg(override))
 
 
 def test_the_memory_estimate_is_held_against_what_is_available(monkeypatch):
     import rbfn.memory
 
     cfg = _cfg("data.n_train=100000", "rbfn.num_centers=1000")  # 100000 x 1004 float64: 0.75 GiB
-    validate_train(cfg)
+    check_train(cfg)
     monkeypatch.setattr(rbfn.memory, "available_bytes", lambda device="cpu": 512 << 20)
     with pytest.raises(ValueError, match=r"data.n_train=100000 needs at least 7\d\d MiB .*\(512 MiB\)"):
-        validate_train(cfg)
+        check_train(cfg)
 
 
 @pytest.mark.parametrize(
@@ -217,15 +218,15 @@ def test_the_memory_estimate_is_held_against_what_is_available(monkeypatch):
 )
 def test_evaluation_sizes_that_cannot_fit_name_the_key(override, key):
     with pytest.raises(ValueError, match=rf"{re.escape(key)}=1.*needs at least .* more than this machine's"):
-        validate_evaluate(compose_config("evaluate", override))
+        check_evaluate(compose_config("evaluate", override))
 
 
 def test_an_ant_system_colony_that_cannot_fit_names_its_ants():
     with pytest.raises(ValueError, match=r"centers\.aco\.ants=100000000000 needs at least .* TiB .*300 candidates"):
-        validate_train(
+        check_train(
             _cfg("centers=aco_paper", "data.n_train=300", "rbfn.num_centers=10", "centers.aco.ants=100000000000")
         )
-    validate_train(_cfg("centers=aco", "centers.aco.ants=100000000000"))  # ACO_R's ants are bounded by its budget
+    check_train(_cfg("centers=aco", "centers.aco.ants=100000000000"))  # ACO_R's ants are bounded by its budget
 
 
 def test_the_centers_presets_are_the_files_of_the_group():

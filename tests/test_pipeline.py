@@ -10,10 +10,9 @@ import torch
 
 import train
 from rbfn import pipeline
-from rbfn.config import ROBOT_PRESETS
 from rbfn.data import input_scaling, make_dataset
 from rbfn.fit import ROUND_TOL, design_matrix
-from rbfn.pipeline import check_ik_is_function, fit_weights, task_jacobians, train_ik
+from rbfn.pipeline import fit_weights, task_jacobians, train_ik
 from rbfn.refine import Refined
 from rbfn.robots.robot import load_robot
 from rbfn.studies import training
@@ -151,17 +150,6 @@ def test_more_free_joints_than_target_dof_is_refused_before_any_work(tmp_path, m
         train_ik(cfg, data, robot=robot)
     with pytest.raises(ValueError, match=r"has 6 free joints \['joint 1', .*'joint 6'\] .* lock 3 of them"):
         train_ik(cfg, data)
-
-
-def test_a_redundant_pose_arm_is_told_to_lock_joints_only():
-    with pytest.raises(ValueError, match=r"robot\.target=pose has 6 .* 7 free joints .* lock 1 of them .*joint_high$"):
-        check_ik_is_function("pose", [f"j{i}" for i in range(7)], {})
-
-
-@pytest.mark.parametrize("name", ROBOT_PRESETS)
-def test_every_shipped_robot_passes(name):
-    cfg = compose_config("train", f"robot={name}")
-    check_ik_is_function(cfg.robot.target, load_robot(cfg.robot).joint_names, cfg.robot.locked)
 
 
 def test_locking_the_extra_joints_trains(tmp_path):

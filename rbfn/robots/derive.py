@@ -8,7 +8,7 @@ line per key, saying what it chose and why ("given" for a key the user gave, whi
 
 * name: the URDF's <robot name="...">.
 * target: `pose` for 6 free joints (the chain less robot.locked), `position` for 3; other counts
-  are refused (`rbfn.pipeline.check_ik_is_function`, or too few joints), naming the way out.
+  are refused (`rbfn.robots.robot.check_ik_is_function`, or too few joints), naming the way out.
 * home: the middle of each free joint's limits (0 for a joint without limits, e.g. continuous),
   unless the box around it is ill-conditioned (a singularity runs through it: the 5 % quantile of
   the task Jacobian's smallest to largest singular value over the box below CONDITIONED); then the
@@ -49,7 +49,7 @@ from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, Target, TrainConfig
 from .dynamics import Arm, load_arm, urdf_source
 from .kinematics import urdf_tree
 from .registry import closed_form
-from .robot import Robot, check_joint_values, load_robot
+from .robot import Robot, check_ik_is_function, check_joint_values, load_robot
 
 __all__ = [
     "CONTROL_RATE",
@@ -174,7 +174,6 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     unchanged when it does not ask to derive (`cfg.derive` false)."""
     if not cfg.derive:
         return cfg
-    from ..pipeline import check_ik_is_function  # the training library's rule, not a robot's
 
     def said(key: str, value: Any, why: str) -> None:
         log.info("robot.%s = %s (%s)", key, value, why)

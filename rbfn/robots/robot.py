@@ -10,6 +10,7 @@ URDF's order along the chain; `locked` joints are held at their values.
 from __future__ import annotations
 
 import reprlib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from ..config import RobotConfig, Target, finite
 from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, read_urdf, urdf_path
 
 __all__ = [
+    "check_ik_is_function",
     "Robot",
     "check_joint_values",
     "load_robot",
@@ -317,3 +319,28 @@ def robot_from_record(record: dict, device: str = "cpu") -> Robot:
             f"chain to {robot.end_link!r}, in chain order: {robot.joint_names}"
         )
     return robot
+
+
+def check_ik_is_function(target: Target | str, joints: Sequence[str], locked: Mapping[str, float]) -> None:
+    """Refuse an arm whose free joints `joints` (the IK's outputs, by name, `locked` ones excluded)
+    outnumber the degrees of freedom of its targets: 3 for `position`, 6 for `pose`.
+
+    Many joint vectors then reach each target: the training data is no function of the target,
+    and a network fitted to it learns their average (a task Jacobian, 3 or 6 rows, has fewer rows
+    than joints: the same condition). ValueError naming robot.target, the free joints and
+    robot.locked, whatever the refinement mode; `rbfn.pipeline.train_ik`, train.py and the
+    derivation of a URDF's values (`rbfn.robots.derive`) check it before any work."""
+    dof, n = (6 if target == Target.pose else 3), len(joints)
+    if n <= dof:
+        return
+    ways = (
+        f"lock {n - dof} of them with robot.locked (on the command line +robot.locked.NAME=VALUE, one per "
+        "joint) and drop their entries from robot.joint_low/joint_high"
+    )
+    if target != Target.pose and n <= 6:  # pose targets fix 6: an arm with at most 6 free joints
+        ways += ", or use robot.target=pose (position and orientation, 6 degrees of freedom)"
+    raise ValueError(
+        f"robot.target={target} has {dof} degrees of freedom but the arm has {n} free joints {list(joints)} "
+        f"(robot.locked={dict(locked)}): many joint vectors reach each target, so the IK map is not a "
+        f"function and the network would learn their average; {ways}"
+    )

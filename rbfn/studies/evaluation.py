@@ -27,6 +27,7 @@ from torch.utils.tensorboard import SummaryWriter
 from ..checkpoint import read_checkpoint, refuse_url
 from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, validate_evaluate
 from ..control.robot_setup import payload_cases
+from ..memory import check_evaluate
 from ..robots.derive import derive_evaluate
 from ..robots.dynamics import urdf_source
 from ..solver import DEFAULT_ITERATIONS
@@ -228,6 +229,7 @@ def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
     no part needs one or none was found. A checkpoint of another robot than `cfg.robot` is refused
     (`for_checkpoint` composes the config for the checkpoint's robot)."""
     validate_evaluate(cfg)
+    check_evaluate(cfg)  # the parts fit in memory
     if not (cfg.ik or cfg.online.enabled or cfg.control.enabled):
         raise ValueError("nothing to evaluate: ik, online.enabled and control.enabled are all false; enable a part")
     path = find_checkpoint(cfg) if _uses_checkpoint(cfg) else None

@@ -13,10 +13,11 @@ from torch.utils.tensorboard import SummaryWriter
 
 from ..config import TrainConfig, plain, validate_train
 from ..data import check_finite, make_dataset
-from ..pipeline import check_ik_is_function, train_ik
+from ..memory import check_train
+from ..pipeline import train_ik
 from ..resume import DifferentRun, StateFile, TrainState, comparable
 from ..robots.derive import derive_train
-from ..robots.robot import load_robot
+from ..robots.robot import check_ik_is_function, load_robot
 from .cli import announced
 from .ik import training_metrics, write_training
 from .rundir import RunDir, bookkeeping, write_text
@@ -35,6 +36,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     """
     cfg = derive_train(cfg)
     validate_train(cfg)
+    check_train(cfg)  # the run fits in memory
     robot = load_robot(cfg.robot, cfg.device)
     check_ik_is_function(robot.target, robot.joint_names, cfg.robot.locked)
     with RunDir(out_dir):

@@ -106,7 +106,9 @@ def _terms(make: Callable[[str], Dynamics]) -> Callable[[str, State], dict[str, 
 def _narrow(robot: str, s: State) -> dict[str, torch.Tensor]:
     """ArmTerms on NARROW states at a time."""
     parts = [
-        _terms(lambda r: ArmTerms(_arm(r)))(robot, State(*(x[i : i + NARROW] if torch.is_tensor(x) and x.dim() else x for x in s)))
+        _terms(lambda r: ArmTerms(_arm(r)))(
+            robot, State(*(x[i : i + NARROW] if torch.is_tensor(x) and x.dim() else x for x in s))
+        )
         for i in range(0, BATCH, NARROW)
     ]
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
