@@ -4,6 +4,7 @@ import torch
 from rbfn.control import Plant, Scenario, SimulationDiverged, make_controller, paper_trajectory, simulate
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, NominalModel
+from rbfn.control.models import ModelScales
 from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
 from rbfn.robots.scara import (
     ScaraTerms,
@@ -85,7 +86,7 @@ def test_gravity_energy_exchange_is_conserved():
 def test_observer_estimates_the_model_gravity_error():
     # Only unmodelled effect: G_hat = 0.85 G, so the observer must find 0.15 * (-m3 g) on joint 3.
     plant = Plant(ScaraTerms(), viscous=0.0, coulomb=0.0, disturbance=0.0)
-    model = NominalModel(m_scale=1.0, c_scale=1.0, g_scale=0.85)
+    model = NominalModel(ScaraTerms(), ModelScales(1.0, 1.0, 0.85))
     sc = Scenario(duration=1.0, payload_on=0.0, payload_off=1.0, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("smc_obs", Gains(), sc.dt, model)
