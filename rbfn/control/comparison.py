@@ -292,6 +292,7 @@ def _closed_loop_cost(
         loop=real,
         pilot=((x - twin.offset) / twin.scale, y) if cfg.network.warm_start else None,
         compile=cfg.compile,
+        aot=cfg.aot,
     )
 
 

@@ -45,6 +45,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 CHECK_EVERY = 100  # steps between finiteness checks (each check synchronises a GPU)
+NOISE_BLOCK = 100  # the realistic loop's noise is drawn this many control periods at a time
 
 
 class SimulationDiverged(RuntimeError):
@@ -295,9 +296,7 @@ def simulate(
     if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
         raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
     if loop is not None:
-        if aot:
-            raise ValueError("aot=True serves the ideal loop only (loop is set); use compile=True")
-        return _simulate_real(plant, controller, scenario, ref, q0, qd0, payload, loop, record, compile, chunk)
+        return _simulate_real(plant, controller, scenario, ref, q0, qd0, payload, loop, record, compile, chunk, aot)
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
     periods = Periods(
@@ -365,7 +364,10 @@ def _run_chunks(
             fn = run if m == chunk else make(m)
             sl = slice(k0, k0 + m)
             out = fn(state, rows(sl))
-            state = out.loop
+            # Every chunk sees its state in the first chunk's layout: a compiled chunk may return a
+            # tensor in another (the realistic loop's sensing history), and a compiled step guards
+            # on strides (dynamic=False: one more compile per configuration otherwise).
+            state = pytree.tree_map(_same_layout, out.loop, state)
             if record:
                 qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
             k0 += m
@@ -376,6 +378,13 @@ def _run_chunks(
         return state, None
     qs[n], qds[n], taus[n] = state.q, state.qd, taus[n - 1]
     return state, (qs, qds, taus)
+
+
+def _same_layout(new: Any, old: Any) -> Any:
+    """`new` in `old`'s strides (a copy only where they differ)."""
+    if not isinstance(new, torch.Tensor) or new.stride() == old.stride() or new.shape != old.shape:
+        return new
+    return torch.empty_strided(old.shape, old.stride(), dtype=new.dtype, device=new.device).copy_(new)
 
 
 def _rows(periods: Any, sl: slice) -> Any:
@@ -481,6 +490,7 @@ def _simulate_real(
     record: bool,
     compile: bool,
     chunk: int,
+    aot: bool = False,
 ) -> Rollout | tuple[torch.Tensor, torch.Tensor]:
     """`simulate` in the realistic loop (see there)."""
     dt, sub = scenario.dt, loop.substeps
@@ -510,18 +520,37 @@ def _simulate_real(
     if b % envs:
         raise ValueError(f"loop.noise_envs={envs} must divide the {b} environments")
 
-    def noise(rows: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """This chunk's noise, drawn on the CPU (the same numbers on every device), every
+    def draw(rows: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """`rows` periods' noise, drawn on the CPU (the same numbers on every device), every
         `envs`-th environment alike."""
         pos = None
         if loop.position_noise:
-            draw = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
-            pos = (loop.position_noise * draw).repeat(1, b // envs, 1).to(**kw)
+            d = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
+            pos = (loop.position_noise * d).repeat(1, b // envs, 1).to(**kw)
         tau = None
         if loop.torque_noise is not None:
-            draw = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
-            tau = (loop.torque_noise * draw).repeat(1, b // envs, 1).to(**kw)
+            d = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
+            tau = (loop.torque_noise * d).repeat(1, b // envs, 1).to(**kw)
         return pos, tau
+
+    # The noise is drawn in blocks of NOISE_BLOCK periods whatever the chunk length (torch's CPU
+    # randn takes another algorithm from 16 numbers on, so draws per chunk made the run depend on
+    # the chunk), and sliced per chunk.
+    blocks: dict[int, tuple] = {}
+
+    def noise_rows(start: int, stop: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        parts = []
+        for blk in range(start // NOISE_BLOCK, (stop - 1) // NOISE_BLOCK + 1):
+            if blk not in blocks:
+                for old in [k for k in blocks if k < blk]:
+                    del blocks[old]
+                blocks[blk] = draw(min(NOISE_BLOCK, periods - blk * NOISE_BLOCK))
+            lo = max(start - blk * NOISE_BLOCK, 0)
+            hi = min(stop - blk * NOISE_BLOCK, NOISE_BLOCK)
+            parts.append(tuple(None if x is None else x[lo:hi] for x in blocks[blk]))
+        if len(parts) == 1:
+            return parts[0]
+        return tuple(None if p[0] is None else torch.cat(p) for p in zip(*parts))  # type: ignore[return-value]
 
     q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
     y0 = q if loop.resolution is None else quantise(q, loop.resolution.to(q))
@@ -534,14 +563,26 @@ def _simulate_real(
         Sensing(y0[None].repeat(loop.sensing_delay + 1, 1, 1), y0.clone(), qd.clone()),
         Actuation(wait, wait.clone(), Applied(z.clone(), z.clone()), z.clone()),
     )
-    chunk = chunk or 100
+    chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     run = make_real_chunk(plant, controller, loop, dt, scenario.integrator, chunk)
     if compile:
         run = torch.compile(run, dynamic=False)
 
     def rows(sl: slice) -> RealPeriods:
-        pos, tau = noise(sl.stop - sl.start)
+        pos, tau = noise_rows(sl.start, sl.stop)
         return _rows(inputs, sl)._replace(position_noise=pos, torque_noise=tau)
+
+    if aot and periods >= chunk:
+        # The example draws no noise (the generator's stream stays the run's): zeros of its shape.
+        like = _rows(inputs, slice(0, chunk))
+        zeros = torch.zeros(chunk, b, nj, **kw)
+        like = like._replace(
+            position_noise=zeros if loop.position_noise else None,
+            torque_noise=zeros.clone() if loop.torque_noise is not None else None,
+        )
+        example = (pytree.tree_map_only(torch.Tensor, torch.clone, state), like)
+        key = chunk_key(plant, controller, dt, scenario.integrator, chunk, (loop, example))
+        run = aot_chunk(run, key, example, log.info)
 
     state, rec = _run_chunks(
         run,

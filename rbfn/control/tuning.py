@@ -160,9 +160,11 @@ class ClosedLoopCost:
         loop: RealLoop | None = None,
         pilot: tuple[torch.Tensor, torch.Tensor] | None = None,
         compile: bool = False,
+        aot: bool = False,
     ) -> None:
         self.model, self.gains, self.twin, self.tune = model, gains, twin, tune
         self.observer, self.scale, self.rates, self.pilot, self.compile = observer, joint_scale, rates, pilot, compile
+        self.aot = aot
         self.scenarios, self.scenario, self.ref = scenarios, scenario, ref
         s = scenarios.payloads.shape[0]
         self.s, self.n = s, ref.q_d.shape[1]
@@ -273,6 +275,7 @@ class ClosedLoopCost:
             qd0=qd0,
             payload=sc.payloads.repeat(k).to(**self.kw),
             compile=self.compile,
+            aot=self.aot,
             loop=self.loop,
         )
         q_des = self.ref.q_d if self.loop is None else self.ref.q_d[:: self.loop.substeps][: roll.t.shape[0]]

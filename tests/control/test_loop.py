@@ -3,6 +3,7 @@ the simulator: quantisation steps, the velocity filter's response, delays in who
 saturation and the time spent saturated; with every part off it is the ideal loop."""
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -427,3 +428,37 @@ def test_a_coupled_arm_keeps_off_its_torque_limits_with_the_phase_margin():
 
     assert saturated() <= 0.01
     assert saturated("gains.phase_margin=0") > 0.2
+
+
+def _realistic_scara(chunk: int, **kw):
+    """evaluate.py's realistic loop on the SCARA (noise, encoders, delays, saturation, two
+    integration steps per period; torque noise too), `smc_obs` at its gains, two payloads, 0.3 s in
+    chunks of `chunk`."""
+    cfg = compose_config("evaluate", "loop=realistic")
+    sc = Scenario(duration=0.3, dt=1e-3, payload_on=0.05, payload_off=0.2, metrics_after=0.0)
+    ref = paper_trajectory(sc.times())
+    loop = real_loop(cfg.loop, sc.dt, [False, False, True], torch.tensor([80.0, 40.0, 300.0], dtype=torch.float64))
+    assert loop is not None and loop.substeps > 1 and loop.position_noise
+    loop = replace(loop, torque_noise=torch.full((3,), 0.05, dtype=torch.float64))  # both noise streams
+    ctrl = make_controller("smc_obs", cfg.gains, loop.period, SCARA_MODEL)
+    payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
+    q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
+    return simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, loop=loop, chunk=chunk, **kw)
+
+
+def test_the_realistic_run_does_not_depend_on_its_chunk_length():
+    """The noise is drawn in blocks of fixed length whatever the chunk, so the chunk length (1, 7,
+    the default 100) changes nothing, bit for bit (torch draws 16 or more numbers by another
+    algorithm than fewer: draws per chunk made the run depend on it)."""
+    runs = [_realistic_scara(chunk) for chunk in (1, 7, 0)]
+    for other in runs[1:]:
+        assert torch.equal(other.q, runs[0].q) and torch.equal(other.tau, runs[0].tau)
+
+
+@pytest.mark.slow
+def test_the_compiled_realistic_loop_equals_the_eager_one(tmp_path, monkeypatch):
+    """`compile=True` serves the realistic loop: the same run as eagerly, to rounding."""
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
+    eager, compiled = _realistic_scara(1), _realistic_scara(1, compile=True)  # one period per call: the smallest graph
+    assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
+    assert torch.allclose(compiled.tau, eager.tau, rtol=1e-9, atol=1e-9)
