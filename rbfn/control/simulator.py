@@ -536,21 +536,24 @@ def _simulate_real(
     # The noise is drawn in blocks of NOISE_BLOCK periods whatever the chunk length (torch's CPU
     # randn takes another algorithm from 16 numbers on, so draws per chunk made the run depend on
     # the chunk), and sliced per chunk.
-    blocks: dict[int, tuple] = {}
+    blocks: dict[int, tuple[torch.Tensor | None, torch.Tensor | None]] = {}
+
+    def join(parts: list[torch.Tensor | None]) -> torch.Tensor | None:
+        return None if parts[0] is None else parts[0] if len(parts) == 1 else torch.cat(parts)  # type: ignore[arg-type]
 
     def noise_rows(start: int, stop: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        parts = []
+        """Periods start .. stop - 1's noise: slices of the blocks, each drawn once, in order."""
+        pos: list[torch.Tensor | None] = []
+        tau: list[torch.Tensor | None] = []
         for blk in range(start // NOISE_BLOCK, (stop - 1) // NOISE_BLOCK + 1):
             if blk not in blocks:
-                for old in [k for k in blocks if k < blk]:
-                    del blocks[old]
+                blocks.clear()  # the chunks move forward: the earlier blocks are spent
                 blocks[blk] = draw(min(NOISE_BLOCK, periods - blk * NOISE_BLOCK))
-            lo = max(start - blk * NOISE_BLOCK, 0)
-            hi = min(stop - blk * NOISE_BLOCK, NOISE_BLOCK)
-            parts.append(tuple(None if x is None else x[lo:hi] for x in blocks[blk]))
-        if len(parts) == 1:
-            return parts[0]
-        return tuple(None if p[0] is None else torch.cat(p) for p in zip(*parts))  # type: ignore[return-value]
+            lo, hi = max(start - blk * NOISE_BLOCK, 0), min(stop - blk * NOISE_BLOCK, NOISE_BLOCK)
+            p, t = blocks[blk]
+            pos.append(None if p is None else p[lo:hi])
+            tau.append(None if t is None else t[lo:hi])
+        return join(pos), join(tau)
 
     q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
     y0 = q if loop.resolution is None else quantise(q, loop.resolution.to(q))
