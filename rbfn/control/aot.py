@@ -128,6 +128,11 @@ def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None
         if log:
             log(f"compiling the closed-loop step ahead of time into {path} (minutes, once per configuration)")
         path.parent.mkdir(parents=True, exist_ok=True)
+        # One eager call first: the caches the step fills on first use (the dynamics' constants per
+        # dtype and device) then hold real tensors, not the export trace's fake ones, which would
+        # slow every later eager call or fail it.
+        with torch.inference_mode():
+            run(*pytree.tree_map_only(torch.Tensor, torch.clone, example))
         program = torch.export.export(_Chunk(run), example, strict=False)
         fd, tmp = tempfile.mkstemp(suffix=".pt2", dir=path.parent)
         os.close(fd)
