@@ -190,8 +190,9 @@ def aot_scenario(device: str, threads: int, cap_s: float, duration: float = 10.0
 def numpy_rk4_row(duration: float = 10.0) -> dict:
     """One environment stepped by a plain numpy RK4 loop at dt = 1 ms (the same plant, PD in the
     right-hand side, torque held per step as in `simulate`): wall seconds."""
-    plant = Plant(scara.ScaraTerms())
-    rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
+    params = scara.ScaraParams()
+    plant = Plant(scara.ScaraTerms(params))
+    rhs = _pd_rhs(params, plant, Gains(), *_window(duration))
     s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])
     n, h = int(round(duration / DT)), DT
 
@@ -251,8 +252,9 @@ def scipy_row(duration: float = 10.0, repeats: int = 1) -> dict:
     """One environment by scipy's solve_ivp (RK45, rtol 1e-6, atol 1e-8): wall seconds, RHS calls."""
     from scipy.integrate import solve_ivp
 
-    plant = Plant(scara.ScaraTerms())
-    rhs = _pd_rhs(plant.params, plant, Gains(), *_window(duration))
+    params = scara.ScaraParams()
+    plant = Plant(scara.ScaraTerms(params))
+    rhs = _pd_rhs(params, plant, Gains(), *_window(duration))
     s0 = np.array([1.0, 1.2, 1.0, 0.3, 0.0, 0.7])  # the reference at t = 0
     sol = {}
 
