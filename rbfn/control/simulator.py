@@ -567,8 +567,8 @@ def _simulate_real(
         Actuation(wait, wait.clone(), Applied(z.clone(), z.clone()), z.clone()),
     )
     # Compiled, a fifth of the ideal loop's chunk (a period here is several integration steps and
-    # the sensing and actuation around them): the SCARA's 5 periods run as fast as 25 and build in
-    # a fraction of the time (154 s against over 10 min on the 2-core machine).
+    # the sensing and actuation around them): the SCARA's 5 periods ran as fast as 25 and built in
+    # a fraction of the time (docs/benchmarks.md).
     chunk = chunk or (max(1, plant.compile_chunk // 5) if compile or aot else 100)
     run = make_real_chunk(plant, controller, loop, dt, scenario.integrator, chunk)
     if compile:
