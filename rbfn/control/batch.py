@@ -148,7 +148,9 @@ class Stacked(Controller):
         forces: Forces | None = None,
     ) -> tuple[torch.Tensor, tuple]:
         assert alpha is not None  # one column per unit (K,)
-        rows = [Forces(p, forces.dist) for p in forces.payload.split(self.unit_sizes)] if forces else []
+        rows = (
+            [Forces(ld, forces.dist) for ld in zip(*(c.split(self.unit_sizes) for c in forces.load))] if forces else []
+        )
         taus, states = [], []
         parts = (
             [None] * len(self.units)

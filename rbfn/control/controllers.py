@@ -72,10 +72,10 @@ class SlidingState(NamedTuple):
 
 
 class Forces(NamedTuple):
-    """What only the perfect-knowledge controller is told each period: the payload (B,) kg and the
-    disturbance torque now ((), or (n,)), N m (N)."""
+    """What only the perfect-knowledge controller is told each period: the payload's load
+    (`Plant.load`, each (B,)) and the disturbance torque now ((), or (n,)), N m (N)."""
 
-    payload: torch.Tensor
+    load: tuple[torch.Tensor, ...]
     dist: torch.Tensor
 
 
@@ -295,9 +295,9 @@ class ExactSliding(Controller):
         s = de + g.Lambda * e
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
         zero = torch.zeros_like(q)
-        a0 = self.plant.accel(q, qd, zero, forces.payload)  # -M^-1 (C qd + G + F)
+        a0 = self.plant.accel(q, qd, zero, forces.load)  # -M^-1 (C qd + G + F)
         eye = torch.eye(n, dtype=q.dtype, device=q.device)
-        m_inv = torch.stack([self.plant.accel(q, qd, eye[j].expand_as(q), forces.payload) - a0 for j in range(n)], -1)
+        m_inv = torch.stack([self.plant.accel(q, qd, eye[j].expand_as(q), forces.load) - a0 for j in range(n)], -1)
         feedforward = torch.linalg.solve(m_inv, ref.qdd_d + g.Lambda * de - a0)  # M (qr'' ) + C qd + G + F
         tau = feedforward + forces.dist + self._scaled(g.K) * s + self._scaled(g.epsilon) * robust
         return tau, state

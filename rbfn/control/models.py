@@ -43,6 +43,7 @@ class NominalModel:
     def __init__(self, dynamics: Dynamics, scales: ModelScales = PAPER, payload: float = 0.0) -> None:
         self.dynamics, self.scales, self.payload = dynamics, ModelScales(*scales), payload
         self.scaled = dynamics.scaled(*self.scales)
+        self.load = self.scaled.load(payload)  # computed once
         self.n = dynamics.n
 
     def __eq__(self, other: object) -> bool:
@@ -56,7 +57,7 @@ class NominalModel:
     __hash__ = None  # type: ignore[assignment]
 
     def at(self, q: torch.Tensor, qd: torch.Tensor) -> ModelAt:
-        return ModelAt(self.scaled.at(q, self.payload), qd)
+        return ModelAt(self.scaled.at(q, load=self.load), qd)
 
 
 class ModelAt:

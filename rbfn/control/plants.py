@@ -9,7 +9,7 @@ payload (kg, per environment), held within a step like the torque (zero-order ho
 The rigid-body part is a backend of `rbfn.robots.backend.Dynamics` (the URDF recursion
 `rbfn.robots.arm_terms.ArmTerms` for any arm, or a robot's closed form such as the SCARA's
 `rbfn.robots.scara.ScaraTerms`); the plant adds friction, the disturbance and the integrators:
-`accel(q, qd, tau - tau_d, payload)`, `step(...)` and `energy(q, qd, payload)`.
+`accel(q, qd, tau - tau_d, load)`, `step(...)` and `energy(q, qd, load)`.
 """
 
 from __future__ import annotations
@@ -109,10 +109,15 @@ class Plant:
         plant.per_environment = (amplitude, freq, phase)
         return plant
 
-    def accel(self, q: torch.Tensor, qd: torch.Tensor, r: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
+    def load(self, payload: torch.Tensor) -> tuple:
+        """What a step needs of the payload (kg, any shape, e.g. a schedule (T, B)): the dynamics'
+        `load`, computed once for the whole schedule; `step` and `accel` take it a step at a time."""
+        return self.dynamics.load(payload)
+
+    def accel(self, q: torch.Tensor, qd: torch.Tensor, r: torch.Tensor, load: tuple) -> torch.Tensor:
         """Joint accelerations (B, n) under r = tau - tau_d (B, n), the torque less the disturbance,
-        carrying `payload` kg (B,)."""
-        return self.dynamics.at(q, payload).accel(qd, r, self.minus_friction, self.gravity)
+        carrying the payload whose `load` (each (B,)) is given."""
+        return self.dynamics.at(q, load=load).accel(qd, r, self.minus_friction, self.gravity)
 
     def energy(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor) -> torch.Tensor:
         """Kinetic plus (if gravity is on) potential energy (B,) in J."""
@@ -125,25 +130,25 @@ class Plant:
         tau: torch.Tensor,
         dist: torch.Tensor,
         dt: float,
-        payload: torch.Tensor,
+        load: tuple,
         method: str = "rk4",
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """State (q, qd) after dt seconds, torque and payload (kg, (B,)) held; dist: the disturbance
-        torque at the step's start, middle and end, tau_d(t), tau_d(t + dt/2), tau_d(t + dt) (3,) or
-        (3, n)."""
+        """State (q, qd) after dt seconds, torque and payload (its `load`, each (B,)) held; dist: the
+        disturbance torque at the step's start, middle and end, tau_d(t), tau_d(t + dt/2),
+        tau_d(t + dt) (3,) or (3, n)."""
         if method == "euler":
-            qd = qd + dt * self.accel(q, qd, tau - dist[0], payload)
+            qd = qd + dt * self.accel(q, qd, tau - dist[0], load)
             return q + dt * qd, qd
         # x + h y as one operation (torch.add's alpha): a step is overhead-bound at small B.
         h = 0.5 * dt
         r_mid = tau - dist[1]  # the two middle stages share it
-        a1 = self.accel(q, qd, tau - dist[0], payload)
+        a1 = self.accel(q, qd, tau - dist[0], load)
         v2 = torch.add(qd, a1, alpha=h)
-        a2 = self.accel(torch.add(q, qd, alpha=h), v2, r_mid, payload)
+        a2 = self.accel(torch.add(q, qd, alpha=h), v2, r_mid, load)
         v3 = torch.add(qd, a2, alpha=h)
-        a3 = self.accel(torch.add(q, v2, alpha=h), v3, r_mid, payload)
+        a3 = self.accel(torch.add(q, v2, alpha=h), v3, r_mid, load)
         v4 = torch.add(qd, a3, alpha=dt)
-        a4 = self.accel(torch.add(q, v3, alpha=dt), v4, tau - dist[2], payload)
+        a4 = self.accel(torch.add(q, v3, alpha=dt), v4, tau - dist[2], load)
         q_next = torch.add(q, qd.add(v2, alpha=2.0).add_(v3, alpha=2.0).add_(v4), alpha=dt / 6)
         qd_next = torch.add(qd, a1.add(a2, alpha=2.0).add_(a3, alpha=2.0).add_(a4), alpha=dt / 6)
         return q_next, qd_next

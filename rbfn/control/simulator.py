@@ -148,13 +148,13 @@ class Periods(NamedTuple):
     the reference (each (m, n), or per environment (m, B, n)), the features h (m, M) or None,
     the adaptation steps alpha (m,) (a Stacked controller's: (m, K)), the disturbance torque at
     each period's start, middle and end dist (m, 3) or (m, 3, n) (`stage_disturbances`), and the
-    payload (m, B) kg (`payload_schedule`)."""
+    payload's load (`Plant.load` of `payload_schedule`, each (m, B))."""
 
     ref: Reference
     h: torch.Tensor | None
     alpha: torch.Tensor
     dist: torch.Tensor
-    payload: torch.Tensor
+    load: tuple[torch.Tensor, ...]
 
 
 class Recorded(NamedTuple):
@@ -168,11 +168,11 @@ class Recorded(NamedTuple):
     tau: torch.Tensor
 
 
-def _forces(controller: Controller, payload: torch.Tensor, dist: torch.Tensor) -> Forces | None:
-    """What the perfect-knowledge ceiling is told this step (`Controller.needs_forces`): the payload
-    (B,) kg and the disturbance at the step's start (dist[0] of the step's (3,)
+def _forces(controller: Controller, load: tuple, dist: torch.Tensor) -> Forces | None:
+    """What the perfect-knowledge ceiling is told this step (`Controller.needs_forces`): the
+    payload's load (each (B,)) and the disturbance at the step's start (dist[0] of the step's (3,)
     or (3, n)); None for every other controller."""
-    return Forces(payload, dist[0]) if controller.needs_forces else None
+    return Forces(load, dist[0]) if controller.needs_forces else None
 
 
 def make_chunk(
@@ -190,14 +190,14 @@ def make_chunk(
             hs,
             periods.alpha.unbind(0),
             periods.dist.unbind(0),
-            periods.payload.unbind(0),
+            *(c.unbind(0) for c in periods.load),
         )
-        for q_d, qd_d, qdd_d, h, alpha, dist, payload in rows:
+        for q_d, qd_d, qdd_d, h, alpha, dist, *load in rows:
             qs.append(q)
             qds.append(qd)
-            forces = _forces(controller, payload, dist)
+            forces = _forces(controller, tuple(load), dist)
             tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha, forces=forces)
-            q, qd = plant.step(q, qd, tau, dist, dt, payload, integrator)
+            q, qd = plant.step(q, qd, tau, dist, dt, tuple(load), integrator)
             taus.append(tau)
         return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
 
@@ -304,7 +304,7 @@ def simulate(
         h=controller.features.to(**kw) if controller.features is not None else None,
         alpha=controller.alphas(torch.arange(n, **kw) * dt),
         dist=stage_disturbances(plant, n, dt, **kw),  # (n, 3) or (n, 3, joints)
-        payload=payload_schedule(scenario, n, payload, **kw),
+        load=plant.load(payload_schedule(scenario, n, payload, **kw)),
     )
     run = make_chunk(plant, controller, dt, scenario.integrator, chunk)
     if compile:
@@ -407,14 +407,14 @@ class RealPeriods(NamedTuple):
     """The inputs of m consecutive control periods (first dimension m): the reference at each
     period's start, features h (m, M) or None, adaptation steps alpha, the disturbance torque at
     each integration step's start, middle and end dist (m, substeps, 3[, n]), the payload
-    (m, substeps, B) kg, and the noise: positions (m, B, n) rad (m) and
+    load (`Plant.load`, each (m, substeps, B)), and the noise: positions (m, B, n) rad (m) and
     torques (m, B, n) N m (N), or None."""
 
     ref: Reference
     h: torch.Tensor | None
     alpha: torch.Tensor
     dist: torch.Tensor
-    payload: torch.Tensor
+    load: tuple[torch.Tensor, ...]
     position_noise: torch.Tensor | None
     torque_noise: torch.Tensor | None
 
@@ -449,7 +449,7 @@ def make_real_chunk(
             # Control, told what the last period applied.
             ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
             h = None if periods.h is None else periods.h[k]
-            forces = _forces(controller, periods.payload[k, 0], periods.dist[k, 0])
+            forces = _forces(controller, tuple(c[k, 0] for c in periods.load), periods.dist[k, 0])
             cmd, cstate = controller.torque(
                 ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, forces=forces
             )
@@ -471,7 +471,7 @@ def make_real_chunk(
             if periods.torque_noise is not None:
                 u = u + periods.torque_noise[k]
             for j in range(loop.substeps):
-                q, qd = plant.step(q, qd, u, periods.dist[k, j], dt, periods.payload[k, j], integrator)
+                q, qd = plant.step(q, qd, u, periods.dist[k, j], dt, tuple(c[k, j] for c in periods.load), integrator)
             taus.append(u)
         return Recorded(RealState(q, qd, cstate, sensing, act), torch.stack(qs), torch.stack(qds), torch.stack(taus))
 
@@ -500,7 +500,7 @@ def _simulate_real(
     n_steps = periods * sub
     b, nj = q0.shape
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
-    schedule = payload_schedule(scenario, n_steps, payload, **kw).reshape(periods, sub, b)
+    load = tuple(c.reshape(periods, sub, b) for c in plant.load(payload_schedule(scenario, n_steps, payload, **kw)))
     dist = stage_disturbances(plant, n_steps, dt, **kw)
     dist = dist.reshape(periods, sub, *dist.shape[1:])
     starts = slice(0, n_steps, sub)  # each period's first integration step
@@ -510,7 +510,7 @@ def _simulate_real(
         h=None if feats is None else feats[starts].to(**kw),
         alpha=controller.alphas(torch.arange(periods, **kw) * loop.period),
         dist=dist,
-        payload=schedule,
+        load=load,
         position_noise=None,
         torque_noise=None,
     )

@@ -328,7 +328,7 @@ def run_online(
     qd = rob.full(torch.einsum("p,bpj->bj", path[1, 0], learner.w), vel)
     loop = Loop(q, qd, ctrl.init_state(q, qd))
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
-    payload = torch.zeros(cfg.update_every, b, **kw)  # none
+    load = plant.load(torch.zeros(cfg.update_every, b, **kw))  # no payload
     alpha = torch.zeros(cfg.update_every, **kw)
     run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
     qs = torch.empty(n + 1, b, nj, **kw)
@@ -340,7 +340,7 @@ def run_online(
             sl = slice(k, k + m)
             stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
             ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
-            periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], payload=payload[:m])
+            periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], load=tuple(c[:m] for c in load))
             if cfg.aot and k == 0 and m == cfg.update_every:  # compiled ahead of time, cached on disk
                 run = aot_chunk(
                     run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods), log.info

@@ -161,9 +161,15 @@ class ArmTerms:
             self._cache[key] = c
         return self._cache[key]
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> Any:
+    def load(self, payload: Payload) -> tuple:
+        """What the terms need of a payload (kg, float or any shape): (payload,)."""
+        return (payload,)
+
+    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: tuple | None = None) -> Any:
         """The arm at joints q (B, n) rad or m carrying `payload` kg (float or (B,)) at its payload
-        link: a `Config`, or while torch.compile traces an `arm_scalar.ScalarConfig`."""
+        link (or its `load`): a `Config`, or while torch.compile traces an `arm_scalar.ScalarConfig`."""
+        if load is not None:
+            (payload,) = load
         if q.dim() != 2 or q.shape[1] != self.n:
             raise ValueError(f"expected joint values (B, {self.n}), got {tuple(q.shape)}")
         if torch.compiler.is_compiling():

@@ -11,6 +11,8 @@ controller needs at that configuration, each (B, n) unless said:
     momentum_rate(qd) = dM/dt qd - C qd - G, accel(qd, r, friction, gravity) = the forward
     dynamics M^-1 (r - F(qd) - C qd - G), mass_matrix() = M (B, n, n).
 
+`Dynamics.load(payload)` is what the terms need of a payload (the SCARA's inertia parameters),
+computed once for a whole schedule (T, B) and handed to `at(q, load=...)` a step at a time.
 `motion(qd)` returns what the velocity terms share (pass it as `mo` to several calls at one
 (q, qd); None where a backend shares nothing). `Dynamics.scaled(m, c, g)` is the same arm with
 M, C and G scaled (a controller's nominal model), and `Dynamics.energy` the kinetic plus potential
@@ -75,7 +77,9 @@ class Dynamics(Protocol):
     n: int
     compile_chunk: int
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> Terms: ...
+    def load(self, payload: Payload) -> tuple: ...
+
+    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: tuple | None = None) -> Terms: ...
 
     def scaled(self, m: float, c: float, g: float) -> Dynamics: ...
 
@@ -90,8 +94,11 @@ class Scaled:
         self.dynamics, self.n, self.compile_chunk = dynamics, dynamics.n, dynamics.compile_chunk
         self.m, self.c, self.g = m, c, g
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0) -> ScaledTerms:
-        return ScaledTerms(self.dynamics.at(q, payload), self.m, self.c, self.g)
+    def load(self, payload: Payload) -> tuple:
+        return self.dynamics.load(payload)
+
+    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: tuple | None = None) -> ScaledTerms:
+        return ScaledTerms(self.dynamics.at(q, payload, load), self.m, self.c, self.g)
 
     def scaled(self, m: float, c: float, g: float) -> Scaled:
         return Scaled(self.dynamics, self.m * m, self.c * c, self.g * g)

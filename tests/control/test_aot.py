@@ -58,7 +58,7 @@ def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
         h=feats,
         alpha=ctrl.alphas(sc.times()[:n]),
         dist=stage_disturbances(plant, n, sc.dt, dtype=torch.float64),
-        payload=torch.zeros(n, 2, dtype=torch.float64),
+        load=plant.load(torch.zeros(n, 2, dtype=torch.float64)),
     )
     out = make_chunk(plant, ctrl, sc.dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
     for tree in ((Loop(q, qd, ctrl.init_state(q, qd)), periods), out):

@@ -58,7 +58,7 @@ def test_energy_conserved_without_friction_disturbance_and_gravity(robot):
     q = torch.rand(8, plant.n, generator=g, dtype=torch.float64) * 2 - 1
     qd = torch.randn(8, plant.n, generator=g, dtype=torch.float64)
     pay = torch.linspace(0.0, 3.0, 8, dtype=torch.float64)
-    co, zero, dist = pay, torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
+    co, zero, dist = plant.load(pay), torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
     e0 = plant.energy(q, qd, pay)
     drift = []
     for dt in (2e-3, 1e-3):  # 0.2 s each
@@ -74,7 +74,7 @@ def test_energy_conserved_with_gravity():
     g = torch.Generator().manual_seed(1)
     q, qd = torch.rand(4, 6, generator=g, dtype=torch.float64), torch.randn(4, 6, generator=g, dtype=torch.float64)
     pay = torch.full((4,), 2.5, dtype=torch.float64)
-    co = pay
+    co = plant.load(pay)
     e0 = plant.energy(q, qd, pay)
     for _ in range(200):
         q, qd = plant.step(q, qd, torch.zeros_like(q), torch.zeros(3, dtype=torch.float64), 5e-4, co)

@@ -167,8 +167,6 @@ def test_with_every_part_off_the_realistic_loop_is_the_ideal_one():
         ("loop.actuation_delay=-1", "loop.actuation_delay"),
         ("loop.velocity_cutoff=0", "loop.velocity_cutoff"),
         ("loop.encoder_counts=[0.5]", "loop.encoder_counts"),
-        ("loop=realistic control.aot=true", "control.aot"),
-        ("loop=realistic control.compile=true", "control.compile"),
     ],
 )
 def test_bad_loop_settings_are_refused_by_key(override, key):

@@ -57,7 +57,7 @@ def test_energy_conserved_without_friction_disturbance_and_gravity(payload):
     plant = Plant(ScaraTerms(), viscous=0.0, coulomb=0.0, disturbance=0.0, gravity=False)
     q, qd = _states(64, 1)
     pay = torch.full((64,), payload, dtype=torch.float64)
-    co = pay
+    co = plant.load(pay)
     e0 = plant.energy(q, qd, pay)
     zero, dist = torch.zeros_like(q), torch.zeros(3, dtype=torch.float64)
     drift = []
@@ -76,7 +76,7 @@ def test_gravity_energy_exchange_is_conserved():
     plant = Plant(ScaraTerms(), viscous=0.0, coulomb=0.0, disturbance=0.0)
     q, qd = _states(16, 2)
     pay = torch.zeros(16, dtype=torch.float64)
-    co = pay
+    co = plant.load(pay)
     e0 = plant.energy(q, qd, pay)
     for _ in range(500):
         q, qd = plant.step(q, qd, torch.zeros_like(q), torch.zeros(3, dtype=torch.float64), 1e-3, co)
@@ -163,7 +163,7 @@ def test_adaptive_law_moves_the_weights():
         h=h,
         alpha=ctrl.alphas(t),
         dist=stage_disturbances(plant, n, dt, dtype=torch.float64),
-        payload=torch.full((n, 1), 10.0, dtype=torch.float64),
+        load=plant.load(torch.full((n, 1), 10.0, dtype=torch.float64)),
     )
     out = make_chunk(plant, ctrl, dt, "rk4", n)(Loop(q, qd, ctrl.init_state(q, qd)), periods)
     assert out.q.shape == out.tau.shape == (n, 1, 3)

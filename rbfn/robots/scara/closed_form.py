@@ -221,9 +221,16 @@ class ScaraTerms:
         self.params, self.scales = params, scales
         self._gravity: dict = {}
 
-    def at(self, q: torch.Tensor, payload: float | torch.Tensor = 0.0) -> ScaraAt:
-        """The arm at joints q (B, 3) carrying `payload` kg (float or (B,)) at the quill."""
-        return ScaraAt(self, q, payload)
+    def load(self, payload: float | torch.Tensor) -> tuple:
+        """What the terms need of a payload (kg, float or any shape, e.g. a whole schedule (T, B)):
+        (p1, p2, p3, m3, m3 g) of `inertia_params`, each shaped like it."""
+        p1, p2, p3, m3 = inertia_params(payload, self.params)
+        return p1, p2, p3, m3, m3 * self.params.g
+
+    def at(self, q: torch.Tensor, payload: float | torch.Tensor = 0.0, load: tuple | None = None) -> ScaraAt:
+        """The arm at joints q (B, 3) carrying `payload` kg (float or (B,)) at the quill, or the
+        payload's `load` (each (B,)) where the caller computed it beforehand."""
+        return ScaraAt(self, q, self.load(payload) if load is None else load)
 
     def scaled(self, m: float, c: float, g: float) -> ScaraTerms:
         s = self.scales
@@ -253,12 +260,12 @@ class ScaraAt:
     """`ScaraTerms` at joints q (B, 3) with a payload (kg, float or (B,)); the interface of
     `rbfn.robots.backend.Terms`. What several terms share (M's entries) is computed once."""
 
-    def __init__(self, terms: ScaraTerms, q: torch.Tensor, payload) -> None:
-        self.terms, self.q, self.payload = terms, q, payload
-        p1, p2, p3, m3 = self.co = inertia_params(payload, terms.params)
+    def __init__(self, terms: ScaraTerms, q: torch.Tensor, load: tuple) -> None:
+        self.terms, self.q = terms, q
+        p1, p2, p3, m3, self.m3g = load
         ms, cs, gs = terms.scales
         if terms.scales == (1.0, 1.0, 1.0):
-            self.m_co, self.c_co, self.g3 = self.co, (0.0, p2, 0.0, 0.0), -m3 * terms.params.g
+            self.m_co, self.c_co, self.g3 = (p1, p2, p3, m3), (0.0, p2, 0.0, 0.0), -self.m3g
         else:
             self.m_co = (ms * p1, ms * p2, ms * p3, ms * m3)
             self.c_co, self.g3 = (0.0, cs * p2, 0.0, 0.0), -gs * m3 * terms.params.g
@@ -274,8 +281,11 @@ class ScaraAt:
         return self._entries
 
     def mass_matrix(self) -> torch.Tensor:
-        m = mass_matrix(self.q, self.payload, self.terms.params)
-        return m if self.terms.scales[0] == 1.0 else self.terms.scales[0] * m
+        m11, m12 = self._mass_entries()
+        p3, m3 = (torch.as_tensor(x, dtype=self.q.dtype, device=self.q.device).expand_as(m11) for x in self.m_co[2:])
+        zero = torch.zeros_like(m11)
+        rows = [torch.stack([m11, m12, zero], -1), torch.stack([m12, p3, zero], -1), torch.stack([zero, zero, m3], -1)]
+        return torch.stack(rows, -2)
 
     def mass_times(self, v: torch.Tensor) -> torch.Tensor:
         return m_times(self.c2, self.m_co, v, self._mass_entries())
@@ -320,5 +330,5 @@ class ScaraAt:
         r1, r2, r3 = friction(r, qd).unbind(-1)
         r1, r2 = minus_c_qd(self.s2, self.c_co, qd1, qd2, r1, r2)
         if gravity:
-            r3 = r3 - self.g3  # the prismatic joint carries m3 g
+            r3 = r3 + self.m3g  # the prismatic joint carries m3 g
         return m_solve_parts(self.c2, self.m_co, r1, r2, r3)
