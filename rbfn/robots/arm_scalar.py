@@ -26,7 +26,7 @@ from typing import Any
 
 import torch
 
-from .backend import Friction
+from .backend import Friction, christoffel_momentum_rate, forward_dynamics
 from .dynamics import Payload
 from .spatial import Spatial
 
@@ -343,16 +343,13 @@ class ScalarConfig:
         return self._stack(out)
 
     def momentum_rate(self, qd: torch.Tensor, mo: ScalarMotion | None = None) -> torch.Tensor:
-        mo = mo or self.motion(qd)
-        cqd = self.coriolis_qd(qd, mo)
-        return (cqd + self.coriolis_transpose_qd(qd, mo)) - cqd - self.gravity()
+        return christoffel_momentum_rate(self, qd, mo)
 
     def accel(self, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool = True) -> torch.Tensor:
         """M^-1 (friction(r - C qd) - G) by the scalar Cholesky solve (`solve`), fused with the
         rest of the step (torch.linalg's batched LAPACK calls would run apart and cost as much as
         the whole fused step)."""
-        r = friction(r - self.coriolis_qd(qd), qd)
-        return self.solve(r - self.gravity() if gravity else r)
+        return forward_dynamics(self, qd, r, friction, gravity)
 
 
 class ScalarMotion:

@@ -28,7 +28,7 @@ from typing import Any
 import torch
 
 from .arm_scalar import ArmScalarTerms
-from .backend import Friction, Scaled
+from .backend import Friction, Scaled, christoffel_momentum_rate, forward_dynamics
 from .dynamics import Arm, Payload
 from .spatial import Spatial
 
@@ -323,9 +323,7 @@ class Config:
 
     def momentum_rate(self, qd: torch.Tensor, mo: Motion | None = None) -> torch.Tensor:
         """dM/dt qd - C qd - G = C^T qd - G (B, n) (dM/dt = C + C^T for the Christoffel C)."""
-        mo = mo or self.motion(qd)
-        cqd = self.coriolis_qd(qd, mo)
-        return (cqd + self.coriolis_transpose_qd(qd, mo)) - cqd - self.gravity()
+        return christoffel_momentum_rate(self, qd, mo)
 
     def solve(self, r: torch.Tensor) -> torch.Tensor:
         """M(q)^-1 r (B, n) by a batched Cholesky factorisation. A matrix that is not positive
@@ -336,8 +334,7 @@ class Config:
 
     def accel(self, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool = True) -> torch.Tensor:
         """Joint accelerations M^-1 (friction(r - C qd) - G) (B, n), friction(r, qd) = r - F(qd)."""
-        r = friction(r - self.coriolis_qd(qd), qd)
-        return self.solve(r - self.gravity() if gravity else r)
+        return forward_dynamics(self, qd, r, friction, gravity)
 
 
 class Motion:

@@ -31,7 +31,7 @@ from typing import Any, Protocol
 
 import torch
 
-__all__ = ["Dynamics", "Terms", "Scaled", "Friction"]
+__all__ = ["Dynamics", "Terms", "Scaled", "Friction", "forward_dynamics", "christoffel_momentum_rate"]
 
 Payload = float | torch.Tensor
 
@@ -66,6 +66,23 @@ class Terms(Protocol):
     def momentum_rate(self, qd: torch.Tensor, mo: Any = None) -> torch.Tensor: ...
 
     def accel(self, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool = True) -> torch.Tensor: ...
+
+
+def forward_dynamics(
+    terms: Terms, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool
+) -> torch.Tensor:
+    """M^-1 (friction(r - C qd) - G) (B, n) from a backend's terms (friction(r, qd) = r - F(qd);
+    without `gravity`, G left out): the forward dynamics of backends without a closed form of it."""
+    r = friction(r - terms.coriolis_qd(qd), qd)
+    return terms.solve(r - terms.gravity() if gravity else r)
+
+
+def christoffel_momentum_rate(terms: Terms, qd: torch.Tensor, mo: Any = None) -> torch.Tensor:
+    """dM/dt qd - C qd - G = C^T qd - G (B, n) from a backend's terms, C the Christoffel matrix
+    (dM/dt = C + C^T); `mo`: its `motion(qd)` where already made."""
+    mo = terms.motion(qd) if mo is None else mo
+    cqd = terms.coriolis_qd(qd, mo)
+    return (cqd + terms.coriolis_transpose_qd(qd, mo)) - cqd - terms.gravity()
 
 
 class Dynamics(Protocol):
@@ -148,5 +165,4 @@ class ScaledTerms:
         return self.m * (cqd + ctq) - self.c * cqd - self.gravity()
 
     def accel(self, qd: torch.Tensor, r: torch.Tensor, friction: Friction, gravity: bool = True) -> torch.Tensor:
-        r = friction(r - self.coriolis_qd(qd), qd)
-        return self.solve(r - self.gravity() if gravity else r)
+        return forward_dynamics(self, qd, r, friction, gravity)
