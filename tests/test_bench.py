@@ -157,3 +157,29 @@ def test_base_yaw_bench_redraws_only_the_first_joint(scara_robot):
     turned, x = turned_targets(scara_robot, q)
     assert torch.equal(turned[:, 1:], q[:, 1:]) and turned[:, 0].abs().max() <= torch.pi
     assert torch.allclose(x, scara_robot.targets(turned)) and float(turned[:, 0].std()) > 1.0
+
+
+def _tree_urdf(tmp_path, joints):
+    """A URDF file of (parent, child, type) joints, every link named once."""
+    links = {p for p, _, _ in joints} | {c for _, c, _ in joints}
+    body = "".join(f'<link name="{k}"/>' for k in sorted(links))
+    body += "".join(
+        f'<joint name="{p}_{c}" type="{t}"><parent link="{p}"/><child link="{c}"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+        for p, c, t in joints
+    )
+    path = tmp_path / "r.urdf"
+    path.write_text(f'<robot name="r">{body}</robot>')
+    return path
+
+
+def test_the_corpus_finds_an_arms_trunk_below_its_gripper_and_skips_two_arms(tmp_path):
+    from bench.urdf_corpus import trunk
+
+    arm = [("base", "l1", "revolute"), ("l1", "l2", "revolute"), ("l2", "l3", "revolute"), ("l3", "l4", "revolute"),
+           ("l4", "flange", "fixed"), ("flange", "f1", "prismatic"), ("flange", "f2", "prismatic")]  # fmt: skip
+    assert trunk(_tree_urdf(tmp_path, arm)) == ("flange", 4, "")
+    two = [("base", f"{s}{i}", "revolute") if i == 1 else (f"{s}{i - 1}", f"{s}{i}", "revolute")
+           for s in "ab" for i in range(1, 4)]  # fmt: skip
+    end, _, why = trunk(_tree_urdf(tmp_path, two))
+    assert end is None and "fewer than 3" in why

@@ -197,13 +197,14 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
                 "too few to span positions (3) or poses (6); choose a link further out with robot.end_link, "
                 "or give robot.target=position"
             )
-        target = Target.pose if len(joints) >= 6 else Target.position
-        check_ik_is_function(target, joints, cfg.locked)  # 4, 5 or 7+ free joints: the ways out
-        said(
-            "target",
-            str(target),
-            f"{len(joints)} free joints: {'pose (6 dof)' if target == Target.pose else 'position (3 dof)'}",
+        # 4 or 5 free joints span no more than 3 of a position's dof without redundancy: their IK
+        # answers the poses the arm reaches (a 5-D or 4-D set of the 6-D poses), one joint vector each
+        target = Target.pose if len(joints) >= 4 else Target.position
+        check_ik_is_function(target, joints, cfg.locked)  # 7+ free joints: the ways out
+        why = {3: "position (3 dof)", 6: "pose (6 dof)"}.get(
+            len(joints), f"pose: the poses the arm reaches ({len(joints)} of their 6 dof)"
         )
+        said("target", str(target), f"{len(joints)} free joints: {why}")
     else:
         said("target", str(target), "given")
 
@@ -235,12 +236,18 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         full = full.repeat(BOX_SAMPLES + 1, 1)
         full[:, free] = torch.cat([torch.tensor([home], dtype=torch.float64), _samples(low, high)])
         try:
-            payload, why = rated_payload(arm, full[0])
-        except ValueError:  # no joint loaded at home (an arm pointing straight up): over the box
-            payload, why = rated_payload(arm, full)
-        said("rated_payload", f"{payload:g} kg", why)
-        if payload == 0:
-            log.warning("robot.rated_payload = 0 kg: the arm's own weight at home takes over half an effort limit")
+            try:
+                payload, why = rated_payload(arm, full[0])
+            except ValueError:  # no joint loaded at home (an arm pointing straight up): over the box
+                payload, why = rated_payload(arm, full)
+        except ValueError as e:  # no effort limits (effort="0"): the IK needs none, the control part a mass
+            payload = 0.0
+            said("rated_payload", "0 kg", "not derived")
+            log.warning("%s; the IK needs none and trains; evaluate.py's control cases then carry no payload", e)
+        else:
+            said("rated_payload", f"{payload:g} kg", why)
+            if payload == 0:
+                log.warning("robot.rated_payload = 0 kg: the arm's own weight at home takes over half an effort limit")
     else:
         said("rated_payload", f"{payload:g} kg", "given")
 
