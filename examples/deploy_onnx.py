@@ -5,7 +5,8 @@
 
 Works on any exported network, for any robot: the file says what it takes. Its input is
 "positions" (B, 3) float32 in m for a position network, "poses" (B, 7) float32 for a pose network
-(position in m, then a unit quaternion (w, x, y, z)); its metadata holds a few joint vectors
+(position in m, then a unit quaternion (w, x, y, z)), or (B, 8) for a 7-joint arm trained with a
+redundant joint (metadata "redundancy" names it; its value is the 8th column); its metadata holds a few joint vectors
 inside the trained box and the targets they reach (forward kinematics, computed at export). This
 solves those targets and one 10 m away, and prints the joints, the largest joint error against
 the joints that reached each target (rad, or m for a prismatic joint) and the workspace flag:
@@ -76,15 +77,16 @@ def checked_model(path: str) -> bytes:
 
 
 def turned(x: np.ndarray, angle: float) -> np.ndarray:
-    """Targets x (B, 3) or (B, 7) (position in m, then a unit quaternion (w, x, y, z)) turned by
+    """Targets x (B, 3) or (B, 7) (position in m, then a unit quaternion (w, x, y, z)), or (B, 8)
+    with a redundant joint's value after the pose, turned by
     `angle` rad about the base's vertical (z) axis."""
     c, s = np.cos(angle), np.sin(angle)
     out = x.copy()
     out[:, 0], out[:, 1] = c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1]
-    if x.shape[1] == 7:  # (cos(a/2), 0, 0, sin(a/2)) times the quaternion
+    if x.shape[1] >= 7:  # (cos(a/2), 0, 0, sin(a/2)) times the quaternion; a redundant joint's value stays
         ch, sh = np.cos(angle / 2), np.sin(angle / 2)
         w, qx, qy, qz = x[:, 3], x[:, 4], x[:, 5], x[:, 6]
-        out[:, 3:] = np.stack([ch * w - sh * qz, ch * qx - sh * qy, ch * qy + sh * qx, ch * qz + sh * w], -1)
+        out[:, 3:7] = np.stack([ch * w - sh * qz, ch * qx - sh * qy, ch * qy + sh * qx, ch * qz + sh * w], -1)
     return out
 
 

@@ -130,6 +130,7 @@ def save_checkpoint(
             "target": model.target,
             "out_features": model.head.out_features,
             "tail": model.tail is not None,
+            "redundancy": bool(model.inputs is not None and model.inputs.redundancy),
         },
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "robot": robot,
@@ -351,10 +352,13 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
     pose = a.get("target", "position") == "pose"
     if a.get("target", "position") not in ("position", "pose"):
         return f"model_args target={a['target']!r}; expected 'position' or 'pose'"
-    if d != (9 if pose else 3):
+    redundancy = a.get("redundancy", False)
+    if not isinstance(redundancy, bool) or (redundancy and not pose):
+        return f"model_args redundancy={redundancy!r}; expected True (pose targets only) or False"
+    if d != (9 if pose else 3) + redundancy:
         return (
-            f"model_args in_features={d} with target={a.get('target', 'position')!r}; allowed: "
-            f"{9 if pose else 3} features"
+            f"model_args in_features={d} with target={a.get('target', 'position')!r} and redundancy={redundancy}; "
+            f"allowed: {(9 if pose else 3) + redundancy} features"
         )
     if pose:
         expected["inputs.rotation_scale"] = ()
@@ -452,6 +456,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
             f"do not fit the robot entry; allowed: one output per free joint "
             f"({len(robot['joint_low'])}) and its target {robot.get('target', 'position')!r}"
         )
+    if a.get("redundancy", False) != bool(robot.get("redundancy", "")):
+        raise ValueError(
+            f"{path}: model_args redundancy={a.get('redundancy', False)} does not fit the robot entry's "
+            f"redundancy={robot.get('redundancy', '')!r}; allowed: True exactly where the robot names a joint"
+        )
     return ckpt
 
 
@@ -461,7 +470,11 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
     if problem:
         raise ValueError(f"cannot rebuild the network from this checkpoint: {problem}")
     sd, a = ckpt["state_dict"], ckpt["model_args"]
-    inputs = TargetFeatures(pose=True, dtype=sd["centers"].dtype) if a.get("target") == "pose" else None
+    inputs = (
+        TargetFeatures(pose=True, dtype=sd["centers"].dtype, redundancy=a.get("redundancy", False))
+        if a.get("target") == "pose"
+        else None
+    )
     model = RBFNetwork(sd["centers"], sd["widths"], a["out_features"], tail=a["tail"], inputs=inputs)
     model.load_state_dict(sd)
     return model.eval().requires_grad_(False)

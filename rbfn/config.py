@@ -232,6 +232,9 @@ class RobotConfig:
     joint_low: list[float] = field(default_factory=lambda: [0.0, 0.3, 0.5])  # the IK branch's box
     joint_high: list[float] = field(default_factory=lambda: [2.0, 2.0, 1.5])
     locked: dict[str, float] = field(default_factory=dict)  # joint name -> held value (redundant arms)
+    # a redundant arm's joint whose value is an input of the network beside the pose (pose targets
+    # only); "": none. robot=urdf picks one for a 7-joint arm (rbfn.robots.derive)
+    redundancy: str = ""
     rotation_scale: float = 0.3  # m per unit of the rotation features (pose targets)
     gravity: Optional[float] = None  # m/s^2 along -z of the root; null: the preset's (name), else 9.81
     home: list[float] = field(default_factory=list)  # a nominal pose per free joint; empty: the box centre
@@ -274,6 +277,19 @@ class RobotConfig:
         )
         for j, v in self.locked.items():
             _need(finite(v), f"{key}.locked.{j}", v, "must be a finite joint value")
+        _need(
+            not self.redundancy or self.target == Target.pose,
+            f"{key}.redundancy",
+            self.redundancy,
+            f'"" with {key}.target={self.target} (a redundant position arm: hold joints with {key}.locked); '
+            "a joint name with pose targets",
+        )
+        _need(
+            self.redundancy not in self.locked,
+            f"{key}.redundancy",
+            self.redundancy,
+            f"a free joint, not one of {key}.locked {list(self.locked)}",
+        )
         _need(
             finite(self.rotation_scale) and self.rotation_scale > 0,
             f"{key}.rotation_scale",

@@ -37,7 +37,8 @@ def stream(seed: int, offset: int) -> int:
 
 @dataclass
 class Split:
-    """Targets x (N, 3) in m, or (N, 7) m and unit quaternion, and free joints q (N, n)."""
+    """The network's inputs x (N, 3) in m, or (N, 7) m and unit quaternion, and with a redundant
+    joint its value (N, 8) (`Robot.inputs`), and free joints q (N, n)."""
 
     x: torch.Tensor
     q: torch.Tensor
@@ -64,7 +65,7 @@ def make_split(robot: Robot, n: int, seed: int) -> Split:
     chain's device)."""
     g = torch.Generator().manual_seed(seed)
     q = sample_joints(robot.low, robot.high, n, g).to(robot.chain.device)
-    return Split(robot.targets(q).to(torch.float64), q)
+    return Split(robot.inputs(q).to(torch.float64), q)
 
 
 def make_dataset(robot: Robot, sizes: tuple[int, int, int], seed: int) -> Dataset:

@@ -173,7 +173,12 @@ def metadata(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True)
     "joint_names" (a JSON list: the free joints, the outputs' order), "example_joints" (a JSON (4, n)
     list: joint vectors inside the robot's sampled box, rad or m, seeded) and "example_targets" (a
     JSON (4, 3) or (4, 7) list: the targets they reach, the robot's forward kinematics, float64)."""
-    meta = {"target": net.target, "input": INPUTS[net.target][1]}
+    layout = INPUTS[net.target][1]
+    if net.inputs is not None and net.inputs.redundancy:
+        layout = layout.replace("poses (B, 7)", "poses (B, 8)") + (
+            ", then the redundant joint's value (rad, or m if prismatic; metadata redundancy names it)"
+        )
+    meta = {"target": net.target, "input": layout}
     if robot is None:
         return meta
     if robot.target != net.target or len(robot.joint_names) != net.out_features:
@@ -190,7 +195,8 @@ def metadata(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True)
         "base_yaw": "true" if base_yaw and yaw_of(robot) is not None else "false",
         "joint_names": json.dumps(robot.joint_names),
         "example_joints": json.dumps(q.tolist()),
-        "example_targets": json.dumps(robot.targets(q.to(robot.chain.device)).cpu().tolist()),
+        "example_targets": json.dumps(robot.inputs(q.to(robot.chain.device)).cpu().tolist()),
+        **({"redundancy": robot.redundancy} if robot.redundancy else {}),
     }
 
 

@@ -339,6 +339,11 @@ class RBFNetwork(nn.Module):
             hint = f" (one input is (1, {d}))" if x.dim() == 1 and x.shape[0] == d else ""
             if pose:
                 hint += ": position in m, then a unit quaternion (w, x, y, z)"
+            if self.inputs is not None and self.inputs.redundancy:
+                hint += (
+                    ", then the redundant joint's value (the 8th column; IKSolver.solve takes it from "
+                    "near= or redundancy=)"
+                )
             raise ValueError(f"{name} must be {want}{hint}, got shape {tuple(x.shape)}")
         if x.dtype == torch.bool or x.is_complex():
             raise TypeError(f"{name} must be real numbers, got dtype {x.dtype}")

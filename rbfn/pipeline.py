@@ -163,7 +163,7 @@ def train_ik(
     """
     n_q = data.train.q.shape[1]
     joints = robot.joint_names if robot is not None else [f"joint {i + 1}" for i in range(n_q)]
-    check_ik_is_function(str(cfg.robot.target), joints, cfg.robot.locked)
+    check_ik_is_function(str(cfg.robot.target), joints, cfg.robot.locked, cfg.robot.redundancy)
     t_start = time.perf_counter()
     state = state or TrainState(config={})
     elapsed_before = state.elapsed
@@ -174,7 +174,12 @@ def train_ik(
             state.elapsed = elapsed_before + time.perf_counter() - t_start
             states.save(state, force=force)
 
-    features = TargetFeatures(cfg.robot.target == Target.pose, cfg.robot.rotation_scale, device=data.train.x.device)
+    features = TargetFeatures(
+        cfg.robot.target == Target.pose,
+        cfg.robot.rotation_scale,
+        device=data.train.x.device,
+        redundancy=bool(cfg.robot.redundancy),
+    )
     feats = (features(data.train.x), features(data.val.x))
     offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
     z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale

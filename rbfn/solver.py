@@ -117,7 +117,7 @@ class IKSolver:
         e_pos = x[:, :3] - pose[:, :3, 3]
         if not self.pose_target:
             return e_pos, jac, e_pos.norm(dim=-1), None
-        r_err = tf.quaternion_to_matrix(x[:, 3:]) @ pose[:, :3, :3].transpose(-1, -2)
+        r_err = tf.quaternion_to_matrix(x[:, 3:7]) @ pose[:, :3, :3].transpose(-1, -2)
         e_rot = tf.matrix_to_axis_angle(r_err)  # (B, 3), world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
@@ -244,8 +244,14 @@ class IKSolver:
         restart_iterations: int = 20,
         seed: int = 0,
         near=None,
+        redundancy=None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math).
+
+        redundancy: for a network trained with a redundant joint (`robot.redundancy`), that joint's
+        value (B,) (rad, or m if prismatic) the network answers with; None: `near`'s value of it,
+        or without `near` the middle of its trained range. The polish moves every joint, by the
+        least-norm step, so the answer keeps that joint near the value asked.
 
         near: the robot's current joints (B, n) (rad, or m if prismatic), or None. Given, the polish
         starts from both the network's answer and `near`, and each target gets, among the converged
@@ -268,7 +274,16 @@ class IKSolver:
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
             raise ValueError(f"seed={seed!r} is not allowed: use an integer in [0, 2**63)")
         dev = self.robot.chain.device
-        x = self.model.check_inputs(targets)
+        r = self.robot.redundant
+        if r is None:
+            if redundancy is not None:
+                raise ValueError(
+                    "redundancy= is not allowed: this network was trained without a redundant joint "
+                    f"(robot.redundancy is empty; its joints {self.robot.joint_names} follow from the target alone)"
+                )
+            x = self.model.check_inputs(targets)
+        else:
+            x = self._redundant_inputs(targets, near, redundancy, dev)
         b, rows = x.shape[0], self.block_rows
         if isinstance(rows, bool) or not isinstance(rows, int) or rows < 1:
             raise ValueError(f"IKSolver.block_rows={rows!r} is not allowed: use a positive integer (targets a block)")
@@ -301,9 +316,39 @@ class IKSolver:
             )
             if self.yaw is not None:
                 start[:, 0] += self.yaw.sign * d[todo]
+            if r is not None:  # the redundant joint where it was asked to be
+                start[:, r] = x[todo, -1]
             q_r, ok_r = row_blocks(lambda sb, xb: self._polish(sb, xb, restart_iterations), rows, start, x[todo])
             q[todo[ok_r]], ok[todo[ok_r]] = q_r[ok_r], True
         return q, ok
+
+    def _redundant_inputs(self, targets, near, redundancy, dev) -> torch.Tensor:
+        """The network's inputs (B, 8): poses `targets` (B, 7) and the redundant joint's value from
+        `redundancy` (B,), else `near` (B, n), else the middle of its trained range."""
+        r, name = self.robot.redundant, self.robot.redundancy
+        assert r is not None
+        t = torch.as_tensor(targets) if isinstance(targets, np.ndarray) else targets
+        if not isinstance(t, torch.Tensor) or t.dim() != 2 or t.shape[1] != 7:
+            got = f"shape {tuple(t.shape)}" if isinstance(t, torch.Tensor) else type(t).__name__
+            raise ValueError(
+                f"IK targets must be poses (B, 7): position in m, then a unit quaternion (w, x, y, z); got {got} "
+                f"(the redundant joint {name}'s value comes from near= or redundancy=)"
+            )
+        b = t.shape[0]
+        if redundancy is not None:
+            v = torch.as_tensor(redundancy) if isinstance(redundancy, np.ndarray) else redundancy
+            if not isinstance(v, torch.Tensor) or tuple(v.shape) != (b,) or not v.is_floating_point():
+                got = f"{v.dtype} shape {tuple(v.shape)}" if isinstance(v, torch.Tensor) else type(v).__name__
+                raise ValueError(
+                    f"redundancy must be a floating-point tensor or array ({b},): joint {name}'s value per target "
+                    f"(rad, or m if prismatic); got {got}"
+                )
+            v = v.to(dtype=torch.float64, device=dev)
+        elif near is not None:
+            v = self._near(near, b, dev)[:, r]
+        else:
+            v = torch.full((b,), float(0.5 * (self.robot.low[r] + self.robot.high[r])), dtype=torch.float64, device=dev)
+        return self.model.check_inputs(torch.cat([t.to(device=dev, dtype=torch.float64), v[:, None]], -1))
 
     def _first(
         self, model: RBFNetwork, x: torch.Tensor, near_q: torch.Tensor | None, iterations: int

@@ -38,7 +38,10 @@ def quaternion_columns(quat: torch.Tensor) -> torch.Tensor:
 
 
 class TargetFeatures(nn.Module):
-    """Targets (B, 3) -> features (B, 3) (identity), or (B, 7) -> (B, 9) for pose targets."""
+    """Targets (B, 3) -> features (B, 3) (identity), or (B, 7) -> (B, 9) for pose targets; with
+    `redundancy` (pose targets), (B, 8) -> (B, 10): the pose and a redundant joint's value (rad, or m
+    if prismatic), that value times `rotation_scale` as the last feature (a 10 deg turn of the
+    joint weighs as much as a 10 deg turn of the end link)."""
 
     rotation_scale: torch.Tensor  # a buffer, registered for pose targets only
 
@@ -48,24 +51,29 @@ class TargetFeatures(nn.Module):
         rotation_scale: float = 0.3,
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
+        redundancy: bool = False,
     ) -> None:
         super().__init__()
-        self.pose = pose
+        if redundancy and not pose:
+            raise ValueError("TargetFeatures(redundancy=True) needs pose=True: a redundant joint goes beside a pose")
+        self.pose, self.redundancy = pose, redundancy
         if pose:  # position targets carry no state, so their networks' state_dicts stay as they were
             self.register_buffer("rotation_scale", torch.tensor(float(rotation_scale), dtype=dtype, device=device))
 
     @property
     def in_features(self) -> int:
-        return 7 if self.pose else 3
+        return (7 if self.pose else 3) + self.redundancy
 
     @property
     def out_features(self) -> int:
-        return 9 if self.pose else 3
+        return (9 if self.pose else 3) + self.redundancy
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.pose:
             return x
-        return torch.cat([x[..., :3], quaternion_columns(x[..., 3:]) * self.rotation_scale], -1)
+        return torch.cat(
+            [x[..., :3], torch.cat([quaternion_columns(x[..., 3:7]), x[..., 7:]], -1) * self.rotation_scale], -1
+        )
 
     def check(self, x) -> torch.Tensor:
         """`x` as a tensor (B, in_features), or ValueError/TypeError saying what is wrong with it:
@@ -80,6 +88,10 @@ class TargetFeatures(nn.Module):
         what = (
             "poses (B, 7): position in m, then a unit quaternion (w, x, y, z)" if self.pose else "positions (B, 3) in m"
         )
+        if self.redundancy:
+            what = (
+                "poses and the redundant joint (B, 8): position in m, a unit quaternion (w, x, y, z), the joint's value"
+            )
         if x.dim() != 2 or x.shape[1] != self.in_features:
             hint = " (a pose network takes position and quaternion)" if self.pose and x.shape[-1:] == (3,) else ""
             raise ValueError(f"IK targets must be {what}; got shape {tuple(x.shape)}{hint}")
@@ -90,12 +102,12 @@ class TargetFeatures(nn.Module):
             i = int(bad.nonzero()[0])
             raise ValueError(f"IK targets contain non-finite values (first at row {i}: {x[i].tolist()})")
         if self.pose:
-            norm = x[:, 3:].double().norm(dim=-1)
+            norm = x[:, 3:7].double().norm(dim=-1)
             off = (norm - 1).abs() > UNIT_TOL
             if bool(off.any()):
                 i = int(off.nonzero()[0])
                 raise ValueError(
                     f"IK target quaternions must be unit length (w, x, y, z); row {i} has norm "
-                    f"{float(norm[i]):.6g} ({x[i, 3:].tolist()}); normalise it first"
+                    f"{float(norm[i]):.6g} ({x[i, 3:7].tolist()}); normalise it first"
                 )
         return x

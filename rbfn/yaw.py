@@ -79,7 +79,8 @@ def base_yaw(robot: Robot) -> BaseYaw | None:
 
 def turn(x: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     """Targets x (B, 3) (m) or (B, 7) (m, then a unit quaternion (w, x, y, z)) turned about the
-    root's z axis by `angle` (B,) rad: positions rotated, orientations pre-multiplied; w >= 0."""
+    root's z axis by `angle` (B,) rad: positions rotated, orientations pre-multiplied; w >= 0. A
+    redundant joint's value after the pose (B, 8) is kept as it is."""
     c, s = torch.cos(angle), torch.sin(angle)
     p = torch.stack([c * x[:, 0] - s * x[:, 1], s * x[:, 0] + c * x[:, 1], x[:, 2]], -1)
     if x.shape[1] == 3:
@@ -87,7 +88,7 @@ def turn(x: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     ch, sh = torch.cos(0.5 * angle), torch.sin(0.5 * angle)  # (ch, 0, 0, sh) * (w, x, y, z)
     w, qx, qy, qz = x[:, 3], x[:, 4], x[:, 5], x[:, 6]
     quat = torch.stack([ch * w - sh * qz, ch * qx - sh * qy, ch * qy + sh * qx, ch * qz + sh * w], -1)
-    return torch.cat([p, torch.where(quat[:, :1] < 0, -quat, quat)], -1)
+    return torch.cat([p, torch.where(quat[:, :1] < 0, -quat, quat), x[:, 7:]], -1)
 
 
 def nearest_turn(yaw: BaseYaw, q1: torch.Tensor, toward: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -385,3 +385,93 @@ def test_an_arm_with_fewer_joints_than_the_pose_has_dof_polishes_the_poses_it_re
     assert q.shape == (200, 5) and float(ok.double().mean()) >= 0.97
     pos, rot = solver.robot.errors(q, split.x)
     assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
+
+
+PANDA_7 = [
+    "robot=urdf",
+    "robot.urdf=rbfn/robots/panda/panda.urdf",
+    "robot.end_link=panda_hand",
+    "robot.redundancy=panda_joint3",
+    "robot.joint_low=[-1.0,-1.7628,-1.0,-3.0718,-1.0,0.571,-0.215]",
+    "robot.joint_high=[1.0,0.215,1.0,-1.356,1.0,2.571,1.785]",
+    "robot.home=[0.0,-0.785,0.0,-2.356,0.0,1.571,0.785]",
+    *SMALL[1:],  # the UR5's sizes
+]
+
+
+@pytest.fixture(scope="module")
+def panda7_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("panda7")
+    from rbfn.robots.derive import derive_train
+
+    cfg = derive_train(compose_config("train", *PANDA_7))
+    return out, cfg, train.run(cfg, out)
+
+
+def test_a_7_joint_arm_keeps_its_redundant_joint_as_an_input(panda7_run):
+    """The Panda with all 7 joints free and joint 3 an input beside the pose: the network takes
+    (B, 8), the solver takes poses (B, 7) and the joint's value from `redundancy` or `near`, and
+    its answers keep that joint near the value asked (the least-norm polish)."""
+    from rbfn.data import make_split
+    from rbfn.robots.robot import load_robot
+
+    out, cfg, m = panda7_run
+    assert m["test_polished_success_rate"] >= 0.9  # 3 steps from a small network
+    solver = load_solver(out / "checkpoint.pt")
+    assert solver.model.in_features == 8 and solver.robot.redundancy == "panda_joint3"
+    split = make_split(load_robot(cfg.robot), 300, 5)
+    poses, truth = split.x[:, :7], split.q
+    q, ok = solver.solve(poses, iterations=8, redundancy=truth[:, 2])
+    assert q.shape == (300, 7) and float(ok.double().mean()) >= 0.95  # a small network
+    assert float((q[ok, 2] - truth[ok, 2]).abs().median()) < 0.05
+    pos, rot = solver.robot.errors(q, poses)
+    assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
+    near = truth + 0.02  # the current joints, a little off the exact answer
+    q_near, ok_near = solver.solve(poses, iterations=8, near=near)
+    assert float(ok_near.double().mean()) >= 0.95
+    assert float((q_near[ok_near] - near[ok_near]).abs().amax(-1).median()) < 0.1
+    _, ok_default = solver.solve(poses, iterations=8)  # the joint at the middle of its range
+    assert float(ok_default.double().mean()) >= 0.8
+    with pytest.raises(ValueError, match=r"poses \(B, 7\).*got shape \(300, 8\).*near= or redundancy="):
+        solver.solve(split.x)
+    with pytest.raises(ValueError, match=r"redundancy must be a floating-point tensor or array \(300,\)"):
+        solver.solve(poses, redundancy=truth[:5, 2])
+    with pytest.raises(ValueError, match=r"the 8th column; IKSolver\.solve takes it"):
+        solver.model(poses)
+
+
+def test_a_network_without_a_redundant_joint_refuses_a_value_for_one(panda_ckpt):
+    from rbfn.checkpoint import model_from_checkpoint
+    from rbfn.robots.robot import robot_from_record
+    from rbfn.solver import IKSolver
+
+    solver = IKSolver(model_from_checkpoint(panda_ckpt), robot_from_record(panda_ckpt["robot"]))
+    x = torch.tensor([[0.3, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
+    with pytest.raises(ValueError, match=r"redundancy= is not allowed: this network was trained without"):
+        solver.solve(x, redundancy=torch.zeros(1, dtype=torch.float64))
+
+
+def test_the_redundant_export_takes_the_joint_as_its_8th_input(panda7_run):
+    ort = pytest.importorskip("onnxruntime")
+    import json
+
+    import onnx
+
+    from rbfn.checkpoint import read_checkpoint
+
+    out, _, _ = panda7_run
+    meta = {p.key: p.value for p in onnx.load(str(out / "ik.onnx")).metadata_props}
+    assert meta["redundancy"] == "panda_joint3" and "poses (B, 8)" in meta["input"]
+    x = torch.tensor(json.loads(meta["example_targets"]), dtype=torch.float32)
+    assert x.shape == (4, 8)
+    from rbfn.export import deployed
+    from rbfn.robots.robot import robot_from_record
+
+    robot = robot_from_record(read_checkpoint(out / "checkpoint.pt")["robot"])
+    with torch.no_grad():
+        q, inside = deployed(load_model(out / "checkpoint.pt"), robot)(x)  # turned about the base, as exported
+        plain = load_model(out / "checkpoint.pt")(x)
+    sess = ort.InferenceSession(str(out / "ik.onnx"), providers=["CPUExecutionProvider"])
+    q_onnx, inside_onnx = sess.run(["joints", "in_workspace"], {"poses": x.numpy()})
+    assert torch.allclose(torch.from_numpy(q_onnx), q, atol=1e-4) and inside_onnx.tolist() == inside.tolist()
+    assert torch.allclose(q[:, 2], plain[:, 2], atol=0.05)  # the turn about the base leaves joint 3 as given

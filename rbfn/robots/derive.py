@@ -200,19 +200,41 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         # 4 or 5 free joints span no more than 3 of a position's dof without redundancy: their IK
         # answers the poses the arm reaches (a 5-D or 4-D set of the 6-D poses), one joint vector each
         target = Target.pose if len(joints) >= 4 else Target.position
-        check_ik_is_function(target, joints, cfg.locked)  # 7+ free joints: the ways out
-        why = {3: "position (3 dof)", 6: "pose (6 dof)"}.get(
+        why = {3: "position (3 dof)", 6: "pose (6 dof)", 7: "pose (6 dof) and one joint as an input"}.get(
             len(joints), f"pose: the poses the arm reaches ({len(joints)} of their 6 dof)"
         )
         said("target", str(target), f"{len(joints)} free joints: {why}")
     else:
         said("target", str(target), "given")
+    if cfg.redundancy and cfg.redundancy not in joints:
+        raise ValueError(f"robot.redundancy={cfg.redundancy!r} is not allowed: allowed are the free joints {joints}")
+    pick_redundancy = target == Target.pose and len(joints) == 7 and not cfg.redundancy
+    if not pick_redundancy:
+        check_ik_is_function(target, joints, cfg.locked, cfg.redundancy)  # 8+ free joints: the ways out
 
     lo_all, hi_all = arm.joint_limits()
     lo, hi = lo_all[free], hi_all[free]
     home, low, high = _home_and_box(cfg, joints, lo, hi)
+    redundancy = cfg.redundancy
+    if pick_redundancy:
+        trial_robot = load_robot(replace(cfg, name=name, target=target, home=home, joint_low=low, joint_high=high))
+        scores = box_conditioning(
+            trial_robot, torch.tensor(home, dtype=torch.float64)[None].expand(7, -1), lo, hi,
+            cfg.box_halfwidth, drop=torch.arange(7),
+        )  # fmt: skip
+        # a first joint that turns the whole arm about the vertical answers targets turned about the
+        # base (rbfn.yaw): it stays an output
+        base = trial_robot.base_yaw_sign() != 0
+        redundancy = joints[int(scores[int(base) :].argmax()) + int(base)]
+        said(
+            "redundancy",
+            redundancy,
+            "7 free joints for a 6-dof pose: the joint whose value, given, leaves the other six best conditioned "
+            f"over the box (5 % quantile of sigma_min / sigma_max, per joint: {[float(f'{v:.2g}') for v in scores]})"
+            + ("; the base joint, which turns the arm about the vertical, stays an output" if base else ""),
+        )
     if not cfg.home and not (cfg.joint_low and cfg.joint_high):  # both by the middle rule
-        trial = replace(cfg, name=name, target=target, home=home, joint_low=low, joint_high=high)
+        trial = replace(cfg, name=name, target=target, home=home, joint_low=low, joint_high=high, redundancy=redundancy)
         home, why = conditioned_home(load_robot(trial), lo, hi, torch.tensor(home), cfg.box_halfwidth)
         low, high = _box(torch.tensor(home, dtype=torch.float64), lo, hi, cfg.box_halfwidth)
         said("home", [round(v, 4) for v in home], why)
@@ -263,6 +285,7 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         cfg,
         name=name,
         target=target,
+        redundancy=redundancy,
         home=home,
         joint_low=low,
         joint_high=high,
@@ -332,13 +355,23 @@ def _samples(low: list[float], high: list[float], n: int = BOX_SAMPLES, seed: in
     return lo + (hi - lo) * torch.rand(n, lo.numel(), generator=g, dtype=torch.float64)
 
 
-def box_conditioning(robot: Robot, homes: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, w: float) -> torch.Tensor:
+def box_conditioning(
+    robot: Robot, homes: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, w: float, drop: torch.Tensor | None = None
+) -> torch.Tensor:
     """Per home (C, k): the 5 % quantile over BOX_SAMPLES seeded joint vectors of its box (home
     +- w, clipped to the limits lo, hi (k,)) of the task Jacobian's sigma_min / sigma_max (C,).
-    Near 0 where a singularity runs through the box (and with it a second IK branch)."""
+    Near 0 where a singularity runs through the box (and with it a second IK branch). `drop` (C,)
+    (the robot's redundant joint where None): per home, the joint whose column leaves the Jacobian,
+    a joint whose value the network is given."""
     u = 2 * _samples([0.0] * homes.shape[1], [1.0] * homes.shape[1]) - 1  # (S, k) in [-1, 1]
     q = torch.maximum(torch.minimum(homes[:, None, :] + w * u, hi), lo)  # (C, S, k)
-    s = torch.linalg.svdvals(robot.jacobian(q.reshape(-1, homes.shape[1]))).reshape(*q.shape[:2], -1)
+    jac = robot.jacobian(q.reshape(-1, homes.shape[1])).reshape(*q.shape[:2], -1, homes.shape[1])
+    if drop is None and robot.redundant is not None:
+        drop = torch.full((homes.shape[0],), robot.redundant)
+    if drop is not None:  # (C, S, r, k) -> (C, S, r, k - 1)
+        keep = torch.arange(homes.shape[1])[None, :] != drop[:, None]  # (C, k)
+        jac = jac.masked_select(keep[:, None, None, :]).reshape(*jac.shape[:3], homes.shape[1] - 1)
+    s = torch.linalg.svdvals(jac)
     return (s[..., -1] / s[..., 0]).quantile(0.05, dim=1)
 
 

@@ -70,6 +70,7 @@ class Robot:
     target: str = "position"
     locked: dict[str, float] = field(default_factory=dict)
     name: str = ""
+    redundancy: str = ""  # the free joint whose value the network takes beside the pose; "": none
 
     def __post_init__(self) -> None:
         names = self.chain.get_joint_parameter_names()
@@ -79,6 +80,17 @@ class Robot:
                 f"robot.locked names {unknown}, which are not joints of the chain to {self.end_link!r}: {names}"
             )
         self.free = [i for i, j in enumerate(names) if j not in self.locked]
+        if self.redundancy and (self.redundancy not in names or self.redundancy in self.locked):
+            free = [names[i] for i in self.free]
+            raise ValueError(
+                f"robot.redundancy={self.redundancy!r} is not allowed: allowed are the free joints of the chain to "
+                f"{self.end_link!r}: {free}"
+            )
+        if self.redundancy and self.target != Target.pose:
+            raise ValueError(
+                f"robot.redundancy={self.redundancy!r} is not allowed with robot.target={self.target}: "
+                "it needs pose targets"
+            )
         full = torch.zeros(len(names), dtype=torch.float64)
         for j, v in self.locked.items():
             full[names.index(j)] = v
@@ -89,6 +101,18 @@ class Robot:
         """The free joints (the IK's outputs), in chain order."""
         names = self.chain.get_joint_parameter_names()
         return [names[i] for i in self.free]
+
+    @property
+    def redundant(self) -> int | None:
+        """The index of `redundancy` among the free joints, or None."""
+        return self.joint_names.index(self.redundancy) if self.redundancy else None
+
+    def inputs(self, q: torch.Tensor) -> torch.Tensor:
+        """The network's inputs for the free joints q (B, n): their targets (B, 3 or 7), and with a
+        `redundancy` joint its value after the pose (B, 8)."""
+        x = self.targets(q)
+        r = self.redundant
+        return x if r is None else torch.cat([x, q[:, r : r + 1].to(x.dtype)], -1)
 
     def full_joints(self, q: torch.Tensor) -> torch.Tensor:
         """Every chain joint (B, n_chain) from the free joints q (B, n), locked ones filled in."""
@@ -121,7 +145,7 @@ class Robot:
         pos = (pose[:, :3, 3] - x[:, :3]).norm(dim=-1) * 1000.0
         if self.target != Target.pose:
             return pos, None
-        return pos, rotation_error_deg(pose[:, :3, :3], tf.quaternion_to_matrix(x[:, 3:]))
+        return pos, rotation_error_deg(pose[:, :3, :3], tf.quaternion_to_matrix(x[:, 3:7]))
 
     def base_yaw_sign(self, tol: float = 1e-9) -> int:
         """+1 or -1 where the first free joint turns the whole arm about the root's vertical (z)
@@ -165,6 +189,7 @@ class Robot:
             "joint_names": self.joint_names,
             "joint_low": self.low.tolist(),
             "joint_high": self.high.tolist(),
+            "redundancy": self.redundancy,
         }
 
 
@@ -243,6 +268,7 @@ def load_robot(cfg: RobotConfig, device: str = "cpu") -> Robot:
         str(cfg.target),
         dict(cfg.locked),
         cfg.name,
+        cfg.redundancy,
     )
     _check_box(robot, str(path))
     names = robot.chain.get_joint_parameter_names()
@@ -285,6 +311,7 @@ def _check_fields(record: dict) -> None:
         "a dict from joint name (str) to a finite held value (rad or m)",
     )
     need(isinstance(record.get("name", ""), str), "name", "a label (str)")
+    need(isinstance(record.get("redundancy", ""), str), "redundancy", 'a free joint\'s name (str), or "" for none')
 
 
 def robot_from_record(record: dict, device: str = "cpu") -> Robot:
@@ -309,6 +336,7 @@ def robot_from_record(record: dict, device: str = "cpu") -> Robot:
         str(record.get("target", "position")),
         {k: float(v) for k, v in record.get("locked", {}).items()},
         record.get("name", ""),
+        record.get("redundancy", ""),
     )
     _check_box(robot, "robot entry")
     check_joint_values(robot.locked, robot.chain.get_joint_parameter_names(), *joint_limits(robot.chain))
@@ -321,16 +349,19 @@ def robot_from_record(record: dict, device: str = "cpu") -> Robot:
     return robot
 
 
-def check_ik_is_function(target: Target | str, joints: Sequence[str], locked: Mapping[str, float]) -> None:
+def check_ik_is_function(
+    target: Target | str, joints: Sequence[str], locked: Mapping[str, float], redundancy: str = ""
+) -> None:
     """Refuse an arm whose free joints `joints` (the IK's outputs, by name, `locked` ones excluded)
-    outnumber the degrees of freedom of its targets: 3 for `position`, 6 for `pose`.
+    outnumber the degrees of freedom of its targets: 3 for `position`, 6 for `pose`, one more with a
+    `redundancy` joint (its value is an input of the network).
 
     Many joint vectors then reach each target: the training data is no function of the target,
     and a network fitted to it learns their average (a task Jacobian, 3 or 6 rows, has fewer rows
     than joints: the same condition). ValueError naming robot.target, the free joints and
     robot.locked, whatever the refinement mode; `rbfn.pipeline.train_ik`, train.py and the
     derivation of a URDF's values (`rbfn.robots.derive`) check it before any work."""
-    dof, n = (6 if target == Target.pose else 3), len(joints)
+    dof, n = (6 if target == Target.pose else 3) + bool(redundancy), len(joints)
     if n <= dof:
         return
     ways = (
@@ -339,8 +370,11 @@ def check_ik_is_function(target: Target | str, joints: Sequence[str], locked: Ma
     )
     if target != Target.pose and n <= 6:  # pose targets fix 6: an arm with at most 6 free joints
         ways += ", or use robot.target=pose (position and orientation, 6 degrees of freedom)"
+    if target == Target.pose and n == 7 and not redundancy:
+        ways += ", or give one of them as an input beside the pose: robot.redundancy=NAME"
+    what = f"robot.target={target}" + (f" with robot.redundancy={redundancy}" if redundancy else "")
     raise ValueError(
-        f"robot.target={target} has {dof} degrees of freedom but the arm has {n} free joints {list(joints)} "
+        f"{what} has {dof} degrees of freedom but the arm has {n} free joints {list(joints)} "
         f"(robot.locked={dict(locked)}): many joint vectors reach each target, so the IK map is not a "
         f"function and the network would learn their average; {ways}"
     )

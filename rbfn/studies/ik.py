@@ -26,7 +26,9 @@ log = logging.getLogger(__name__)
 def polished_metrics(model, robot: Robot, x, iterations: int = DEFAULT_ITERATIONS, prefix: str = "test_") -> dict:
     """Accuracy after the network's answer is polished by `iterations` damped-least-squares steps:
     `polished_success_rate` (share within 0.1 mm and 0.1 deg) and the error summary."""
-    q, ok = IKSolver(model, robot).solve(x, iterations)
+    r = robot.redundant  # the inputs carry the redundant joint's value: the solver takes it apart
+    targets, value = (x, None) if r is None else (x[:, :7], x[:, 7])
+    q, ok = IKSolver(model, robot).solve(targets, iterations, redundancy=value)
     pos, rot = robot.errors(q, x)
     out = {
         "polished_success_rate": float(ok.double().mean()),

@@ -38,7 +38,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     validate_train(cfg)
     check_train(cfg)  # the run fits in memory
     robot = load_robot(cfg.robot, cfg.device)
-    check_ik_is_function(robot.target, robot.joint_names, cfg.robot.locked)
+    check_ik_is_function(robot.target, robot.joint_names, cfg.robot.locked, cfg.robot.redundancy)
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write

@@ -157,12 +157,26 @@ def test_the_presets_pass_through_unchanged(robot):
         assert derive_evaluate(cfg) is cfg
 
 
-def test_a_redundant_arm_needs_locked_joints():
+def test_a_7_joint_arm_takes_one_joint_as_an_input_or_holds_it():
+    """The Panda through robot=urdf: one joint becomes the network's input beside the pose, the one
+    that leaves the other six best conditioned over the box (the upper-arm roll, joint 3; the base
+    joint ties with it there, its axis in line at q2 = 0, and stays an output, as it turns targets
+    about the base); given, it is kept; held with robot.locked, there is none."""
     panda = ("panda_description/urdf/panda.urdf", "panda_link8")
-    with pytest.raises(ValueError, match=r"7 free joints.*robot\.locked"):
-        derive_train(compose_config("train", *_urdf(*panda)))
-    cfg = derive_train(compose_config("train", *_urdf(*panda, "+robot.locked.panda_joint3=0.0")))
-    assert cfg.robot.target == Target.pose and len(cfg.robot.joint_low) == 6
+    cfg = derive_train(compose_config("train", *_urdf(*panda)))
+    assert cfg.robot.target == Target.pose and len(cfg.robot.joint_low) == 7
+    assert cfg.robot.redundancy == "panda_joint3"
+    lo, hi = (torch.tensor(v, dtype=torch.float64) for v in (cfg.robot.joint_low, cfg.robot.joint_high))
+    home = torch.tensor([cfg.robot.home], dtype=torch.float64)
+    robot = load_robot(cfg.robot)
+    per_joint = box_conditioning(robot, home.expand(7, -1), lo, hi, cfg.robot.box_halfwidth, drop=torch.arange(7))
+    assert int(per_joint[1:].argmax()) + 1 == 2  # joint 3, the best of all but the base (which turns the arm)
+    given = derive_train(compose_config("train", *_urdf(*panda, "robot.redundancy=panda_joint1"))).robot
+    assert given.redundancy == "panda_joint1"
+    with pytest.raises(ValueError, match=r"robot\.redundancy='nope' is not allowed: allowed are the free joints"):
+        derive_train(compose_config("train", *_urdf(*panda, "robot.redundancy=nope")))
+    held = derive_train(compose_config("train", *_urdf(*panda, "+robot.locked.panda_joint3=0.0"))).robot
+    assert held.target == Target.pose and len(held.joint_low) == 6 and held.redundancy == ""
 
 
 def test_a_5_joint_arm_learns_the_poses_it_reaches():
