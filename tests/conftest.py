@@ -88,6 +88,18 @@ def error_line(capsys, main, prog: str, *argv, status: int = 2) -> str:
 
 
 # A training run of a few seconds (k-means, M = 10, one thread, no export): the studies' tests.
+# The Panda with all 7 joints free, joint 3 the network's input beside the pose, in a +-1 rad box
+# around the ready pose (robot=urdf on the shipped URDF, every derived key given)
+PANDA_REDUNDANT = [
+    "robot=urdf",
+    "robot.urdf=rbfn/robots/panda/panda.urdf",
+    "robot.end_link=panda_hand",
+    "robot.redundancy=panda_joint3",
+    "robot.joint_low=[-1.0,-1.7628,-1.0,-3.0718,-1.0,0.571,-0.215]",
+    "robot.joint_high=[1.0,0.215,1.0,-1.356,1.0,2.571,1.785]",
+    "robot.home=[0.0,-0.785,0.0,-2.356,0.0,1.571,0.785]",
+]
+
 TINY_TRAIN = [
     "data.n_train=300",
     "data.n_val=200",

@@ -7,7 +7,7 @@ import torch
 import train
 from rbfn import load_model, load_solver
 
-from .conftest import compose_config
+from .conftest import PANDA_REDUNDANT, compose_config
 
 SMALL = [
     "robot=ur5",
@@ -387,16 +387,7 @@ def test_an_arm_with_fewer_joints_than_the_pose_has_dof_polishes_the_poses_it_re
     assert (pos[ok] <= 0.1).all() and (rot[ok] <= 0.1).all()
 
 
-PANDA_7 = [
-    "robot=urdf",
-    "robot.urdf=rbfn/robots/panda/panda.urdf",
-    "robot.end_link=panda_hand",
-    "robot.redundancy=panda_joint3",
-    "robot.joint_low=[-1.0,-1.7628,-1.0,-3.0718,-1.0,0.571,-0.215]",
-    "robot.joint_high=[1.0,0.215,1.0,-1.356,1.0,2.571,1.785]",
-    "robot.home=[0.0,-0.785,0.0,-2.356,0.0,1.571,0.785]",
-    *SMALL[1:],  # the UR5's sizes
-]
+PANDA_7 = [*PANDA_REDUNDANT, *SMALL[1:]]  # the UR5's sizes
 
 
 @pytest.fixture(scope="module")

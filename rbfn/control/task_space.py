@@ -149,6 +149,7 @@ class OnlineRobot:
     link_error: torch.Tensor  # (S, L) each row's link errors
     offset_error: torch.Tensor  # (S, n) each row's joint offsets
     q_real: torch.Tensor | None = None  # (T, n_free) the real robot's exact IK of the configured row (closed forms)
+    redundant: int | None = None  # the chain index of the joint the network takes beside the pose (robot.redundancy)
 
     @property
     def n(self) -> int:
@@ -163,12 +164,17 @@ class OnlineRobot:
         out[..., self.free] = q
         return out
 
-    def targets(self, rot: torch.Tensor | None, pos: torch.Tensor) -> torch.Tensor:
-        """The network's inputs (..., d) of measured poses."""
+    def targets(self, rot: torch.Tensor | None, pos: torch.Tensor, q: torch.Tensor | None = None) -> torch.Tensor:
+        """The network's inputs (..., d) of measured poses, and with a `redundant` joint its value
+        from the measured chain joints q (..., n)."""
         if self.target != Target.pose:
             return pos
         assert rot is not None  # poses have rotations
-        return torch.cat([pos, unit_quaternions(rot)], -1)
+        x = torch.cat([pos, unit_quaternions(rot)], -1)
+        if self.redundant is None:
+            return x
+        assert q is not None  # the measured joints carry the redundant joint's value
+        return torch.cat([x, q[..., self.redundant : self.redundant + 1]], -1)
 
     def errors(self, rot: torch.Tensor | None, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(position error (T, B) in mm, rotation error (T, B) in degrees or None) of measured poses
@@ -177,7 +183,7 @@ class OnlineRobot:
         if self.target != Target.pose:
             return e_pos, None
         assert rot is not None  # poses have rotations
-        r_d = tf.quaternion_to_matrix(self.x_d[:, 3:])[:, None].expand_as(rot)
+        r_d = tf.quaternion_to_matrix(self.x_d[:, 3:7])[:, None].expand_as(rot)
         return e_pos, rotation_error_deg(rot.reshape(-1, 3, 3), r_d.reshape(-1, 3, 3)).view(e_pos.shape)
 
 
@@ -241,7 +247,7 @@ def online_robot(
         return OnlineRobot(
             setup.plant,
             ctrl,
-            trained.targets(q_path).to(**kw),
+            trained.inputs(q_path).to(**kw),
             q_path,
             real.pose,
             trained.free,
@@ -249,6 +255,7 @@ def online_robot(
             str(robot.target),
             link,
             offset,
+            redundant=None if trained.redundant is None else trained.free[trained.redundant],
         )
     link, offset = perturbation_sizes(cfg, sizes, closed.links, n, **kw)
     path = path_name(cfg, record)
@@ -358,7 +365,7 @@ def run_online(
                     f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s), {row}: q = {loop.q[e].tolist()}", e
                 )
             # Pairs (x, q) of this segment; the frozen environments learn nothing.
-            x = rob.targets(*rob.measure(rq))  # (m, B, d)
+            x = rob.targets(*rob.measure(rq), rq)  # (m, B, d)
             a = net.design(x).transpose(0, 1)  # (B, m, P)
             y = rq[..., rob.free].transpose(0, 1)
             keep = learner.w.clone()

@@ -33,12 +33,6 @@ def evaluate_online(
     task_rot_err_deg_rms_* for pose targets; `sweep`, one row per size with its real link and
     offset errors; joint error (null where the real robot's exact IK is not known: URDF arms) and
     weight change. With `out_dir`, writes online_task_error.png and checkpoint_online.pt."""
-    if ckpt["robot"].get("redundancy"):
-        raise ValueError(
-            f"online.enabled=true is not allowed for this checkpoint: its network takes the redundant joint "
-            f"robot.redundancy={ckpt['robot']['redundancy']!r} as an input, which the online study does not feed "
-            "yet; allowed: online.enabled=false, or a network trained with that joint held (robot.locked)"
-        )
     net = model_from_checkpoint(ckpt)
     sizes = list(cfg.sizes)
     r = run_online(net, ckpt["robot"], cfg, gains, sizes, device=device)

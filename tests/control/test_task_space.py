@@ -12,7 +12,7 @@ from rbfn.config import GainsConfig, OnlineConfig
 from rbfn.control.task_space import check_online, online_robot, path_name, record_closed_form, run_online
 from rbfn.robots.robot import load_robot
 
-from ..conftest import compose_config
+from ..conftest import PANDA_REDUNDANT, TINY_TRAIN, compose_config
 
 KW = {"dtype": torch.float64, "device": "cpu"}
 
@@ -53,6 +53,28 @@ def test_panda_adapts_online_with_its_locked_joint_held(panda_ckpt):
     assert (adapt < 0.2 * frozen).all(), (adapt, frozen)
     assert (r.rot_adapt[late].mean(0) < 0.5 * r.rot_frozen[late].mean(0)).all()
     assert r.dw[-1].min() > 0
+
+
+def test_a_network_with_a_redundant_joint_takes_its_measured_value_online(tmp_path):
+    """The Panda with joint 3 an input of the network: the desired inputs carry the path's value of
+    it, the measured ones the robot's, and a 3 s closed loop adapts all seven joints."""
+    import train
+    from rbfn.checkpoint import read_checkpoint
+    from rbfn.robots.derive import derive_train
+
+    cfg = derive_train(compose_config("train", *PANDA_REDUNDANT, *TINY_TRAIN, "rbfn.num_centers=40"))
+    train.run(cfg, tmp_path)
+    ckpt = read_checkpoint(tmp_path / "checkpoint.pt")
+    online = OnlineConfig(duration=3.0, dt=0.002, sizes=[0.0, 0.03], link_error=[0.03, 0.02, -0.02])
+    t = torch.linspace(0.0, 3.0, 1501, **KW)
+    rob = online_robot(ckpt["robot"], online, GainsConfig(), [0.0, 0.03], t, **KW)
+    assert rob.x_d.shape == (1501, 8) and rob.redundant == 2
+    assert torch.equal(rob.x_d[:, 7], rob.q_nominal[:, 2])
+    q = rob.full(rob.q_nominal)[:, None].expand(-1, 4, 7)
+    assert torch.equal(rob.targets(*rob.measure(q), q)[..., 7], q[..., 2])
+    r = run_online(model_from_checkpoint(ckpt), ckpt["robot"], online, GainsConfig(), list(online.sizes))
+    late = r.t >= 2.0
+    assert r.q_adapt.shape[1:] == (2, 7) and (r.err_adapt[late].mean(0) < r.err_frozen[late].mean(0)).all()
 
 
 def test_settings_that_do_not_suit_the_robot_are_named():
