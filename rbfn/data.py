@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from .robots.kinematics import joint_limits
+
 if TYPE_CHECKING:
     from .robots.robot import Robot
 
@@ -17,6 +19,7 @@ __all__ = [
     "make_split",
     "make_dataset",
     "evaluation_split",
+    "full_range_split",
     "stream",
     "input_scaling",
     "check_finite",
@@ -28,6 +31,7 @@ __all__ = [
 STREAMS_PER_SEED = 1000
 TRAIN_VAL_TEST = (0, 1, 2)
 EVALUATION = 777
+FULL_RANGE = (3, 778)  # the test and evaluation sets over the whole joint range (`full_range_split`)
 
 
 def stream(seed: int, offset: int) -> int:
@@ -60,12 +64,25 @@ def sample_joints(low: torch.Tensor, high: torch.Tensor, n: int, generator: torc
     return low + u * (high - low)
 
 
-def make_split(robot: Robot, n: int, seed: int) -> Split:
-    """n (target, joints) pairs from joints sampled in the robot's box with `seed` (float64, on the
-    chain's device)."""
+def make_split(
+    robot: Robot, n: int, seed: int, low: torch.Tensor | None = None, high: torch.Tensor | None = None
+) -> Split:
+    """n (target, joints) pairs from joints sampled in the robot's box (or in [low, high] (n,))
+    with `seed` (float64, on the chain's device)."""
     g = torch.Generator().manual_seed(seed)
-    q = sample_joints(robot.low, robot.high, n, g).to(robot.chain.device)
+    lo, hi = (robot.low, robot.high) if low is None or high is None else (low, high)
+    q = sample_joints(lo, hi, n, g).to(robot.chain.device)
     return Split(robot.inputs(q).to(torch.float64), q)
+
+
+def full_range_split(robot: Robot, n: int, seed: int, evaluation: bool = False) -> Split:
+    """n pairs from joints uniform over the free joints' whole URDF range ([-pi, pi] for a joint
+    without limits), held joints as held: every pose the arm reaches, on every branch. The test
+    set's stream of `seed` (the evaluation set's with `evaluation`), which no training set draws."""
+    low, high = (t[robot.free].cpu() for t in joint_limits(robot.chain))
+    low = torch.where(torch.isinf(low), torch.full_like(low, -torch.pi), low)
+    high = torch.where(torch.isinf(high), torch.full_like(high, torch.pi), high)
+    return make_split(robot, n, stream(seed, FULL_RANGE[evaluation]), low, high)
 
 
 def make_dataset(robot: Robot, sizes: tuple[int, int, int], seed: int) -> Dataset:

@@ -3,14 +3,15 @@ and evaluate.py's accuracy on a fresh test set with its workspace error map."""
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from pathlib import Path
 
 from ..checkpoint import model_from_checkpoint, save_checkpoint
 from ..config import SELECTORS, EvalConfig, Target, TrainConfig, plain
-from ..data import Dataset, evaluation_split
-from ..export import export_all
+from ..data import Dataset, Split, evaluation_split, full_range_split
+from ..export import deployed, export_all
 from ..metrics import error_summary, ik_metrics_both
 from ..pipeline import TrainResult
 from ..robots.robot import Robot, robot_from_record
@@ -23,12 +24,17 @@ __all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table"]
 log = logging.getLogger(__name__)
 
 
+def _polished(model, robot: Robot, x, iterations: int):
+    """IKSolver.solve's (joints, converged) for the network inputs x (B, 3, 7 or 8): a redundant
+    joint's value (the 8th column) is handed over as `redundancy`."""
+    targets, value = (x, None) if robot.redundant is None else (x[:, :7], x[:, 7])
+    return IKSolver(model, robot).solve(targets, iterations, redundancy=value)
+
+
 def polished_metrics(model, robot: Robot, x, iterations: int = DEFAULT_ITERATIONS, prefix: str = "test_") -> dict:
     """Accuracy after the network's answer is polished by `iterations` damped-least-squares steps:
     `polished_success_rate` (share within 0.1 mm and 0.1 deg) and the error summary."""
-    r = robot.redundant  # the inputs carry the redundant joint's value: the solver takes it apart
-    targets, value = (x, None) if r is None else (x[:, :7], x[:, 7])
-    q, ok = IKSolver(model, robot).solve(targets, iterations, redundancy=value)
+    q, ok = _polished(model, robot, x, iterations)
     pos, rot = robot.errors(q, x)
     out = {
         "polished_success_rate": float(ok.double().mean()),
@@ -36,6 +42,23 @@ def polished_metrics(model, robot: Robot, x, iterations: int = DEFAULT_ITERATION
         **{f"polished_{k}": v for k, v in error_summary(pos, rot).items()},
     }
     return {f"{prefix}{k}": v for k, v in out.items()}
+
+
+def full_range_metrics(model, robot: Robot, split: Split, iterations: int = DEFAULT_ITERATIONS) -> dict:
+    """The IK over the whole joint range (`rbfn.data.full_range_split`: every reachable pose, on
+    every branch), beside the trained box's figures: `test_full_range_polished_success_rate` (the
+    network's answer polished by `iterations` steps, within 0.1 mm and 0.1 deg),
+    `test_full_range_in_workspace` (the share the deployed network's workspace flag marks inside,
+    base turns included) and `test_full_range_success_in_workspace` (the success rate among those:
+    what the flag promises; null where it marks none)."""
+    converged = _polished(model, robot, split.x, iterations)[1]
+    _, inside = deployed(copy.deepcopy(model).double(), robot)(split.x)
+    flagged = int(inside.sum())
+    return {
+        "test_full_range_polished_success_rate": float(converged.double().mean()),
+        "test_full_range_in_workspace": flagged / split.x.shape[0],
+        "test_full_range_success_in_workspace": float(converged[inside].double().mean()) if flagged else None,
+    }
 
 
 def _ridge(ridge) -> float | None:
@@ -58,6 +81,7 @@ def training_metrics(cfg: TrainConfig, result: TrainResult, robot: Robot, data: 
     itself or searched widths only) and `selection_note` why it differs (null where it does not)."""
     acc, _, _ = ik_metrics_both(result.model, robot, data.test.x, data.test.q)
     acc.update(polished_metrics(result.model, robot, data.test.x))
+    acc.update(full_range_metrics(result.model, robot, full_range_split(robot, data.test.x.shape[0], cfg.seed)))
     return {
         "num_centers": result.model.num_centers,
         "selector": cfg.centers.name,
@@ -109,6 +133,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
     test = evaluation_split(robot, cfg.n_test, seed)
     acc, err_mm, inside = ik_metrics_both(model, robot, test.x, test.q)
     acc.update(polished_metrics(model, robot, test.x))
+    acc.update(full_range_metrics(model, robot, full_range_split(robot, cfg.n_test, seed, evaluation=True)))
     out: dict = {"checkpoint": str(path), "num_centers": model.num_centers, "test_seed": seed, **acc}
     fig = _error_figure(
         robot, test.q.cpu().numpy(), test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), model.num_centers
@@ -152,4 +177,11 @@ def ik_table(title: str, m: dict) -> str:
         f"{100 * m['test_polished_success_rate']:.2f} % within "
         f"0.1 mm / 0.1 deg, median position error {m['test_polished_pos_err_mm_median']:.3g} mm"
     )
+    if "test_full_range_polished_success_rate" in m:
+        inside = m["test_full_range_success_in_workspace"]
+        lines.append(
+            f"over the whole joint range: {100 * m['test_full_range_polished_success_rate']:.2f} % polished, "
+            f"{100 * m['test_full_range_in_workspace']:.1f} % flagged in workspace"
+            + ("" if inside is None else f", of which {100 * inside:.2f} % polished")
+        )
     return "\n".join(lines)
