@@ -365,7 +365,8 @@ def run_online(
                     f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s), {row}: q = {loop.q[e].tolist()}", e
                 )
             # Pairs (x, q) of this segment; the frozen environments learn nothing.
-            x = rob.targets(*rob.measure(rq), rq)  # (m, B, d)
+            rot, pos = rob.measure(rq)
+            x = rob.targets(rot, pos, rq)  # (m, B, d)
             a = net.design(x).transpose(0, 1)  # (B, m, P)
             y = rq[..., rob.free].transpose(0, 1)
             keep = learner.w.clone()
