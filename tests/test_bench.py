@@ -8,6 +8,8 @@ import torch
 from bench.run import merge, run_suite, targets, to_markdown, write_report
 from bench.timing import fit_exponent
 
+from .conftest import compose_config
+
 TINY = {
     "ik": {
         "batch": 500,
@@ -183,3 +185,20 @@ def test_the_corpus_finds_an_arms_trunk_below_its_gripper_and_skips_two_arms(tmp
            for s in "ab" for i in range(1, 4)]  # fmt: skip
     end, _, why = trunk(_tree_urdf(tmp_path, two))
     assert end is None and "fewer than 3" in why
+
+
+def test_tracik_solves_the_same_poses_and_is_checked_by_our_forward_kinematics():
+    """TRAC-IK on a few UR5 poses from its URDF text: every answer reaches its pose within 0.1 mm
+    and 0.1 deg by our forward kinematics; a pose out of reach counts as a failure."""
+    pytest.importorskip("pytracik")
+    from bench.tracik import tracik_row
+    from rbfn.data import make_split
+    from rbfn.robots.robot import load_robot
+
+    robot = load_robot(compose_config("train", "robot=ur5").robot)
+    split = make_split(robot, 20, 3)
+    assert tracik_row(robot, split.x, 0.02)["success"] == 1.0
+    far = split.x[:4].clone()
+    far[:, 0] += 5.0
+    row = tracik_row(robot, torch.cat([split.x[:4], far]), 0.005)
+    assert row["success"] == 0.5 and row["n"] == 8

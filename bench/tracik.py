@@ -1,0 +1,131 @@
+"""The IK side by side with TRAC-IK: a checkpoint's network plus its polish (`rbfn.load_solver`)
+against TRAC-IK (`pytracik`, KDL's chain from the same URDF text, one pose at a time), on the same
+poses, one thread, each with its success rate (within 0.1 mm and 0.1 deg, checked by the same
+forward kinematics) and its solves per second. Two pose sets: FK images of joints drawn in the
+checkpoint's trained box, and of joints drawn over the free joints' whole URDF range
+(`rbfn.data.full_range_split`, evaluation stream of seed 0), where every branch occurs.
+
+    python -m bench.tracik CHECKPOINT [--n 10000] [--iterations 3] [--tracik-n 1000] [--timeout 0.02]
+
+TRAC-IK runs in its Speed mode (its first solution within `--timeout` s, wall time, so the
+machine must be quiet), seeded with the middle of the joint limits; held joints (`robot.locked`)
+are held by limits equal to their value. A redundant network (`robot.redundancy`) is given the
+sampled joint's value, as a caller passing `near` would. Our solver runs the whole batch at once
+(`--n` targets, median of `--repeats` timed runs); TRAC-IK solves `--tracik-n` of them one at a
+time. Prints one JSON line per row, and the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+import torch
+
+from rbfn import load_solver
+from rbfn.data import Split, evaluation_split, full_range_split
+
+from .polish import polish_row
+from .timing import machine_info
+
+__all__ = ["tracik_solver", "tracik_row", "main"]
+
+
+def tracik_solver(robot, timeout: float):
+    """pytracik's TRAC_IK for `robot`'s chain (its URDF text, root link -> end link), Speed mode,
+    with held joints held by their limits."""
+    import pytracik
+
+    root = robot.chain.get_frame_names(exclude_fixed=False)[0]
+    solver = pytracik.TRAC_IK(root, robot.end_link, robot.urdf_text, timeout, 1e-5, pytracik.SolveType.Speed)
+    names = robot.chain.get_joint_parameter_names()
+    if pytracik.get_num_joints(solver) != len(names):
+        raise ValueError(
+            f"TRAC-IK reads {pytracik.get_num_joints(solver)} joints from the URDF, the chain has {len(names)}"
+        )
+    low = list(pytracik.get_joint_lower_bounds(solver))
+    high = list(pytracik.get_joint_upper_bounds(solver))
+    for j, v in robot.locked.items():
+        low[names.index(j)] = high[names.index(j)] = float(v)
+    pytracik.set_joint_limits(solver, low, high)
+    return solver, np.array(low), np.array(high)
+
+
+def tracik_row(robot, x: torch.Tensor, timeout: float) -> dict:
+    """Solves/s and success of TRAC-IK on targets x (B, 7) (poses), one at a time."""
+    import pytracik
+
+    solver, low, high = tracik_solver(robot, timeout)
+    seed = np.where(np.isfinite(low + high), 0.5 * (low + high), 0.0)
+    poses = x[:, :7].cpu().numpy()
+    answers = np.zeros((poses.shape[0], len(low)))
+    t0 = time.perf_counter()
+    for i, p in enumerate(poses):  # x, y, z, then the quaternion as (x, y, z, w)
+        out = np.asarray(pytracik.ik(solver, seed, p[0], p[1], p[2], p[4], p[5], p[6], p[3]))
+        answers[i] = out[1:] if out[0] > 0 else np.nan
+    seconds = time.perf_counter() - t0
+    q = torch.from_numpy(answers)[:, robot.free]
+    found = ~torch.isnan(q).any(-1)
+    pos, rot = robot.errors(torch.nan_to_num(q), x)
+    ok = found & (pos <= 0.1) & (rot <= 0.1)
+    return {
+        "method": f"TRAC-IK (Speed, {1000 * timeout:g} ms timeout)",
+        "n": poses.shape[0],
+        "seconds": seconds,
+        "queries_per_s": poses.shape[0] / seconds,
+        "success": float(ok.double().mean()),
+    }
+
+
+def _targets(split: Split, redundant: int | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    return (split.x, None) if redundant is None else (split.x[:, :7], split.x[:, 7])
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoint")
+    p.add_argument("--n", type=int, default=10000, help="targets our solver takes in one batch")
+    p.add_argument("--iterations", type=int, default=3)
+    p.add_argument("--tracik-n", type=int, default=1000, help="of them, solved one at a time by TRAC-IK")
+    p.add_argument("--timeout", type=float, default=0.02, help="TRAC-IK's wall-time limit a pose, s")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--threads", type=int, default=1)
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    solver = load_solver(args.checkpoint)
+    robot = solver.robot
+    if robot.target != "pose":
+        raise SystemExit("bench.tracik compares pose IK: this checkpoint's targets are positions")
+    print(json.dumps({"machine": machine_info("cpu", args.threads)}))
+    rows = []
+    for name, split in (
+        ("trained box", evaluation_split(robot, args.n, 0)),
+        ("whole joint range", full_range_split(robot, args.n, 0, evaluation=True)),
+    ):
+        x, value = _targets(split, robot.redundant)
+        ours = polish_row(_Given(solver, value), x, args.iterations, repeats=args.repeats)
+        theirs = tracik_row(robot, split.x[: args.tracik_n], args.timeout)
+        for row in (ours, theirs):
+            row.update(poses=name, threads=args.threads)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+        print(f"# {name}: {ours['queries_per_s'] / theirs['queries_per_s']:.2f}x TRAC-IK's solves/s")
+    print(f"\n{'poses':18s} {'method':42s} {'success':>9s} {'solves/s':>10s}")
+    for r in rows:
+        print(f"{r['poses']:18s} {r['method']:42s} {100 * r['success']:8.2f}% {r['queries_per_s']:10.0f}")
+
+
+class _Given:
+    """`solver` whose `solve` passes a redundant joint's values (B,) along (None: none)."""
+
+    def __init__(self, solver, value: torch.Tensor | None) -> None:
+        self.solver, self.value = solver, value
+
+    def solve(self, x, iterations, restarts=0):
+        return self.solver.solve(x, iterations, restarts, redundancy=self.value)
+
+
+if __name__ == "__main__":
+    main()
