@@ -146,14 +146,14 @@ class IKSolver:
         """`iterations` damped-least-squares steps from joints q (B, n) toward targets x; (joints,
         converged (B,)). `first`: `_errors(q, x)` where already computed.
 
-        A step: dq = J^T (J J^T + lambda I)^-1 e, lambda = damping + error_damping |e|^2,
-        shortened to at most `max_step` per joint. Where the full step leaves more than PROGRESS of
-        the error (mm / tol_mm + deg / tol_deg), a line search: q + a dq for a in STEP_SCALES (each within the polish's joint range), the one
-        nearest the target kept. Near a singular configuration the full Gauss-Newton step
-        overshoots (the first step from a far network answer multiplied the error threefold); the
-        search takes the shorter step there and the longer one where the error is curved the other
-        way. A step costs one Jacobian (its pose gives the error after the step before, and the
-        next step's Jacobian), plus len(STEP_SCALES) forward kinematics and a Jacobian for the few
+        A step: dq = J^T (J J^T + lambda I)^-1 e, lambda = damping + error_damping |e|^2, shortened to
+        at most `max_step` per joint. Where the full step leaves more than PROGRESS of the error (mm /
+        tol_mm + deg / tol_deg), a line search: q + a dq for a in STEP_SCALES (each within the polish's
+        joint range), the one nearest the target kept. Near a singular configuration the full Gauss-
+        Newton step overshoots (the first step from a far network answer multiplied the error
+        threefold); the search takes the shorter step there and the longer one where the error is curved
+        the other way. A step costs one Jacobian (its pose gives the error after the step before, and
+        the next step's Jacobian), plus len(STEP_SCALES) forward kinematics and a Jacobian for the few
         rows searched."""
         low, high = self.low.to(q.device), self.high.to(q.device)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=q.device)
