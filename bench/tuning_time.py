@@ -30,21 +30,26 @@ from .timing import machine_info, timed
 __all__ = ["evaluation_config", "measure", "main"]
 
 
-def evaluation_config(robot: str, overrides: list[str] | None = None):
-    """evaluate.py's composed config (its dataclass) for `robot` with `overrides`."""
+def composed(name: str, overrides: list[str]):
+    """The composed config `name` ("train" or "evaluate", conf/) with `overrides`, as its dataclass."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from rbfn.config import register_configs
-    from rbfn.robots.derive import derive_evaluate
 
     register_configs()
     conf = str(pathlib.Path(__file__).resolve().parents[1] / "conf")
+    with initialize_config_dir(config_dir=conf, version_base=None):
+        return OmegaConf.to_object(compose(name, overrides=overrides))
+
+
+def evaluation_config(robot: str, overrides: list[str] | None = None):
+    """evaluate.py's composed config (its dataclass) for `robot` with `overrides`."""
+    from rbfn.robots.derive import derive_evaluate
+
     extra = list(overrides or [])
     chosen = [] if any(o.startswith("robot=") for o in extra) else [f"robot={robot}"]
-    with initialize_config_dir(config_dir=conf, version_base=None):
-        cfg = OmegaConf.to_object(compose("evaluate", overrides=[*chosen, *extra]))
-    return derive_evaluate(cfg)
+    return derive_evaluate(composed("evaluate", [*chosen, *extra]))
 
 
 def measure(cfg, controllers: list[str] | None, repeats: int, device: str) -> dict:

@@ -202,3 +202,16 @@ def test_tracik_solves_the_same_poses_and_is_checked_by_our_forward_kinematics()
     far[:, 0] += 5.0
     row = tracik_row(robot, torch.cat([split.x[:4], far]), 0.005)
     assert row["success"] == 0.5 and row["n"] == 8
+
+
+def test_the_chart_prototype_runs_and_unwraps_around_each_centre(capsys):
+    from bench.ik_charts import main, wrapped
+
+    centre = torch.tensor([3.0, -3.0], dtype=torch.float64)
+    q = torch.tensor([[-3.0, 3.0], [3.1, -2.9]], dtype=torch.float64)
+    w = wrapped(q, centre)
+    assert torch.allclose(torch.sin(w), torch.sin(q)) and torch.allclose(torch.cos(w), torch.cos(q))
+    assert bool(((w - centre).abs() <= torch.pi).all())  # the same angles, within half a turn of the centre
+    main(["--charts", "4", "--centers", "10", "--samples", "300", "--test", "40", "--steps", "2"])
+    row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert row["charts"] == 4 and 0.0 <= row["solved_best_1"] <= row["solved_best_2"] <= row["solved_best_4"] <= 1.0
