@@ -25,21 +25,27 @@ from rbfn.data import evaluation_split
 
 from .timing import machine_info, median_seconds, timed
 
-__all__ = ["polish_row", "pk_row"]
+__all__ = ["rate_row", "polish_row", "pk_row"]
 
 
-def polish_row(solver, x: torch.Tensor, iterations: int, restarts: int = 0, repeats: int = 5) -> dict:
-    """Queries/s and success of `solver.solve(x, iterations, restarts)` (median of `repeats` runs)."""
-    t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts), repeats)
-    _, ok = solver.solve(x, iterations, restarts)
-    more = f", up to {restarts} restarts of the rest" if restarts else ""
+def rate_row(method: str, n: int, seconds: float, ok: torch.Tensor) -> dict:
+    """A benchmark row: `method` solved n targets in `seconds`, `ok` (n,) where it reached them."""
     return {
-        "method": f"network + {iterations} polish steps{more}",
-        "n": x.shape[0],
-        "seconds": t,
-        "queries_per_s": x.shape[0] / t,
+        "method": method,
+        "n": n,
+        "seconds": seconds,
+        "queries_per_s": n / seconds,
         "success": float(ok.double().mean()),
     }
+
+
+def polish_row(solver, x: torch.Tensor, iterations: int, restarts: int = 0, repeats: int = 5, **solve) -> dict:
+    """Queries/s and success of `solver.solve(x, iterations, restarts, **solve)` (median of
+    `repeats` runs; `solve`: its other keywords, e.g. a redundant joint's `redundancy`)."""
+    t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts, **solve), repeats)
+    _, ok = solver.solve(x, iterations, restarts, **solve)
+    more = f", up to {restarts} restarts of the rest" if restarts else ""
+    return rate_row(f"network + {iterations} polish steps{more}", x.shape[0], t, ok)
 
 
 def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> dict:
@@ -75,13 +81,8 @@ def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> d
     score = pos / 0.1 + (rot / 0.1 if rot is not None else 0.0)
     best = score.reshape(n, r).argmin(-1)
     ok = (pos.reshape(n, r) <= 0.1) & ((rot.reshape(n, r) <= 0.1) if rot is not None else True)
-    return {
-        "method": f"pytorch-kinematics PseudoInverseIK ({retries} restarts, {max_iterations} iterations)",
-        "n": n,
-        "seconds": t,
-        "queries_per_s": n / t,
-        "success": float(ok.gather(1, best[:, None]).double().mean()),
-    }
+    method = f"pytorch-kinematics PseudoInverseIK ({retries} restarts, {max_iterations} iterations)"
+    return rate_row(method, n, t, ok.gather(1, best[:, None]))
 
 
 def main(argv: list[str] | None = None) -> None:

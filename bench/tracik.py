@@ -19,15 +19,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 
 import numpy as np
 import torch
 
 from rbfn import load_solver
-from rbfn.data import Split, evaluation_split, full_range_split
+from rbfn.data import evaluation_split, full_range_split
+from rbfn.robots.kinematics import joint_limits
 
-from .polish import polish_row
+from .polish import polish_row, rate_row
 from .timing import machine_info
 
 __all__ = ["tracik_solver", "tracik_row", "main"]
@@ -35,7 +37,9 @@ __all__ = ["tracik_solver", "tracik_row", "main"]
 
 def tracik_solver(robot, timeout: float):
     """pytracik's TRAC_IK for `robot`'s chain (its URDF text, root link -> end link), Speed mode,
-    with held joints held by their limits."""
+    within the URDF limits as our chain reads them (pytracik reads some URDFs' limits as zero,
+    which would hold every joint; +-2 pi for a joint without limits), held joints held by their
+    limits."""
     import pytracik
 
     root = robot.chain.get_frame_names(exclude_fixed=False)[0]
@@ -45,8 +49,9 @@ def tracik_solver(robot, timeout: float):
         raise ValueError(
             f"TRAC-IK reads {pytracik.get_num_joints(solver)} joints from the URDF, the chain has {len(names)}"
         )
-    low = list(pytracik.get_joint_lower_bounds(solver))
-    high = list(pytracik.get_joint_upper_bounds(solver))
+    low, high = (t.cpu().tolist() for t in joint_limits(robot.chain))
+    low = [max(v, -2 * math.pi) for v in low]
+    high = [min(v, 2 * math.pi) for v in high]
     for j, v in robot.locked.items():
         low[names.index(j)] = high[names.index(j)] = float(v)
     pytracik.set_joint_limits(solver, low, high)
@@ -70,17 +75,7 @@ def tracik_row(robot, x: torch.Tensor, timeout: float) -> dict:
     found = ~torch.isnan(q).any(-1)
     pos, rot = robot.errors(torch.nan_to_num(q), x)
     ok = found & (pos <= 0.1) & (rot <= 0.1)
-    return {
-        "method": f"TRAC-IK (Speed, {1000 * timeout:g} ms timeout)",
-        "n": poses.shape[0],
-        "seconds": seconds,
-        "queries_per_s": poses.shape[0] / seconds,
-        "success": float(ok.double().mean()),
-    }
-
-
-def _targets(split: Split, redundant: int | None) -> tuple[torch.Tensor, torch.Tensor | None]:
-    return (split.x, None) if redundant is None else (split.x[:, :7], split.x[:, 7])
+    return rate_row(f"TRAC-IK (Speed, {1000 * timeout:g} ms timeout)", poses.shape[0], seconds, ok)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -104,8 +99,8 @@ def main(argv: list[str] | None = None) -> None:
         ("trained box", evaluation_split(robot, args.n, 0)),
         ("whole joint range", full_range_split(robot, args.n, 0, evaluation=True)),
     ):
-        x, value = _targets(split, robot.redundant)
-        ours = polish_row(_Given(solver, value), x, args.iterations, repeats=args.repeats)
+        x, value = (split.x, None) if robot.redundant is None else (split.x[:, :7], split.x[:, 7])
+        ours = polish_row(solver, x, args.iterations, repeats=args.repeats, redundancy=value)
         theirs = tracik_row(robot, split.x[: args.tracik_n], args.timeout)
         for row in (ours, theirs):
             row.update(poses=name, threads=args.threads)
@@ -115,16 +110,6 @@ def main(argv: list[str] | None = None) -> None:
     print(f"\n{'poses':18s} {'method':42s} {'success':>9s} {'solves/s':>10s}")
     for r in rows:
         print(f"{r['poses']:18s} {r['method']:42s} {100 * r['success']:8.2f}% {r['queries_per_s']:10.0f}")
-
-
-class _Given:
-    """`solver` whose `solve` passes a redundant joint's values (B,) along (None: none)."""
-
-    def __init__(self, solver, value: torch.Tensor | None) -> None:
-        self.solver, self.value = solver, value
-
-    def solve(self, x, iterations, restarts=0):
-        return self.solver.solve(x, iterations, restarts, redundancy=self.value)
 
 
 if __name__ == "__main__":

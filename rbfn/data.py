@@ -80,8 +80,7 @@ def full_range_split(robot: Robot, n: int, seed: int, evaluation: bool = False) 
     without limits), held joints as held: every pose the arm reaches, on every branch. The test
     set's stream of `seed` (the evaluation set's with `evaluation`), which no training set draws."""
     low, high = (t[robot.free].cpu() for t in joint_limits(robot.chain))
-    low = torch.where(torch.isinf(low), torch.full_like(low, -torch.pi), low)
-    high = torch.where(torch.isinf(high), torch.full_like(high, torch.pi), high)
+    low, high = low.nan_to_num(neginf=-torch.pi), high.nan_to_num(posinf=torch.pi)
     return make_split(robot, n, stream(seed, FULL_RANGE[evaluation]), low, high)
 
 

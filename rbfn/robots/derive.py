@@ -168,6 +168,15 @@ def rated_payload(arm: Arm, home: torch.Tensor, margin: float = PAYLOAD_MARGIN) 
     return m, why
 
 
+def _home_or_box_payload(arm: Arm, full: torch.Tensor) -> tuple[float, str]:
+    """`rated_payload` at home (full[0], chain joints) or, where no joint is loaded there (an arm
+    pointing straight up), at home and the box's samples (full (S, n))."""
+    try:
+        return rated_payload(arm, full[0])
+    except ValueError:
+        return rated_payload(arm, full)
+
+
 def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     """`cfg` with every key left at its robot=urdf marker filled from `arm` (the chain root ->
     cfg.end_link) and `urdf_name` (the URDF's <robot name>), one log line per key; `cfg` itself
@@ -258,10 +267,7 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         full = full.repeat(BOX_SAMPLES + 1, 1)
         full[:, free] = torch.cat([torch.tensor([home], dtype=torch.float64), _samples(low, high)])
         try:
-            try:
-                payload, why = rated_payload(arm, full[0])
-            except ValueError:  # no joint loaded at home (an arm pointing straight up): over the box
-                payload, why = rated_payload(arm, full)
+            payload, why = _home_or_box_payload(arm, full)
         except ValueError as e:  # no effort limits (effort="0"): the IK needs none, the control part a mass
             payload = 0.0
             said("rated_payload", "0 kg", "not derived")

@@ -3,7 +3,6 @@ and evaluate.py's accuracy on a fresh test set with its workspace error map."""
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 from pathlib import Path
@@ -52,7 +51,7 @@ def full_range_metrics(model, robot: Robot, split: Split, iterations: int = DEFA
     base turns included) and `test_full_range_success_in_workspace` (the success rate among those:
     what the flag promises; null where it marks none)."""
     converged = _polished(model, robot, split.x, iterations)[1]
-    _, inside = deployed(copy.deepcopy(model).double(), robot)(split.x)
+    _, inside = deployed(model, robot)(split.x)  # the exporters' float32 copy, as deployed
     flagged = int(inside.sum())
     return {
         "test_full_range_polished_success_rate": float(converged.double().mean()),
