@@ -41,6 +41,7 @@ __all__ = [
     "load_sealed",
     "local_file",
     "model_from_checkpoint",
+    "network_record",
     "read_checkpoint",
     "refuse_url",
     "save_checkpoint",
@@ -124,6 +125,17 @@ def save_checkpoint(
         "format_version": FORMAT_VERSION,
         "kind": KIND,
         "package_version": __version__,
+        **network_record(model),
+        "robot": robot,
+        "config": config,
+        "metrics": metrics,
+    }
+    save_sealed(path, ckpt)
+
+
+def network_record(model: RBFNetwork) -> dict[str, Any]:
+    """{"model_args", "state_dict"}: what rebuilds `model` (`model_from_checkpoint`), plain data."""
+    return {
         "model_args": {
             "num_centers": model.num_centers,
             "in_features": model.centers.shape[1],
@@ -133,11 +145,7 @@ def save_checkpoint(
             "redundancy": bool(model.inputs is not None and model.inputs.redundancy),
         },
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-        "robot": robot,
-        "config": config,
-        "metrics": metrics,
     }
-    save_sealed(path, ckpt)
 
 
 def save_sealed(path: str | Path, obj: Any) -> None:
@@ -465,7 +473,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 
 def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
-    """Rebuild the RBFNetwork of a checkpoint dict, in eval mode; ValueError if its parts disagree."""
+    """Rebuild the RBFNetwork of a checkpoint dict (or a `network_record`), in eval mode; ValueError
+    if its parts disagree."""
     problem = _model_problem(ckpt)
     if problem:
         raise ValueError(f"cannot rebuild the network from this checkpoint: {problem}")

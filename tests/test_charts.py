@@ -1,0 +1,116 @@
+"""IK over the whole joint range (rbfn.charts): the charts' batched answers are each chart network's,
+a small charted UR5 network solves poses drawn over the whole URDF range within its limits,
+`solve_all` returns distinct solutions that reach the target, `near` keeps the answer on its branch,
+and the charted checkpoint round-trips through `load_solver`."""
+
+import math
+
+import pytest
+import torch
+
+from rbfn.charts import ChartedIK, decode, embed, read_charts, save_charts, train_charts
+from rbfn.data import full_range_split
+from rbfn.layer import RBFNetwork
+from rbfn.robots.robot import load_robot
+from rbfn.solver import IKSolver, load_solver
+from rbfn.targets import TargetFeatures
+
+from .conftest import compose_config
+
+SMALL = ["robot=ur5", "centers=kmeans", "rbfn.num_centers=60", "rbfn.growth.start=0", "progress=false"]
+
+
+@pytest.fixture(scope="module")
+def charted():
+    cfg = compose_config("train", *SMALL)
+    robot = load_robot(cfg.robot)
+    model, _ = train_charts(cfg, robot, 8, samples=400)
+    return cfg, robot, model
+
+
+def _solver(robot, model):
+    return IKSolver(model, robot, error_damping=0.01)
+
+
+def test_answers_are_each_chart_networks_answer_padded_or_not():
+    g = torch.Generator().manual_seed(0)
+    nets = []
+    for m in (5, 9):  # charts of different sizes: the smaller padded
+        net = RBFNetwork(
+            torch.randn(m, 9, generator=g, dtype=torch.float64),
+            0.5 + torch.rand(m, generator=g, dtype=torch.float64),
+            12,
+            inputs=TargetFeatures(pose=True, dtype=torch.float64),
+        )
+        torch.nn.init.normal_(net.head.weight, generator=g)
+        nets.append(net.requires_grad_(False))
+    revolute = torch.ones(6, dtype=torch.bool)
+    low, high = torch.full((6,), -math.pi), torch.full((6,), math.pi)
+    model = ChartedIK(nets, torch.zeros(2, 12), revolute, low, high).double()
+    robot = load_robot(compose_config("train", "robot=ur5").robot)
+    x = full_range_split(robot, 50, 0).x
+    q, close = model.answers(x)
+    for k, net in enumerate(nets):
+        assert torch.allclose(q[:, k], decode(net(x), revolute), atol=1e-9)
+        z = (net._feat(x) - net.offset) / net.scale
+        assert torch.allclose(close[:, k], torch.cdist(z, net.centers).amin(-1) / net.cover_radius)
+
+
+def test_charted_network_solves_whole_range_poses_within_the_limits(charted):
+    _, robot, model = charted
+    solver = _solver(robot, model)
+    split = full_range_split(robot, 200, 3)
+    q, ok = solver.solve(split.x)
+    assert ok.double().mean() > 0.5  # 8 small charts: most poses anywhere, against ~5 % for one box
+    assert bool(((q >= solver.low) & (q <= solver.high)).all())
+    pos, rot = robot.errors(q[ok], split.x[ok])
+    assert float(pos.max()) <= 0.1 and float(rot.max()) <= 0.1  # converged means reached
+
+
+def test_solve_all_returns_distinct_solutions_that_reach_the_target(charted):
+    _, robot, model = charted
+    split = full_range_split(robot, 40, 4)
+    q, ok = _solver(robot, model).solve_all(split.x)
+    assert q.shape == (40, 8, 6) and ok.shape == (40, 8)
+    assert float(ok.sum(1).double().mean()) > 1.5  # several branches a pose
+    assert bool(torch.isnan(q[~ok]).all()) and bool((ok[:, :-1] >= ok[:, 1:]).all())  # found ones first
+    rows, cols = ok.nonzero(as_tuple=True)
+    pos, rot = robot.errors(q[rows, cols], split.x[rows])
+    assert float(pos.max()) <= 0.1 and float(rot.max()) <= 0.1
+    for b in range(40):
+        e = embed(q[b, ok[b]], model.revolute, model.low, model.high)
+        d = torch.cdist(e, e) + 10 * torch.eye(e.shape[0])
+        assert e.shape[0] < 2 or float(d.min()) > 1e-3
+
+
+def test_near_keeps_the_answer_on_the_current_branch_and_turn(charted):
+    _, robot, model = charted
+    split = full_range_split(robot, 100, 5)
+    near = split.q + 2 * math.pi * (split.q < -2.0)  # some joints a whole turn up, still within +-2 pi
+    q, ok = _solver(robot, model).solve(split.x, near=near)
+    assert bool(ok.all())  # `near` itself is a solution, polished from where it is
+    assert float((q - near).abs().max()) < 1e-3
+
+
+def test_charted_checkpoint_round_trips_through_load_solver(charted, tmp_path):
+    _, robot, model = charted
+    path = tmp_path / "charts.pt"
+    save_charts(path, model, robot.record(), {"seed": 0}, {"m": 1.0})
+    ckpt = read_charts(path)
+    assert ckpt["kind"] == "rbfn-ik-charts" and len(ckpt["networks"]) == 8
+    solver = load_solver(path)
+    assert solver.charted and solver.error_damping > 0
+    x = full_range_split(robot, 30, 6).x
+    assert torch.allclose(solver.model.answers(x)[0], model.double().answers(x)[0], atol=1e-9)
+    torch.save({"kind": "rbfn-ik"}, tmp_path / "plain.pt")
+    with pytest.raises(ValueError, match=r"checkpoint|seal"):
+        read_charts(tmp_path / "plain.pt")
+
+
+def test_train_charts_refuses_bad_charts_and_the_task_loss(charted):
+    cfg, robot, _ = charted
+    with pytest.raises(ValueError, match="charts=0 is not allowed"):
+        train_charts(cfg, robot, 0)
+    task = compose_config("train", *SMALL, "centers.refine.enabled=true", "centers.refine.minibatch.loss=task")
+    with pytest.raises(ValueError, match=r"centers\.refine\.minibatch\.loss=task is not allowed"):
+        train_charts(task, robot, 2, samples=50)
