@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,7 @@ import torch
 from torch import nn
 
 from .centers import kmeans_centers
-from .checkpoint import FORMAT_VERSION, load_sealed, model_from_checkpoint, network_record, save_sealed
+from .checkpoint import CHARTS_KIND, FORMAT_VERSION, model_from_checkpoint, network_record, save_sealed
 from .config import RefineLoss, TrainConfig
 from .data import Dataset, Split, make_split, stream
 from .layer import RBFNetwork, row_blocks
@@ -43,11 +44,13 @@ from .robots.robot import Robot, robot_from_record
 
 __all__ = [
     "CHARTS_KIND",
+    "Charted",
     "ChartedIK",
     "charts_from_checkpoint",
     "embed",
     "full_limits",
-    "read_charts",
+    "check_chart_config",
+    "check_charts",
     "revolute_joints",
     "save_charts",
     "train_charts",
@@ -55,7 +58,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-CHARTS_KIND = "rbfn-ik-charts"  # a charted checkpoint's kind (`save_charts`)
 OVERLAP = 1.15  # a sample trains every chart within this factor of its nearest chart's distance
 SAMPLES_PER_CHART = 3000  # training samples drawn per chart, on average (a sixth of them validate)
 CHART_STREAM = 901  # the random stream of the charts' training joints (rbfn.data.stream)
@@ -217,21 +219,40 @@ class ChartedIK(nn.Module):
         return self.answers(x)[0]
 
 
-def train_charts(cfg: TrainConfig, robot: Robot, charts: int, seed: int = 0, samples: int = SAMPLES_PER_CHART):
-    """A `ChartedIK` of `charts` networks for `robot`, each trained by `rbfn.pipeline.train_ik`
-    with `cfg` (its centres, their number and the refinement as configured) on the samples of its
-    chart: charts x samples joints drawn uniformly within the URDF limits (`_sample_range`,
-    generator of `seed`), their poses from forward kinematics. Returns (model, seconds a chart)."""
-    from .pipeline import train_ik
-
-    if isinstance(charts, bool) or not isinstance(charts, int) or charts < 1:
-        raise ValueError(f"charts={charts!r} is not allowed: use a positive integer")
+def check_chart_config(cfg: TrainConfig) -> None:
+    """Refuse what charts cannot train with: the refinement's task loss (its Jacobian maps joints,
+    the charts learn their cosines and sines)."""
     r = cfg.centers.refine
     if r.enabled and r.minibatch.loss == RefineLoss.task:
         raise ValueError(
             "centers.refine.minibatch.loss=task is not allowed with robot.workspace=full: the charts learn "
             "(cos q, sin q), which the task loss's Jacobian does not see; allowed: joint"
         )
+
+
+@dataclass
+class Charted:
+    """`train_charts`' result: the model, the seconds a chart's network took to train, and the
+    mean of the charts' validation E (half the mean squared error of their outputs, cos q and sin q
+    of a revolute joint)."""
+
+    model: ChartedIK
+    seconds_a_chart: float
+    val_E: float
+
+
+def train_charts(
+    cfg: TrainConfig, robot: Robot, charts: int, seed: int = 0, samples: int = SAMPLES_PER_CHART
+) -> Charted:
+    """A `ChartedIK` of `charts` networks for `robot`, each trained by `rbfn.pipeline.train_ik`
+    with `cfg` (its centres, their number and the refinement as configured) on the samples of its
+    chart: charts x samples joints drawn uniformly within the URDF limits (`_sample_range`,
+    generator of `seed`), their poses from forward kinematics."""
+    from .pipeline import train_ik
+
+    if isinstance(charts, bool) or not isinstance(charts, int) or charts < 1:
+        raise ValueError(f"charts={charts!r} is not allowed: use a positive integer")
+    check_chart_config(cfg)
     revolute = revolute_joints(robot)
     low, high = _sample_range(robot)
     n = low.shape[0]
@@ -244,17 +265,19 @@ def train_charts(cfg: TrainConfig, robot: Robot, charts: int, seed: int = 0, sam
     centres = kmeans_centers(e[:50000], charts, seed=seed, restarts=3) if charts > 1 else e.mean(0, keepdim=True)
     dist = torch.cdist(e, centres)
     nearest = dist.amin(1)
-    nets = []
+    nets, errors = [], []
     t0 = time.perf_counter()
     for k in range(charts):
         mine = (dist[:, k] <= OVERLAP * nearest).nonzero().squeeze(-1)
         yk, xk = encode(q[mine], revolute), x[mine]
         v = max(1, yk.shape[0] // 6)
         data = Dataset(Split(xk[v:], yk[v:]), Split(xk[:v], yk[:v]), Split(xk[:v], yk[:v]))
-        nets.append(train_ik(cfg, data, robot=robot).model)
+        result = train_ik(cfg, data, robot=robot)
+        nets.append(result.model)
+        errors.append(0.5 * float(result.fit.val_mse))
         log.info("chart %d/%d: %d samples", k + 1, charts, yk.shape[0])
-    seconds = (time.perf_counter() - t0) / charts
-    return ChartedIK(nets, centres, revolute, *full_limits(robot)), seconds
+    model = ChartedIK(nets, centres, revolute, *full_limits(robot))
+    return Charted(model, (time.perf_counter() - t0) / charts, sum(errors) / charts)
 
 
 def save_charts(
@@ -280,13 +303,10 @@ def save_charts(
     )
 
 
-def read_charts(path: str | Path) -> dict[str, Any]:
-    """The charted checkpoint at `path`, checked (kind, format, each chart network's parts, the robot
-    entry), or a ValueError naming the file and what is wrong."""
-    ckpt = load_sealed(path)
-    if not isinstance(ckpt, dict) or ckpt.get("kind") != CHARTS_KIND:
-        kind = ckpt.get("kind") if isinstance(ckpt, dict) else type(ckpt).__name__
-        raise ValueError(f"{path} holds {kind!r}, not a charted IK checkpoint ({CHARTS_KIND!r})")
+def check_charts(ckpt: dict[str, Any], path: str | Path) -> dict[str, Any]:
+    """The charted checkpoint dict `ckpt` read from `path`, checked (format, each chart network's
+    parts, the robot entry), or a ValueError naming the file and what is wrong
+    (`rbfn.checkpoint.read_checkpoint` reads the file and calls this for a charted one)."""
     if ckpt.get("format_version") != FORMAT_VERSION:
         got = ckpt.get("format_version")
         raise ValueError(f"{path} has checkpoint format {got!r}; this aco-rbfn reads {FORMAT_VERSION}")
@@ -301,15 +321,18 @@ def read_charts(path: str | Path) -> dict[str, Any]:
             model_from_checkpoint(rec)
         except (ValueError, TypeError, AttributeError) as e:
             raise ValueError(f"{path}: chart {i}: {e}") from e
+    for k in ("robot", "config", "metrics"):
+        if k not in ckpt:
+            raise ValueError(f"{path} is missing the checkpoint key {k!r}")
     try:
-        robot_from_record(ckpt.get("robot"))  # type: ignore[arg-type]
+        robot_from_record(ckpt["robot"])
     except (ValueError, TypeError) as e:
         raise ValueError(f"{path}: {e}") from e
     return ckpt
 
 
 def charts_from_checkpoint(ckpt: dict[str, Any]) -> ChartedIK:
-    """The `ChartedIK` of a charted checkpoint dict (`read_charts`), in eval mode."""
+    """The `ChartedIK` of a charted checkpoint dict (`rbfn.checkpoint.read_checkpoint`), in eval mode."""
     c = ckpt["charts"]
     nets = [model_from_checkpoint(rec) for rec in ckpt["networks"]]
     return ChartedIK(nets, c["centres"], c["revolute"], c["low"], c["high"]).eval().requires_grad_(False)

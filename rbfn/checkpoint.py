@@ -32,6 +32,7 @@ from .targets import TargetFeatures
 __all__ = [
     "FORMAT_VERSION",
     "KIND",
+    "CHARTS_KIND",
     "MIN_WIDTH",
     "ONNX_MODEL",
     "PT2_PROGRAM",
@@ -50,6 +51,7 @@ __all__ = [
 
 FORMAT_VERSION = 1
 KIND = "rbfn-ik"
+CHARTS_KIND = "rbfn-ik-charts"  # a charted network's checkpoint (robot.workspace=full, rbfn.charts)
 TRAIN_STATE_KIND = "rbfn-train-state"  # rbfn.resume's last.pt, sealed the same way
 _REQUIRED = ("format_version", "kind", "model_args", "state_dict", "robot")
 _ROBOT_KEYS = ("urdf", "end_link", "joint_low", "joint_high")
@@ -429,6 +431,10 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
             f"checkpoint; the trained network is in checkpoint.pt of the same run directory "
             f"({path.parent / 'checkpoint.pt'}), written when the run finishes"
         )
+    if ckpt.get("kind") == CHARTS_KIND:  # robot.workspace=full's charted network
+        from .charts import check_charts
+
+        return check_charts(ckpt, path)
     if "kind" in ckpt and ckpt["kind"] != KIND:
         raise ValueError(f"{path} holds a {ckpt['kind']!r} model, not an IK network ({KIND!r})")
     if "format_version" in ckpt and ckpt["format_version"] != FORMAT_VERSION:
@@ -475,6 +481,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
     """Rebuild the RBFNetwork of a checkpoint dict (or a `network_record`), in eval mode; ValueError
     if its parts disagree."""
+    if ckpt.get("kind") == CHARTS_KIND:
+        raise ValueError(
+            "this checkpoint holds a charted network (robot.workspace=full): rbfn.load_solver(PATH) answers with it; "
+            "one box network (load_model, the exports, online adaptation) comes from robot.workspace=box"
+        )
     problem = _model_problem(ckpt)
     if problem:
         raise ValueError(f"cannot rebuild the network from this checkpoint: {problem}")

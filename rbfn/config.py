@@ -40,6 +40,7 @@ __all__ = [
     "Learner",
     "Target",
     "Trajectory",
+    "Workspace",
     "SELECTORS",
     "BASE_CONTROLLERS",
     "CONTROL_CENTER_METHODS",
@@ -183,6 +184,11 @@ class Target(Choice):  # IK input
     pose = "pose"  # (B, 7) m + quaternion
 
 
+class Workspace(Choice):  # where the IK answers
+    box = "box"  # one branch, joints inside robot.joint_low..joint_high (one network, rbfn.layer)
+    full = "full"  # every pose within the URDF limits, every branch (charts of joint space, rbfn.charts)
+
+
 class Trajectory(Choice):  # the desired joint path of the closed loop
     paper = "paper"
     sinusoid = "sinusoid"
@@ -245,6 +251,10 @@ class RobotConfig:
     encoder_counts: list[float] = field(default_factory=list)
     derive: bool = False  # robot=urdf: fill the keys left at their markers from the URDF (see above)
     box_halfwidth: float = 0.5  # rad (m, prismatic): the derived box, home +- this, clipped to the limits
+    # where the IK answers: box (one branch inside joint_low..joint_high) or full (every pose within the
+    # URDF limits, every branch: `charts` networks, one a chart of joint space, rbfn.charts)
+    workspace: Workspace = Workspace.box
+    charts: int = 64  # workspace=full: how many charts (and networks)
 
     def check(self, key: str = "robot") -> None:
         """The URDF itself is checked when it is loaded."""
@@ -315,6 +325,12 @@ class RobotConfig:
             f"must be >= 0 kg; < 0: derived {derived}",
         )
         _check_sensing(self.control_rate, self.encoder_counts, key)
+        _need(
+            not isinstance(self.charts, bool) and isinstance(self.charts, int) and self.charts >= 1,
+            f"{key}.charts",
+            self.charts,
+            "must be an integer >= 1 (charts of joint space with workspace=full)",
+        )
 
 
 @dataclass

@@ -28,8 +28,8 @@ import numpy as np
 import torch
 from pytorch_kinematics import transforms as tf
 
-from .charts import CHARTS_KIND, ChartedIK, charts_from_checkpoint, embed, read_charts
-from .checkpoint import load_sealed, model_from_checkpoint, read_checkpoint
+from .charts import ChartedIK, charts_from_checkpoint, embed
+from .checkpoint import CHARTS_KIND, model_from_checkpoint, read_checkpoint
 from .config import Target, finite, validate_device
 from .layer import RBFNetwork, row_blocks
 from .memory import FLOAT64, check_fits
@@ -224,6 +224,7 @@ class IKSolver:
         _, _, pos, rot = errors
         return pos * 1000.0 / self.tol_mm + (torch.rad2deg(rot) / self.tol_deg if rot is not None else 0.0)
 
+    @torch.no_grad()
     def network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the network's joints (B, n) float64, within the polish's range; the base turn d (B,) rad,
         0 without it) for targets x (B, 3 or 7) float64, in blocks of `block_rows` targets."""
@@ -531,11 +532,9 @@ def load_solver(
 ) -> IKSolver:
     """The IKSolver of the checkpoint at `path`: its network (float64) and its robot's kinematics."""
     validate_device(device, 0, prefix="")
-    if load_sealed(path).get("kind") == CHARTS_KIND:  # a charted network (robot.workspace=full)
-        ckpt = read_charts(path)
-        model: RBFNetwork | ChartedIK = charts_from_checkpoint(ckpt).to(device)
-        robot = robot_from_record(ckpt["robot"], device)
-        return IKSolver(model, robot, tol_mm, tol_deg, error_damping=CHARTED_ERROR_DAMPING)
     ckpt = read_checkpoint(path)
-    model, robot = model_from_checkpoint(ckpt).to(device), robot_from_record(ckpt["robot"], device)
-    return IKSolver(model, robot, tol_mm, tol_deg, base_yaw=base_yaw)
+    robot = robot_from_record(ckpt["robot"], device)
+    if ckpt["kind"] == CHARTS_KIND:  # a charted network (robot.workspace=full)
+        charted = charts_from_checkpoint(ckpt).to(device)
+        return IKSolver(charted, robot, tol_mm, tol_deg, error_damping=CHARTED_ERROR_DAMPING)
+    return IKSolver(model_from_checkpoint(ckpt).to(device), robot, tol_mm, tol_deg, base_yaw=base_yaw)

@@ -8,7 +8,8 @@ import math
 import pytest
 import torch
 
-from rbfn.charts import ChartedIK, decode, embed, read_charts, save_charts, train_charts
+from rbfn.charts import ChartedIK, check_charts, decode, embed, save_charts, train_charts
+from rbfn.checkpoint import load_model, read_checkpoint
 from rbfn.data import full_range_split
 from rbfn.layer import RBFNetwork
 from rbfn.robots.robot import load_robot
@@ -24,7 +25,7 @@ SMALL = ["robot=ur5", "centers=kmeans", "rbfn.num_centers=60", "rbfn.growth.star
 def charted():
     cfg = compose_config("train", *SMALL)
     robot = load_robot(cfg.robot)
-    model, _ = train_charts(cfg, robot, 8, samples=400)
+    model = train_charts(cfg, robot, 8, samples=400).model
     return cfg, robot, model
 
 
@@ -96,15 +97,17 @@ def test_charted_checkpoint_round_trips_through_load_solver(charted, tmp_path):
     _, robot, model = charted
     path = tmp_path / "charts.pt"
     save_charts(path, model, robot.record(), {"seed": 0}, {"m": 1.0})
-    ckpt = read_charts(path)
+    ckpt = read_checkpoint(path)
     assert ckpt["kind"] == "rbfn-ik-charts" and len(ckpt["networks"]) == 8
+    with pytest.raises(ValueError, match=r"charted network \(robot\.workspace=full\): rbfn\.load_solver"):
+        load_model(path)
     solver = load_solver(path)
     assert solver.charted and solver.error_damping > 0
     x = full_range_split(robot, 30, 6).x
     assert torch.allclose(solver.model.answers(x)[0], model.double().answers(x)[0], atol=1e-9)
-    torch.save({"kind": "rbfn-ik"}, tmp_path / "plain.pt")
-    with pytest.raises(ValueError, match=r"checkpoint|seal"):
-        read_charts(tmp_path / "plain.pt")
+    broken = {**ckpt, "networks": ckpt["networks"][:3]}
+    with pytest.raises(ValueError, match="one network per chart"):
+        check_charts(broken, path)
 
 
 def test_train_charts_refuses_bad_charts_and_the_task_loss(charted):

@@ -24,13 +24,13 @@ from hydra.utils import to_absolute_path
 from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
-from ..checkpoint import read_checkpoint, refuse_url
+from ..checkpoint import CHARTS_KIND, read_checkpoint, refuse_url
 from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, validate_evaluate
 from ..control.robot_setup import payload_cases
 from ..memory import check_evaluate
 from ..robots.derive import derive_evaluate
 from ..robots.dynamics import urdf_source
-from ..solver import DEFAULT_ITERATIONS
+from ..solver import CHARTED_ITERATIONS, DEFAULT_ITERATIONS
 from .beside import Beside, can_fork
 from .cli import announced
 from .control import check_control, evaluate_control
@@ -169,16 +169,22 @@ def _torch_threads(n: int | None):
 
 
 @contextmanager
-def _timed(seconds: dict, part: str, cfg: EvalConfig):
+def _timed(seconds: dict, part: str, cfg: EvalConfig, charted: bool = False):
     """One part announced (what and how big) and timed (rbfn.studies.cli.announced); its wall
     seconds recorded under `seconds[part]`; yields the part's `Progress` for its loops."""
-    with announced(log, part, _what(part, cfg), cfg.progress) as timing:
+    with announced(log, part, _what(part, cfg, charted), cfg.progress) as timing:
         yield timing["progress"]
     seconds[part] = timing["seconds"]
 
 
-def _what(part: str, cfg: EvalConfig) -> str:
-    """What `part` will do and how big, for its first log line."""
+def _what(part: str, cfg: EvalConfig, charted: bool = False) -> str:
+    """What `part` will do and how big, for its first log line (`charted`: the checkpoint holds a
+    charted network, robot.workspace=full)."""
+    if part == "ik" and charted:
+        return (
+            f"the charted network on {cfg.n_test} fresh poses in the box and over the whole joint range, polished "
+            f"by {CHARTED_ITERATIONS} solver steps"
+        )
     if part == "ik":
         return (
             f"accuracy on {cfg.n_test} fresh test samples, float64 and float32, then polished by "
@@ -206,11 +212,11 @@ def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> 
     writer = SummaryWriter(log_dir=str(out_dir), filename_suffix=".checkpoint")
     try:
         if cfg.ik:
-            with _timed(seconds, "ik", cfg):
+            with _timed(seconds, "ik", cfg, charted=ckpt["kind"] == CHARTS_KIND):
                 metrics["ik"] = evaluate_ik(ckpt, path, cfg, out_dir, writer)
             # Flat IK keys at the top level too, as train.py writes them.
             metrics.update({k: v for k, v in metrics["ik"].items() if k.startswith("test_")})
-        if cfg.online.enabled:
+        if cfg.online.enabled and ckpt["kind"] != CHARTS_KIND:
             with _timed(seconds, "online", cfg):
                 metrics["online"] = evaluate_online(ckpt, cfg.online, cfg.gains, cfg.device, writer, out_dir)
     finally:
@@ -249,7 +255,13 @@ def check(cfg: EvalConfig) -> tuple[Path | None, dict | None]:
             f"nothing to evaluate: outputs_dir={cfg.outputs_dir!r} ({root}): {why}, and "
             "control.enabled=false; train first, pass checkpoint=PATH, or enable the control part"
         )
-    if ckpt is not None and cfg.online.enabled:
+    if ckpt is not None and cfg.online.enabled and ckpt["kind"] == CHARTS_KIND:
+        log.warning(
+            "online: skipped, %s holds a charted network (robot.workspace=full) and online adaptation adapts one "
+            "box network (a robot.workspace=box checkpoint); online.enabled=false silences this",
+            path,
+        )
+    elif ckpt is not None and cfg.online.enabled:
         check_online(cfg.online, ckpt["robot"])  # the path and perturbation suit the checkpoint's robot
     return path, ckpt
 

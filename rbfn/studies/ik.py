@@ -7,18 +7,21 @@ import logging
 import math
 from pathlib import Path
 
-from ..checkpoint import model_from_checkpoint, save_checkpoint
+from ..charts import ChartedIK, charts_from_checkpoint
+from ..checkpoint import CHARTS_KIND, model_from_checkpoint, save_checkpoint
 from ..config import SELECTORS, EvalConfig, Target, TrainConfig, plain
 from ..data import Dataset, Split, evaluation_split, full_range_split
 from ..export import deployed, export_all
 from ..metrics import error_summary, ik_metrics_both
 from ..pipeline import TrainResult
 from ..robots.robot import Robot, robot_from_record
-from ..solver import DEFAULT_ITERATIONS, IKSolver
+from ..solver import CHARTED_ERROR_DAMPING, CHARTED_ITERATIONS, DEFAULT_ITERATIONS, IKSolver
 from .plots import pose_error_figure, robot_label, workspace_error_map
 from .rundir import write_figure, write_json
 
-__all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table"]
+__all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table", "charted_metrics", "charted_line"]
+
+ALL_POSES = 500  # whole-range poses `charted_metrics` asks IKSolver.solve_all for every solution of
 
 log = logging.getLogger(__name__)
 
@@ -123,12 +126,64 @@ def write_training(out_dir: Path, cfg: TrainConfig, robot: Robot, result: TrainR
     )
 
 
+def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> dict:
+    """A charted network's figures (robot.workspace=full) on the trained box's test poses `box`
+    (`test_` keys) and on poses over the whole joint range `full` (`test_full_range_` keys): the
+    best-ranked chart's raw position and rotation error medians (`pos_err_mm_median`,
+    `rot_err_deg_median`), the polished success within 0.1 mm / 0.1 deg (`polished_success_rate`,
+    `IKSolver.solve`'s staged polish, `polish_iterations` steps an answer), the share of whole-range
+    poses some chart's centres cover (`test_full_range_in_workspace`) and the success among them
+    (`test_full_range_success_in_workspace`), and the distinct solutions `IKSolver.solve_all` finds
+    a pose (`test_full_range_solutions_mean`, on the first `ALL_POSES` whole-range poses)."""
+    solver = IKSolver(model, robot, error_damping=CHARTED_ERROR_DAMPING)
+    out: dict = {"workspace": "full", "charts": model.num_charts, "polish_iterations": CHARTED_ITERATIONS}
+    for prefix, split in (("test_", box), ("test_full_range_", full)):
+        targets, value = (split.x, None) if robot.redundant is None else (split.x[:, :7], split.x[:, 7])
+        raw, _ = solver.network(split.x)
+        pos, rot = robot.errors(raw, targets)
+        out[prefix + "pos_err_mm_median"] = float(pos.median())
+        if rot is not None:
+            out[prefix + "rot_err_deg_median"] = float(rot.median())
+        _, ok = solver.solve(targets, redundancy=value)
+        out[prefix + "polished_success_rate"] = float(ok.double().mean())
+        if prefix == "test_full_range_":
+            inside = model.answers(split.x)[1].amin(1) <= 1.0
+            out[prefix + "in_workspace"] = float(inside.double().mean())
+            out[prefix + "success_in_workspace"] = float(ok[inside].double().mean()) if bool(inside.any()) else None
+            k = min(ALL_POSES, split.x.shape[0])
+            _, found = solver.solve_all(targets[:k], redundancy=None if value is None else value[:k])
+            out[prefix + "solutions_mean"] = float(found.sum(1).double().mean())
+    return out
+
+
+def charted_line(m: dict) -> str:
+    """One log line of `charted_metrics`' figures."""
+    return (
+        f"{m['charts']} charts: polished ({m['polish_iterations']} steps) "
+        f"{100 * m['test_polished_success_rate']:.2f} % of the box's poses, "
+        f"{100 * m['test_full_range_polished_success_rate']:.2f} % over the whole joint range "
+        f"(raw median {m['test_full_range_pos_err_mm_median']:.3g} mm), "
+        f"{m['test_full_range_solutions_mean']:.2f} distinct solutions a pose"
+    )
+
+
 def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) -> dict:
     """Accuracy of checkpoint dict `ckpt` (read from `path`) on a fresh evaluation set, float64
-    and float32; writes workspace_error_map.png and TensorBoard scalars."""
-    model = model_from_checkpoint(ckpt).to(cfg.device)
+    and float32; writes workspace_error_map.png and TensorBoard scalars. A charted network
+    (robot.workspace=full): `charted_metrics` on fresh box and whole-range poses."""
     robot = robot_from_record(ckpt["robot"], cfg.device)
     seed = int(ckpt["config"]["seed"]) if cfg.seed is None else cfg.seed
+    if ckpt["kind"] == CHARTS_KIND:
+        charted = charts_from_checkpoint(ckpt).to(cfg.device)
+        full = full_range_split(robot, cfg.n_test, seed, evaluation=True)
+        res: dict = {"checkpoint": str(path), "test_seed": seed}
+        res.update(charted_metrics(charted, robot, evaluation_split(robot, cfg.n_test, seed), full))
+        for k, v in res.items():
+            if isinstance(v, float):
+                writer.add_scalar(f"ik/{k}", v)
+        log.info("IK on fresh poses (%d, evaluation stream of seed %d): %s", cfg.n_test, seed, charted_line(res))
+        return res
+    model = model_from_checkpoint(ckpt).to(cfg.device)
     test = evaluation_split(robot, cfg.n_test, seed)
     acc, err_mm, inside = ik_metrics_both(model, robot, test.x, test.q)
     acc.update(polished_metrics(model, robot, test.x))

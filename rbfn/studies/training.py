@@ -5,22 +5,24 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
-from ..config import TrainConfig, plain, validate_train
-from ..data import check_finite, make_dataset
+from ..charts import check_chart_config, save_charts, train_charts
+from ..config import TrainConfig, Workspace, plain, validate_train
+from ..data import check_finite, full_range_split, make_dataset
 from ..memory import check_train
 from ..pipeline import train_ik
 from ..resume import DifferentRun, StateFile, TrainState, comparable
 from ..robots.derive import derive_train
-from ..robots.robot import check_ik_is_function, load_robot
+from ..robots.robot import Robot, check_ik_is_function, load_robot
 from .cli import announced
-from .ik import training_metrics, write_training
-from .rundir import RunDir, bookkeeping, write_text
+from .ik import charted_line, charted_metrics, training_metrics, write_training
+from .rundir import RunDir, bookkeeping, write_json, write_text
 
 __all__ = ["claim", "outputs", "run"]
 
@@ -39,6 +41,8 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     check_train(cfg)  # the run fits in memory
     robot = load_robot(cfg.robot, cfg.device)
     check_ik_is_function(robot.target, robot.joint_names, cfg.robot.locked, cfg.robot.redundancy)
+    if cfg.robot.workspace == Workspace.full:
+        return _run_charts(cfg, robot, out_dir, run_files)
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write
@@ -92,6 +96,59 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
 
 
 _CONFIG_FILE = ".hydra/config.yaml"
+
+
+def _run_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[str, str] | None) -> dict:
+    """`run` for robot.workspace=full: the charted network (`rbfn.charts.train_charts`) into
+    checkpoint.pt (`rbfn.charts.save_charts`) and metrics.json (`rbfn.studies.ik.charted_metrics`).
+    The charts train in one piece (a stopped run starts over; a finished one is not redone), and no
+    exports are written: they hold one box network."""
+    check_chart_config(cfg)
+    with RunDir(out_dir):
+        states = StateFile(out_dir)
+        state = states.load(plain(cfg))
+        claim(out_dir, state, False, (run_files or {}).get(_CONFIG_FILE))
+        if state.finished is not None:
+            log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
+            return state.finished
+        if cfg.export:
+            log.warning("robot.workspace=full: no ik.onnx / ik.pt2 (the exports hold one box network); checkpoint.pt")
+        if cfg.num_threads:
+            torch.set_num_threads(cfg.num_threads)
+        torch.manual_seed(cfg.seed)
+        for rel, text in (run_files or {}).items():
+            write_text(out_dir / rel, text)
+        k = cfg.robot.charts
+        with announced(log, "fit", f"{k} charts of the joint space, each {_fit_what(cfg)}", cfg.progress):
+            t0 = time.perf_counter()
+            charted = train_charts(cfg, robot, k, seed=cfg.seed)
+            seconds, model = time.perf_counter() - t0, charted.model
+        with announced(log, "outputs", "box and whole-range figures, checkpoint.pt, metrics.json", cfg.progress):
+            d = cfg.data
+            box = make_dataset(robot, (2, 1, d.n_test), cfg.seed).test  # the box run's test poses
+            full = full_range_split(robot, d.n_test, cfg.seed)
+            metrics = {
+                "num_centers": model.first.num_centers,
+                "selector": cfg.centers.name,
+                "target": str(robot.target),
+                **charted_metrics(model, robot, box, full),
+                "val_E": charted.val_E,
+                "train_seconds": seconds,
+                "seconds_a_chart": charted.seconds_a_chart,
+            }
+            save_charts(out_dir / "checkpoint.pt", model, robot.record(), plain(cfg), metrics)
+            write_json(out_dir / "metrics.json", metrics)
+            writer = SummaryWriter(log_dir=str(out_dir))
+            try:
+                for key, v in metrics.items():
+                    if isinstance(v, float):
+                        writer.add_scalar(f"ik/{key}", v)
+            finally:
+                writer.close()
+        state.finished = metrics
+        states.save(state)
+    log.info("%s, trained in %.0f s -> %s", charted_line(metrics), seconds, out_dir)
+    return metrics
 
 
 def outputs(export: bool) -> tuple[str, ...]:

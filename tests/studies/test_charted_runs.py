@@ -1,0 +1,77 @@
+"""robot.workspace=full through the entry points: train.py writes the charted checkpoint and its
+metrics (box and whole-range figures), a finished run is not redone, evaluate.py measures it on
+fresh poses and skips the online part (which adapts one box network), and the box network's paths
+name what to use instead."""
+
+import json
+
+import pytest
+
+import evaluate
+import train
+from rbfn import load_model, load_solver
+from rbfn.data import full_range_split
+
+from ..conftest import compose_config
+
+FULL = [
+    "robot=ur5",
+    "robot.workspace=full",
+    "robot.charts=4",
+    "centers=kmeans",
+    "rbfn.num_centers=40",
+    "data.n_test=200",
+    "progress=false",
+    "num_threads=1",
+]
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("full")
+    return out, train.run(compose_config("train", *FULL), out)
+
+
+def test_train_writes_the_charted_checkpoint_and_its_figures(full_run):
+    out, m = full_run
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith("events")) == [
+        "checkpoint.pt",
+        "last.pt",
+        "metrics.json",
+    ]  # no exports: they hold one box network
+    assert json.loads((out / "metrics.json").read_text()) == m
+    assert m["workspace"] == "full" and m["charts"] == 4 and m["polish_iterations"] == 5
+    for key in ("test_polished_success_rate", "test_full_range_polished_success_rate"):
+        assert 0 <= m[key] <= 1, key
+    assert 0 < m["val_E"] < float("inf")
+    assert m["test_full_range_solutions_mean"] > 0 and m["test_full_range_in_workspace"] > 0
+    solver = load_solver(out / "checkpoint.pt")
+    x = full_range_split(solver.robot, 50, 9).x
+    q, ok = solver.solve(x)
+    assert q.shape == (50, 6) and bool(ok.any())
+    assert train.run(compose_config("train", *FULL), out) == m  # finished: not redone
+
+
+def test_evaluate_measures_the_charted_network_and_skips_online(full_run, tmp_path, caplog):
+    out, _ = full_run
+    m = evaluate.run(
+        compose_config(
+            "evaluate", f"checkpoint={out / 'checkpoint.pt'}", "robot=ur5", "n_test=100", "control.enabled=false"
+        ),
+        tmp_path,
+    )
+    assert "online" not in m and m["ik"]["workspace"] == "full"
+    assert 0 <= m["test_full_range_polished_success_rate"] <= 1
+    assert "online: skipped" in caplog.text
+
+
+def test_box_network_paths_name_the_solver_for_a_charted_checkpoint(full_run):
+    out, _ = full_run
+    with pytest.raises(ValueError, match=r"charted network \(robot\.workspace=full\): rbfn\.load_solver"):
+        load_model(out / "checkpoint.pt")
+
+
+def test_bad_chart_count_is_refused_before_any_work(tmp_path):
+    with pytest.raises(ValueError, match=r"robot\.charts"):
+        train.run(compose_config("train", *FULL, "robot.charts=0"), tmp_path)
+    assert list(tmp_path.iterdir()) == []
