@@ -4,10 +4,11 @@ arm eaik decomposes) the analytic solutions.
 
     python -m bench.ik_full [--robot ur5] [--charts 64] [--centers 300] [--method kmeans]
                             [--samples 3000] [--n 10000] [--tracik-n 1000] [--all-n 500]
-                            [--repeats 3] [--threads 1] [--out DIR]
+                            [--repeats 3] [--threads 1] [--out DIR] [--set KEY=VALUE ...]
 
-Training: `rbfn.charts.train_charts` with the train config of `--robot`, `centers=--method`,
-`rbfn.num_centers=--centers`, no growth; `--out DIR` keeps the charted checkpoint (DIR/charts.pt,
+Training: `rbfn.charts.train_charts` with the train config of `--robot`, `robot.workspace=full`,
+`robot.charts=--charts`, `robot.chart_centers=--centers`, `robot.chart_samples=--samples`,
+`centers=--method`; `--out DIR` keeps the charted checkpoint (DIR/charts.pt,
 which `python -m bench.tracik DIR/charts.pt` and `rbfn.load_solver` read). Test poses:
 `rbfn.data.full_range_split`, evaluation stream of seed 0 (`--n` of them; the trained box's poses,
 `rbfn.data.evaluation_split`, beside them). Rows, one thread, the machine quiet:
@@ -38,6 +39,7 @@ import torch
 
 from rbfn.charts import embed, full_limits, save_charts, train_charts
 from rbfn.data import evaluation_split, full_range_split
+from rbfn.robots.derive import derive_train
 from rbfn.robots.robot import Robot, load_robot
 from rbfn.solver import CHARTED_ERROR_DAMPING, CHARTED_ITERATIONS, IKSolver
 
@@ -101,7 +103,7 @@ def found_share(ours: torch.Tensor, ok: torch.Tensor, theirs: list[torch.Tensor]
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(prog="python -m bench.ik_full", description=__doc__.splitlines()[0])
-    p.add_argument("--robot", default="ur5", choices=["ur5", "panda"])
+    p.add_argument("--robot", default="ur5", help="the robot group (ur5, panda, urdf with --set robot.urdf=...)")
     p.add_argument("--charts", type=int, default=64)
     p.add_argument("--centers", type=int, default=300)
     p.add_argument("--method", default="kmeans", help="the centres' selector (centers=...)")
@@ -112,14 +114,23 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--set", action="append", default=[], help="another train override, e.g. robot.redundancy=J")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
-    over = [f"robot={a.robot}", f"centers={a.method}", f"rbfn.num_centers={a.centers}", "rbfn.growth.start=0"]
-    cfg = composed("train", [*over, "progress=false"])
+    over = [
+        f"robot={a.robot}",
+        "robot.workspace=full",
+        f"robot.charts={a.charts}",
+        f"robot.chart_centers={a.centers}",
+        f"robot.chart_samples={a.samples}",
+        f"centers={a.method}",
+        *a.set,
+    ]
+    cfg = derive_train(composed("train", [*over, "progress=false"]))  # robot=urdf: its keys from the URDF
     robot = load_robot(cfg.robot)
     head = {"robot": a.robot, "charts": a.charts, "centers": a.centers, "selector": a.method, "threads": a.threads}
     t0 = time.perf_counter()
-    charted = train_charts(cfg, robot, a.charts, seed=cfg.seed, samples=a.samples)
+    charted = train_charts(cfg, robot)
     model, per_chart = charted.model, charted.seconds_a_chart
     print(json.dumps({**head, "train_seconds": time.perf_counter() - t0, "seconds_a_chart": per_chart}), flush=True)
     if a.out is not None:

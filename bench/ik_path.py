@@ -2,9 +2,10 @@
 `near`, against each point solved alone (the network's answer polished), on a trained
 checkpoint's robot.
 
-    python -m bench.ik_path CHECKPOINT [--n 1000] [--reach 0.25] [--iterations 3] [--threads 1]
+    python -m bench.ik_path CHECKPOINT [--n 1000] [--reach 0.25] [--iterations K] [--threads 1]
 
-The path: the poses (or positions) of a straight joint-space line through the trained box, every
+The path: the poses (or positions) of a straight joint-space line through the trained box (for a
+charted network, robot.workspace=full: the URDF limits, so it crosses the workspace), every
 joint from `reach` times the box's width below its middle to as far above (0.25: away from the
 box's singular corners; 0.45: into them), `n` points. A jump is a step between consecutive answers in which some joint
 moves more than `--jump` (rad or m; default 0.1, ten times the path's own largest step at n = 1000),
@@ -43,14 +44,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("checkpoint")
     p.add_argument("--n", type=int, default=1000)
     p.add_argument("--reach", type=float, default=0.25)
-    p.add_argument("--iterations", type=int, default=3)
+    p.add_argument("--iterations", type=int, default=None, help="polish steps (default: the solver's)")
     p.add_argument("--jump", type=float, default=0.1)
     p.add_argument("--threads", type=int, default=1)
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     solver = load_solver(a.checkpoint)
     robot = solver.robot
-    truth = path_joints(robot.low, robot.high, a.n, a.reach)
+    truth = path_joints(solver.box_low, solver.box_high, a.n, a.reach)
     x = robot.targets(truth)
     alone, ok_alone = solver.solve(x, a.iterations)
     q = truth[:1].clone()  # the robot starts on the path

@@ -22,6 +22,7 @@ import torch
 
 from rbfn import load_solver
 from rbfn.data import evaluation_split
+from rbfn.solver import CHARTED_ITERATIONS, DEFAULT_ITERATIONS
 
 from .timing import machine_info, median_seconds, timed
 
@@ -39,13 +40,14 @@ def rate_row(method: str, n: int, seconds: float, ok: torch.Tensor) -> dict:
     }
 
 
-def polish_row(solver, x: torch.Tensor, iterations: int, restarts: int = 0, repeats: int = 5, **solve) -> dict:
+def polish_row(solver, x: torch.Tensor, iterations: int | None, restarts: int = 0, repeats: int = 5, **solve) -> dict:
     """Queries/s and success of `solver.solve(x, iterations, restarts, **solve)` (median of
     `repeats` runs; `solve`: its other keywords, e.g. a redundant joint's `redundancy`)."""
     t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts, **solve), repeats)
     _, ok = solver.solve(x, iterations, restarts, **solve)
     more = f", up to {restarts} restarts of the rest" if restarts else ""
-    return rate_row(f"network + {iterations} polish steps{more}", x.shape[0], t, ok)
+    steps = iterations if iterations is not None else (CHARTED_ITERATIONS if solver.charted else DEFAULT_ITERATIONS)
+    return rate_row(f"network + {steps} polish steps{more}", x.shape[0], t, ok)
 
 
 def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> dict:

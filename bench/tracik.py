@@ -5,7 +5,7 @@ forward kinematics) and its solves per second. Two pose sets: FK images of joint
 checkpoint's trained box, and of joints drawn over the free joints' whole URDF range
 (`rbfn.data.full_range_split`, evaluation stream of seed 0), where every branch occurs.
 
-    python -m bench.tracik CHECKPOINT [--n 10000] [--iterations 3] [--tracik-n 1000] [--timeout 0.02]
+    python -m bench.tracik CHECKPOINT [--n 10000] [--iterations K] [--tracik-n 1000] [--timeout 0.02]
 
 TRAC-IK runs in its Speed mode (its first solution within `--timeout` s, wall time, so the
 machine must be quiet), seeded with the middle of the joint limits; held joints (`robot.locked`)
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("checkpoint")
     p.add_argument("--n", type=int, default=10000, help="targets our solver takes in one batch")
-    p.add_argument("--iterations", type=int, default=3)
+    p.add_argument("--iterations", type=int, default=None, help="polish steps (default: the solver's)")
     p.add_argument("--tracik-n", type=int, default=1000, help="of them, solved one at a time by TRAC-IK")
     p.add_argument("--timeout", type=float, default=0.02, help="TRAC-IK's wall-time limit a pose, s")
     p.add_argument("--repeats", type=int, default=3)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from .checkpoint import CHARTS_KIND, FORMAT_VERSION, model_from_checkpoint, netw
 from .config import RefineLoss, TrainConfig
 from .data import Dataset, Split, make_split, stream
 from .layer import RBFNetwork, row_blocks
+from .progress import Progress
 from .robots.kinematics import joint_limits
 from .robots.robot import Robot, robot_from_record
 
@@ -59,7 +60,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 OVERLAP = 1.15  # a sample trains every chart within this factor of its nearest chart's distance
-SAMPLES_PER_CHART = 3000  # training samples drawn per chart, on average (a sixth of them validate)
 CHART_STREAM = 901  # the random stream of the charts' training joints (rbfn.data.stream)
 BLOCK_ELEMENTS = 1 << 20  # (charts, rows, centres) Gaussians a block of `ChartedIK.answers` (8 MB in float64)
 FAR_CENTRE = 1e3  # where padding centres sit (scaled units: no input comes near)
@@ -241,17 +241,20 @@ class Charted:
     val_E: float
 
 
-def train_charts(
-    cfg: TrainConfig, robot: Robot, charts: int, seed: int = 0, samples: int = SAMPLES_PER_CHART
-) -> Charted:
-    """A `ChartedIK` of `charts` networks for `robot`, each trained by `rbfn.pipeline.train_ik`
-    with `cfg` (its centres, their number and the refinement as configured) on the samples of its
-    chart: charts x samples joints drawn uniformly within the URDF limits (`_sample_range`,
-    generator of `seed`), their poses from forward kinematics."""
+def train_charts(cfg: TrainConfig, robot: Robot, progress: Progress | None = None) -> Charted:
+    """A `ChartedIK` for `robot` of `cfg.robot.charts` networks, each trained by
+    `rbfn.pipeline.train_ik` with `cfg`'s centres, widths, weights and refinement but
+    `cfg.robot.chart_centers` centres and no growth, on the samples of its chart: charts x
+    `cfg.robot.chart_samples` joints drawn uniformly within the URDF limits (`_sample_range`, stream
+    `CHART_STREAM` of `cfg.seed`), their poses from forward kinematics. `progress` follows the charts."""
     from .pipeline import train_ik
 
-    if isinstance(charts, bool) or not isinstance(charts, int) or charts < 1:
-        raise ValueError(f"charts={charts!r} is not allowed: use a positive integer")
+    r = cfg.robot
+    charts, samples, seed = r.charts, r.chart_samples, cfg.seed
+    r.check("robot")
+    chart_cfg = replace(
+        cfg, rbfn=replace(cfg.rbfn, num_centers=r.chart_centers, growth=replace(cfg.rbfn.growth, start=0))
+    )
     check_chart_config(cfg)
     revolute = revolute_joints(robot)
     low, high = _sample_range(robot)
@@ -272,10 +275,12 @@ def train_charts(
         yk, xk = encode(q[mine], revolute), x[mine]
         v = max(1, yk.shape[0] // 6)
         data = Dataset(Split(xk[v:], yk[v:]), Split(xk[:v], yk[:v]), Split(xk[:v], yk[:v]))
-        result = train_ik(cfg, data, robot=robot)
+        result = train_ik(chart_cfg, data, robot=robot)
         nets.append(result.model)
         errors.append(0.5 * float(result.fit.val_mse))
-        log.info("chart %d/%d: %d samples", k + 1, charts, yk.shape[0])
+        log.info("chart %d/%d: %d samples, validation E = %.3g", k + 1, charts, yk.shape[0], errors[-1])
+        if progress is not None:
+            progress.at("charts", k + 1, charts, "charts")
     model = ChartedIK(nets, centres, revolute, *full_limits(robot))
     return Charted(model, (time.perf_counter() - t0) / charts, sum(errors) / charts)
 

@@ -255,6 +255,8 @@ class RobotConfig:
     # URDF limits, every branch: `charts` networks, one a chart of joint space, rbfn.charts)
     workspace: Workspace = Workspace.box
     charts: int = 64  # workspace=full: how many charts (and networks)
+    chart_centers: int = 300  # workspace=full: centres of each chart's network (rbfn.num_centers: the box's)
+    chart_samples: int = 3000  # workspace=full: training samples drawn a chart, on average (a sixth validate)
 
     def check(self, key: str = "robot") -> None:
         """The URDF itself is checked when it is loaded."""
@@ -331,6 +333,14 @@ class RobotConfig:
             self.charts,
             "must be an integer >= 1 (charts of joint space with workspace=full)",
         )
+        for name, least in (("chart_centers", 1), ("chart_samples", 12)):
+            v = getattr(self, name)
+            _need(
+                not isinstance(v, bool) and isinstance(v, int) and v >= least,
+                f"{key}.{name}",
+                v,
+                f"must be an integer >= {least}",
+            )
 
 
 @dataclass

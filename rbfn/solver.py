@@ -64,7 +64,7 @@ CHARTED_ERROR_DAMPING = 0.01  # load_solver's for a charted network: its seeds c
 # best 1 / 2 / 4 / 8 ranked answers all 5 steps solves 80.5 / 92.0 / 98.2 / 99.5 %, the staged
 # (8 x 2 steps, then 2 x 3) 98.6 % for 22 steps a target instead of 40 (every chart: 99.9 %).
 PRESELECT = 16
-WIDE = 8
+WIDE = 4
 FIRST_STEPS = 2
 NARROW = 2
 SOLVE_ALL_ITERATIONS = 5
@@ -137,6 +137,7 @@ class IKSolver:
         self.margin = _positive("margin", margin, zero=True)
         self.pose_target = robot.target == Target.pose
         self.charted = isinstance(model, ChartedIK)
+        self._charts32: ChartedIK | None = None  # `_model64`'s float32 copy of a charted network
         self.yaw = yaw_of(robot) if base_yaw and not self.charted else None
         # The joints' range the network answers in (restarts draw from it, `near`'s distance divides by it).
         self.box_low: torch.Tensor = model.low if isinstance(model, ChartedIK) else robot.low
@@ -232,9 +233,13 @@ class IKSolver:
         return row_blocks(lambda xb: self._network(xb, model)[:2], self.block_rows, x)
 
     def _model64(self):
-        """The network in float64 (itself, or a float64 copy)."""
-        net = self.model.first if isinstance(self.model, ChartedIK) else self.model
-        return self.model if net.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
+        """The network in float64 (itself, or a float64 copy); a charted one in float32 (its
+        answers are seeds the polish makes exact: float32 halves their time), copied once."""
+        if isinstance(self.model, ChartedIK):
+            if self._charts32 is None:
+                self._charts32 = copy.deepcopy(self.model).float().eval().requires_grad_(False)
+            return self._charts32
+        return self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
 
     def _network(self, x: torch.Tensor, model: RBFNetwork):
         """`network`'s (joints, turn) for one block of targets x, from the float64 network `model`,
@@ -242,7 +247,7 @@ class IKSolver:
         low, high = self.low.to(x.device), self.high.to(x.device)
         d = torch.zeros(x.shape[0], dtype=torch.float64, device=x.device)
         if isinstance(model, ChartedIK):  # the best-ranked chart's answer
-            return self._ranked(model, x)[:, 0], d, None
+            return self._ranked(model, x)[0][:, 0], d, None
         q = model(x).clamp(low, high)
         if self.yaw is None:
             return q, d, None
@@ -429,16 +434,18 @@ class IKSolver:
         rows = torch.arange(b, device=dev)
         return both[pick, rows], ok2.reshape(2, b)[pick, rows], d
 
-    def _ranked(self, model: ChartedIK, x: torch.Tensor) -> torch.Tensor:
-        """The charts' answers (B, T, n) to targets x (B, d) float64, best first: the `PRESELECT`
-        charts whose centres lie nearest the target (in cover radii), ranked by forward kinematics."""
+    def _ranked(self, model: ChartedIK, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(the charts' answers (B, T, n) to targets x (B, d) float64, best first: the `PRESELECT`
+        charts whose centres lie nearest the target (in cover radii), ranked by forward kinematics;
+        every chart's answer (B, K, n))."""
         q, close = model.answers(x)
+        q = q.to(x.dtype)
         b, k, n = q.shape
         t = min(PRESELECT, k)
         idx = close.topk(t, dim=1, largest=False).indices
         seeds = q.gather(1, idx[..., None].expand(-1, -1, n))
         cost = self._cost(seeds.reshape(-1, n), x.repeat_interleave(t, 0)).reshape(b, t)
-        return seeds.gather(1, cost.argsort(1)[..., None].expand(-1, -1, n))
+        return seeds.gather(1, cost.argsort(1)[..., None].expand(-1, -1, n)), q
 
     def _charted_first(
         self, model: ChartedIK, x: torch.Tensor, near_q: torch.Tensor | None, iterations: int
@@ -446,10 +453,12 @@ class IKSolver:
         """`_first` for a charted network: the staged polish. The `WIDE` best-ranked answers take
         `FIRST_STEPS` steps, the `NARROW` nearest the target after them the rest (`iterations` steps
         in all on each answer's path), with `near` (polished `iterations` steps from itself) beside
-        them; the pick: the converged answer nearest `near` (its whole turns nearest it), else the
-        converged one nearest the target, else the nearest."""
+        them. Targets none of them reached try every chart's answer (`iterations` steps each: the
+        few the ranking misses, or targets out of reach). The pick: the converged answer nearest
+        `near` (its whole turns nearest it), else the converged one nearest the target, else the
+        nearest."""
         b, dev = x.shape[0], x.device
-        seeds = self._ranked(model, x)
+        seeds, every = self._ranked(model, x)
         n = seeds.shape[2]
         w = min(WIDE, seeds.shape[1])
         s1 = min(FIRST_STEPS, iterations)
@@ -462,6 +471,18 @@ class IKSolver:
         if near_q is not None:
             qn, okn = self._polish(near_q.clamp(self.low.to(dev), self.high.to(dev)), x, iterations)
             cands, ok = torch.cat([cands, qn[:, None]], 1), torch.cat([ok, okn[:, None]], 1)
+        missed = (~ok.any(1)).nonzero().squeeze(-1)
+        if missed.numel():  # every chart's answer, the best of them in the first slot
+            m, k = missed.numel(), every.shape[1]
+            xs = x[missed].repeat_interleave(k, 0)
+            qf, okf = row_blocks(
+                lambda sb, xb: self._polish(sb, xb, iterations), self.block_rows, every[missed].reshape(-1, n), xs
+            )
+            cf = self._cost(qf, xs).reshape(m, k)
+            best = torch.where(okf.reshape(m, k), cf, 1e9 + cf).argmin(1)
+            cands[missed, 0] = qf.reshape(m, k, n)[torch.arange(m, device=dev), best]
+            ok[missed, 0] = okf.reshape(m, k)[torch.arange(m, device=dev), best]
+        if near_q is not None:
             cands = self._turned(cands, near_q[:, None])
         c = cands.shape[1]
         miss = self._cost(cands.reshape(-1, n), x.repeat_interleave(c, 0)).reshape(b, c)
@@ -513,7 +534,7 @@ class IKSolver:
 
     def _all(self, model: ChartedIK, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
         """`solve_all` for one block of targets x (B, d) float64."""
-        seeds, _ = model.answers(x)
+        seeds = model.answers(x)[0].to(x.dtype)
         b, k, n = seeds.shape
         q, ok = self._polish(seeds.reshape(-1, n), x.repeat_interleave(k, 0), iterations)
         q, ok = q.reshape(b, k, n), ok.reshape(b, k)

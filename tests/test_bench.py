@@ -204,14 +204,15 @@ def test_tracik_solves_the_same_poses_and_is_checked_by_our_forward_kinematics()
     assert row["success"] == 0.5 and row["n"] == 8
 
 
-def test_the_chart_prototype_runs_and_unwraps_around_each_centre(capsys):
-    from bench.ik_charts import main, wrapped
+def test_ik_full_trains_measures_and_finds_the_analytic_solutions(capsys, tmp_path):
+    pytest.importorskip("eaik")
+    from bench.ik_full import main
 
-    centre = torch.tensor([3.0, -3.0], dtype=torch.float64)
-    q = torch.tensor([[-3.0, 3.0], [3.1, -2.9]], dtype=torch.float64)
-    w = wrapped(q, centre)
-    assert torch.allclose(torch.sin(w), torch.sin(q)) and torch.allclose(torch.cos(w), torch.cos(q))
-    assert bool(((w - centre).abs() <= torch.pi).all())  # the same angles, within half a turn of the centre
-    main(["--charts", "4", "--centers", "10", "--samples", "300", "--test", "40", "--steps", "2"])
-    row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert row["charts"] == 4 and 0.0 <= row["solved_best_1"] <= row["solved_best_2"] <= row["solved_best_4"] <= 1.0
+    main(["--charts", "4", "--centers", "30", "--samples", "300", "--n", "60", "--tracik-n", "10", "--all-n", "10",
+          "--repeats", "1", "--out", str(tmp_path)])  # fmt: skip
+    rows = [json.loads(line) for line in capsys.readouterr().out.strip().splitlines()]
+    by = {r.get("row"): r for r in rows}
+    assert rows[0]["charts"] == 4 and (tmp_path / "charts.pt").is_file()
+    assert by["polished"]["outside_limits"] == 0 and 0.0 <= by["polished"]["success"] <= 1.0
+    assert by["all"]["analytic"] > 1.0 and 0.0 <= by["all"]["analytic_found"] <= 1.0  # a UR5 pose: up to 8
+    assert by["tracik"]["success"] == 1.0

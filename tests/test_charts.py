@@ -18,14 +18,22 @@ from rbfn.targets import TargetFeatures
 
 from .conftest import compose_config
 
-SMALL = ["robot=ur5", "centers=kmeans", "rbfn.num_centers=60", "rbfn.growth.start=0", "progress=false"]
+SMALL = [
+    "robot=ur5",
+    "robot.workspace=full",
+    "robot.charts=8",
+    "robot.chart_centers=60",
+    "robot.chart_samples=400",
+    "centers=kmeans",
+    "progress=false",
+]
 
 
 @pytest.fixture(scope="module")
 def charted():
     cfg = compose_config("train", *SMALL)
     robot = load_robot(cfg.robot)
-    model = train_charts(cfg, robot, 8, samples=400).model
+    model = train_charts(cfg, robot).model
     return cfg, robot, model
 
 
@@ -111,9 +119,11 @@ def test_charted_checkpoint_round_trips_through_load_solver(charted, tmp_path):
 
 
 def test_train_charts_refuses_bad_charts_and_the_task_loss(charted):
-    cfg, robot, _ = charted
-    with pytest.raises(ValueError, match="charts=0 is not allowed"):
-        train_charts(cfg, robot, 0)
+    _, robot, _ = charted
+    for key, value in (("robot.charts", 0), ("robot.chart_centers", 0), ("robot.chart_samples", 5)):
+        bad = compose_config("train", *SMALL, f"{key}={value}")
+        with pytest.raises(ValueError, match=rf"{key}.*must be an integer"):
+            train_charts(bad, robot)
     task = compose_config("train", *SMALL, "centers.refine.enabled=true", "centers.refine.minibatch.loss=task")
     with pytest.raises(ValueError, match=r"centers\.refine\.minibatch\.loss=task is not allowed"):
-        train_charts(task, robot, 2, samples=50)
+        train_charts(task, robot)

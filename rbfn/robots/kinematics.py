@@ -27,9 +27,10 @@ import os
 import re
 import reprlib
 import stat
+import weakref
 from importlib.resources import files
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytorch_kinematics as pk
 import torch
@@ -43,6 +44,7 @@ __all__ = [
     "MAX_URDF_BYTES",
     "forward_kinematics",
     "forward_kinematics_pose",
+    "jacobian_and_pose",
     "is_urdf_text",
     "joint_limits",
     "load_serial_chain",
@@ -389,13 +391,121 @@ def load_serial_chain(
     return chain.to(dtype=dtype, device=device)
 
 
+class _Step(NamedTuple):
+    """One frame of a serial chain: its fixed transform from the parent (rotation (3, 3), offset
+    (3,)), then its joint: kind (0 fixed, 1 revolute, 2 prismatic), index among the chain's joints,
+    axis a (3,) and, for a revolute one, a a^T and the cross-product matrix K of a (3, 3)."""
+
+    rot: torch.Tensor
+    offset: torch.Tensor
+    kind: int
+    joint: int
+    axis: torch.Tensor
+    outer: torch.Tensor
+    cross: torch.Tensor
+
+
+FK_BLOCK = 4096  # rows a block of `forward_kinematics_pose` and `jacobian_and_pose`
+_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # chain -> (dtype, device, steps)
+
+
+def _steps(chain: pk.SerialChain) -> list[_Step]:
+    """The chain's frames root -> end link as `_Step`s in its dtype and on its device (cached per
+    chain, rebuilt when it moves)."""
+    hit = _STEPS.get(chain)
+    if hit is not None and hit[0] == chain.dtype and hit[1] == chain.device:
+        return hit[2]
+    kw: dict[str, Any] = {"dtype": chain.dtype, "device": chain.device}
+    names = chain.get_joint_parameter_names()
+    eye = torch.eye(4, **kw)
+    steps = []
+    for name in chain.get_frame_names(exclude_fixed=False):
+        f = chain.find_frame(name)
+        link = f.link.offset.get_matrix()[0].to(**kw) if f.link.offset is not None else eye
+        joint = f.joint.offset.get_matrix()[0].to(**kw) if f.joint.offset is not None else eye
+        t = link @ joint  # pytorch-kinematics' static offset: the frame's transform before its joint
+        kind = ("fixed", "revolute", "prismatic").index(f.joint.joint_type)
+        a = f.joint.axis.to(**kw).reshape(3)
+        cross = torch.stack(
+            [
+                torch.stack([a.new_zeros(()), -a[2], a[1]]),
+                torch.stack([a[2], a.new_zeros(()), -a[0]]),
+                torch.stack([-a[1], a[0], a.new_zeros(())]),
+            ]
+        )
+        index = names.index(f.joint.name) if kind else -1
+        steps.append(_Step(t[:3, :3], t[:3, 3], kind, index, a, torch.outer(a, a), cross))
+    _STEPS[chain] = (chain.dtype, chain.device, steps)
+    return steps
+
+
+def _chain_pass(chain: pk.SerialChain, th: torch.Tensor, jacobian: bool):
+    """(end-link poses (B, 4, 4), and with `jacobian` the geometric Jacobian (B, 6, n_joints) in the
+    root frame (linear velocity, then angular) or None) for joints th (B, n_joints)."""
+    th = th.to(dtype=chain.dtype, device=chain.device)
+    b = th.shape[0]
+    if b > FK_BLOCK:  # blocks that stay in cache: 0.60-0.66 us a UR5 pose at 2-8 k rows, 1.07 at 131 k
+        parts = [_chain_pass(chain, t, jacobian) for t in th.split(FK_BLOCK)]
+        return torch.cat([p for p, _ in parts]), torch.cat([j for _, j in parts]) if jacobian else None
+    rot = torch.eye(3, dtype=th.dtype, device=th.device).expand(b, 3, 3)
+    pos = th.new_zeros(b, 3)
+    axes, origins, kinds = [], [], []
+    for st in _steps(chain):
+        pos = pos + rot @ st.offset
+        rot = rot @ st.rot
+        if st.kind == 0:
+            continue
+        q = th[:, st.joint, None, None]
+        z = rot @ st.axis  # the joint's axis in the root frame (B, 3)
+        if st.kind == 1:  # R (c I + (1 - c) a a^T + s K): Rodrigues, as pytorch-kinematics writes it
+            c, s = q.cos(), q.sin()
+            rot = c * rot + (1 - c) * (rot @ st.outer) + s * (rot @ st.cross)
+        else:
+            pos = pos + q[:, :, 0] * z
+        if jacobian:
+            axes.append((st.joint, z))
+            origins.append(pos)
+            kinds.append(st.kind)
+    pose = torch.cat([torch.cat([rot, pos[:, :, None]], 2), pose_row(th, b)], 1)
+    if not jacobian:
+        return pose, None
+    jac = th.new_zeros(b, 6, th.shape[1])
+    for (j, z), o, kind in zip(axes, origins, kinds):
+        if kind == 1:
+            jac[:, :3, j] = torch.linalg.cross(z, pos - o)
+            jac[:, 3:, j] = z
+        else:
+            jac[:, :3, j] = z
+    return pose, jac
+
+
+def pose_row(th: torch.Tensor, b: int) -> torch.Tensor:
+    """The homogeneous row [0, 0, 0, 1] (B, 1, 4) in th's dtype and device."""
+    row = th.new_zeros(b, 1, 4)
+    row[:, 0, 3] = 1.0
+    return row
+
+
 def forward_kinematics_pose(chain: pk.SerialChain, th: torch.Tensor) -> torch.Tensor:
     """End-link poses (B, 4, 4) in the root link's frame (m) for `th` (B, n_joints) (rad or m).
 
-    [:, :3, :3] is the rotation matrix, [:, :3, 3] the position.
+    [:, :3, :3] is the rotation matrix, [:, :3, 3] the position. The chain's frames composed in
+    order, each a fixed transform then its joint's rotation (Rodrigues' formula, as
+    pytorch-kinematics writes it) or translation: pytorch-kinematics' transforms to rounding
+    (tested), an order of magnitude faster on CPU (no 4x4 products per frame; measured on the UR5:
+    see docs/benchmarks.md).
     """
-    th = th.to(dtype=chain.dtype, device=chain.device)
-    return chain.forward_kinematics(th, end_only=True).get_matrix()
+    return _chain_pass(chain, th, jacobian=False)[0]
+
+
+def jacobian_and_pose(chain: pk.SerialChain, th: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(the geometric Jacobian (B, 6, n_joints) in the root frame: the end link's linear velocity (m
+    per rad, or per m) above its angular velocity; the end-link poses (B, 4, 4)) for `th` (B,
+    n_joints): pytorch-kinematics' `SerialChain.jacobian` to rounding (tested), from the same pass
+    as `forward_kinematics_pose`."""
+    pose, jac = _chain_pass(chain, th, jacobian=True)
+    assert jac is not None
+    return jac, pose
 
 
 def forward_kinematics(chain: pk.SerialChain, th: torch.Tensor) -> torch.Tensor:

@@ -19,7 +19,14 @@ import torch
 from pytorch_kinematics import transforms as tf
 
 from ..config import RobotConfig, Target, finite
-from .kinematics import forward_kinematics_pose, joint_limits, load_serial_chain, read_urdf, urdf_path
+from .kinematics import (
+    forward_kinematics_pose,
+    jacobian_and_pose,
+    joint_limits,
+    load_serial_chain,
+    read_urdf,
+    urdf_path,
+)
 
 __all__ = [
     "check_ik_is_function",
@@ -133,7 +140,7 @@ class Robot:
         """Task Jacobian (B, 3 or 6, n) at the free joints q (B, n), root frame: the end link's
         linear velocity (m per rad or m of joint) and, for pose targets, its angular velocity below;
         with `with_pose`, (Jacobian, end-link poses (B, 4, 4))."""
-        jac, pose = self.chain.jacobian(self.full_joints(q), ret_eef_pose=True)
+        jac, pose = jacobian_and_pose(self.chain, self.full_joints(q))
         jac = jac[:, :, self.free] if self.target == Target.pose else jac[:, :3, self.free]
         return (jac, pose) if with_pose else jac
 

@@ -118,10 +118,11 @@ def _run_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[s
         torch.manual_seed(cfg.seed)
         for rel, text in (run_files or {}).items():
             write_text(out_dir / rel, text)
-        k = cfg.robot.charts
-        with announced(log, "fit", f"{k} charts of the joint space, each {_fit_what(cfg)}", cfg.progress):
+        r = cfg.robot
+        what = f"{r.charts} charts of the joint space, {r.chart_samples} samples and M = {r.chart_centers} each"
+        with announced(log, "fit", f"{what}, centers={cfg.centers.name}", cfg.progress) as fit:
             t0 = time.perf_counter()
-            charted = train_charts(cfg, robot, k, seed=cfg.seed)
+            charted = train_charts(cfg, robot, progress=fit["progress"])
             seconds, model = time.perf_counter() - t0, charted.model
         with announced(log, "outputs", "box and whole-range figures, checkpoint.pt, metrics.json", cfg.progress):
             d = cfg.data
