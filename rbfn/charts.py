@@ -50,7 +50,7 @@ __all__ = [
     "charts_from_checkpoint",
     "embed",
     "full_limits",
-    "check_chart_config",
+    "chart_config",
     "check_charts",
     "revolute_joints",
     "save_charts",
@@ -219,15 +219,24 @@ class ChartedIK(nn.Module):
         return self.answers(x)[0]
 
 
-def check_chart_config(cfg: TrainConfig) -> None:
-    """Refuse what charts cannot train with: the refinement's task loss (its Jacobian maps joints,
-    the charts learn their cosines and sines)."""
-    r = cfg.centers.refine
-    if r.enabled and r.minibatch.loss == RefineLoss.task:
-        raise ValueError(
-            "centers.refine.minibatch.loss=task is not allowed with robot.workspace=full: the charts learn "
-            "(cos q, sin q), which the task loss's Jacobian does not see; allowed: joint"
+def chart_config(cfg: TrainConfig) -> TrainConfig:
+    """The train config each chart's network is fitted with: `cfg` with `robot.chart_centers`
+    centres, no growth, no refinement unless `robot.chart_refine`, and the refinement's mini-batch
+    loss on the outputs (`joint`) where `cfg` asks for the task loss (its Jacobian maps joints; the
+    charts learn their cosines and sines); what differs from `cfg` is logged."""
+    r = cfg.rbfn
+    refine = cfg.centers.refine
+    if refine.enabled and not cfg.robot.chart_refine:
+        log.info("centers.refine.enabled = false for the charts (robot.chart_refine=true refines each)")
+        refine = replace(refine, enabled=False)
+    if refine.enabled and refine.minibatch.loss == RefineLoss.task:
+        log.info(
+            "centers.refine.minibatch.loss = joint for the charts (robot.workspace=full: they learn cos q and sin q, "
+            "which the task loss's Jacobian does not map)"
         )
+        refine = replace(refine, minibatch=replace(refine.minibatch, loss=RefineLoss.joint))
+    rbfn = replace(r, num_centers=cfg.robot.chart_centers, growth=replace(r.growth, start=0))
+    return replace(cfg, rbfn=rbfn, centers=replace(cfg.centers, refine=refine))
 
 
 @dataclass
@@ -252,10 +261,7 @@ def train_charts(cfg: TrainConfig, robot: Robot, progress: Progress | None = Non
     r = cfg.robot
     charts, samples, seed = r.charts, r.chart_samples, cfg.seed
     r.check("robot")
-    chart_cfg = replace(
-        cfg, rbfn=replace(cfg.rbfn, num_centers=r.chart_centers, growth=replace(cfg.rbfn.growth, start=0))
-    )
-    check_chart_config(cfg)
+    chart_cfg = chart_config(cfg)
     revolute = revolute_joints(robot)
     low, high = _sample_range(robot)
     n = low.shape[0]

@@ -194,6 +194,14 @@ class IKSolver:
             lam = self.damping + self.error_damping * e.square().sum(-1)  # (B,)
             y = torch.linalg.solve(jac @ jac.transpose(-1, -2) + lam[:, None, None] * eye, e.unsqueeze(-1))
             dq = (jac.transpose(-1, -2) @ y).squeeze(-1)
+            # Joints held at a limit the step pushes past: the step again without them (their columns
+            # of J zeroed), so the others take up what they cannot give.
+            held = ((q <= low) & (dq < 0)) | ((q >= high) & (dq > 0))
+            rows = held.any(-1).nonzero().squeeze(-1)
+            if rows.numel():
+                j = jac[rows] * (~held[rows])[:, None, :]
+                y_h = torch.linalg.solve(j @ j.transpose(-1, -2) + lam[rows, None, None] * eye, e[rows].unsqueeze(-1))
+                dq[rows] = (j.transpose(-1, -2) @ y_h).squeeze(-1)
             dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-300)).clamp(max=1.0)
             full = (q + dq).clamp(low, high)
             # The error after the step comes with the next step's Jacobian (it costs about what forward

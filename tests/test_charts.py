@@ -4,6 +4,7 @@ a small charted UR5 network solves poses drawn over the whole URDF range within 
 and the charted checkpoint round-trips through `load_solver`."""
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -118,12 +119,24 @@ def test_charted_checkpoint_round_trips_through_load_solver(charted, tmp_path):
         check_charts(broken, path)
 
 
-def test_train_charts_refuses_bad_charts_and_the_task_loss(charted):
+def test_train_charts_refuses_bad_chart_settings(charted):
     _, robot, _ = charted
     for key, value in (("robot.charts", 0), ("robot.chart_centers", 0), ("robot.chart_samples", 5)):
         bad = compose_config("train", *SMALL, f"{key}={value}")
         with pytest.raises(ValueError, match=rf"{key}.*must be an integer"):
             train_charts(bad, robot)
-    task = compose_config("train", *SMALL, "centers.refine.enabled=true", "centers.refine.minibatch.loss=task")
-    with pytest.raises(ValueError, match=r"centers\.refine\.minibatch\.loss=task is not allowed"):
-        train_charts(task, robot)
+
+
+def test_charts_skip_the_refinement_unless_asked_and_never_take_the_task_loss(caplog):
+    from rbfn.charts import chart_config
+    from rbfn.config import RefineLoss
+
+    refined = compose_config("train", *SMALL, "centers.refine.enabled=true", "centers.refine.minibatch.loss=task")
+    with caplog.at_level("INFO"):
+        cfg = chart_config(refined)
+    assert not cfg.centers.refine.enabled and "refine.enabled = false" in caplog.text  # robot.chart_refine=false
+    assert cfg.rbfn.num_centers == 60 and cfg.rbfn.growth.start == 0
+    with caplog.at_level("INFO"):
+        cfg = chart_config(replace(refined, robot=replace(refined.robot, chart_refine=True)))
+    assert cfg.centers.refine.enabled and cfg.centers.refine.minibatch.loss == RefineLoss.joint
+    assert "loss = joint" in caplog.text

@@ -12,7 +12,7 @@ import torch
 from omegaconf import OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
-from ..charts import check_chart_config, save_charts, train_charts
+from ..charts import save_charts, train_charts
 from ..config import TrainConfig, Workspace, plain, validate_train
 from ..data import check_finite, full_range_split, make_dataset
 from ..memory import check_train
@@ -103,7 +103,6 @@ def _run_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[s
     checkpoint.pt (`rbfn.charts.save_charts`) and metrics.json (`rbfn.studies.ik.charted_metrics`).
     The charts train in one piece (a stopped run starts over; a finished one is not redone), and no
     exports are written: they hold one box network."""
-    check_chart_config(cfg)
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))
