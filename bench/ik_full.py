@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rbfn.charts import embed, full_limits, save_charts, train_charts
-from rbfn.data import evaluation_split, full_range_split
+from rbfn.charts import embed, save_charts, train_charts
+from rbfn.data import evaluation_split, full_limits, full_range_split
 from rbfn.robots.derive import derive_train
 from rbfn.robots.robot import Robot, load_robot
 from rbfn.solver import CHARTED_ERROR_DAMPING, CHARTED_ITERATIONS, IKSolver
@@ -138,14 +138,13 @@ def main(argv: list[str] | None = None) -> None:
         save_charts(a.out / "charts.pt", model, robot.record(), {"overrides": over}, {})
     solver = IKSolver(model.double(), robot, error_damping=CHARTED_ERROR_DAMPING)
     test = full_range_split(robot, a.n, 0, evaluation=True)
-    x = test.x[:, :7]
-    value = None if robot.redundant is None else test.x[:, 7]
+    x, value = robot.split_inputs(test.x)
     q_raw, _ = solver.network(test.x)
     pos, rot = robot.errors(q_raw, x)
     raw = {"row": "raw", "pos_mm_median": float(pos.median()), "rot_deg_median": float(rot.median())}
     print(json.dumps({**head, **raw}))
     for name, split in (("whole joint range", test), ("trained box", evaluation_split(robot, a.n, 0))):
-        xs, vs = (split.x, None) if value is None else (split.x[:, :7], split.x[:, 7])
+        xs, vs = robot.split_inputs(split.x)
         row = polish_row(solver, xs, CHARTED_ITERATIONS, repeats=a.repeats, redundancy=vs)
         q, _ = solver.solve(xs, redundancy=vs)
         outside = int((~((q >= solver.low) & (q <= solver.high)).all(-1)).sum())

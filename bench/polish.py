@@ -22,7 +22,6 @@ import torch
 
 from rbfn import load_solver
 from rbfn.data import evaluation_split
-from rbfn.solver import CHARTED_ITERATIONS, DEFAULT_ITERATIONS
 
 from .timing import machine_info, median_seconds, timed
 
@@ -46,7 +45,7 @@ def polish_row(solver, x: torch.Tensor, iterations: int | None, restarts: int = 
     t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts, **solve), repeats)
     _, ok = solver.solve(x, iterations, restarts, **solve)
     more = f", up to {restarts} restarts of the rest" if restarts else ""
-    steps = iterations if iterations is not None else (CHARTED_ITERATIONS if solver.charted else DEFAULT_ITERATIONS)
+    steps = iterations if iterations is not None else solver.default_iterations
     return rate_row(f"network + {steps} polish steps{more}", x.shape[0], t, ok)
 
 

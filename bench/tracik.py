@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> None:
         ("trained box", evaluation_split(robot, args.n, 0)),
         ("whole joint range", full_range_split(robot, args.n, 0, evaluation=True)),
     ):
-        x, value = (split.x, None) if robot.redundant is None else (split.x[:, :7], split.x[:, 7])
+        x, value = robot.split_inputs(split.x)
         ours = polish_row(solver, x, args.iterations, repeats=args.repeats, redundancy=value)
         theirs = tracik_row(robot, split.x[: args.tracik_n], args.timeout)
         for row in (ours, theirs):

@@ -37,10 +37,9 @@ from torch import nn
 from .centers import kmeans_centers
 from .checkpoint import CHARTS_KIND, FORMAT_VERSION, model_from_checkpoint, network_record, save_sealed
 from .config import RefineLoss, TrainConfig
-from .data import Dataset, Split, make_split, stream
+from .data import Dataset, Split, full_limits, make_split, stream
 from .layer import RBFNetwork, row_blocks
 from .progress import Progress
-from .robots.kinematics import joint_limits
 from .robots.robot import Robot, robot_from_record
 
 __all__ = [
@@ -49,7 +48,6 @@ __all__ = [
     "ChartedIK",
     "charts_from_checkpoint",
     "embed",
-    "full_limits",
     "chart_config",
     "check_charts",
     "revolute_joints",
@@ -69,13 +67,6 @@ def revolute_joints(robot: Robot) -> torch.Tensor:
     """(n,) bool: True for the free joints that turn (revolute or continuous), False for prismatic."""
     types = [j.joint_type for j in robot.chain.get_joints()]
     return torch.tensor([types[i] != "prismatic" for i in robot.free])
-
-
-def full_limits(robot: Robot) -> tuple[torch.Tensor, torch.Tensor]:
-    """(low, high) (n,) float64 of the free joints: their URDF limits, a joint without limits over
-    [-pi, pi] (one turn reaches every pose)."""
-    low, high = (t[robot.free].clone() for t in joint_limits(robot.chain))
-    return low.nan_to_num(neginf=-math.pi), high.nan_to_num(posinf=math.pi)
 
 
 def _sample_range(robot: Robot) -> tuple[torch.Tensor, torch.Tensor]:

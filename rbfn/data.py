@@ -19,6 +19,7 @@ __all__ = [
     "make_split",
     "make_dataset",
     "evaluation_split",
+    "full_limits",
     "full_range_split",
     "stream",
     "input_scaling",
@@ -75,13 +76,18 @@ def make_split(
     return Split(robot.inputs(q).to(torch.float64), q)
 
 
-def full_range_split(robot: Robot, n: int, seed: int, evaluation: bool = False) -> Split:
-    """n pairs from joints uniform over the free joints' whole URDF range ([-pi, pi] for a joint
-    without limits), held joints as held: every pose the arm reaches, on every branch. The test
-    set's stream of `seed` (the evaluation set's with `evaluation`), which no training set draws."""
+def full_limits(robot: Robot) -> tuple[torch.Tensor, torch.Tensor]:
+    """(low, high) (n,) float64 of the free joints (CPU): their URDF limits, a joint without limits
+    over [-pi, pi] (one turn reaches every pose)."""
     low, high = (t[robot.free].cpu() for t in joint_limits(robot.chain))
-    low, high = low.nan_to_num(neginf=-torch.pi), high.nan_to_num(posinf=torch.pi)
-    return make_split(robot, n, stream(seed, FULL_RANGE[evaluation]), low, high)
+    return low.nan_to_num(neginf=-torch.pi), high.nan_to_num(posinf=torch.pi)
+
+
+def full_range_split(robot: Robot, n: int, seed: int, evaluation: bool = False) -> Split:
+    """n pairs from joints uniform over the free joints' whole URDF range (`full_limits`), held
+    joints as held: every pose the arm reaches, on every branch. The test set's stream of `seed`
+    (the evaluation set's with `evaluation`), which no training set draws."""
+    return make_split(robot, n, stream(seed, FULL_RANGE[evaluation]), *full_limits(robot))
 
 
 def make_dataset(robot: Robot, sizes: tuple[int, int, int], seed: int) -> Dataset:

@@ -139,7 +139,7 @@ class IKSolver:
         self.margin = _positive("margin", margin, zero=True)
         self.pose_target = robot.target == Target.pose
         self.charted = isinstance(model, ChartedIK)
-        self._charts32: ChartedIK | None = None  # `_model64`'s float32 copy of a charted network
+        self._charts32: ChartedIK | None = None  # `_answering`'s float32 copy of a charted network
         self.yaw = yaw_of(robot) if base_yaw and not self.charted else None
         # The joints' range the network answers in (restarts draw from it, `near`'s distance divides by it).
         self.box_low: torch.Tensor = model.low if isinstance(model, ChartedIK) else robot.low
@@ -155,6 +155,12 @@ class IKSolver:
         self.high = torch.minimum(robot.high + wide, u_high)
         if self.yaw is not None:
             self.low[0], self.high[0] = self.yaw.limit_low, self.yaw.limit_high
+
+    @property
+    def default_iterations(self) -> int:
+        """`solve`'s polish steps when not given: `CHARTED_ITERATIONS` for a charted network, else
+        `DEFAULT_ITERATIONS`."""
+        return CHARTED_ITERATIONS if self.charted else DEFAULT_ITERATIONS
 
     def _errors(self, q: torch.Tensor, x: torch.Tensor):
         """Task error e (B, 3 or 6), Jacobian J (B, 3 or 6, n), position error (B,) m, rotation (B,) rad."""
@@ -243,10 +249,10 @@ class IKSolver:
     def network(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the network's joints (B, n) float64, within the polish's range; the base turn d (B,) rad,
         0 without it) for targets x (B, 3 or 7) float64, in blocks of `block_rows` targets."""
-        model = self._model64()
+        model = self._answering()
         return row_blocks(lambda xb: self._network(xb, model)[:2], self.block_rows, x)
 
-    def _model64(self):
+    def _answering(self):
         """The network in float64 (itself, or a float64 copy); a charted one in float32 (its
         answers are seeds the polish makes exact: float32 halves their time), copied once."""
         if isinstance(self.model, ChartedIK):
@@ -339,22 +345,14 @@ class IKSolver:
         available before any work where B is above one block.
         """
         if iterations is None:
-            iterations = CHARTED_ITERATIONS if self.charted else DEFAULT_ITERATIONS
+            iterations = self.default_iterations
         for name, v in (("iterations", iterations), ("restarts", restarts), ("restart_iterations", restart_iterations)):
             _count(name, v)
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
             raise ValueError(f"seed={seed!r} is not allowed: use an integer in [0, 2**63)")
         dev = self.robot.chain.device
         r = self.robot.redundant
-        if r is None:
-            if redundancy is not None:
-                raise ValueError(
-                    "redundancy= is not allowed: this network was trained without a redundant joint "
-                    f"(robot.redundancy is empty; its joints {self.robot.joint_names} follow from the target alone)"
-                )
-            x = self.model.check_inputs(targets)
-        else:
-            x = self._redundant_inputs(targets, near, redundancy, dev)
+        x = self._inputs(targets, near, redundancy, dev)
         b, rows = x.shape[0], self.block_rows
         if isinstance(rows, bool) or not isinstance(rows, int) or rows < 1:
             raise ValueError(f"IKSolver.block_rows={rows!r} is not allowed: use a positive integer (targets a block)")
@@ -371,7 +369,7 @@ class IKSolver:
             )
         x = x.to(dtype=torch.float64, device=dev)
         near_q = None if near is None else self._near(near, b, dev)
-        model = self._model64()
+        model = self._answering()
         if near_q is None:
             q, ok, d = row_blocks(lambda xb: self._first(model, xb, None, iterations), rows, x)
         else:
@@ -392,6 +390,17 @@ class IKSolver:
             q_r, ok_r = row_blocks(lambda sb, xb: self._polish(sb, xb, restart_iterations), rows, start, x[todo])
             q[todo[ok_r]], ok[todo[ok_r]] = q_r[ok_r], True
         return q, ok
+
+    def _inputs(self, targets, near, redundancy, dev) -> torch.Tensor:
+        """The network's inputs (B, d) for `solve`'s targets, `near` and `redundancy` (checked)."""
+        if self.robot.redundant is not None:
+            return self._redundant_inputs(targets, near, redundancy, dev)
+        if redundancy is not None:
+            raise ValueError(
+                "redundancy= is not allowed: this network was trained without a redundant joint "
+                f"(robot.redundancy is empty; its joints {self.robot.joint_names} follow from the target alone)"
+            )
+        return self.model.check_inputs(targets)
 
     def _redundant_inputs(self, targets, near, redundancy, dev) -> torch.Tensor:
         """The network's inputs (B, 8): poses `targets` (B, 7) and the redundant joint's value from
@@ -440,13 +449,26 @@ class IKSolver:
         both = both.reshape(2, b, q.shape[1])
         if self.yaw is not None:
             both[..., 0] = nearest_turn(self.yaw, both[..., 0].reshape(-1), near_q[:, 0].repeat(2))[0].reshape(2, b)
-        width = (self.box_high - self.box_low).to(dev, torch.float64)
-        # Converged answers by their distance to `near`; where neither converged, the closer to the target.
-        miss = self._cost(both.reshape(2 * b, q.shape[1]), x.repeat(2, 1)).reshape(2, b)
-        dist = torch.where(ok2.reshape(2, b), ((both - near_q) / width).norm(dim=-1), 1e9 + miss)
-        pick = dist.argmin(0)
-        rows = torch.arange(b, device=dev)
-        return both[pick, rows], ok2.reshape(2, b)[pick, rows], d
+        q, ok = self._pick(both.transpose(0, 1), ok2.reshape(2, b).T, x, near_q)
+        return q, ok, d
+
+    def _pick(
+        self, cands: torch.Tensor, ok: torch.Tensor, x: torch.Tensor, near_q: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Of candidate answers cands (B, C, n) with converged ok (B, C) to targets x (B, d): the
+        converged one nearest `near_q` (B, n) (each joint's change over its range's width), or
+        without it the converged one nearest the target; where none converged, the nearest the
+        target. (joints (B, n), converged (B,)); ties: the first."""
+        b, c, n = cands.shape
+        miss = self._cost(cands.reshape(-1, n), x.repeat_interleave(c, 0)).reshape(b, c)
+        if near_q is not None:
+            width = (self.box_high - self.box_low).to(cands.device, torch.float64)
+            miss_ok = ((cands - near_q[:, None]) / width).norm(dim=-1)
+        else:
+            miss_ok = miss
+        pick = torch.where(ok, miss_ok, 1e9 + miss).argmin(1)
+        rows = torch.arange(b, device=cands.device)
+        return cands[rows, pick], ok[rows, pick]
 
     def _ranked(self, model: ChartedIK, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the charts' answers (B, T, n) to targets x (B, d) float64, best first: the `PRESELECT`
@@ -506,16 +528,8 @@ class IKSolver:
             ok[missed, 0] = okf.reshape(m, k)[torch.arange(m, device=dev), best]
         if near_q is not None:
             cands = self._turned(cands, near_q[:, None])
-        c = cands.shape[1]
-        miss = self._cost(cands.reshape(-1, n), x.repeat_interleave(c, 0)).reshape(b, c)
-        if near_q is not None:
-            width = (self.box_high - self.box_low).to(dev, torch.float64)
-            score = torch.where(ok, ((cands - near_q[:, None]) / width).norm(dim=-1), 1e9 + miss)
-        else:
-            score = torch.where(ok, miss, 1e9 + miss)
-        pick = score.argmin(1)
-        rows = torch.arange(b, device=dev)
-        return cands[rows, pick], ok[rows, pick], torch.zeros(b, dtype=torch.float64, device=dev)
+        q, ok = self._pick(cands, ok, x, near_q)
+        return q, ok, torch.zeros(b, dtype=torch.float64, device=dev)
 
     def _turned(self, q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
         """Joints q (..., n) with each revolute joint moved by the whole turns that bring it nearest
@@ -543,14 +557,8 @@ class IKSolver:
             q, ok = self.solve(targets, iterations, redundancy=redundancy)
             return torch.where(ok[:, None], q, torch.nan)[:, None], ok[:, None]
         dev = self.robot.chain.device
-        if self.robot.redundant is None:
-            if redundancy is not None:
-                raise ValueError("redundancy= is not allowed: this network was trained without a redundant joint")
-            x = self.model.check_inputs(targets)
-        else:
-            x = self._redundant_inputs(targets, None, redundancy, dev)
-        x = x.to(dtype=torch.float64, device=dev)
-        model = self._model64()
+        x = self._inputs(targets, None, redundancy, dev).to(dtype=torch.float64, device=dev)
+        model = self._answering()
         rows = max(1, self.block_rows // model.num_charts)
         return row_blocks(lambda xb: self._all(model, xb, iterations), rows, x)
 

@@ -466,7 +466,9 @@ def _chain_pass(chain: pk.SerialChain, th: torch.Tensor, jacobian: bool):
             axes.append((st.joint, z))
             origins.append(pos)
             kinds.append(st.kind)
-    pose = torch.cat([torch.cat([rot, pos[:, :, None]], 2), pose_row(th, b)], 1)
+    row = th.new_zeros(b, 1, 4)
+    row[:, 0, 3] = 1.0  # the homogeneous row [0, 0, 0, 1]
+    pose = torch.cat([torch.cat([rot, pos[:, :, None]], 2), row], 1)
     if not jacobian:
         return pose, None
     jac = th.new_zeros(b, 6, th.shape[1])
@@ -477,13 +479,6 @@ def _chain_pass(chain: pk.SerialChain, th: torch.Tensor, jacobian: bool):
         else:
             jac[:, :3, j] = z
     return pose, jac
-
-
-def pose_row(th: torch.Tensor, b: int) -> torch.Tensor:
-    """The homogeneous row [0, 0, 0, 1] (B, 1, 4) in th's dtype and device."""
-    row = th.new_zeros(b, 1, 4)
-    row[:, 0, 3] = 1.0
-    return row
 
 
 def forward_kinematics_pose(chain: pk.SerialChain, th: torch.Tensor) -> torch.Tensor:

@@ -121,6 +121,11 @@ class Robot:
         r = self.redundant
         return x if r is None else torch.cat([x, q[:, r : r + 1].to(x.dtype)], -1)
 
+    def split_inputs(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """`inputs`' inverse: (the targets (B, 3 or 7), the redundant joint's values (B,) or None)
+        of network inputs x (B, 3, 7 or 8), as `IKSolver.solve` takes them (`redundancy=`)."""
+        return (x, None) if self.redundant is None else (x[:, :7], x[:, 7])
+
     def full_joints(self, q: torch.Tensor) -> torch.Tensor:
         """Every chain joint (B, n_chain) from the free joints q (B, n), locked ones filled in."""
         out = self._full.to(dtype=q.dtype, device=q.device).expand(q.shape[0], -1).clone()

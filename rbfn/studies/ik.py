@@ -19,7 +19,15 @@ from ..solver import CHARTED_ERROR_DAMPING, CHARTED_ITERATIONS, DEFAULT_ITERATIO
 from .plots import pose_error_figure, robot_label, workspace_error_map
 from .rundir import write_figure, write_json
 
-__all__ = ["training_metrics", "write_training", "evaluate_ik", "ik_table", "charted_metrics", "charted_line"]
+__all__ = [
+    "training_metrics",
+    "write_training",
+    "evaluate_ik",
+    "ik_table",
+    "charted_metrics",
+    "charted_line",
+    "write_scalars",
+]
 
 ALL_POSES = 500  # whole-range poses `charted_metrics` asks IKSolver.solve_all for every solution of
 
@@ -29,7 +37,7 @@ log = logging.getLogger(__name__)
 def _polished(model, robot: Robot, x, iterations: int):
     """IKSolver.solve's (joints, converged) for the network inputs x (B, 3, 7 or 8): a redundant
     joint's value (the 8th column) is handed over as `redundancy`."""
-    targets, value = (x, None) if robot.redundant is None else (x[:, :7], x[:, 7])
+    targets, value = robot.split_inputs(x)
     return IKSolver(model, robot).solve(targets, iterations, redundancy=value)
 
 
@@ -138,7 +146,7 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
     solver = IKSolver(model, robot, error_damping=CHARTED_ERROR_DAMPING)
     out: dict = {"workspace": "full", "charts": model.num_charts, "polish_iterations": CHARTED_ITERATIONS}
     for prefix, split in (("test_", box), ("test_full_range_", full)):
-        targets, value = (split.x, None) if robot.redundant is None else (split.x[:, :7], split.x[:, 7])
+        targets, value = robot.split_inputs(split.x)
         raw, _ = solver.network(split.x)
         pos, rot = robot.errors(raw, targets)
         out[prefix + "pos_err_mm_median"] = float(pos.median())
@@ -154,6 +162,13 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
             _, found = solver.solve_all(targets[:k], redundancy=None if value is None else value[:k])
             out[prefix + "solutions_mean"] = float(found.sum(1).double().mean())
     return out
+
+
+def write_scalars(writer, metrics: dict) -> None:
+    """The float metrics as TensorBoard scalars ik/KEY."""
+    for k, v in metrics.items():
+        if isinstance(v, float):
+            writer.add_scalar(f"ik/{k}", v)
 
 
 def charted_line(m: dict) -> str:
@@ -178,9 +193,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
         full = full_range_split(robot, cfg.n_test, seed, evaluation=True)
         res: dict = {"checkpoint": str(path), "test_seed": seed}
         res.update(charted_metrics(charted, robot, evaluation_split(robot, cfg.n_test, seed), full))
-        for k, v in res.items():
-            if isinstance(v, float):
-                writer.add_scalar(f"ik/{k}", v)
+        write_scalars(writer, res)
         log.info("IK on fresh poses (%d, evaluation stream of seed %d): %s", cfg.n_test, seed, charted_line(res))
         return res
     model = model_from_checkpoint(ckpt).to(cfg.device)
@@ -193,9 +206,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
         robot, test.q.cpu().numpy(), test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), model.num_centers
     )
     write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "ik/workspace_error_map")
-    for k, v in out.items():
-        if isinstance(v, float):
-            writer.add_scalar(f"ik/{k}", v)
+    write_scalars(writer, out)
     log.info(
         "%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of seed {seed})", out)
     )

@@ -21,7 +21,7 @@ from ..resume import DifferentRun, StateFile, TrainState, comparable
 from ..robots.derive import derive_train
 from ..robots.robot import Robot, check_ik_is_function, load_robot
 from .cli import announced
-from .ik import charted_line, charted_metrics, training_metrics, write_training
+from .ik import charted_line, charted_metrics, training_metrics, write_scalars, write_training
 from .rundir import RunDir, bookkeeping, write_json, write_text
 
 __all__ = ["claim", "outputs", "run"]
@@ -41,12 +41,11 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     check_train(cfg)  # the run fits in memory
     robot = load_robot(cfg.robot, cfg.device)
     check_ik_is_function(robot.target, robot.joint_names, cfg.robot.locked, cfg.robot.redundancy)
-    if cfg.robot.workspace == Workspace.full:
-        return _run_charts(cfg, robot, out_dir, run_files)
+    full = cfg.robot.workspace == Workspace.full
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write
-        claim(out_dir, state, cfg.export, (run_files or {}).get(_CONFIG_FILE))
+        claim(out_dir, state, cfg.export and not full, (run_files or {}).get(_CONFIG_FILE))
         if state.finished is not None:
             log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
             return state.finished
@@ -55,30 +54,15 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
         if cfg.num_threads:
             torch.set_num_threads(cfg.num_threads)
         torch.manual_seed(cfg.seed)
-
-        # 1. Data: seeded joint samples in the branch's box, FK positions from the URDF.
-        d = cfg.data
-        with announced(log, "data", f"{d.n_train} / {d.n_val} / {d.n_test} samples (train / val / test)", cfg.progress):
-            data = make_dataset(robot, (d.n_train, d.n_val, d.n_test), cfg.seed)
-            for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
-                check_finite(f"{name} positions", split.x)
-                check_finite(f"{name} joints", split.q)
-        for rel, text in (run_files or {}).items():
-            write_text(out_dir / rel, text)
-
-        # 2-5. Centres and widths, weights, growth, refinement (rbfn.pipeline); 6. outputs.
-        writer = SummaryWriter(log_dir=str(out_dir))
-        try:
-            with announced(log, "fit", _fit_what(cfg), cfg.progress) as fit:
-                result = train_ik(cfg, data, states, state, robot, progress=fit["progress"])
-            outputs = "checkpoint.pt" + (", ik.onnx, ik.pt2" if cfg.export else "") + ", metrics.json"
-            with announced(log, "outputs", f"test accuracy (raw and polished), {outputs}", cfg.progress):
-                metrics = training_metrics(cfg, result, robot, data)
-                write_training(out_dir, cfg, robot, result, metrics, writer)
-        finally:
-            writer.close()
+        if full:
+            metrics = _fit_charts(cfg, robot, out_dir, run_files)
+        else:
+            metrics = _fit_box(cfg, robot, out_dir, run_files, states, state)
         state.finished = metrics
         states.save(state)
+    if full:
+        log.info("%s, trained in %.0f s -> %s", charted_line(metrics), metrics["train_seconds"], out_dir)
+        return metrics
     log.info(
         "M = %d, test position error median %.3f mm, p95 %.3f mm, max %.3f mm (float32 median %.3f mm); "
         "centres chosen by %s, selection %.1f s, total %.1f s -> %s",
@@ -98,56 +82,75 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
 _CONFIG_FILE = ".hydra/config.yaml"
 
 
-def _run_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[str, str] | None) -> dict:
-    """`run` for robot.workspace=full: the charted network (`rbfn.charts.train_charts`) into
-    checkpoint.pt (`rbfn.charts.save_charts`) and metrics.json (`rbfn.studies.ik.charted_metrics`).
-    The charts train in one piece (a stopped run starts over; a finished one is not redone), and no
-    exports are written: they hold one box network."""
-    with RunDir(out_dir):
-        states = StateFile(out_dir)
-        state = states.load(plain(cfg))
-        claim(out_dir, state, False, (run_files or {}).get(_CONFIG_FILE))
-        if state.finished is not None:
-            log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
-            return state.finished
-        if cfg.export:
-            log.warning("robot.workspace=full: no ik.onnx / ik.pt2 (the exports hold one box network); checkpoint.pt")
-        if cfg.num_threads:
-            torch.set_num_threads(cfg.num_threads)
-        torch.manual_seed(cfg.seed)
-        for rel, text in (run_files or {}).items():
-            write_text(out_dir / rel, text)
-        r = cfg.robot
-        what = f"{r.charts} charts of the joint space, {r.chart_samples} samples and M = {r.chart_centers} each"
-        with announced(log, "fit", f"{what}, centers={cfg.centers.name}", cfg.progress) as fit:
-            t0 = time.perf_counter()
-            charted = train_charts(cfg, robot, progress=fit["progress"])
-            seconds, model = time.perf_counter() - t0, charted.model
-        with announced(log, "outputs", "box and whole-range figures, checkpoint.pt, metrics.json", cfg.progress):
-            d = cfg.data
-            box = make_dataset(robot, (2, 1, d.n_test), cfg.seed).test  # the box run's test poses
-            full = full_range_split(robot, d.n_test, cfg.seed)
-            metrics = {
-                "num_centers": model.first.num_centers,
-                "selector": cfg.centers.name,
-                "target": str(robot.target),
-                **charted_metrics(model, robot, box, full),
-                "val_E": charted.val_E,
-                "train_seconds": seconds,
-                "seconds_a_chart": charted.seconds_a_chart,
-            }
-            save_charts(out_dir / "checkpoint.pt", model, robot.record(), plain(cfg), metrics)
-            write_json(out_dir / "metrics.json", metrics)
-            writer = SummaryWriter(log_dir=str(out_dir))
-            try:
-                for key, v in metrics.items():
-                    if isinstance(v, float):
-                        writer.add_scalar(f"ik/{key}", v)
-            finally:
-                writer.close()
-        state.finished = metrics
-        states.save(state)
-    log.info("%s, trained in %.0f s -> %s", charted_line(metrics), seconds, out_dir)
+def _fit_box(
+    cfg: TrainConfig,
+    robot: Robot,
+    out_dir: Path,
+    run_files: dict[str, str] | None,
+    states: StateFile,
+    state: TrainState,
+) -> dict:
+    """`run`'s work for one box network (robot.workspace=box): data, the fit (resumable through
+    `states` and `state`), checkpoint.pt, the exports, metrics.json; returns the metrics."""
+    # 1. Data: seeded joint samples in the branch's box, FK positions from the URDF.
+    d = cfg.data
+    with announced(log, "data", f"{d.n_train} / {d.n_val} / {d.n_test} samples (train / val / test)", cfg.progress):
+        data = make_dataset(robot, (d.n_train, d.n_val, d.n_test), cfg.seed)
+        for name, split in (("train", data.train), ("val", data.val), ("test", data.test)):
+            check_finite(f"{name} positions", split.x)
+            check_finite(f"{name} joints", split.q)
+    for rel, text in (run_files or {}).items():
+        write_text(out_dir / rel, text)
+
+    # 2-5. Centres and widths, weights, growth, refinement (rbfn.pipeline); 6. outputs.
+    writer = SummaryWriter(log_dir=str(out_dir))
+    try:
+        with announced(log, "fit", _fit_what(cfg), cfg.progress) as fit:
+            result = train_ik(cfg, data, states, state, robot, progress=fit["progress"])
+        outputs = "checkpoint.pt" + (", ik.onnx, ik.pt2" if cfg.export else "") + ", metrics.json"
+        with announced(log, "outputs", f"test accuracy (raw and polished), {outputs}", cfg.progress):
+            metrics = training_metrics(cfg, result, robot, data)
+            write_training(out_dir, cfg, robot, result, metrics, writer)
+    finally:
+        writer.close()
+    return metrics
+
+
+def _fit_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[str, str] | None) -> dict:
+    """`run`'s work for robot.workspace=full: the charted network (`rbfn.charts.train_charts`) into
+    checkpoint.pt (`rbfn.charts.save_charts`) and metrics.json (`rbfn.studies.ik.charted_metrics`);
+    returns the metrics. The charts train in one piece (a stopped run starts over), and no exports
+    are written: they hold one box network."""
+    if cfg.export:
+        log.warning("robot.workspace=full: no ik.onnx / ik.pt2 (the exports hold one box network); checkpoint.pt")
+    for rel, text in (run_files or {}).items():
+        write_text(out_dir / rel, text)
+    r = cfg.robot
+    what = f"{r.charts} charts of the joint space, {r.chart_samples} samples and M = {r.chart_centers} each"
+    with announced(log, "fit", f"{what}, centers={cfg.centers.name}", cfg.progress) as fit:
+        t0 = time.perf_counter()
+        charted = train_charts(cfg, robot, progress=fit["progress"])
+        seconds, model = time.perf_counter() - t0, charted.model
+    with announced(log, "outputs", "box and whole-range figures, checkpoint.pt, metrics.json", cfg.progress):
+        d = cfg.data
+        box = make_dataset(robot, (2, 1, d.n_test), cfg.seed).test  # the box run's test poses
+        full = full_range_split(robot, d.n_test, cfg.seed)
+        metrics = {
+            "num_centers": model.first.num_centers,
+            "selector": cfg.centers.name,
+            "target": str(robot.target),
+            **charted_metrics(model, robot, box, full),
+            "val_E": charted.val_E,
+            "train_seconds": seconds,
+            "seconds_a_chart": charted.seconds_a_chart,
+        }
+        save_charts(out_dir / "checkpoint.pt", model, robot.record(), plain(cfg), metrics)
+        write_json(out_dir / "metrics.json", metrics)
+        writer = SummaryWriter(log_dir=str(out_dir))
+        try:
+            write_scalars(writer, metrics)
+        finally:
+            writer.close()
     return metrics
 
 
