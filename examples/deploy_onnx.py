@@ -10,7 +10,10 @@ redundant joint (metadata "redundancy" names it; its value is the 8th column); i
 inside the trained box and the targets they reach (forward kinematics, computed at export). This
 solves those targets and one 10 m away, and prints the joints, the largest joint error against
 the joints that reached each target (rad, or m for a prismatic joint) and the workspace flag:
-the network answers every query, the flag says when not to trust the answer. Where the file turns
+the network answers every query, the flag says when not to trust the answer. A network of the
+whole joint range (metadata "workspace": "full": robot.workspace=full) answers each target once
+per chart, as outputs "joints" (B, K, n) and "closeness" (B, K); this picks, for each target, the
+closest chart's answer and the answer nearest the joints the robot is at. Where the file turns
 targets around the base (metadata "base_yaw": "true": arms whose first joint turns about the
 base's vertical axis), it also solves the first example turned 2 rad about the base, far outside
 the trained range of that joint, and prints the first joint's change (2 rad).
@@ -100,9 +103,10 @@ def main(path: str) -> None:
     truth = np.array(json.loads(meta["example_joints"]), dtype=np.float32)  # (4, n)
     far = targets[:1].copy()
     far[0, 0] += 10.0  # out of reach: flagged
-    joints, inside = session.run(["joints", "in_workspace"], {inp.name: np.concatenate([targets, far])})
-
     print(f"{meta['robot']}: input {inp.name!r} {inp.shape}, outputs the joints {json.loads(meta['joint_names'])}")
+    if meta.get("workspace") == "full":  # charts: every chart's answer
+        return charted(session, inp.name, np.concatenate([targets, far]), truth)
+    joints, inside = session.run(["joints", "in_workspace"], {inp.name: np.concatenate([targets, far])})
     for i, (q, ok) in enumerate(zip(joints, inside)):
         error = f"{np.abs(q - truth[i]).max():.2e}" if i < len(truth) else "-- (10 m away)"
         print(f"target {i}: joints {np.array2string(q, precision=3)}  max joint error {error}  in workspace {bool(ok)}")
@@ -110,6 +114,31 @@ def main(path: str) -> None:
         (q_turned,), (ok,) = session.run(["joints", "in_workspace"], {inp.name: turned(targets[:1], 2.0)})
         change = (q_turned[0] - joints[0, 0] + np.pi) % (2 * np.pi) - np.pi  # within a whole turn
         print(f"target 0 turned 2 rad about the base: first joint changes by {change:.3f} rad  in workspace {bool(ok)}")
+
+
+def wrapped(d: np.ndarray) -> np.ndarray:
+    """Joint differences d within half a turn (whole turns reach the same pose; a prismatic joint's
+    difference in m is far below pi, so it stays as it is)."""
+    return (d + np.pi) % (2 * np.pi) - np.pi
+
+
+def charted(session: ort.InferenceSession, name: str, x: np.ndarray, truth: np.ndarray) -> None:
+    """A charted export (metadata "workspace": "full"): every chart's answer (B, K, n) and closeness
+    (B, K). Prints, for each target, the closest chart's answer and the answer nearest the joints the
+    robot is at (here: the reaching joints moved by 0.05 rad), with their largest joint error."""
+    answers, closeness, inside = session.run(["joints", "closeness", "in_workspace"], {name: x})
+    print(f"{answers.shape[1]} charts answer each target; the answers are seeds for a polish")
+    for i in range(x.shape[0]):
+        closest = int(closeness[i].argmin())
+        line = f"target {i}: closest chart {closest} joints {np.array2string(answers[i, closest], precision=3)}"
+        if i < len(truth):
+            current = truth[i] + 0.05
+            k = int(np.abs(wrapped(answers[i] - current)).max(-1).argmin())
+            error = np.abs(wrapped(answers[i, k] - truth[i])).max()
+            line += f"  nearest the current joints: chart {k}, max joint error {error:.2e}"
+        else:
+            line += "  (10 m away)"
+        print(f"{line}  in workspace {bool(inside[i])}")
 
 
 if __name__ == "__main__":

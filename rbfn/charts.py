@@ -24,6 +24,7 @@ solves as many as ranking all 64, for a quarter of the forward kinematics.
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -61,6 +62,8 @@ OVERLAP = 1.15  # a sample trains every chart within this factor of its nearest 
 CHART_STREAM = 901  # the random stream of the charts' training joints (rbfn.data.stream)
 BLOCK_ELEMENTS = 1 << 20  # (charts, rows, centres) Gaussians a block of `ChartedIK.answers` (8 MB in float64)
 FAR_CENTRE = 1e3  # where padding centres sit (scaled units: no input comes near)
+# `ChartedIK._stacked`'s parts, in its order (a frozen copy's buffers are stacked_<name>).
+_STACKED = ("offsets", "scales", "centres", "widths", "heads", "biases", "tails", "covers")
 
 
 def revolute_joints(robot: Robot) -> torch.Tensor:
@@ -95,15 +98,17 @@ def encode(q: torch.Tensor, revolute: torch.Tensor) -> torch.Tensor:
     return torch.cat([q[:, r].cos(), q[:, r].sin(), q[:, ~r]], -1)
 
 
-def decode(y: torch.Tensor, revolute: torch.Tensor) -> torch.Tensor:
+def decode(y: torch.Tensor, revolute) -> torch.Tensor:
     """Joints (..., n) from a chart network's outputs (..., 2 r + p) (`encode`'s inverse; angles in
-    (-pi, pi])."""
-    r = revolute.to(y.device)
-    k = int(r.sum())
-    q = y.new_empty(*y.shape[:-1], r.shape[0])
-    q[..., r] = torch.atan2(y[..., k : 2 * k], y[..., :k])
-    q[..., ~r] = y[..., 2 * k :]
-    return q
+    (-pi, pi]). `revolute`: (n,) bool, a tensor or a list (a list keeps it traceable: no data-dependent
+    indexing, so the exporters can take it)."""
+    flags = [bool(t) for t in revolute]
+    turns = [i for i, t in enumerate(flags) if t]
+    slides = [i for i, t in enumerate(flags) if not t]
+    k = len(turns)
+    q = torch.cat([torch.atan2(y[..., k : 2 * k], y[..., :k]), y[..., 2 * k :]], -1)  # turns first, then slides
+    order = sorted(range(len(flags)), key=(turns + slides).index)
+    return q if order == list(range(len(flags))) else q[..., order]
 
 
 class ChartedIK(nn.Module):
@@ -133,6 +138,8 @@ class ChartedIK(nn.Module):
         self.register_buffer("revolute", revolute.clone().bool())
         self.register_buffer("low", low.clone().to(centres.dtype))
         self.register_buffer("high", high.clone().to(centres.dtype))
+        self.turns = [bool(t) for t in revolute]  # `revolute` as a list: decoded without data-dependent indexing
+        self.frozen_dtype: torch.dtype | None = None  # set by `frozen`: the dtype of its stacked parameters
 
     @property
     def num_charts(self) -> int:
@@ -158,8 +165,29 @@ class ChartedIK(nn.Module):
         first = self.first
         f = first._feat(first._inputs(x))  # (B, d): the charts share their input features
         p = self._stacked(f.dtype)
-        rows = max(1, BLOCK_ELEMENTS // (p[2].shape[0] * p[2].shape[1]))
-        return row_blocks(lambda fb: self._answer_rows(fb, p), rows, f)
+        return row_blocks(lambda fb: self._answer_rows(fb, p), self.rows_per_block, f)
+
+    @property
+    def rows_per_block(self) -> int:
+        """Rows a block in `answers` and in the ONNX graph: about `BLOCK_ELEMENTS` Gaussians (rows, K, M)."""
+        nets: list[RBFNetwork] = list(self.nets)  # type: ignore[arg-type]
+        return max(1, BLOCK_ELEMENTS // (self.num_charts * max(net.num_centers for net in nets)))
+
+    def answer_rows(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`answers` for inputs x (B, d) in one piece (no blocks: one graph for any B), the exporters'
+        path (`rbfn.export`); on a `frozen` copy."""
+        f = self.first._feat(self.first._inputs(x))
+        return self._answer_rows(f, self._stacked(f.dtype))
+
+    def frozen(self, dtype: torch.dtype = torch.float32) -> ChartedIK:
+        """A copy in `dtype`, eval mode, without gradients, its charts' parameters stacked once
+        (`_stacked`, kept as buffers named stacked_*) instead of on every call: the solver's and the
+        exporters' form."""
+        model = copy.deepcopy(self).to(dtype).eval().requires_grad_(False)
+        for name, t in zip(_STACKED, model._stacked(dtype)):
+            model.register_buffer(f"stacked_{name}", t)
+        model.frozen_dtype = dtype
+        return model
 
     def _answer_rows(self, f: torch.Tensor, p: tuple) -> tuple[torch.Tensor, torch.Tensor]:
         """`answers` for input features f (B, d) in one piece, from `_stacked`'s parameters p."""
@@ -173,13 +201,15 @@ class ChartedIK(nn.Module):
         y = torch.baddbmm(bias[:, None], h, head.transpose(1, 2))
         if tail is not None:
             y = y.baddbmm_(z, tail.transpose(1, 2))
-        q = decode(y, self.revolute).transpose(0, 1)  # (B, K, n)
+        q = decode(y, self.turns).transpose(0, 1)  # (B, K, n)
         return torch.maximum(torch.minimum(q, self.high.to(q)), self.low.to(q)), close
 
     def _stacked(self, dtype: torch.dtype):
         """The charts' parameters stacked (K, ...) in `dtype`: offsets, scales (K, d), centres
         (K, M, d), widths (K, M), head weights (K, out, M), biases (K, out), tail weights (K, out,
-        d) or None, cover radii (K,)."""
+        d) or None, cover radii (K,); a `frozen` copy's own, in its dtype."""
+        if dtype == self.frozen_dtype:
+            return tuple(getattr(self, f"stacked_{name}") for name in _STACKED)
         nets: list[RBFNetwork] = list(self.nets)  # type: ignore[arg-type]
         m = max(net.num_centers for net in nets)
 

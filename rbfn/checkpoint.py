@@ -484,7 +484,7 @@ def model_from_checkpoint(ckpt: dict[str, Any]) -> RBFNetwork:
     if ckpt.get("kind") == CHARTS_KIND:
         raise ValueError(
             "this checkpoint holds a charted network (robot.workspace=full): rbfn.load_solver(PATH) answers with it; "
-            "one box network (load_model, the exports, online adaptation) comes from robot.workspace=box"
+            "rbfn.export exports it; one box network (load_model, online adaptation) comes from robot.workspace=box"
         )
     problem = _model_problem(ckpt)
     if problem:

@@ -58,7 +58,9 @@ import torch
 from onnx import helper, numpy_helper
 from torch import nn
 
+from .charts import ChartedIK, charts_from_checkpoint
 from .checkpoint import (
+    CHARTS_KIND,
     MAX_SEALED_BYTES,
     ONNX_MODEL,
     PT2_PROGRAM,
@@ -81,6 +83,7 @@ from .yaw import BaseYaw, answer as yaw_answer, base_yaw as yaw_of
 __all__ = [
     "CHECKSUM_KEY",
     "INPUTS",
+    "DeployedCharts",
     "DeployedIK",
     "DeployedPoseIK",
     "deployed",
@@ -150,49 +153,117 @@ class DeployedPoseIK(DeployedIK):
         return self._solve(poses)
 
 
-def deployed(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True) -> DeployedIK:
+class DeployedCharts(nn.Module):
+    """A charted network (`rbfn.charts.ChartedIK`, robot.workspace=full) in float32: positions (B, 3)
+    -> (joints (B, K, n): every chart's answer, within the URDF limits; closeness (B, K): each
+    chart's nearest centre's distance over its cover radius, below 1 inside the region it learned;
+    in_workspace (B,): some chart's closeness is below 1). The answers are seeds: a caller picks
+    one (nearest its current joints, or the closest chart) and polishes it (`rbfn.solver`). What it
+    takes of the model: `ChartedIK.frozen` and `answer_rows`."""
+
+    def __init__(self, model: ChartedIK) -> None:
+        super().__init__()
+        self.charts = model.frozen(torch.float32)
+
+    def _answer(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        q, close = self.charts.answer_rows(x)
+        return q, close, close.amin(-1) < 1.0
+
+    def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self._answer(positions)
+
+
+class DeployedPoseCharts(DeployedCharts):
+    """`DeployedCharts` of a pose network: poses (B, 7), or (B, 8) with the redundant joint's value."""
+
+    def forward(self, poses: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self._answer(poses)
+
+
+Exportable = RBFNetwork | ChartedIK  # what the exporters take: one box network or a charted one
+
+
+def _net(model: Exportable) -> RBFNetwork:
+    """The network whose inputs and target kind the export takes (a charted model's first chart)."""
+    return model.first if isinstance(model, ChartedIK) else model
+
+
+def deployed(net: Exportable, robot: Robot | None = None, base_yaw: bool = True) -> nn.Module:
     """The exporters' module for `net`, in eval mode: its input named for the network's targets;
-    given the network's `robot` and `base_yaw`, turning targets around the base where the arm
-    allows it (`rbfn.yaw`)."""
+    given a box network's `robot` and `base_yaw`, turning targets around the base where the arm
+    allows it (`rbfn.yaw`); a charted network's every chart (`DeployedCharts`)."""
+    if isinstance(net, ChartedIK):
+        return (DeployedPoseCharts if net.first.target == "pose" else DeployedCharts)(net).eval()
     yaw = yaw_of(robot) if robot is not None and base_yaw else None
     return (DeployedPoseIK if net.target == "pose" else DeployedIK)(net, yaw).eval()
 
 
-def _example(net: RBFNetwork) -> torch.Tensor:
-    """Example inputs (4, 3) positions, or (4, 7) poses with the identity quaternion."""
+def _outputs(model: Exportable) -> dict[str, str]:
+    """The exported outputs' names and what they hold, in order."""
+    joints = "the free joints in URDF order and units (rad, or m if prismatic)"
+    if not isinstance(model, ChartedIK):
+        return {
+            "joints": f"joints (B, n) float32: {joints}",
+            "in_workspace": "in_workspace (B,) bool: the target lies in the trained workspace",
+        }
+    return {
+        "joints": f"joints (B, K, n) float32: every chart's answer, {joints}, within the URDF limits",
+        "closeness": "closeness (B, K) float32: each chart's nearest centre's distance over its cover radius "
+        "(below 1: inside the region the chart learned)",
+        "in_workspace": "in_workspace (B,) bool: some chart's closeness is below 1",
+    }
+
+
+def _example(net: Exportable) -> torch.Tensor:
+    """Example inputs (4, 3) positions, or (4, 7) (or (4, 8)) poses with the identity quaternion."""
+    net = _net(net)
     x = torch.zeros(4, net.in_features, dtype=torch.float32)
     if net.target == "pose":
         x[:, 3] = 1.0
     return x
 
 
-def metadata(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True) -> dict[str, str]:
+def metadata(model: Exportable, robot: Robot | None = None, base_yaw: bool = True) -> dict[str, str]:
     """What the exports say about themselves, as strings: "target" ("position" or "pose"), "input"
-    (the input's name and layout) and, given the network's `robot`, "robot" (its name), "base_yaw"
-    ("true" where the graph turns targets around the base into the trained range, else "false"),
-    "joint_names" (a JSON list: the free joints, the outputs' order), "example_joints" (a JSON (4, n)
-    list: joint vectors inside the robot's sampled box, rad or m, seeded) and "example_targets" (a
-    JSON (4, 3) or (4, 7) list: the targets they reach, the robot's forward kinematics, float64)."""
+    (the input's name and layout), "workspace" ("box": one network; "full": charts, every chart's
+    answer), "charts" (how many; 1 for a box network), "outputs" (a JSON object: each output's name
+    and layout) and, given the network's `robot`, "robot" (its name), "base_yaw" ("true" where the
+    graph turns targets around the base into the trained range, else "false"), "joint_names" (a
+    JSON list: the free joints, the outputs' order), "example_joints" (a JSON (4, n) list: joint
+    vectors inside the robot's sampled box (a charted network: its URDF range), rad or m, seeded),
+    "example_targets" (a JSON (4, 3) or (4, 7) list: the targets they reach, the robot's forward
+    kinematics, float64) and, for a 7-joint arm, "redundancy" (the joint whose value is the input's
+    last column)."""
+    charted = isinstance(model, ChartedIK)
+    net = _net(model)
     layout = INPUTS[net.target][1]
     if net.inputs is not None and net.inputs.redundancy:
         layout = layout.replace("poses (B, 7)", "poses (B, 8)") + (
             ", then the redundant joint's value (rad, or m if prismatic; metadata redundancy names it)"
         )
-    meta = {"target": net.target, "input": layout}
+    meta = {
+        "target": net.target,
+        "input": layout,
+        "workspace": "full" if charted else "box",
+        "charts": str(model.num_charts if isinstance(model, ChartedIK) else 1),
+        "outputs": json.dumps(_outputs(model)),
+    }
     if robot is None:
         return meta
-    if robot.target != net.target or len(robot.joint_names) != net.out_features:
+    joints = model.out_features
+    if robot.target != net.target or len(robot.joint_names) != joints:
         raise ValueError(
             f"robot {robot.name!r} ({robot.target} targets, {len(robot.joint_names)} free joints) is not the "
-            f"network's ({net.target} targets, {net.out_features} joints)"
+            f"network's ({net.target} targets, {joints} joints)"
         )
-    low, high = robot.low.cpu(), robot.high.cpu()
+    low, high = (model.low, model.high) if isinstance(model, ChartedIK) else (robot.low, robot.high)
+    low, high = low.cpu().to(robot.low.dtype), high.cpu().to(robot.low.dtype)
     inner = 0.2 * (high - low)  # well inside the box, away from its edges
     q = sample_joints(low + inner, high - inner, EXAMPLE_TARGETS, torch.Generator().manual_seed(0))
     return {
         **meta,
         "robot": robot.name,
-        "base_yaw": "true" if base_yaw and yaw_of(robot) is not None else "false",
+        "base_yaw": "true" if base_yaw and not charted and yaw_of(robot) is not None else "false",
         "joint_names": json.dumps(robot.joint_names),
         "example_joints": json.dumps(q.tolist()),
         "example_targets": json.dumps(robot.inputs(q.to(robot.chain.device)).cpu().tolist()),
@@ -200,11 +271,11 @@ def metadata(net: RBFNetwork, robot: Robot | None = None, base_yaw: bool = True)
     }
 
 
-def pt2_bytes(net: RBFNetwork, *, robot: Robot | None = None, base_yaw: bool = True) -> bytes:
+def pt2_bytes(net: Exportable, *, robot: Robot | None = None, base_yaw: bool = True) -> bytes:
     """A torch.export program with a dynamic batch dimension, as the bytes of a .pt2 file; its
     `metadata` in the extra file "rbfn.json"; `deployed(net, robot, base_yaw)`."""
     batch = torch.export.Dim("batch", min=1)
-    name = INPUTS[net.target][0]
+    name = INPUTS[_net(net).target][0]
     buf = io.BytesIO()
     with _quiet_exporter():
         module = deployed(net, robot, base_yaw)
@@ -248,7 +319,7 @@ def _local(path: str | os.PathLike[str], name: str) -> Path:
     return Path(path)
 
 
-def export_pt2(net: RBFNetwork, path: str | Path, *, robot: Robot | None = None, base_yaw: bool = True) -> Path:
+def export_pt2(net: Exportable, path: str | Path, *, robot: Robot | None = None, base_yaw: bool = True) -> Path:
     """Write a torch.export program with a dynamic batch dimension to `path` (atomically)."""
     path = _local(path, "path")
     write_files({path: pt2_bytes(net, robot=robot, base_yaw=base_yaw)})
@@ -277,7 +348,7 @@ def _quiet_exporter():
 
 
 def export_onnx(
-    net: RBFNetwork,
+    net: Exportable,
     path: str | Path,
     block_rows: int | None = None,
     *,
@@ -285,19 +356,22 @@ def export_onnx(
     base_yaw: bool = True,
 ) -> Path:
     """Write a single-file ONNX model (input "positions" (B, 3) or "poses" (B, 7), outputs "joints",
-    "in_workspace") that runs the rows in blocks of `block_rows` (default `net.rows_per_block`),
-    atomically; its `metadata(net, robot)` in the model's metadata_props."""
+    "in_workspace"; a charted network's "joints", "closeness", "in_workspace") that runs the rows in
+    blocks of `block_rows` (default `net.rows_per_block`), atomically; its `metadata(net, robot)` in
+    the model's metadata_props."""
     path = _local(path, "path")
     write_files({path: onnx_bytes(net, block_rows, robot=robot, base_yaw=base_yaw)})
     return path
 
 
 def onnx_bytes(
-    net: RBFNetwork, block_rows: int | None = None, *, robot: Robot | None = None, base_yaw: bool = True
+    net: Exportable, block_rows: int | None = None, *, robot: Robot | None = None, base_yaw: bool = True
 ) -> bytes:
     """The single-file ONNX model of `export_onnx`, as bytes."""
     batch = torch.export.Dim("batch", min=1)
-    name, layout = INPUTS[net.target]
+    name = INPUTS[_net(net).target][0]
+    layout = metadata(net)["input"]
+    outputs = _outputs(net)
     with _quiet_exporter():
         prog = torch.onnx.export(
             deployed(net, robot, base_yaw),
@@ -305,16 +379,15 @@ def onnx_bytes(
             dynamo=True,
             external_data=False,
             input_names=[name],
-            output_names=["joints", "in_workspace"],
+            output_names=list(outputs),
             dynamic_shapes={name: {0: batch}},
             verbose=False,
         )
     assert prog is not None  # dynamo=True: always an ONNXProgram
     model = _in_row_blocks(prog.model_proto, block_rows or net.rows_per_block)
     model.graph.input[0].doc_string = layout
-    joints, inside = model.graph.output
-    joints.doc_string = "joints (B, n) float32: the free joints in URDF order and units (rad, or m if prismatic)"
-    inside.doc_string = "in_workspace (B,) bool: the target lies in the trained workspace"
+    for out in model.graph.output:
+        out.doc_string = outputs[out.name]
     helper.set_model_props(model, {**metadata(net, robot, base_yaw), CHECKSUM_KEY: _BLANK.decode()})
     onnx.checker.check_model(model)
     data = model.SerializeToString()
@@ -424,7 +497,7 @@ def _in_row_blocks(model: onnx.ModelProto, rows: int) -> onnx.ModelProto:
 
 
 def export_all(
-    net: RBFNetwork, out_dir: str | Path, stem: str = "ik", *, robot: Robot | None = None, base_yaw: bool = True
+    net: Exportable, out_dir: str | Path, stem: str = "ik", *, robot: Robot | None = None, base_yaw: bool = True
 ) -> list[Path]:
     """Write `stem`.onnx and `stem`.pt2 into `out_dir`, with `metadata(net, robot)` (pass the
     network's robot for the example targets and the base rotation, `base_yaw`): both are built
@@ -551,12 +624,13 @@ def _checked_outputs(p: argparse.ArgumentParser, a: argparse.Namespace) -> list[
     return targets
 
 
-def _network(p: argparse.ArgumentParser, checkpoint: str) -> tuple[RBFNetwork, Robot]:
-    """The checkpoint's network and robot; a one-line error when it cannot be read (status 2) or
+def _network(p: argparse.ArgumentParser, checkpoint: str) -> tuple[Exportable, Robot]:
+    """The checkpoint's network (box or charted) and robot; a one-line error when it cannot be read (status 2) or
     passes its checks and still does not build (status 1: a bug)."""
     try:
         ckpt = read_checkpoint(checkpoint)
-        return model_from_checkpoint(ckpt), robot_from_record(ckpt["robot"])
+        model = charts_from_checkpoint(ckpt) if ckpt["kind"] == CHARTS_KIND else model_from_checkpoint(ckpt)
+        return model, robot_from_record(ckpt["robot"])
     except (OSError, ValueError) as e:
         message = str(e) if isinstance(e, ValueError) else _first_line(e)
         fail(p, f"CHECKPOINT: {message}" if str(checkpoint) in message else f"CHECKPOINT {checkpoint}: {message}")

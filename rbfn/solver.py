@@ -254,10 +254,10 @@ class IKSolver:
 
     def _answering(self):
         """The network in float64 (itself, or a float64 copy); a charted one in float32 (its
-        answers are seeds the polish makes exact: float32 halves their time), copied once."""
+        answers are seeds the polish makes exact: float32 halves their time), frozen once (`ChartedIK.frozen`)."""
         if isinstance(self.model, ChartedIK):
             if self._charts32 is None:
-                self._charts32 = copy.deepcopy(self.model).float().eval().requires_grad_(False)
+                self._charts32 = self.model.frozen(torch.float32)
             return self._charts32
         return self.model if self.model.centers.dtype == torch.float64 else copy.deepcopy(self.model).double()
 

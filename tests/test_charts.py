@@ -119,6 +119,43 @@ def test_charted_checkpoint_round_trips_through_load_solver(charted, tmp_path):
         check_charts(broken, path)
 
 
+def test_frozen_copy_answers_as_the_model_does(charted):
+    """`ChartedIK.frozen` (the solver's and the exporters' form: parameters stacked once) answers
+    as the model in the same dtype, and `answer_rows` (one piece) as `answers` (blocks)."""
+    _, robot, model = charted
+    x = full_range_split(robot, 40, 8).x
+    frozen = model.frozen(torch.float64)
+    q, close = model.double().answers(x)
+    q2, close2 = frozen.answers(x)
+    assert torch.equal(q, q2) and torch.equal(close, close2)
+    q3, _ = frozen.answer_rows(x)
+    assert torch.allclose(q3, q, atol=1e-12)
+
+
+def test_export_cli_and_the_deploy_example_take_a_charted_checkpoint(charted, tmp_path, capsys):
+    """`python -m rbfn.export` writes a charted checkpoint's ik.onnx and ik.pt2, and
+    examples/deploy_onnx.py (onnxruntime and numpy only) picks each target's closest chart and the
+    answer nearest the current joints, and flags a target 10 m away."""
+    pytest.importorskip("onnxruntime")
+    import runpy
+
+    from rbfn.export import main
+
+    from .conftest import ROOT
+
+    _, robot, model = charted
+    path = tmp_path / "charts.pt"
+    save_charts(path, model, robot.record(), {"seed": 0}, {"m": 1.0})
+    main([str(path)])
+    assert capsys.readouterr().out.split() == ["wrote", str(tmp_path / "ik.onnx"), "wrote", str(tmp_path / "ik.pt2")]
+    runpy.run_path(str(ROOT / "examples" / "deploy_onnx.py"))["main"](str(tmp_path / "ik.onnx"))
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("ur5: input 'poses' ['batch', 7]") and lines[1].startswith("8 charts answer")
+    assert len(lines) == 7 and all("nearest the current joints: chart" in line for line in lines[2:6])
+    assert all(line.endswith("in workspace True") for line in lines[2:6])
+    assert lines[6].endswith("(10 m away)  in workspace False")
+
+
 def test_train_charts_refuses_bad_chart_settings(charted):
     _, robot, _ = charted
     for key, value in (("robot.charts", 0), ("robot.chart_centers", 0), ("robot.chart_samples", 5)):

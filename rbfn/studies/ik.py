@@ -155,7 +155,7 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
         _, ok = solver.solve(targets, redundancy=value)
         out[prefix + "polished_success_rate"] = float(ok.double().mean())
         if prefix == "test_full_range_":
-            inside = model.answers(split.x)[1].amin(1) <= 1.0
+            inside = deployed(model, robot)(split.x)[2]  # the exporters' float32 flag, as deployed
             out[prefix + "in_workspace"] = float(inside.double().mean())
             out[prefix + "success_in_workspace"] = float(ok[inside].double().mean()) if bool(inside.any()) else None
             k = min(ALL_POSES, split.x.shape[0])

@@ -15,6 +15,7 @@ from torch.utils.tensorboard import SummaryWriter
 from ..charts import save_charts, train_charts
 from ..config import TrainConfig, Workspace, plain, validate_train
 from ..data import check_finite, full_range_split, make_dataset
+from ..export import export_all
 from ..memory import check_train
 from ..pipeline import train_ik
 from ..resume import DifferentRun, StateFile, TrainState, comparable
@@ -45,7 +46,7 @@ def run(cfg: TrainConfig, out_dir: Path, run_files: dict[str, str] | None = None
     with RunDir(out_dir):
         states = StateFile(out_dir)
         state = states.load(plain(cfg))  # refuses another config's run before any write
-        claim(out_dir, state, cfg.export and not full, (run_files or {}).get(_CONFIG_FILE))
+        claim(out_dir, state, cfg.export, (run_files or {}).get(_CONFIG_FILE))
         if state.finished is not None:
             log.info("%s holds a finished run with this config; nothing to do (delete it to train again)", out_dir)
             return state.finished
@@ -119,10 +120,7 @@ def _fit_box(
 def _fit_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[str, str] | None) -> dict:
     """`run`'s work for robot.workspace=full: the charted network (`rbfn.charts.train_charts`) into
     checkpoint.pt (`rbfn.charts.save_charts`) and metrics.json (`rbfn.studies.ik.charted_metrics`);
-    returns the metrics. The charts train in one piece (a stopped run starts over), and no exports
-    are written: they hold one box network."""
-    if cfg.export:
-        log.warning("robot.workspace=full: no ik.onnx / ik.pt2 (the exports hold one box network); checkpoint.pt")
+    returns the metrics. The charts train in one piece (a stopped run starts over)."""
     for rel, text in (run_files or {}).items():
         write_text(out_dir / rel, text)
     r = cfg.robot
@@ -131,7 +129,8 @@ def _fit_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[s
         t0 = time.perf_counter()
         charted = train_charts(cfg, robot, progress=fit["progress"])
         seconds, model = time.perf_counter() - t0, charted.model
-    with announced(log, "outputs", "box and whole-range figures, checkpoint.pt, metrics.json", cfg.progress):
+    files = "checkpoint.pt" + (", ik.onnx, ik.pt2" if cfg.export else "") + ", metrics.json"
+    with announced(log, "outputs", f"box and whole-range figures, {files}", cfg.progress):
         d = cfg.data
         box = make_dataset(robot, (2, 1, d.n_test), cfg.seed).test  # the box run's test poses
         full = full_range_split(robot, d.n_test, cfg.seed)
@@ -145,6 +144,8 @@ def _fit_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[s
             "seconds_a_chart": charted.seconds_a_chart,
         }
         save_charts(out_dir / "checkpoint.pt", model, robot.record(), plain(cfg), metrics)
+        if cfg.export:
+            export_all(model, out_dir, robot=robot)  # every chart's answer, to deploy without this package
         write_json(out_dir / "metrics.json", metrics)
         writer = SummaryWriter(log_dir=str(out_dir))
         try:

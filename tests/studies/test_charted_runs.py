@@ -4,13 +4,16 @@ fresh poses and skips the online part (which adapts one box network), and the bo
 name what to use instead."""
 
 import json
+import math
 
 import pytest
+import torch
 
 import evaluate
 import train
 from rbfn import load_model, load_solver
 from rbfn.data import full_range_split
+from rbfn.export import load_pt2, read_onnx
 
 from ..conftest import compose_config
 
@@ -37,9 +40,11 @@ def test_train_writes_the_charted_checkpoint_and_its_figures(full_run):
     out, m = full_run
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith("events")) == [
         "checkpoint.pt",
+        "ik.onnx",
+        "ik.pt2",
         "last.pt",
         "metrics.json",
-    ]  # no exports: they hold one box network
+    ]
     assert json.loads((out / "metrics.json").read_text()) == m
     assert m["workspace"] == "full" and m["charts"] == 4 and m["polish_iterations"] == 5
     for key in ("test_polished_success_rate", "test_full_range_polished_success_rate"):
@@ -51,6 +56,34 @@ def test_train_writes_the_charted_checkpoint_and_its_figures(full_run):
     q, ok = solver.solve(x)
     assert q.shape == (50, 6) and bool(ok.any())
     assert train.run(compose_config("train", *FULL), out) == m  # finished: not redone
+
+
+def test_the_exports_carry_every_chart_and_its_flag(full_run):
+    """ik.onnx (onnxruntime alone) and ik.pt2 answer once a chart, as the network does in float32,
+    and their workspace flag is the one metrics.json's in_workspace counts."""
+    ort = pytest.importorskip("onnxruntime")
+    out, m = full_run
+    solver = load_solver(out / "checkpoint.pt")
+    x = full_range_split(solver.robot, 300, 5).x
+    q, close = solver.model.frozen(torch.float32).answers(x.float())
+    session = ort.InferenceSession(read_onnx(out / "ik.onnx"))
+    assert [o.name for o in session.get_outputs()] == ["joints", "closeness", "in_workspace"]
+    meta = session.get_modelmeta().custom_metadata_map
+    assert meta["workspace"] == "full" and meta["charts"] == "4" and meta["base_yaw"] == "false"
+    extra = {"rbfn.json": ""}
+    program = load_pt2(out / "ik.pt2", extra).module()
+    assert json.loads(extra["rbfn.json"]) == {k: v for k, v in meta.items() if k != "sha256"}
+    for joints, closeness, inside in (
+        (torch.as_tensor(a) for a in session.run(None, {"poses": x.float().numpy()})),
+        program(x.float()),
+    ):
+        assert joints.shape == (300, 4, 6) and closeness.shape == (300, 4)
+        turn = torch.remainder(joints - q + math.pi, 2 * math.pi) - math.pi
+        assert float(turn.abs().max()) < 1e-3 and torch.allclose(closeness, close, atol=1e-4)
+        assert torch.equal(inside, close.amin(1) < 1)
+    flagged = float((close.amin(1) < 1).double().mean())
+    assert 0 < flagged  # the metrics' share is of other poses; the rule is the same
+    assert 0 <= m["test_full_range_in_workspace"] <= 1
 
 
 def test_evaluate_measures_the_charted_network_and_skips_online(full_run, tmp_path, caplog):
