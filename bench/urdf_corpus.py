@@ -8,10 +8,11 @@ has at most one child subtree that holds a moving joint, until the first link wi
 (a gripper's fingers) or none; the end link is that link, and the trunk holds 3 to 7 moving
 joints. Humanoids, legged robots, two-armed robots and wheeled bases (several subtrees with
 moving joints at the root, or fewer than 3 moving joints on the trunk) are skipped and counted
-as such. Each arm trains at a small size (`rbfn.num_centers`, the data sizes and `centers=kmeans`
-below, so that a corpus of a hundred arms fits an hour on 2 cores); a run's outcome is `trained`
-or the first line of the error that stopped it. One JSON line per URDF goes to `--out`, and a
-table of outcomes by reason to stdout.
+as such. Each arm trains at a small size (`rbfn.num_centers`, the data sizes, the charts of
+`robot.workspace=full`, robot=urdf's default, and `centers=kmeans` below, so that a corpus of a
+hundred arms fits an hour on 2 cores); a run's outcome is `trained` or the first line of the error
+that stopped it. One JSON line per URDF goes to `--out`, and a table of outcomes by reason to
+stdout.
 """
 
 from __future__ import annotations
@@ -38,6 +39,9 @@ SMALL = [
     "data.n_val=500",
     "data.n_test=500",
     "rbfn.growth.start=0",
+    "robot.charts=8",
+    "robot.chart_centers=64",
+    "robot.chart_samples=500",
     "progress=false",
     "export=false",
 ]

@@ -50,9 +50,21 @@ def small_data(scara_robot):
     return make_dataset(scara_robot, (600, 300, 300), seed=3)
 
 
+# The Panda preset with joint 3 held at 0 (robot.locked) and a box of the six others: the robot.locked path
+PANDA_HELD = [
+    "robot=panda",
+    "robot.workspace=box",
+    'robot.redundancy=""',
+    "+robot.locked.panda_joint3=0.0",
+    "robot.joint_low=[-1.0,-1.7628,-3.0718,-1.0,0.571,-0.215]",
+    "robot.joint_high=[1.0,0.215,-1.356,1.0,2.571,1.785]",
+    "robot.home=[0.0,-0.785,-2.356,0.0,1.571,0.785]",
+]
+
+
 @pytest.fixture(scope="session")
 def panda_ckpt(tmp_path_factory):
-    """A coarse Panda pose network (40 centres, joint 3 locked) as a checkpoint dict."""
+    """A coarse Panda box network (40 centres, joint 3 locked: `PANDA_HELD`) as a checkpoint dict."""
     import train
     from rbfn.checkpoint import read_checkpoint
 
@@ -60,7 +72,7 @@ def panda_ckpt(tmp_path_factory):
     train.run(
         compose_config(
             "train",
-            "robot=panda",
+            *PANDA_HELD,
             "centers=kmeans",
             "rbfn.num_centers=40",
             "rbfn.growth.start=0",
@@ -101,6 +113,7 @@ PANDA_REDUNDANT = [
 ]
 
 TINY_TRAIN = [
+    "robot.workspace=box",
     "data.n_train=300",
     "data.n_val=200",
     "data.n_test=200",

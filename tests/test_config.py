@@ -11,7 +11,7 @@ from rbfn.config import SELECTORS, EvalConfig, validate_evaluate, validate_train
 from rbfn.data import check_finite
 from rbfn.memory import check_evaluate, check_train
 
-from .conftest import compose_config
+from .conftest import PANDA_HELD, compose_config
 
 
 def _cfg(*overrides: str):
@@ -344,7 +344,7 @@ def test_the_entry_points_refuse_a_bool_given_as_anything_else(tmp_path, script,
             "its URDF limits [-6.28319, 6.28319]",
         ),
         (
-            ["robot=panda", "robot.locked.panda_joint3=3.5"],
+            [*(o for o in PANDA_HELD if "locked" not in o), "+robot.locked.panda_joint3=3.5"],
             "robot.locked.panda_joint3=3.5 is not allowed: joint panda_joint3 at 3.5 lies outside its URDF limits "
             "[-2.8973, 2.8973]",
         ),

@@ -22,6 +22,7 @@ from .conftest import TINY_TRAIN, compose_config
 
 UR5_SMALL = [
     "robot=ur5",
+    "robot.workspace=box",
     "centers=kmeans_refine",
     "rbfn.num_centers=40",
     "data.n_train=800",

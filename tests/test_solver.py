@@ -11,6 +11,7 @@ from .conftest import PANDA_REDUNDANT, compose_config
 
 SMALL = [
     "robot=ur5",
+    "robot.workspace=box",
     "centers=kmeans",
     "rbfn.num_centers=150",
     "data.n_train=3000",

@@ -67,7 +67,7 @@ def find_checkpoint(cfg: EvalConfig) -> Path | None:
 
 
 # A checkpoint's robot entry -> the robot keys it fixes (the box and target it was trained on).
-_ENTRY_KEYS = ("end_link", "locked", "target", "joint_low", "joint_high")
+_ENTRY_KEYS = ("end_link", "locked", "target", "joint_low", "joint_high", "redundancy")
 
 
 def _entry_label(record: dict) -> str:
@@ -149,6 +149,8 @@ def for_checkpoint(dcfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
     for key, value in values.items():
         if not any(k == f"robot.{key}" or k.startswith(f"robot.{key}.") for k in given):
             dcfg.robot[key] = value  # the overrides' robot.* keys win
+    if "robot.home" not in given and len(dcfg.robot.home) not in (0, len(record["joint_names"])):
+        dcfg.robot.home = []  # the preset's home has other free joints (an earlier preset's checkpoint): box centre
     robot = cast(RobotConfig, OmegaConf.to_object(dcfg.robot))
     if not same_robot(robot, record):  # the overrides' robot.* keys made it another robot
         raise _another_robot(path, newest, record, " ".join(given.values()), choice)

@@ -23,10 +23,11 @@ from rbfn.robots.arm_terms import ArmTerms
 from rbfn.robots.dynamics import load_arm
 from rbfn.robots.scara import ScaraTerms
 
-from ..conftest import compose_config
+from ..conftest import PANDA_HELD, compose_config
 
 UR5 = compose_config("evaluate", "robot=ur5").robot
 PANDA = compose_config("evaluate", "robot=panda").robot
+PANDA_LOCKED = compose_config("evaluate", *PANDA_HELD).robot  # joint 3 held at 0
 
 
 def _run(plant, model, name, sc, ref, payload, **kw):
@@ -142,7 +143,9 @@ def test_robot_setup_derives_cases_scale_and_path():
     assert payload_cases(ControlConfig(), 0.0) == ([0.0], 0.0)
     # The Panda's locked joint 3 is controlled, held at its locked value.
     panda = control_robot(PANDA, ControlConfig())
-    assert panda.n == 7 and panda.amplitude[2] == 0.0 and panda.home[2] == PANDA.locked["panda_joint3"]
+    assert panda.n == 7 and panda.amplitude[2] > 0.0 and panda.home[2] == 0.0  # all 7 joints move
+    held = control_robot(PANDA_LOCKED, ControlConfig())
+    assert held.n == 7 and held.amplitude[2] == 0.0 and held.home[2] == PANDA_LOCKED.locked["panda_joint3"]
     assert panda.payloads == [0.0, 1.5, 3.0]
 
 

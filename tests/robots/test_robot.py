@@ -23,4 +23,4 @@ def test_a_redundant_pose_arm_is_told_to_lock_a_joint_or_give_it_as_an_input():
 @pytest.mark.parametrize("name", ROBOT_PRESETS)
 def test_every_shipped_robot_passes(name):
     cfg = compose_config("train", f"robot={name}")
-    check_ik_is_function(cfg.robot.target, load_robot(cfg.robot).joint_names, cfg.robot.locked)
+    check_ik_is_function(cfg.robot.target, load_robot(cfg.robot).joint_names, cfg.robot.locked, cfg.robot.redundancy)
