@@ -12,8 +12,10 @@ solves those targets and one 10 m away, and prints the joints, the largest joint
 the joints that reached each target (rad, or m for a prismatic joint) and the workspace flag:
 the network answers every query, the flag says when not to trust the answer. A network of the
 whole joint range (metadata "workspace": "full": robot.workspace=full) answers each target once
-per chart, as outputs "joints" (B, K, n) and "closeness" (B, K); this picks, for each target, the
-closest chart's answer and the answer nearest the joints the robot is at. Where the file turns
+per chart, polishes the best answers in its graph to 0.1 mm / 0.1 deg and outputs "joints" (B, n),
+"in_workspace" (B,) (the polish converged), and every chart's raw answer "answers" (B, K, n) with
+"closeness" (B, K); this prints the polished joints and the raw answer nearest the joints the
+robot is at. Where the file turns
 targets around the base (metadata "base_yaw": "true": arms whose first joint turns about the
 base's vertical axis), it also solves the first example turned 2 rad about the base, far outside
 the trained range of that joint, and prints the first joint's change (2 rad).
@@ -123,19 +125,20 @@ def wrapped(d: np.ndarray) -> np.ndarray:
 
 
 def charted(session: ort.InferenceSession, name: str, x: np.ndarray, truth: np.ndarray) -> None:
-    """A charted export (metadata "workspace": "full"): every chart's answer (B, K, n) and closeness
-    (B, K). Prints, for each target, the closest chart's answer and the answer nearest the joints the
-    robot is at (here: the reaching joints moved by 0.05 rad), with their largest joint error."""
-    answers, closeness, inside = session.run(["joints", "closeness", "in_workspace"], {name: x})
-    print(f"{answers.shape[1]} charts answer each target; the answers are seeds for a polish")
+    """A charted export (metadata "workspace": "full"): the polished answer (B, n) and its flag (the
+    polish converged), every chart's raw answer (B, K, n). Prints, for each target, the polished
+    joints with their largest error against the joints that reached it (another branch may reach
+    the same pose: then the error is large and the flag still true), and the raw answer nearest
+    the joints the robot is at (here: the reaching joints moved by 0.05 rad)."""
+    joints, inside, answers = session.run(["joints", "in_workspace", "answers"], {name: x})
+    print(f"{answers.shape[1]} charts answer each target; the best answers are polished in the graph")
     for i in range(x.shape[0]):
-        closest = int(closeness[i].argmin())
-        line = f"target {i}: closest chart {closest} joints {np.array2string(answers[i, closest], precision=3)}"
+        line = f"target {i}: joints {np.array2string(joints[i], precision=3)}"
         if i < len(truth):
             current = truth[i] + 0.05
             k = int(np.abs(wrapped(answers[i] - current)).max(-1).argmin())
             error = np.abs(wrapped(answers[i, k] - truth[i])).max()
-            line += f"  nearest the current joints: chart {k}, max joint error {error:.2e}"
+            line += f"  raw answer nearest the current joints: chart {k}, max joint error {error:.2e}"
         else:
             line += "  (10 m away)"
         print(f"{line}  in workspace {bool(inside[i])}")

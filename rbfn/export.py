@@ -54,8 +54,10 @@ from typing import Any
 
 import numpy as np
 import onnx
+import onnxscript
 import torch
 from onnx import helper, numpy_helper
+from onnx_ir.passes.common import RemoveUnusedNodesPass
 from torch import nn
 
 from .charts import ChartedIK, charts_from_checkpoint
@@ -108,6 +110,7 @@ INPUTS = {
         "as a unit quaternion (w, x, y, z)",
     ),
 }
+CHART_BLOCK_ROWS = 512  # a charted ONNX graph's rows a block (UR5, 4 000 poses, one thread: 13 % faster than 54)
 EXAMPLE_TARGETS = 4  # how many example joint vectors and their targets the metadata holds
 CHECKSUM_KEY = "sha256"  # the ONNX model's metadata entry holding the file's SHA-256 (hex)
 # That entry as protobuf writes it (a StringStringEntryProto: field 1 the key, then field 2, 64
@@ -154,29 +157,35 @@ class DeployedPoseIK(DeployedIK):
 
 
 class DeployedCharts(nn.Module):
-    """A charted network (`rbfn.charts.ChartedIK`, robot.workspace=full) in float32: positions (B, 3)
-    -> (joints (B, K, n): every chart's answer, within the URDF limits; closeness (B, K): each
-    chart's nearest centre's distance over its cover radius, below 1 inside the region it learned;
-    in_workspace (B,): some chart's closeness is below 1). The answers are seeds: a caller picks
-    one (nearest its current joints, or the closest chart) and polishes it (`rbfn.solver`). What it
-    takes of the model: `ChartedIK.frozen` and `answer_rows`."""
+    """A charted network (`rbfn.charts.ChartedIK`, robot.workspace=full) with its polish, in float32:
+    positions (B, 3) -> (joints (B, n): the best answer polished (`rbfn.graph_polish.GraphPolish`,
+    the solver's staged polish in the graph), within the URDF limits; in_workspace (B,): that
+    polish converged within the tolerances (0.1 mm, 0.1 deg); answers (B, K, n): every chart's raw
+    answer, for a caller who picks another (the one nearest its current joints, say) and polishes
+    it; closeness (B, K): each chart's nearest centre's distance over its cover radius, below 1
+    inside the region it learned). What it takes of the model: `ChartedIK.frozen` and `answer_rows`."""
 
-    def __init__(self, model: ChartedIK) -> None:
+    def __init__(self, model: ChartedIK, robot: Robot) -> None:
         super().__init__()
+        from .graph_polish import graph_polish
+
         self.charts = model.frozen(torch.float32)
+        self.charts.nets = nn.ModuleList([self.charts.first])  # the rest are stacked: not carried twice
+        self.polish = graph_polish(robot, model).float()
 
-    def _answer(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        q, close = self.charts.answer_rows(x)
-        return q, close, close.amin(-1) < 1.0
+    def _answer(self, x: torch.Tensor):
+        answers, close = self.charts.answer_rows(x)
+        q, converged = self.polish(answers, close, x.to(answers.dtype))
+        return q, converged, answers, close
 
-    def forward(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, positions: torch.Tensor):
         return self._answer(positions)
 
 
 class DeployedPoseCharts(DeployedCharts):
     """`DeployedCharts` of a pose network: poses (B, 7), or (B, 8) with the redundant joint's value."""
 
-    def forward(self, poses: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, poses: torch.Tensor):
         return self._answer(poses)
 
 
@@ -193,7 +202,9 @@ def deployed(net: Exportable, robot: Robot | None = None, base_yaw: bool = True)
     given a box network's `robot` and `base_yaw`, turning targets around the base where the arm
     allows it (`rbfn.yaw`); a charted network's every chart (`DeployedCharts`)."""
     if isinstance(net, ChartedIK):
-        return (DeployedPoseCharts if net.first.target == "pose" else DeployedCharts)(net).eval()
+        if robot is None:
+            raise ValueError("a charted network's export polishes its answers: pass its robot (robot=)")
+        return (DeployedPoseCharts if net.first.target == "pose" else DeployedCharts)(net, robot).eval()
     yaw = yaw_of(robot) if robot is not None and base_yaw else None
     return (DeployedPoseIK if net.target == "pose" else DeployedIK)(net, yaw).eval()
 
@@ -207,10 +218,11 @@ def _outputs(model: Exportable) -> dict[str, str]:
             "in_workspace": "in_workspace (B,) bool: the target lies in the trained workspace",
         }
     return {
-        "joints": f"joints (B, K, n) float32: every chart's answer, {joints}, within the URDF limits",
+        "joints": f"joints (B, n) float32: the best chart's answer polished, {joints}, within the URDF limits",
+        "in_workspace": "in_workspace (B,) bool: the polish converged (within 0.1 mm and 0.1 deg of the target)",
+        "answers": f"answers (B, K, n) float32: every chart's raw answer, {joints}, within the URDF limits",
         "closeness": "closeness (B, K) float32: each chart's nearest centre's distance over its cover radius "
         "(below 1: inside the region the chart learned)",
-        "in_workspace": "in_workspace (B,) bool: some chart's closeness is below 1",
     }
 
 
@@ -371,6 +383,7 @@ def onnx_bytes(
     batch = torch.export.Dim("batch", min=1)
     name = INPUTS[_net(net).target][0]
     layout = metadata(net)["input"]
+    charted = isinstance(net, ChartedIK)
     outputs = _outputs(net)
     with _quiet_exporter():
         prog = torch.onnx.export(
@@ -382,9 +395,16 @@ def onnx_bytes(
             output_names=list(outputs),
             dynamic_shapes={name: {0: batch}},
             verbose=False,
+            # The charts' polish unrolls into thousands of small operations, over which the exporter's
+            # optimizer takes many minutes: its constants are folded alone (seconds), unused nodes removed.
+            optimize=not charted,
         )
-    assert prog is not None  # dynamo=True: always an ONNXProgram
-    model = _in_row_blocks(prog.model_proto, block_rows or net.rows_per_block)
+        assert prog is not None  # dynamo=True: always an ONNXProgram
+        if charted:
+            onnxscript.optimizer.fold_constants(prog.model)
+            RemoveUnusedNodesPass()(prog.model)
+    rows = block_rows or (CHART_BLOCK_ROWS if charted else net.rows_per_block)
+    model = _in_row_blocks(_bare(prog.model_proto), rows)
     model.graph.input[0].doc_string = layout
     for out in model.graph.output:
         out.doc_string = outputs[out.name]
@@ -393,6 +413,15 @@ def onnx_bytes(
     data = model.SerializeToString()
     at = data.rfind(_CHECKSUM_ENTRY + _BLANK) + len(_CHECKSUM_ENTRY)
     return data[:at] + hashlib.sha256(data).hexdigest().encode() + data[at + len(_BLANK) :]
+
+
+def _bare(model: onnx.ModelProto) -> onnx.ModelProto:
+    """`model` without the exporter's notes on each node (its FX node, stack trace, module path:
+    a kilobyte a node, most of a charted model's bytes), in place."""
+    for node in model.graph.node:
+        del node.metadata_props[:]
+        node.doc_string = ""
+    return model
 
 
 def onnx_checksum(data: bytes) -> tuple[bytes, bytes] | None:

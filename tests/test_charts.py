@@ -132,28 +132,18 @@ def test_frozen_copy_answers_as_the_model_does(charted):
     assert torch.allclose(q3, q, atol=1e-12)
 
 
-def test_export_cli_and_the_deploy_example_take_a_charted_checkpoint(charted, tmp_path, capsys):
-    """`python -m rbfn.export` writes a charted checkpoint's ik.onnx and ik.pt2, and
-    examples/deploy_onnx.py (onnxruntime and numpy only) picks each target's closest chart and the
-    answer nearest the current joints, and flags a target 10 m away."""
-    pytest.importorskip("onnxruntime")
-    import runpy
+def test_the_export_command_reads_a_charted_checkpoint(charted, tmp_path):
+    """`python -m rbfn.export` rebuilds a charted checkpoint's network and robot (the exports
+    themselves: tests/studies/test_charted_runs.py)."""
+    import argparse
 
-    from rbfn.export import main
-
-    from .conftest import ROOT
+    from rbfn.export import _network
 
     _, robot, model = charted
     path = tmp_path / "charts.pt"
     save_charts(path, model, robot.record(), {"seed": 0}, {"m": 1.0})
-    main([str(path)])
-    assert capsys.readouterr().out.split() == ["wrote", str(tmp_path / "ik.onnx"), "wrote", str(tmp_path / "ik.pt2")]
-    runpy.run_path(str(ROOT / "examples" / "deploy_onnx.py"))["main"](str(tmp_path / "ik.onnx"))
-    lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("ur5: input 'poses' ['batch', 7]") and lines[1].startswith("8 charts answer")
-    assert len(lines) == 7 and all("nearest the current joints: chart" in line for line in lines[2:6])
-    assert all(line.endswith("in workspace True") for line in lines[2:6])
-    assert lines[6].endswith("(10 m away)  in workspace False")
+    net, again = _network(argparse.ArgumentParser(), str(path))
+    assert isinstance(net, ChartedIK) and net.num_charts == 8 and again.joint_names == robot.joint_names
 
 
 def test_train_charts_refuses_bad_chart_settings(charted):

@@ -28,6 +28,7 @@ import re
 import reprlib
 import stat
 import weakref
+from collections.abc import Sequence
 from importlib.resources import files
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -435,8 +436,26 @@ def _steps(chain: pk.SerialChain) -> list[_Step]:
         )
         index = names.index(f.joint.name) if kind else -1
         steps.append(_Step(t[:3, :3], t[:3, 3], kind, index, a, torch.outer(a, a), cross))
+    steps = _merged(steps)
     _STEPS[chain] = (chain.dtype, chain.device, steps)
     return steps
+
+
+def _merged(steps: list[_Step]) -> list[_Step]:
+    """`steps` with each run of fixed frames folded into the next frame's fixed transform (the
+    chain's pose and Jacobian are the same; fewer products per pose); a trailing run stays one
+    fixed step."""
+    out: list[_Step] = []
+    pending: _Step | None = None  # the fixed frames not yet folded, as one
+    for st in steps:
+        if pending is not None:  # T_pending then T_step
+            st = st._replace(rot=pending.rot @ st.rot, offset=pending.offset + pending.rot @ st.offset)
+        pending = st if st.kind == 0 else None
+        if st.kind:
+            out.append(st)
+    if pending is not None:
+        out.append(pending)
+    return out
 
 
 def _chain_pass(chain: pk.SerialChain, th: torch.Tensor, jacobian: bool):
@@ -447,38 +466,53 @@ def _chain_pass(chain: pk.SerialChain, th: torch.Tensor, jacobian: bool):
     if b > FK_BLOCK:  # blocks that stay in cache: 0.60-0.66 us a UR5 pose at 2-8 k rows, 1.07 at 131 k
         parts = [_chain_pass(chain, t, jacobian) for t in th.split(FK_BLOCK)]
         return torch.cat([p for p, _ in parts]), torch.cat([j for _, j in parts]) if jacobian else None
+    rot, pos, jac = compose(_steps(chain), th, jacobian)
+    row = th.new_zeros(b, 1, 4)
+    row[:, 0, 3] = 1.0  # the homogeneous row [0, 0, 0, 1]
+    return torch.cat([torch.cat([rot, pos[:, :, None]], 2), row], 1), jac
+
+
+def compose(steps: Sequence[_Step], th: torch.Tensor, jacobian: bool):
+    """(end-link rotations (B, 3, 3), positions (B, 3), and with `jacobian` the geometric Jacobian
+    (B, 6, n_joints) or None) for joints th (B, n_joints), from a chain's `_Step`s: the frames
+    composed in order, each a fixed transform, then its joint's rotation (Rodrigues' formula, as
+    pytorch-kinematics writes it) or translation. Plain tensor operations, no in-place writes and
+    no data-dependent branches, so torch.export and the ONNX exporter take it (`rbfn.graph_polish`)."""
+    b = th.shape[0]
     rot = torch.eye(3, dtype=th.dtype, device=th.device).expand(b, 3, 3)
     pos = th.new_zeros(b, 3)
-    axes, origins, kinds = [], [], []
-    for st in _steps(chain):
-        pos = pos + rot @ st.offset
+    frames: dict[int, tuple[int, torch.Tensor, torch.Tensor]] = {}  # joint -> (kind, axis, origin) in the root frame
+    for st in steps:
+        pos = pos + (rot @ st.offset[:, None])[:, :, 0]
         rot = rot @ st.rot
         if st.kind == 0:
             continue
         q = th[:, st.joint, None, None]
-        z = rot @ st.axis  # the joint's axis in the root frame (B, 3)
+        z = (rot @ st.axis[:, None])[:, :, 0]  # the joint's axis in the root frame (B, 3)
         if st.kind == 1:  # R (c I + (1 - c) a a^T + s K): Rodrigues, as pytorch-kinematics writes it
             c, s = q.cos(), q.sin()
             rot = c * rot + (1 - c) * (rot @ st.outer) + s * (rot @ st.cross)
         else:
             pos = pos + q[:, :, 0] * z
-        if jacobian:
-            axes.append((st.joint, z))
-            origins.append(pos)
-            kinds.append(st.kind)
-    row = th.new_zeros(b, 1, 4)
-    row[:, 0, 3] = 1.0  # the homogeneous row [0, 0, 0, 1]
-    pose = torch.cat([torch.cat([rot, pos[:, :, None]], 2), row], 1)
+        frames[st.joint] = (st.kind, z, pos)
     if not jacobian:
-        return pose, None
-    jac = th.new_zeros(b, 6, th.shape[1])
-    for (j, z), o, kind in zip(axes, origins, kinds):
+        return rot, pos, None
+    zero = th.new_zeros(b, 3)
+    columns = []
+    for j in range(th.shape[1]):
+        kind, z, origin = frames.get(j, (0, zero, zero))
         if kind == 1:
-            jac[:, :3, j] = torch.linalg.cross(z, pos - o)
-            jac[:, 3:, j] = z
-        else:
-            jac[:, :3, j] = z
-    return pose, jac
+            columns.append(torch.cat([_cross(z, pos - origin), z], -1))
+        else:  # prismatic (a fixed joint's column is zero)
+            columns.append(torch.cat([z, zero], -1))
+    return rot, pos, torch.stack(columns, -1)
+
+
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a x b for vectors (B, 3), written out (the ONNX exporter has no cross product)."""
+    a0, a1, a2 = a.unbind(-1)
+    b0, b1, b2 = b.unbind(-1)
+    return torch.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
 
 
 def forward_kinematics_pose(chain: pk.SerialChain, th: torch.Tensor) -> torch.Tensor:

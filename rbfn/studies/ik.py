@@ -140,7 +140,8 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
     best-ranked chart's raw position and rotation error medians (`pos_err_mm_median`,
     `rot_err_deg_median`), the polished success within 0.1 mm / 0.1 deg (`polished_success_rate`,
     `IKSolver.solve`'s staged polish, `polish_iterations` steps an answer), the share of whole-range
-    poses some chart's centres cover (`test_full_range_in_workspace`) and the success among them
+    poses the exported flag marks inside (`test_full_range_in_workspace`: the graph's own polish,
+    `rbfn.graph_polish`, converged) and the solver's success among them
     (`test_full_range_success_in_workspace`), and the distinct solutions `IKSolver.solve_all` finds
     a pose (`test_full_range_solutions_mean`, on the first `ALL_POSES` whole-range poses)."""
     solver = IKSolver(model, robot, error_damping=CHARTED_ERROR_DAMPING)
@@ -155,7 +156,7 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
         _, ok = solver.solve(targets, redundancy=value)
         out[prefix + "polished_success_rate"] = float(ok.double().mean())
         if prefix == "test_full_range_":
-            inside = deployed(model, robot)(split.x)[2]  # the exporters' float32 flag, as deployed
+            inside = deployed(model, robot)(split.x)[1]  # the exporters' float32 flag (converged), as deployed
             out[prefix + "in_workspace"] = float(inside.double().mean())
             out[prefix + "success_in_workspace"] = float(ok[inside].double().mean()) if bool(inside.any()) else None
             k = min(ALL_POSES, split.x.shape[0])

@@ -1,0 +1,226 @@
+"""The polish in a graph: a charted network's answers made exact inside the exported model.
+
+A charted network's raw answers are seeds, tens of mm off (`rbfn.charts`); the torch solver
+(`rbfn.solver.IKSolver`) ranks them by forward kinematics and polishes the best. `GraphPolish`
+does the same in plain tensor operations that torch.export and the ONNX exporter take, so that an
+exported charted network answers exact joints and a flag that means what it says (the polish
+converged within the tolerances), with onnxruntime alone:
+
+1. the `PRESELECT` charts whose centres lie nearest the target, ranked by forward kinematics;
+2. the best `WIDE` polished `FIRST_STEPS` damped-least-squares steps, the best `NARROW` of them the
+   remaining steps (`CHARTED_ITERATIONS` in all on each answer's path), the nearest kept.
+
+It is the solver's staged polish (`IKSolver._charted_first`) without what a static graph cannot
+do cheaply: the rows are never split, so the line search and the re-solve without joints held at
+a limit run on every row (masked where the solver takes a subset), and there is no fallback to
+every chart for the few targets the ranking misses (the solver's last stage). The robot's
+kinematics are `rbfn.robots.kinematics.compose` on the chain's frames, held as constants; the
+linear solve is a Cholesky factorisation written out (the ONNX exporter has no solve).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .robots.kinematics import _Step, _steps, compose
+from .robots.robot import Robot, rotation_error_deg
+from .solver import (
+    CHARTED_ERROR_DAMPING,
+    CHARTED_ITERATIONS,
+    FIRST_STEPS,
+    NARROW,
+    PRESELECT,
+    PROGRESS,
+    STEP_SCALES,
+    WIDE,
+    IKSolver,
+)
+
+__all__ = ["GraphPolish", "graph_polish", "spd_solve"]
+
+FULL = STEP_SCALES.index(1.0)  # the full step among the line search's multiples
+RETRY = 8  # the answers ranked after the first WIDE, polished on every row for the targets those miss
+
+
+def spd_solve(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """x (B, m) with a x = b for symmetric positive definite a (B, m, m) and b (B, m): Cholesky, one
+    column at a time, then the two triangular solves one row at a time, in plain tensor operations
+    (m is small: 3 or 6) so that any exporter takes it (ONNX has no solve)."""
+    m = a.shape[-1]
+    cols: list[torch.Tensor] = []  # the factor L's columns (B, m), zero above the diagonal
+    for j in range(m):
+        v = a[:, :, j]
+        if cols:
+            done = torch.stack(cols, -1)  # (B, m, j)
+            v = v - (done @ done[:, j, :, None])[:, :, 0]
+        col = v[:, j:] / v[:, j : j + 1].clamp(min=1e-30).sqrt()
+        cols.append(torch.cat([v.new_zeros(v.shape[0], j), col], -1) if j else col)
+    low = torch.stack(cols, -1)  # (B, m, m)
+    diag = low.diagonal(dim1=-2, dim2=-1)
+    y = b[:, :1] / diag[:, :1]
+    for i in range(1, m):  # L y = b
+        y = torch.cat([y, (b[:, i : i + 1] - (low[:, i, :i] * y).sum(-1, keepdim=True)) / diag[:, i : i + 1]], -1)
+    x = y[:, m - 1 :] / diag[:, m - 1 :]
+    for i in reversed(range(m - 1)):  # L^T x = y
+        x = torch.cat([(y[:, i : i + 1] - (low[:, i + 1 :, i] * x).sum(-1, keepdim=True)) / diag[:, i : i + 1], x], -1)
+    return x
+
+
+def _quaternion_matrix(w: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (B, 3, 3) of unit quaternions w (B, 4) (w, x, y, z)."""
+    r, i, j, k = w.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (j * j + k * k), 2 * (i * j - k * r), 2 * (i * k + j * r),
+            2 * (i * j + k * r), 1 - 2 * (i * i + k * k), 2 * (j * k - i * r),
+            2 * (i * k - j * r), 2 * (j * k + i * r), 1 - 2 * (i * i + j * j),
+        ],
+        -1,
+    ).reshape(-1, 3, 3)  # fmt: skip
+
+
+def _rotation_vector(r: torch.Tensor) -> torch.Tensor:
+    """Rotation vectors (B, 3) (axis times angle, rad) of rotation matrices r (B, 3, 3), from their
+    skew part (2 sin(angle) axis); at half a turn, where that vanishes, they shrink to it."""
+    v = torch.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], -1)
+    sin2 = v.norm(dim=-1)  # 2 sin(angle)
+    angle = torch.atan2(sin2, r.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
+    return v * torch.where(sin2 > 1e-6, angle / sin2.clamp(min=1e-6), torch.full_like(sin2, 0.5))[:, None]
+
+
+class GraphPolish(nn.Module):
+    """The staged polish of a charted network's answers for `robot`, as a graph (module docstring):
+    `forward(seeds (B, K, n), closeness (B, K), targets x (B, 3, 7 or 8))` -> (joints (B, n),
+    converged (B,)). Tolerances, damping and the step's bound as `solver`'s (an `IKSolver` of the
+    charted network: its float64 settings, here in the module's dtype)."""
+
+    held: torch.Tensor
+    low: torch.Tensor
+    high: torch.Tensor
+
+    def __init__(self, robot: Robot, solver: IKSolver) -> None:
+        super().__init__()
+        steps = _steps(robot.chain)
+        self.frames = [(st.kind, st.joint) for st in steps]
+        for i, st in enumerate(steps):  # one buffer a frame's part: the graph takes them as constants
+            for name in ("rot", "offset", "axis", "outer", "cross"):
+                self.register_buffer(f"frame{i}_{name}", getattr(st, name).float())
+        self.register_buffer("held", robot.full_joints(robot.low[None].double())[0].float())  # locked values
+        self.free = [int(i) for i in robot.free]
+        self.chain_joints = int(self.held.shape[0])
+        self.register_buffer("low", solver.low.float())
+        self.register_buffer("high", solver.high.float())
+        self.pose = solver.pose_target
+        self.redundant = robot.redundant
+        self.tol_mm, self.tol_deg = float(solver.tol_mm), float(solver.tol_deg)
+        self.damping, self.error_damping = float(solver.damping), float(solver.error_damping)
+        self.max_step = float(solver.max_step)
+
+    def _kinematics(self, q: torch.Tensor, jacobian: bool):
+        """(rotations (B, 3, 3), positions (B, 3), task Jacobian (B, 3 or 6, n) or None) at the free
+        joints q (B, n): the chain's frames composed (`rbfn.robots.kinematics.compose`)."""
+        if len(self.free) == self.chain_joints:
+            th = q
+        else:  # the held joints' values between the free ones
+            columns = [q[:, self.free.index(j)] if j in self.free else self.held[j].expand(q.shape[0]) for j in
+                       range(self.chain_joints)]  # fmt: skip
+            th = torch.stack(columns, -1)
+        steps = [
+            _Step(getattr(self, f"frame{i}_rot"), getattr(self, f"frame{i}_offset"), kind, joint,
+                  *(getattr(self, f"frame{i}_{name}") for name in ("axis", "outer", "cross")))
+            for i, (kind, joint) in enumerate(self.frames)
+        ]  # fmt: skip
+        rot, pos, jac = compose(steps, th, jacobian)
+        if jac is not None:
+            jac = jac[:, : 6 if self.pose else 3][:, :, self.free]
+        return rot, pos, jac
+
+    def _errors(self, q: torch.Tensor, x: torch.Tensor):
+        """(task error e (B, 3 or 6), Jacobian (B, 3 or 6, n), cost (B,): mm / tol_mm + deg / tol_deg)."""
+        rot, pos, jac = self._kinematics(q, True)
+        return (*self._error(rot, pos, x), jac)
+
+    def _error(self, rot: torch.Tensor, pos: torch.Tensor, x: torch.Tensor):
+        e = x[:, :3] - pos
+        cost = e.norm(dim=-1) * (1000.0 / self.tol_mm)
+        if not self.pose:
+            return e, cost
+        goal = _quaternion_matrix(x[:, 3:7])
+        e = torch.cat([e, _rotation_vector(goal @ rot.transpose(-1, -2))], -1)
+        return e, cost + rotation_error_deg(rot, goal) / self.tol_deg
+
+    def cost(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Errors (B,) of joints q (B, n) against targets x, in tolerances (forward kinematics only)."""
+        rot, pos, _ = self._kinematics(q, False)
+        return self._error(rot, pos, x)[1]
+
+    def _step(self, a: torch.Tensor, e: torch.Tensor, lam: torch.Tensor, jac: torch.Tensor) -> torch.Tensor:
+        eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
+        return (jac.transpose(-1, -2) @ spd_solve(a + lam[:, None, None] * eye, e)[:, :, None])[:, :, 0]
+
+    def polish(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward x: the
+        solver's damped least squares, its line search and its re-solve without joints held at a
+        limit (`IKSolver._polish`), on every row."""
+        low, high = self.low.to(q), self.high.to(q)
+        scales = torch.tensor(STEP_SCALES, dtype=q.dtype, device=q.device)
+        e, cost, jac = self._errors(q, x)
+        b, n, s = q.shape[0], q.shape[1], scales.shape[0]
+        for _ in range(iterations):
+            lam = self.damping + self.error_damping * e.square().sum(-1)
+            dq = self._step(jac @ jac.transpose(-1, -2), e, lam, jac)
+            held = ((q <= low) & (dq < 0)) | ((q >= high) & (dq > 0))
+            jh = jac * (~held)[:, None, :].to(jac.dtype)
+            dq = torch.where(held.any(-1, keepdim=True), self._step(jh @ jh.transpose(-1, -2), e, lam, jh), dq)
+            dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-30)).clamp(max=1.0)
+            # The full step and the line search's multiples of it (the full step among them) in one pass
+            trials = torch.minimum(torch.maximum(q[:, None] + scales[None, :, None] * dq[:, None], low), high)
+            trial_cost = self.cost(trials.reshape(b * s, n), x.repeat_interleave(s, 0)).reshape(b, s)
+            slow = trial_cost[:, FULL] > PROGRESS * cost
+            pick = torch.where(slow, trial_cost.argmin(1), torch.full_like(slow, FULL, dtype=torch.long))
+            q = trials.gather(1, pick[:, None, None].expand(b, 1, n))[:, 0]
+            e, cost, jac = self._errors(q, x)
+        return q, cost
+
+    def forward(self, seeds: torch.Tensor, closeness: torch.Tensor, x: torch.Tensor):
+        b, k, n = seeds.shape
+        if self.redundant is not None:  # the redundant joint at the value asked
+            r = self.redundant
+            seeds = torch.cat([seeds[..., :r], x[:, None, -1:].expand(b, k, 1), seeds[..., r + 1 :]], -1)
+        t = min(PRESELECT, k)
+        idx = closeness.topk(t, dim=1, largest=False).indices
+        ranked = seeds.gather(1, idx[..., None].expand(b, t, n))
+        cost = self._costs(ranked, x)
+        ranked = ranked.gather(1, cost.argsort(1)[..., None].expand(b, t, n))
+        # The best WIDE and the RETRY after them polished together (every row: a static graph), then
+        # the best NARROW of the first WIDE and every retry the remaining steps; the nearest kept.
+        c, w = min(WIDE + RETRY, t), min(WIDE, t)
+        q, cost = self._polished(ranked[:, :c], x, FIRST_STEPS)
+        keep = cost[:, :w].argsort(1)[:, : min(NARROW, w)]
+        q = torch.cat([q[:, :w].gather(1, keep[..., None].expand(b, keep.shape[1], n)), q[:, w:]], 1)
+        q, cost = self._polished(q, x, CHARTED_ITERATIONS - FIRST_STEPS)
+        q = q.gather(1, cost.argmin(1)[:, None, None].expand(b, 1, n))[:, 0]
+        rot, pos, _ = self._kinematics(q, False)
+        e, _ = self._error(rot, pos, x)
+        ok = e[:, :3].norm(dim=-1) * 1000.0 <= self.tol_mm
+        if self.pose:
+            ok = ok & (rotation_error_deg(rot, _quaternion_matrix(x[:, 3:7])) <= self.tol_deg)
+        return q, ok
+
+    def _polished(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """`polish` of joints q (B, T, n) toward targets x (B, d): (joints (B, T, n), cost (B, T))."""
+        b, t, n = q.shape
+        q, cost = self.polish(q.reshape(-1, n), x.repeat_interleave(t, 0), iterations)
+        return q.reshape(b, t, n), cost.reshape(b, t)
+
+    def _costs(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """`cost` of joints q (B, T, n) against targets x (B, d): (B, T)."""
+        b, t, n = q.shape
+        return self.cost(q.reshape(-1, n), x.repeat_interleave(t, 0)).reshape(b, t)
+
+
+def graph_polish(robot: Robot, model) -> GraphPolish:
+    """The `GraphPolish` of charted network `model` for `robot`, with the solver's settings for it
+    (`rbfn.solver.load_solver`'s error damping)."""
+    return GraphPolish(robot, IKSolver(model, robot, error_damping=CHARTED_ERROR_DAMPING))
