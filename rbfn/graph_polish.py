@@ -21,6 +21,7 @@ linear solve is a Cholesky factorisation written out (the ONNX exporter has no s
 from __future__ import annotations
 
 import torch
+from pytorch_kinematics import transforms as tf
 from torch import nn
 
 from .robots.kinematics import _Step, _steps, compose
@@ -65,19 +66,6 @@ def spd_solve(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     for i in reversed(range(m - 1)):  # L^T x = y
         x = torch.cat([(y[:, i : i + 1] - (low[:, i + 1 :, i] * x).sum(-1, keepdim=True)) / diag[:, i : i + 1], x], -1)
     return x
-
-
-def _quaternion_matrix(w: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (B, 3, 3) of unit quaternions w (B, 4) (w, x, y, z)."""
-    r, i, j, k = w.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (j * j + k * k), 2 * (i * j - k * r), 2 * (i * k + j * r),
-            2 * (i * j + k * r), 1 - 2 * (i * i + k * k), 2 * (j * k - i * r),
-            2 * (i * k - j * r), 2 * (j * k + i * r), 1 - 2 * (i * i + j * j),
-        ],
-        -1,
-    ).reshape(-1, 3, 3)  # fmt: skip
 
 
 def _rotation_vector(r: torch.Tensor) -> torch.Tensor:
@@ -136,36 +124,49 @@ class GraphPolish(nn.Module):
             jac = jac[:, : 6 if self.pose else 3][:, :, self.free]
         return rot, pos, jac
 
-    def _errors(self, q: torch.Tensor, x: torch.Tensor):
-        """(task error e (B, 3 or 6), Jacobian (B, 3 or 6, n), cost (B,): mm / tol_mm + deg / tol_deg)."""
-        rot, pos, jac = self._kinematics(q, True)
-        return (*self._error(rot, pos, x), jac)
-
-    def _error(self, rot: torch.Tensor, pos: torch.Tensor, x: torch.Tensor):
-        e = x[:, :3] - pos
-        cost = e.norm(dim=-1) * (1000.0 / self.tol_mm)
+    def _goal(self, x: torch.Tensor) -> torch.Tensor:
+        """The targets the polish compares with, once per call: (B, 3) positions, or (B, 12) the
+        position and the rotation matrix of a pose target (B, 7 or 8), row by row."""
         if not self.pose:
-            return e, cost
-        goal = _quaternion_matrix(x[:, 3:7])
-        e = torch.cat([e, _rotation_vector(goal @ rot.transpose(-1, -2))], -1)
-        return e, cost + rotation_error_deg(rot, goal) / self.tol_deg
+            return x[:, :3]
+        return torch.cat([x[:, :3], tf.quaternion_to_matrix(x[:, 3:7]).reshape(-1, 9)], -1)
 
-    def cost(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """Errors (B,) of joints q (B, n) against targets x, in tolerances (forward kinematics only)."""
+    def _errors(self, q: torch.Tensor, goal: torch.Tensor):
+        """(task error e (B, 3 or 6), Jacobian (B, 3 or 6, n), cost (B,)) at joints q (B, n)."""
+        rot, pos, jac = self._kinematics(q, True)
+        e, mm, deg = self._error(rot, pos, goal)
+        return e, self._tolerances(mm, deg), jac
+
+    def _error(self, rot: torch.Tensor, pos: torch.Tensor, goal: torch.Tensor):
+        """(task error e (B, 3 or 6), position error (B,) mm, rotation error (B,) deg or None) of end
+        links at rot (B, 3, 3), pos (B, 3) against `_goal` rows."""
+        e = goal[:, :3] - pos
+        mm = e.norm(dim=-1) * 1000.0
+        if not self.pose:
+            return e, mm, None
+        r = goal[:, 3:].reshape(-1, 3, 3)
+        return torch.cat([e, _rotation_vector(r @ rot.transpose(-1, -2))], -1), mm, rotation_error_deg(rot, r)
+
+    def _tolerances(self, mm: torch.Tensor, deg: torch.Tensor | None) -> torch.Tensor:
+        """Errors in tolerances (B,): mm / tol_mm + deg / tol_deg."""
+        return mm / self.tol_mm + (deg / self.tol_deg if deg is not None else 0.0)
+
+    def cost(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Errors (B,) of joints q (B, n) against `_goal` rows, in tolerances (forward kinematics only)."""
         rot, pos, _ = self._kinematics(q, False)
-        return self._error(rot, pos, x)[1]
+        return self._tolerances(*self._error(rot, pos, goal)[1:])
 
     def _step(self, a: torch.Tensor, e: torch.Tensor, lam: torch.Tensor, jac: torch.Tensor) -> torch.Tensor:
         eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
         return (jac.transpose(-1, -2) @ spd_solve(a + lam[:, None, None] * eye, e)[:, :, None])[:, :, 0]
 
-    def polish(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward x: the
+    def polish(self, q: torch.Tensor, goal: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward `_goal` rows: the
         solver's damped least squares, its line search and its re-solve without joints held at a
         limit (`IKSolver._polish`), on every row."""
         low, high = self.low.to(q), self.high.to(q)
         scales = torch.tensor(STEP_SCALES, dtype=q.dtype, device=q.device)
-        e, cost, jac = self._errors(q, x)
+        e, cost, jac = self._errors(q, goal)
         b, n, s = q.shape[0], q.shape[1], scales.shape[0]
         for _ in range(iterations):
             lam = self.damping + self.error_damping * e.square().sum(-1)
@@ -176,11 +177,11 @@ class GraphPolish(nn.Module):
             dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-30)).clamp(max=1.0)
             # The full step and the line search's multiples of it (the full step among them) in one pass
             trials = torch.minimum(torch.maximum(q[:, None] + scales[None, :, None] * dq[:, None], low), high)
-            trial_cost = self.cost(trials.reshape(b * s, n), x.repeat_interleave(s, 0)).reshape(b, s)
+            trial_cost = self.cost(trials.reshape(b * s, n), goal.repeat_interleave(s, 0)).reshape(b, s)
             slow = trial_cost[:, FULL] > PROGRESS * cost
             pick = torch.where(slow, trial_cost.argmin(1), torch.full_like(slow, FULL, dtype=torch.long))
             q = trials.gather(1, pick[:, None, None].expand(b, 1, n))[:, 0]
-            e, cost, jac = self._errors(q, x)
+            e, cost, jac = self._errors(q, goal)
         return q, cost
 
     def forward(self, seeds: torch.Tensor, closeness: torch.Tensor, x: torch.Tensor):
@@ -188,36 +189,35 @@ class GraphPolish(nn.Module):
         if self.redundant is not None:  # the redundant joint at the value asked
             r = self.redundant
             seeds = torch.cat([seeds[..., :r], x[:, None, -1:].expand(b, k, 1), seeds[..., r + 1 :]], -1)
+        goal = self._goal(x)
         t = min(PRESELECT, k)
         idx = closeness.topk(t, dim=1, largest=False).indices
         ranked = seeds.gather(1, idx[..., None].expand(b, t, n))
-        cost = self._costs(ranked, x)
+        cost = self._costs(ranked, goal)
         ranked = ranked.gather(1, cost.argsort(1)[..., None].expand(b, t, n))
         # The best WIDE and the RETRY after them polished together (every row: a static graph), then
         # the best NARROW of the first WIDE and every retry the remaining steps; the nearest kept.
         c, w = min(WIDE + RETRY, t), min(WIDE, t)
-        q, cost = self._polished(ranked[:, :c], x, FIRST_STEPS)
+        q, cost = self._polished(ranked[:, :c], goal, FIRST_STEPS)
         keep = cost[:, :w].argsort(1)[:, : min(NARROW, w)]
         q = torch.cat([q[:, :w].gather(1, keep[..., None].expand(b, keep.shape[1], n)), q[:, w:]], 1)
-        q, cost = self._polished(q, x, CHARTED_ITERATIONS - FIRST_STEPS)
+        q, cost = self._polished(q, goal, CHARTED_ITERATIONS - FIRST_STEPS)
         q = q.gather(1, cost.argmin(1)[:, None, None].expand(b, 1, n))[:, 0]
         rot, pos, _ = self._kinematics(q, False)
-        e, _ = self._error(rot, pos, x)
-        ok = e[:, :3].norm(dim=-1) * 1000.0 <= self.tol_mm
-        if self.pose:
-            ok = ok & (rotation_error_deg(rot, _quaternion_matrix(x[:, 3:7])) <= self.tol_deg)
-        return q, ok
+        _, mm, deg = self._error(rot, pos, goal)
+        ok = mm <= self.tol_mm
+        return q, ok if deg is None else ok & (deg <= self.tol_deg)
 
-    def _polished(self, q: torch.Tensor, x: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """`polish` of joints q (B, T, n) toward targets x (B, d): (joints (B, T, n), cost (B, T))."""
+    def _polished(self, q: torch.Tensor, goal: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """`polish` of joints q (B, T, n) toward `_goal` rows (B, ...): (joints (B, T, n), cost (B, T))."""
         b, t, n = q.shape
-        q, cost = self.polish(q.reshape(-1, n), x.repeat_interleave(t, 0), iterations)
+        q, cost = self.polish(q.reshape(-1, n), goal.repeat_interleave(t, 0), iterations)
         return q.reshape(b, t, n), cost.reshape(b, t)
 
-    def _costs(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """`cost` of joints q (B, T, n) against targets x (B, d): (B, T)."""
+    def _costs(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """`cost` of joints q (B, T, n) against `_goal` rows (B, ...): (B, T)."""
         b, t, n = q.shape
-        return self.cost(q.reshape(-1, n), x.repeat_interleave(t, 0)).reshape(b, t)
+        return self.cost(q.reshape(-1, n), goal.repeat_interleave(t, 0)).reshape(b, t)
 
 
 def graph_polish(robot: Robot, model) -> GraphPolish:
