@@ -24,6 +24,7 @@ import torch
 from pytorch_kinematics import transforms as tf
 from torch import nn
 
+from .robots.backend import spd_solve
 from .robots.kinematics import _Step, _steps, compose
 from .robots.robot import Robot, rotation_error_deg
 from .solver import (
@@ -38,34 +39,10 @@ from .solver import (
     IKSolver,
 )
 
-__all__ = ["GraphPolish", "graph_polish", "spd_solve"]
+__all__ = ["GraphPolish", "graph_polish"]
 
 FULL = STEP_SCALES.index(1.0)  # the full step among the line search's multiples
 RETRY = 8  # the answers ranked after the first WIDE, polished on every row for the targets those miss
-
-
-def spd_solve(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """x (B, m) with a x = b for symmetric positive definite a (B, m, m) and b (B, m): Cholesky, one
-    column at a time, then the two triangular solves one row at a time, in plain tensor operations
-    (m is small: 3 or 6) so that any exporter takes it (ONNX has no solve)."""
-    m = a.shape[-1]
-    cols: list[torch.Tensor] = []  # the factor L's columns (B, m), zero above the diagonal
-    for j in range(m):
-        v = a[:, :, j]
-        if cols:
-            done = torch.stack(cols, -1)  # (B, m, j)
-            v = v - (done @ done[:, j, :, None])[:, :, 0]
-        col = v[:, j:] / v[:, j : j + 1].clamp(min=1e-30).sqrt()
-        cols.append(torch.cat([v.new_zeros(v.shape[0], j), col], -1) if j else col)
-    low = torch.stack(cols, -1)  # (B, m, m)
-    diag = low.diagonal(dim1=-2, dim2=-1)
-    y = b[:, :1] / diag[:, :1]
-    for i in range(1, m):  # L y = b
-        y = torch.cat([y, (b[:, i : i + 1] - (low[:, i, :i] * y).sum(-1, keepdim=True)) / diag[:, i : i + 1]], -1)
-    x = y[:, m - 1 :] / diag[:, m - 1 :]
-    for i in reversed(range(m - 1)):  # L^T x = y
-        x = torch.cat([(y[:, i : i + 1] - (low[:, i + 1 :, i] * x).sum(-1, keepdim=True)) / diag[:, i : i + 1], x], -1)
-    return x
 
 
 def _rotation_vector(r: torch.Tensor) -> torch.Tensor:

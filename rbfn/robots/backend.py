@@ -31,7 +31,7 @@ from typing import Any, Protocol
 
 import torch
 
-__all__ = ["Dynamics", "Terms", "Scaled", "Friction", "forward_dynamics", "christoffel_momentum_rate"]
+__all__ = ["Dynamics", "Terms", "Scaled", "Friction", "forward_dynamics", "christoffel_momentum_rate", "spd_solve"]
 
 Payload = float | torch.Tensor
 
@@ -83,6 +83,38 @@ def christoffel_momentum_rate(terms: Terms, qd: torch.Tensor, mo: Any = None) ->
     mo = terms.motion(qd) if mo is None else mo
     cqd = terms.coriolis_qd(qd, mo)
     return (cqd + terms.coriolis_transpose_qd(qd, mo)) - cqd - terms.gravity()
+
+
+def spd_solve(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """x (B, m) with a x = b for symmetric positive definite a (B, m, m) and b (B, m), written out
+    for graphs: the Cholesky factor and the two triangular solves entry by entry on (B,) rows, so
+    that a compiler fuses them into one loop over the batch and an exporter needs no solve (ONNX
+    has none; AOTInductor would call torch's own through a slow fallback). m is small (a robot's
+    joints). A pivot is floored at 1e-30 before its square root."""
+    m = a.shape[-1]
+    low: list[list[torch.Tensor]] = []  # row i: L_i0 .. L_ii
+    for i in range(m):
+        row: list[torch.Tensor] = []
+        for j in range(i + 1):
+            lj = row if j == i else low[j]
+            s = a[:, i, j]
+            for k in range(j):
+                s = s - row[k] * lj[k]
+            row.append(s.clamp(min=1e-30).sqrt() if i == j else s / lj[j])
+        low.append(row)
+    y: list[torch.Tensor] = []  # L y = b
+    for i in range(m):
+        s = b[:, i]
+        for k in range(i):
+            s = s - low[i][k] * y[k]
+        y.append(s / low[i][i])
+    x: list[torch.Tensor] = [y[0]] * m  # L^T x = y
+    for i in reversed(range(m)):
+        s = y[i]
+        for k in range(i + 1, m):
+            s = s - low[k][i] * x[k]
+        x[i] = s / low[i][i]
+    return torch.stack(x, -1)
 
 
 class Dynamics(Protocol):

@@ -12,17 +12,16 @@ another link, `payload_link`).
 `Arm` is the specification of the dynamics: plain, batch-first (B, n), the reference that every
 other form is tested against (tests/robots/test_dynamics_backends.py: the simulator's forms, the
 SCARA's closed form, Pinocchio, MuJoCo). The simulator's fast form, `rbfn.robots.arm_terms`
-(batch-last), and its scalar form for torch.compile, `rbfn.robots.arm_scalar`, read the same
-lumped constants (`Arm.model`) and use the same products of spatial vectors
-(`rbfn.robots.spatial`).
+(batch-last, eager or compiled), reads the same lumped constants (`Arm.model`) and uses the same
+products of spatial vectors (`rbfn.robots.spatial`).
 
 The payload is placed once, by `_build` (`_Model.payload_body`, `payload_pos`: the point in that
 body's frame), and every form reads it from there. Its inertia, (m, m r, m (r.r 1 - r r^T)) for
 the point r, is added where each form builds its body inertias: here in body axes, before the
-rotation to the root frame (`Arm._bodies`); in the simulator's forms in root axes, after it
-(`arm_terms.Config`, `arm_scalar.ScalarConfig._body`). The two orders round differently and the
-simulator's numbers are those of the latter, so another payload model (a rigid body instead of a
-point) is written in those three places; the backend test fails until they agree.
+rotation to the root frame (`Arm._bodies`); in the simulator's form in root axes, after it
+(`arm_terms.Config`). The two orders round differently and the simulator's numbers are those of
+the latter, so another payload model (a rigid body instead of a point) is written in those two
+places; the backend test fails until they agree.
 
 Algorithms, all in root-frame axes with spatial vectors (angular; linear) referred to one point
 fixed in space, so that the inertias of bodies add without transforms and every recursion of the

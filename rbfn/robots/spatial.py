@@ -1,4 +1,4 @@
-"""Spatial vector algebra of the rigid-body dynamics, written once for its three forms.
+"""Spatial vector algebra of the rigid-body dynamics, written once for its two forms.
 
 Motion vectors are (angular; linear), force vectors (moment; force), both referred to one point
 fixed in space; a spatial inertia about that point is (mass m, first moment h = m c, rotational
@@ -9,16 +9,14 @@ inertia J). The products every form needs:
 * I v     (inertia times motion): (J w + h x v0; m v0 - h x w)
 
 `Spatial` writes them once, on pairs (angular, linear) of 3-vectors, given four operations on
-the 3-vectors of a layout. The three forms store 3-vectors in layouts that cannot share that
+the 3-vectors of a layout. The two forms store 3-vectors in layouts that cannot share that
 arithmetic, so each brings its own:
 
 * `rbfn.robots.dynamics.Arm`, the specification: batch-first tensors, a spatial vector (..., 6)
   and a 3-vector (..., 3) (`SIX` below: the halves are views, the result one `torch.cat`).
 * `rbfn.robots.arm_terms`, the simulator's fast form: batch-last pairs of (n, 3, B), where a
   cross product runs along dim -2 (unrolled into multiply-adds for wide batches) and m v0 - c is
-  one fused `addcmul`.
-* `rbfn.robots.arm_scalar`, the form torch.compile traces: tuples of 3 Python floats or (B,)
-  tensors, whose arithmetic folds the URDF's constant zeros and ones away.
+  one fused `addcmul`; eager or compiled.
 
 The order of the floating-point operations below is part of every form's numbers.
 """

@@ -205,8 +205,8 @@ def test_per_joint_friction_and_disturbance():
 
 @pytest.mark.slow
 def test_ur5_compiled_step_equals_eager():
-    """simulate(compile=True) traces the scalar form of the dynamics (rbfn.robots.arm_scalar) and
-    keeps the environments last in memory; it gives the eager batch-last result (minutes to compile)."""
+    """simulate(compile=True) traces the batch-last dynamics (its solve written out) and keeps the
+    environments last in memory; it gives the eager result (a minute or two to compile)."""
     import shutil
 
     if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
