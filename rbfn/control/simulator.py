@@ -598,7 +598,7 @@ def _simulate_real(
         periods,
         chunk,
         record,
-        0,
+        max(1, CHECK_EVERY // sub),  # in periods
         lambda k: (k * sub, k * loop.period),
     )
     if rec is None:
