@@ -41,7 +41,7 @@ from .config import RefineLoss, TrainConfig
 from .data import Dataset, Split, full_limits, make_split, stream
 from .layer import RBFNetwork, row_blocks
 from .progress import Progress
-from .robots.robot import Robot, robot_from_record
+from .robots.robot import Robot
 
 __all__ = [
     "CHARTS_KIND",
@@ -50,7 +50,6 @@ __all__ = [
     "charts_from_checkpoint",
     "embed",
     "chart_config",
-    "check_charts",
     "revolute_joints",
     "save_charts",
     "train_charts",
@@ -333,34 +332,6 @@ def save_charts(
             "metrics": metrics,
         },
     )
-
-
-def check_charts(ckpt: dict[str, Any], path: str | Path) -> dict[str, Any]:
-    """The charted checkpoint dict `ckpt` read from `path`, checked (format, each chart network's
-    parts, the robot entry), or a ValueError naming the file and what is wrong
-    (`rbfn.checkpoint.read_checkpoint` reads the file and calls this for a charted one)."""
-    if ckpt.get("format_version") != FORMAT_VERSION:
-        got = ckpt.get("format_version")
-        raise ValueError(f"{path} has checkpoint format {got!r}; this aco-rbfn reads {FORMAT_VERSION}")
-    charts, nets = ckpt.get("charts"), ckpt.get("networks")
-    keys = ("centres", "revolute", "low", "high")
-    if not isinstance(charts, dict) or any(not isinstance(charts.get(k), torch.Tensor) for k in keys):
-        raise ValueError(f"{path}: its charts entry needs the tensors {list(keys)}")
-    if not isinstance(nets, list) or len(nets) != charts["centres"].shape[0]:
-        raise ValueError(f"{path}: networks must be a list of one network per chart ({charts['centres'].shape[0]})")
-    for i, rec in enumerate(nets):
-        try:
-            model_from_checkpoint(rec)
-        except (ValueError, TypeError, AttributeError) as e:
-            raise ValueError(f"{path}: chart {i}: {e}") from e
-    for k in ("robot", "config", "metrics"):
-        if k not in ckpt:
-            raise ValueError(f"{path} is missing the checkpoint key {k!r}")
-    try:
-        robot_from_record(ckpt["robot"])
-    except (ValueError, TypeError) as e:
-        raise ValueError(f"{path}: {e}") from e
-    return ckpt
 
 
 def charts_from_checkpoint(ckpt: dict[str, Any]) -> ChartedIK:

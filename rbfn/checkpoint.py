@@ -33,6 +33,7 @@ __all__ = [
     "FORMAT_VERSION",
     "KIND",
     "CHARTS_KIND",
+    "check_charts",
     "MIN_WIDTH",
     "ONNX_MODEL",
     "PT2_PROGRAM",
@@ -414,6 +415,34 @@ def _model_problem(ckpt: dict[str, Any]) -> str | None:
     return None
 
 
+def check_charts(ckpt: dict[str, Any], path: str | Path) -> dict[str, Any]:
+    """The charted checkpoint dict `ckpt` read from `path`, checked (format, each chart network's
+    parts, the robot entry), or a ValueError naming the file and what is wrong
+    (`read_checkpoint` reads the file and calls this for a charted one)."""
+    if ckpt.get("format_version") != FORMAT_VERSION:
+        got = ckpt.get("format_version")
+        raise ValueError(f"{path} has checkpoint format {got!r}; this aco-rbfn reads {FORMAT_VERSION}")
+    charts, nets = ckpt.get("charts"), ckpt.get("networks")
+    keys = ("centres", "revolute", "low", "high")
+    if not isinstance(charts, dict) or any(not isinstance(charts.get(k), torch.Tensor) for k in keys):
+        raise ValueError(f"{path}: its charts entry needs the tensors {list(keys)}")
+    if not isinstance(nets, list) or len(nets) != charts["centres"].shape[0]:
+        raise ValueError(f"{path}: networks must be a list of one network per chart ({charts['centres'].shape[0]})")
+    for i, rec in enumerate(nets):
+        try:
+            model_from_checkpoint(rec)
+        except (ValueError, TypeError, AttributeError) as e:
+            raise ValueError(f"{path}: chart {i}: {e}") from e
+    for k in ("robot", "config", "metrics"):
+        if k not in ckpt:
+            raise ValueError(f"{path} is missing the checkpoint key {k!r}")
+    try:
+        robot_from_record(ckpt["robot"])
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{path}: {e}") from e
+    return ckpt
+
+
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """The checkpoint dict at `path`, checked for format, kind, shapes and finite weights, and its robot
     entry field by field (`robot_from_record`: the URDF text parses, never read as a file name), so
@@ -432,8 +461,6 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
             f"({path.parent / 'checkpoint.pt'}), written when the run finishes"
         )
     if ckpt.get("kind") == CHARTS_KIND:  # robot.workspace=full's charted network
-        from .charts import check_charts
-
         return check_charts(ckpt, path)
     if "kind" in ckpt and ckpt["kind"] != KIND:
         raise ValueError(f"{path} holds a {ckpt['kind']!r} model, not an IK network ({KIND!r})")

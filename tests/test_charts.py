@@ -9,8 +9,8 @@ from dataclasses import replace
 import pytest
 import torch
 
-from rbfn.charts import ChartedIK, check_charts, decode, embed, save_charts, train_charts
-from rbfn.checkpoint import load_model, read_checkpoint
+from rbfn.charts import ChartedIK, decode, embed, save_charts, train_charts
+from rbfn.checkpoint import check_charts, load_model, read_checkpoint
 from rbfn.data import full_range_split
 from rbfn.layer import RBFNetwork
 from rbfn.robots.robot import load_robot
