@@ -19,8 +19,9 @@ import hashlib
 import os
 import tempfile
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -28,7 +29,7 @@ import torch
 # name, not a documented API. The package's call spec is serialised in this module's format.
 import torch.utils._pytree as pytree
 
-__all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable"]
+__all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable", "map_tensors"]
 
 _SOURCES = ("control", "robots")  # packages whose code the chunk runs
 
@@ -158,8 +159,60 @@ def _load(path: Path) -> Callable:
     except (AttributeError, TypeError, RuntimeError):
         return torch._inductor.aoti_load_package(str(path))
 
+    rebuild = _rebuilder(out_spec)
+
     def run(*args):
-        flat = [x for x in pytree.tree_leaves(args) if isinstance(x, torch.Tensor)]
-        return pytree.tree_unflatten(loader.boxed_run(flat), out_spec)
+        flat: list[torch.Tensor] = []
+        _tensors(args, flat)
+        return rebuild(iter(loader.boxed_run(flat)))
 
     return run
+
+
+# A package of one short chunk runs in a few hundred microseconds: pytree's generic flatten and
+# unflatten of the loop's named state cost about as much again, so the shapes the chunks use
+# (tuples, NamedTuples, lists, None, tensors) are walked directly; anything else goes to pytree.
+
+
+def _tensors(x: Any, out: list[torch.Tensor]) -> None:
+    """Append x's tensors to `out` in pytree's leaf order (its non-tensor leaves skipped)."""
+    if isinstance(x, torch.Tensor):
+        out.append(x)
+    elif isinstance(x, (tuple, list)):
+        for v in x:
+            _tensors(v, out)
+    elif not (x is None or isinstance(x, (bool, int, float))):
+        out.extend(t for t in pytree.tree_leaves(x) if isinstance(t, torch.Tensor))
+
+
+def map_tensors(fn: Callable[..., Any], tree: Any, *others: Any) -> Any:
+    """`tree` with each tensor x replaced by fn(x, *the same places of `others`), other leaves kept:
+    pytree.tree_map_only(torch.Tensor, ...) without its cost on the loop's named state."""
+    if isinstance(tree, torch.Tensor):
+        return fn(tree, *others)
+    if tree is None or isinstance(tree, (bool, int, float)):
+        return tree
+    if isinstance(tree, (tuple, list)):
+        parts = [map_tensors(fn, v, *(o[i] for o in others)) for i, v in enumerate(tree)]
+        if isinstance(tree, list):
+            return parts
+        return type(tree)(*parts) if hasattr(tree, "_fields") else tuple(parts)
+    return pytree.tree_map(lambda x, *o: fn(x, *o) if isinstance(x, torch.Tensor) else x, tree, *others)
+
+
+def _rebuilder(spec: pytree.TreeSpec) -> Callable[[Iterator[Any]], Any]:
+    """A function of an iterator over leaves that builds `spec`'s tree from them."""
+    if spec.is_leaf():
+        return next
+    kids = [_rebuilder(c) for c in spec.children_specs]
+    kind = spec.type
+    if kind is tuple:
+        return lambda it: tuple([k(it) for k in kids])
+    if kind is list:
+        return lambda it: [k(it) for k in kids]
+    if kind is type(None):
+        return lambda it: None
+    if isinstance(kind, type) and issubclass(kind, tuple) and hasattr(kind, "_fields"):
+        return lambda it: kind(*[k(it) for k in kids])
+    n = spec.num_leaves
+    return lambda it: spec.unflatten([next(it) for _ in range(n)])

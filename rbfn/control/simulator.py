@@ -19,7 +19,7 @@ import torch
 import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (see rbfn.control.aot)
 
 from ..config import Integrator
-from .aot import aot_chunk, chunk_key, serializable
+from .aot import aot_chunk, chunk_key, map_tensors, serializable
 from .controllers import Controller, Forces, SlidingState
 from .loop import Actuation, Applied, RealLoop, Sensing, filtered_velocity, quantise, saturate
 from .plants import Plant
@@ -367,7 +367,7 @@ def _run_chunks(
             # Every chunk sees its state in the first chunk's layout: a compiled chunk may return a
             # tensor in another (the realistic loop's sensing history), and a compiled step guards
             # on strides (dynamic=False: one more compile per configuration otherwise).
-            state = pytree.tree_map(_same_layout, out.loop, state)
+            state = map_tensors(_same_layout, out.loop, state)
             if record:
                 qs[sl], qds[sl], taus[sl] = out.q, out.qd, out.tau
             k0 += m
@@ -380,16 +380,16 @@ def _run_chunks(
     return state, (qs, qds, taus)
 
 
-def _same_layout(new: Any, old: Any) -> Any:
+def _same_layout(new: torch.Tensor, old: torch.Tensor) -> torch.Tensor:
     """`new` in `old`'s strides (a copy only where they differ)."""
-    if not isinstance(new, torch.Tensor) or new.stride() == old.stride() or new.shape != old.shape:
+    if new.stride() == old.stride() or new.shape != old.shape:
         return new
     return torch.empty_strided(old.shape, old.stride(), dtype=new.dtype, device=new.device).copy_(new)
 
 
 def _rows(periods: Any, sl: slice) -> Any:
     """The periods `sl` of every input (views)."""
-    return pytree.tree_map_only(torch.Tensor, lambda x: x[sl], periods)
+    return map_tensors(lambda x: x[sl], periods)
 
 
 class RealState(NamedTuple):
