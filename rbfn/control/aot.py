@@ -204,7 +204,7 @@ def _rebuilder(spec: pytree.TreeSpec) -> Callable[[Iterator[Any]], Any]:
     """A function of an iterator over leaves that builds `spec`'s tree from them."""
     if spec.is_leaf():
         return next
-    kids = [_rebuilder(c) for c in spec.children_specs]
+    kids = [_rebuilder(c) for c in spec.children()]
     kind = spec.type
     if kind is tuple:
         return lambda it: tuple([k(it) for k in kids])
