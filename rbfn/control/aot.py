@@ -163,7 +163,7 @@ def _load(path: Path) -> Callable:
 
     def run(*args):
         flat: list[torch.Tensor] = []
-        _tensors(args, flat)
+        map_tensors(flat.append, args)  # in pytree's leaf order
         return rebuild(iter(loader.boxed_run(flat)))
 
     return run
@@ -172,17 +172,6 @@ def _load(path: Path) -> Callable:
 # A package of one short chunk runs in a few hundred microseconds: pytree's generic flatten and
 # unflatten of the loop's named state cost about as much again, so the shapes the chunks use
 # (tuples, NamedTuples, lists, None, tensors) are walked directly; anything else goes to pytree.
-
-
-def _tensors(x: Any, out: list[torch.Tensor]) -> None:
-    """Append x's tensors to `out` in pytree's leaf order (its non-tensor leaves skipped)."""
-    if isinstance(x, torch.Tensor):
-        out.append(x)
-    elif isinstance(x, (tuple, list)):
-        for v in x:
-            _tensors(v, out)
-    elif not (x is None or isinstance(x, (bool, int, float))):
-        out.extend(t for t in pytree.tree_leaves(x) if isinstance(t, torch.Tensor))
 
 
 def map_tensors(fn: Callable[..., Any], tree: Any, *others: Any) -> Any:
