@@ -803,8 +803,9 @@ class ControlConfig:
     joint_scale: list[float] = field(default_factory=list)  # per joint; empty: derived (see above)
     dtype: Dtype = Dtype.float64
     compile: bool = False  # torch.compile the fused step, either loop (slow to compile; for long runs)
-    aot: bool = False  # the step compiled ahead of time, either loop, cached on disk (minutes once per
-    # configuration)
+    # The step compiled ahead of time, either loop, cached on disk (a minute or two once per
+    # configuration): auto (compiled on a CPU unless $ACO_RBFN_AOT says 0, eager on CUDA), true, false
+    aot: str = "auto"
     figure_payload: Optional[float] = None  # kg, the case drawn in the figures; null: half the rated payload
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
@@ -823,7 +824,13 @@ class ControlConfig:
             list(self.controllers),
             "each controller may appear once",
         )
-        _need(not (self.compile and self.aot), f"{key}.aot", self.aot, f"choose one of {key}.compile and {key}.aot")
+        _check_aot(self.aot, f"{key}.aot")
+        _need(
+            not (self.compile and str(self.aot).lower() == "true"),
+            f"{key}.aot",
+            self.aot,
+            f"choose one of {key}.compile and {key}.aot",
+        )
         _need(
             finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude, "must be in [0, 1]"
         )
@@ -917,10 +924,11 @@ class OnlineConfig:
     decay: float = 0.0  # s; alpha(t) = alpha0 / (1 + t / decay); 0: constant
     forgetting: float = 0.9995  # RLS forgetting factor
     update_every: int = 10  # control periods per update (the pairs of one mini-batch)
-    aot: bool = False  # the closed-loop chunk compiled ahead of time, cached on disk (as control.aot)
+    aot: str = "auto"  # the closed-loop chunk compiled ahead of time, cached on disk: as control.aot
     save_checkpoint: bool = True  # write checkpoint_online.pt (the configured perturbation's network)
 
     def check(self, key: str = "online") -> None:
+        _check_aot(self.aot, f"{key}.aot")
         _need(finite(self.dt) and self.dt > 0, f"{key}.dt", self.dt, "must be a positive number of seconds")
         _need(
             finite(self.duration) and self.duration >= 4.0,
@@ -1164,6 +1172,13 @@ def _check_sensing(rate: float | None, counts: list[float], key: str) -> None:
         list(counts),
         "counts per revolution (per metre for a prismatic joint) >= 1, one per chain joint, or empty (exact)",
     )
+
+
+AOT_CHOICES = ("auto", "true", "false")  # control.aot, online.aot (a bool from the command line reads as one)
+
+
+def _check_aot(value: Any, key: str) -> None:
+    _need(str(value).lower() in AOT_CHOICES, key, value, f"choose from {list(AOT_CHOICES)}")
 
 
 def _need(ok: bool, key: str, value: Any, allowed: str) -> None:

@@ -1,5 +1,6 @@
 """Shared fixtures: the SCARA chain, a small data set, and Hydra composition of the two entry points."""
 
+import os
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,10 @@ from rbfn.robots import load_serial_chain, scara
 
 torch.set_num_threads(1)
 register_configs()
+# control.aot and online.aot default to auto, which compiles the closed loop ahead of time on a CPU
+# (a minute or more per package on a cold cache); the suite runs eagerly unless a test asks for
+# compilation (its tests of compilation pass aot=True), and subprocesses inherit the setting.
+os.environ.setdefault("ACO_RBFN_AOT", "0")
 
 CONF = str(Path(__file__).resolve().parents[1] / "conf")
 ROOT = Path(__file__).resolve().parents[1]

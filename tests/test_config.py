@@ -309,8 +309,10 @@ def test_the_python_api_checks_every_field_type():
         with pytest.raises(ValueError, match=re.escape(message)):
             validate_train(bad)
     assert isinstance(TrainConfig(), TrainConfig)
-    with pytest.raises(ValueError, match=re.escape("control.aot=1 is not allowed: must be true or false")):
-        validate_evaluate(replace(EvalConfig(), control=replace(EvalConfig().control, aot=1)))
+    for key, value in [("control", "yes"), ("online", 1)]:
+        part = getattr(EvalConfig(), key)
+        with pytest.raises(ValueError, match=re.escape(f"{key}.aot={value!r} is not allowed: choose from ['auto'")):
+            validate_evaluate(replace(EvalConfig(), **{key: replace(part, aot=value)}))
 
 
 @pytest.mark.parametrize(

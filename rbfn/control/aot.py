@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import hashlib
 import os
 import tempfile
@@ -29,9 +30,31 @@ import torch
 # name, not a documented API. The package's call spec is serialised in this module's format.
 import torch.utils._pytree as pytree
 
-__all__ = ["cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable", "map_tensors"]
+__all__ = ["ahead_of_time", "cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable", "map_tensors"]
 
 _SOURCES = ("control", "robots")  # packages whose code the chunk runs
+
+
+ENV = "ACO_RBFN_AOT"  # what `auto` means: 1 compiled ahead of time, 0 eager; unset: by device
+
+
+def ahead_of_time(setting: Any, device: torch.device | str) -> bool:
+    """Whether a loop configured with `control.aot` / `online.aot` = `setting` (auto, true or false;
+    a bool reads as true or false) runs compiled ahead of time on `device`.
+
+    auto: compiled on a CPU, where a small batch's eager step is mostly per-operation overhead
+    that the package removes; eager on CUDA, whose kernels cost more than the Python around them
+    and whose packages this project does not test. $ACO_RBFN_AOT (0 or 1) overrides auto: the test
+    suite sets 0, so that only the tests of compilation build packages."""
+    s = str(setting).lower()
+    if s != "auto":
+        return s == "true"
+    env = os.environ.get(ENV, "").strip().lower()
+    if env:
+        if env not in ("0", "1", "false", "true"):
+            raise ValueError(f"${ENV} is {env!r}: choose 0 or 1 (unset: compiled on a CPU, eager on CUDA)")
+        return env in ("1", "true")
+    return torch.device(device).type == "cpu"
 
 
 def cache_dir() -> Path:
@@ -84,12 +107,22 @@ def fingerprint(*objs, skip: tuple[str, ...] = ()) -> str:
 
     for o in objs:
         put(o)
+    h.update(_code_digest())
+    return h.hexdigest()[:32]
+
+
+@functools.cache
+def _code_digest() -> bytes:
+    """The digest of rbfn.control's and rbfn.robots's source files and torch's version, read once
+    per process: a file edited while a run goes on keys neither its later packages nor a next run's
+    wrongly (the next run reads the edit)."""
+    h = hashlib.sha256()
     root = Path(__file__).resolve().parents[1]
     for pkg in _SOURCES:
         for f in sorted((root / pkg).glob("*.py")):
             h.update(f.name.encode() + f.read_bytes())
     h.update(torch.__version__.encode())
-    return h.hexdigest()[:32]
+    return h.digest()
 
 
 def serializable(*types: type) -> None:

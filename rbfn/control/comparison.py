@@ -27,6 +27,7 @@ from ..config import (
     RobotConfig,
 )
 from ..progress import Progress
+from .aot import ahead_of_time
 from .batch import Stacked
 from .controllers import Model, make_controller
 from .loop import RealLoop, real_loop
@@ -91,6 +92,7 @@ def compare_controllers(
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
+    aot = not cfg.compile and ahead_of_time(cfg.aot, device)
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
     plant, model = setup.plant, setup.nominal_model(gains.nominal_payload, model_scales(gains))
     real: RealLoop | None = None
@@ -151,7 +153,7 @@ def compare_controllers(
                     stride=PILOT_STRIDE,
                     joint_scale=scale,
                     compile=cfg.compile,
-                    aot=cfg.aot,
+                    aot=aot,
                 )
             method = name[len("arbfn_") :]
             if objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
@@ -200,7 +202,7 @@ def compare_controllers(
             qd0=qd0.repeat(k, 1),
             payload=payload.repeat(k),
             compile=cfg.compile,
-            aot=cfg.aot,
+            aot=aot,
             loop=real,
         )
     except SimulationDiverged as e:
@@ -292,7 +294,7 @@ def _closed_loop_cost(
         loop=real,
         pilot=((x - twin.offset) / twin.scale, y) if cfg.network.warm_start else None,
         compile=cfg.compile,
-        aot=cfg.aot,
+        aot=not cfg.compile and ahead_of_time(cfg.aot, like.device),
     )
 
 

@@ -268,7 +268,7 @@ def simulate(
     kg applies inside the window.
 
     Returns a Rollout, or with record=False only the final (q, qd). `chunk` periods run per call
-    (default 100 eager; compiled, the plant's `compile_chunk`: 25 for the SCARA's closed form, 1
+    (default 100 eager; compiled, the plant's `compile_chunk`: 10 for the SCARA's closed form, 1
     for the URDF recursion, whose step alone is a large graph); `compile` fuses them into one
     torch.compile'd call, which removes most of the per-operation overhead at small B and, for a URDF arm, streams its
     dynamics through registers instead of memory (compiling takes minutes). `aot` runs the same
@@ -566,9 +566,8 @@ def _simulate_real(
         Sensing(y0[None].repeat(loop.sensing_delay + 1, 1, 1), y0.clone(), qd.clone()),
         Actuation(wait, wait.clone(), Applied(z.clone(), z.clone()), z.clone()),
     )
-    # Compiled, a fifth of the ideal loop's chunk (a period here is several integration steps and
-    # the sensing and actuation around them): the SCARA's 5 periods ran as fast as 25 and built in
-    # a fraction of the time (docs/benchmarks.md).
+    # Compiled, a fifth of the ideal loop's chunk: a period here is several integration steps and
+    # the sensing and actuation around them.
     chunk = chunk or (max(1, plant.compile_chunk // 5) if compile or aot else 100)
     run = make_real_chunk(plant, controller, loop, dt, scenario.integrator, chunk)
     if compile:

@@ -34,7 +34,7 @@ from ..robots.dynamics import load_arm
 from ..robots.perturbed import PerturbedChain
 from ..robots.registry import ClosedForm, closed_form
 from ..robots.robot import robot_from_record, rotation_error_deg, unit_quaternions
-from .aot import aot_chunk, chunk_key
+from .aot import ahead_of_time, aot_chunk, chunk_key
 from .controllers import Controller, make_controller
 from .loop import integration_limit
 from .models import model_scales
@@ -312,6 +312,7 @@ def run_online(
     `record`; see OnlineRun for what comes back.
     """
     kw: dict[str, Any] = {"dtype": torch.float64, "device": device}
+    aot = ahead_of_time(cfg.aot, device)
     sc = Scenario(cfg.duration, cfg.dt, "rk4", 0.0, cfg.duration, 0.0)
     sc.validate()
     n = sc.steps
@@ -348,7 +349,7 @@ def run_online(
             stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
             ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
             periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], load=tuple(c[:m] for c in load))
-            if cfg.aot and k == 0 and m == cfg.update_every:  # compiled ahead of time, cached on disk
+            if aot and k == 0 and m == cfg.update_every:  # compiled ahead of time, cached on disk
                 run = aot_chunk(
                     run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods), log.info
                 )

@@ -7,7 +7,7 @@ import torch
 import torch.utils._pytree as pytree
 
 from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
-from rbfn.control.aot import fingerprint
+from rbfn.control.aot import ENV, ahead_of_time, fingerprint
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, SlidingState
 from rbfn.control.models import NominalModel
@@ -36,6 +36,20 @@ def test_fingerprint_follows_values_not_identity_or_caches():
     assert fingerprint(both) != fingerprint(Stacked([c2, f1], [2, 2]))
     with pytest.raises(TypeError, match="cannot fingerprint a"):
         fingerprint(object())
+
+
+def test_auto_compiles_on_a_cpu_unless_the_environment_says_otherwise(monkeypatch):
+    monkeypatch.delenv(ENV, raising=False)
+    assert ahead_of_time("auto", "cpu") and not ahead_of_time("auto", "cuda")
+    for setting, want in [("true", True), (True, True), ("False", False), (False, False)]:
+        assert ahead_of_time(setting, "cuda") is want and ahead_of_time(setting, "cpu") is want
+    monkeypatch.setenv(ENV, "0")
+    assert not ahead_of_time("auto", "cpu") and ahead_of_time("true", "cpu")
+    monkeypatch.setenv(ENV, "1")
+    assert ahead_of_time("auto", "cuda") and not ahead_of_time("false", "cpu")
+    monkeypatch.setenv(ENV, "maybe")
+    with pytest.raises(ValueError, match=r"\$ACO_RBFN_AOT is 'maybe': choose 0 or 1"):
+        ahead_of_time("auto", "cpu")
 
 
 def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
