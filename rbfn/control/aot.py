@@ -155,28 +155,36 @@ def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None
     """`run` (a `make_chunk` function) as the AOTInductor package cached under `key`, built from
     the `example` arguments (loop, periods) on a miss (minutes); returns a function with run's
     signature."""
-    # torch's own pytree deprecation notice, raised when it pickles the program's input spec.
-    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
     path = cache_dir() / f"chunk-{key}.pt2"
     if not path.is_file():
-        if log:
-            log(f"compiling the closed-loop step ahead of time into {path} (minutes, once per configuration)")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        # One eager call first: the caches the step fills on first use (the dynamics' constants per
-        # dtype and device) then hold real tensors, not the export trace's fake ones, which would
-        # slow every later eager call or fail it.
-        with torch.inference_mode():
-            run(*pytree.tree_map_only(torch.Tensor, torch.clone, example))
-        program = torch.export.export(_Chunk(run), example, strict=False)
-        fd, tmp = tempfile.mkstemp(suffix=".pt2", dir=path.parent)
-        os.close(fd)
-        try:
-            torch._inductor.aoti_compile_and_package(program, package_path=tmp)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        with warnings.catch_warnings():
+            # torch's own deprecation notices, raised inside its export and lowering (its pytree's
+            # when it pickles the program's input spec, and `torch._prims_common.check`'s).
+            warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
+            warnings.filterwarnings("ignore", message=r".*_prims_common\.check.*deprecated", category=FutureWarning)
+            _build(run, path, example, log)
     return _load(path)
+
+
+def _build(run: Callable, path: Path, example: tuple, log: Callable[[str], None] | None) -> None:
+    """Export `run` at `example` and write its AOTInductor package to `path` atomically."""
+    if log:
+        log(f"compiling the closed-loop step ahead of time into {path} (a minute or two, once per configuration)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # One eager call first: the caches the step fills on first use (the dynamics' constants per
+    # dtype and device) then hold real tensors, not the export trace's fake ones, which would
+    # slow every later eager call or fail it.
+    with torch.inference_mode():
+        run(*pytree.tree_map_only(torch.Tensor, torch.clone, example))
+    program = torch.export.export(_Chunk(run), example, strict=False)
+    fd, tmp = tempfile.mkstemp(suffix=".pt2", dir=path.parent)
+    os.close(fd)
+    try:
+        torch._inductor.aoti_compile_and_package(program, package_path=tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def _load(path: Path) -> Callable:
