@@ -18,6 +18,7 @@ import enum
 import functools
 import hashlib
 import os
+import shutil
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator
@@ -43,9 +44,10 @@ def ahead_of_time(setting: Any, device: torch.device | str) -> bool:
     a bool reads as true or false) runs compiled ahead of time on `device`.
 
     auto: compiled on a CPU, where a small batch's eager step is mostly per-operation overhead
-    that the package removes; eager on CUDA, whose kernels cost more than the Python around them
-    and whose packages this project does not test. $ACO_RBFN_AOT (0 or 1) overrides auto: the test
-    suite sets 0, so that only the tests of compilation build packages."""
+    that the package removes, if the C++ compiler AOTInductor calls (g++) is on the PATH; eager
+    on CUDA, whose kernels cost more than the Python around them and whose packages this project
+    does not test. $ACO_RBFN_AOT (0 or 1) overrides auto: the test suite sets 0, so that only the
+    tests of compilation build packages."""
     s = str(setting).lower()
     if s != "auto":
         return s == "true"
@@ -54,7 +56,7 @@ def ahead_of_time(setting: Any, device: torch.device | str) -> bool:
         if env not in ("0", "1", "false", "true"):
             raise ValueError(f"${ENV} is {env!r}: choose 0 or 1 (unset: compiled on a CPU, eager on CUDA)")
         return env in ("1", "true")
-    return torch.device(device).type == "cpu"
+    return torch.device(device).type == "cpu" and shutil.which("g++") is not None
 
 
 def cache_dir() -> Path:

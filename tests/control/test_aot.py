@@ -40,7 +40,10 @@ def test_fingerprint_follows_values_not_identity_or_caches():
 
 def test_auto_compiles_on_a_cpu_unless_the_environment_says_otherwise(monkeypatch):
     monkeypatch.delenv(ENV, raising=False)
+    monkeypatch.setattr("shutil.which", lambda name: f"/usr/bin/{name}")
     assert ahead_of_time("auto", "cpu") and not ahead_of_time("auto", "cuda")
+    monkeypatch.setattr("shutil.which", lambda name: None)  # no C++ compiler: eager
+    assert not ahead_of_time("auto", "cpu") and ahead_of_time("true", "cpu")
     for setting, want in [("true", True), (True, True), ("False", False), (False, False)]:
         assert ahead_of_time(setting, "cuda") is want and ahead_of_time(setting, "cpu") is want
     monkeypatch.setenv(ENV, "0")

@@ -136,6 +136,7 @@ def test_control_gains_preset_composes():
     cfg = compose_config("evaluate", "experiment=control_gains", hydra=True)
     assert cfg.hydra.sweeper.params["gains.K"] == "15,30,50" and cfg.ik is False
     assert cfg.loop.name == "ideal" and cfg.gains.observer_gain == 1000.0  # the ideal loop's gains it sweeps
+    assert cfg.control.aot == "false"  # every job a new configuration: eager
 
 
 UR5_TINY = [
