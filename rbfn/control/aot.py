@@ -13,6 +13,7 @@ written atomically; the directory is $ACO_RBFN_CACHE/aot, default ~/.cache/aco-r
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import enum
 import functools
@@ -244,7 +245,8 @@ def _rebuilder(spec: pytree.TreeSpec) -> Callable[[Iterator[Any]], Any]:
         return lambda it: [k(it) for k in kids]
     if kind is type(None):
         return lambda it: None
-    if isinstance(kind, type) and issubclass(kind, tuple) and hasattr(kind, "_fields"):
-        return lambda it: kind(*[k(it) for k in kids])
+    if kind is collections.namedtuple:  # pytree's node of every NamedTuple: its class is the context
+        cls = spec.context
+        return lambda it: cls(*[k(it) for k in kids])
     n = spec.num_leaves
     return lambda it: spec.unflatten([next(it) for _ in range(n)])

@@ -7,7 +7,7 @@ import torch
 import torch.utils._pytree as pytree
 
 from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
-from rbfn.control.aot import ENV, ahead_of_time, fingerprint
+from rbfn.control.aot import ENV, _rebuilder, ahead_of_time, fingerprint, map_tensors
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, SlidingState
 from rbfn.control.models import NominalModel
@@ -53,6 +53,26 @@ def test_auto_compiles_on_a_cpu_unless_the_environment_says_otherwise(monkeypatc
     monkeypatch.setenv(ENV, "maybe")
     with pytest.raises(ValueError, match=r"\$ACO_RBFN_AOT is 'maybe': choose 0 or 1"):
         ahead_of_time("auto", "cpu")
+
+
+def test_a_package_output_is_rebuilt_without_pytree_for_the_loops_own_types(monkeypatch):
+    """The package's flat outputs become the loop's named state again: NamedTuples, tuples, lists
+    and None directly (pytree's own unflatten costs as much as a short package call), anything
+    else through pytree."""
+    t = [torch.full((2,), float(i)) for i in range(6)]
+    tree = (Loop(t[0], t[1], [SlidingState(t[2], None, t[3]), None]), [t[4]], t[5])
+    flat: list[torch.Tensor] = []
+    map_tensors(flat.append, tree)
+    leaves, spec = pytree.tree_flatten(tree)
+    assert [id(x) for x in flat] == [id(x) for x in leaves if x is not None]  # its inputs: the tensors
+    rebuild = _rebuilder(pytree.treespec_loads(pytree.treespec_dumps(spec)))  # as a package stores it
+    monkeypatch.setattr(pytree.TreeSpec, "unflatten", lambda *a: pytest.fail("pytree's unflatten was used"))
+    out = rebuild(iter(leaves))  # the package's outputs: a tensor or None per leaf
+    assert type(out[0]) is Loop and type(out[0].controller[0]) is SlidingState and out[0].controller[1] is None
+    assert all(a is b for a, b in zip(pytree.tree_leaves(out), pytree.tree_leaves(tree)))
+    monkeypatch.undo()
+    other = {"a": t[0], "b": (t[1],)}  # a dict: pytree's
+    assert _rebuilder(pytree.tree_flatten(other)[1])(iter([t[0], t[1]])) == other
 
 
 def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
