@@ -40,9 +40,10 @@ _SOURCES = ("control", "robots")  # packages whose code the chunk runs
 ENV = "ACO_RBFN_AOT"  # what `auto` means: 1 compiled ahead of time, 0 eager; unset: by device
 
 
-def ahead_of_time(setting: Any, device: torch.device | str) -> bool:
+def ahead_of_time(setting: Any, device: torch.device | str, compile: bool = False) -> bool:
     """Whether a loop configured with `control.aot` / `online.aot` = `setting` (auto, true or false;
-    a bool reads as true or false) runs compiled ahead of time on `device`.
+    a bool reads as true or false) runs compiled ahead of time on `device`; `compile`: the loop is
+    torch.compile'd instead (`control.compile`), which auto leaves alone.
 
     auto: compiled on a CPU, where a small batch's eager step is mostly per-operation overhead
     that the package removes, if the C++ compiler AOTInductor calls (g++) is on the PATH; eager
@@ -52,6 +53,8 @@ def ahead_of_time(setting: Any, device: torch.device | str) -> bool:
     s = str(setting).lower()
     if s != "auto":
         return s == "true"
+    if compile:
+        return False
     env = os.environ.get(ENV, "").strip().lower()
     if env:
         if env not in ("0", "1", "false", "true"):

@@ -92,7 +92,7 @@ def compare_controllers(
     kw: dict[str, Any] = {"dtype": dtype, "device": device}
     sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
     sc.validate()
-    aot = not cfg.compile and ahead_of_time(cfg.aot, device)
+    aot = ahead_of_time(cfg.aot, device, cfg.compile)
     ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
     plant, model = setup.plant, setup.nominal_model(gains.nominal_payload, model_scales(gains))
     real: RealLoop | None = None
@@ -294,7 +294,7 @@ def _closed_loop_cost(
         loop=real,
         pilot=((x - twin.offset) / twin.scale, y) if cfg.network.warm_start else None,
         compile=cfg.compile,
-        aot=not cfg.compile and ahead_of_time(cfg.aot, like.device),
+        aot=ahead_of_time(cfg.aot, like.device, cfg.compile),
     )
 
 

@@ -42,6 +42,7 @@ def test_auto_compiles_on_a_cpu_unless_the_environment_says_otherwise(monkeypatc
     monkeypatch.delenv(ENV, raising=False)
     monkeypatch.setattr("shutil.which", lambda name: f"/usr/bin/{name}")
     assert ahead_of_time("auto", "cpu") and not ahead_of_time("auto", "cuda")
+    assert not ahead_of_time("auto", "cpu", compile=True)  # torch.compile'd instead
     monkeypatch.setattr("shutil.which", lambda name: None)  # no C++ compiler: eager
     assert not ahead_of_time("auto", "cpu") and ahead_of_time("true", "cpu")
     for setting, want in [("true", True), (True, True), ("False", False), (False, False)]:

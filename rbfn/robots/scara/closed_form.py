@@ -215,9 +215,8 @@ class ScaraTerms:
     the coefficients (a nominal model: `scaled`). The payload model is `inertia_params`'s."""
 
     n = 3
-    # Integration steps per compiled call (a step is a few dozen fused operations): a package's
-    # build grows with its length (one SCARA period of the realistic loop: 19 s; 2: 24 s; 5: 43 s;
-    # 10: 72 s) and its per-call cost shrinks (a 10 s scenario at B = 1: 0.99, 0.54, 0.29, 0.20 s).
+    # Integration steps per compiled call (a step is a few dozen fused operations): a longer chunk
+    # builds longer and costs less per call; docs/benchmarks.md measures the trade-off.
     compile_chunk = 10
 
     def __init__(self, params: ScaraParams = ScaraParams(), scales: tuple[float, float, float] = (1.0, 1.0, 1.0)):
