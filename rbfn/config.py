@@ -63,6 +63,7 @@ __all__ = [
     "GainsConfig",
     "NetworkConfig",
     "NetworkObjective",
+    "NetworkLaw",
     "TuneConfig",
     "ControlConfig",
     "OnlineConfig",
@@ -112,6 +113,11 @@ class NetworkObjective(Choice):  # what the adaptive controller's centre search 
     closed_loop = "closed_loop"
     fit = "fit"
     cluster = "cluster"
+
+
+class NetworkLaw(Choice):  # how the adaptive controller's network learns (rbfn.control.controllers)
+    two_phase = "two_phase"
+    tracking = "tracking"
 
 
 class WidthRule(Choice):
@@ -602,6 +608,13 @@ class GainsConfig:
     pd_kp: float = 0.0  # PD gains; 0: K Lambda and K, the same feedback as smc's K s
     pd_kd: float = 0.0
     dead_zone: float = 0.0  # rad/s (m/s) per joint: the adaptation ignores |s| below it (measurement noise)
+    # The two-phase law (control.network.law=two_phase, rbfn.control.controllers.TwoPhase): its
+    # estimator's momentum observer, 1/s, and the payload estimate's normalised LMS step per control period.
+    estimator_gain: float = 30.0
+    estimate_rate: float = 0.05
+    # the two-phase law: the most by which a joint's feedback gain K grows with the inertia the
+    # estimated payload adds (1: fixed gains)
+    feedback_growth: float = 2.0
     nominal_payload: float = 0.0  # kg: the payload the nominal model carries (0: the unloaded robot, the paper's)
     # The nominal model's factors, M_hat = model_inertia M, C_hat = model_coriolis C, G_hat = model_gravity G:
     # the paper's 0.9, 0.8 and 0.85 (its controller knows the robot to within 10-20 %).
@@ -623,13 +636,15 @@ class GainsConfig:
         for k, v in vars(self).items():
             if isinstance(v, float):
                 _need(math.isfinite(v), f"{key}.{k}", v, "must be finite")
-        for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay", "model_inertia"):
+        for k in ("K", "Lambda", "boundary", "observer_gain", "gamma_decay", "model_inertia", "estimator_gain"):
             _need(getattr(self, k) > 0, f"{key}.{k}", getattr(self, k), "must be > 0")
         for k in ("epsilon", "gamma", "leakage", "pd_kp", "pd_kd", "dead_zone", "nominal_payload"):
             _need(getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
         for k in ("model_coriolis", "model_gravity"):
             _need(getattr(self, k) >= 0, f"{key}.{k}", getattr(self, k), "must be >= 0")
         _need(0 <= self.phase_margin < 90, f"{key}.phase_margin", self.phase_margin, "must be in [0, 90) degrees")
+        _need(0 < self.estimate_rate <= 1, f"{key}.estimate_rate", self.estimate_rate, "must be in (0, 1]")
+        _need(self.feedback_growth >= 1, f"{key}.feedback_growth", self.feedback_growth, "must be >= 1")
 
 
 @dataclass
@@ -731,6 +746,11 @@ class NetworkConfig:
     warm_start: bool = False  # start W at the ridge fit of the pilot run's residual torque
     seed: int = 0
     objective: NetworkObjective = NetworkObjective.closed_loop
+    # two_phase: a basis fitted offline to the residual at `conditions` payloads from 0 to 1.25x the
+    # rated one, then only the payload's coordinate adapts online (TwoPhase); tracking: the paper's
+    # dW/dt = Gamma h s^T from zero weights
+    law: NetworkLaw = NetworkLaw.tracking
+    conditions: int = 6
     aco: ACOConfig = field(default_factory=ACOConfig)
     tune: TuneConfig = field(default_factory=TuneConfig)
 
@@ -744,7 +764,16 @@ class NetworkConfig:
         """`duration`: control.duration (s); `controllers`: control.controllers; `window`: control's
         payload window (s)."""
         _need(self.num_centers >= 1, f"{key}.num_centers", self.num_centers, "must be >= 1")
+        _need(self.conditions >= 2, f"{key}.conditions", self.conditions, "must be >= 2 (a direction needs two)")
         _seed(f"{key}.seed", self.seed)
+        if self.law == NetworkLaw.two_phase:
+            _need(
+                self.objective != NetworkObjective.closed_loop,
+                f"{key}.objective",
+                str(self.objective),
+                f"the closed-loop tuning searches the tracking law's network: with {key}.law=two_phase "
+                "choose fit (phase 1's fit at every payload) or cluster",
+            )
         self.aco.check(f"{key}.aco", self.num_centers if self.aco.colony == Colony.ant_system else 1)
         _need(
             self.aco.objective == Objective.fit,

@@ -22,6 +22,7 @@ from ..config import (
     Dtype,
     GainsConfig,
     LoopConfig,
+    NetworkLaw,
     NetworkObjective,
     Objective,
     RobotConfig,
@@ -32,7 +33,16 @@ from .batch import Stacked
 from .controllers import Model, make_controller
 from .loop import RealLoop, real_loop
 from .models import model_scales
-from .network import ControlNet, control_network, desired_states, pilot_residuals
+from .network import (
+    ControlNet,
+    PayloadBasis,
+    control_network,
+    desired_states,
+    model_payload_torque,
+    payload_basis,
+    payload_residuals,
+    pilot_residuals,
+)
 from .robot_setup import ControlRobot, GainFactors, control_robot
 from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
 from .trajectory import Reference
@@ -54,6 +64,7 @@ class ControlRun:
     rollout: Rollout
     sim_seconds: float  # the whole batch's (every controller's) simulation
     select_seconds: float | None = None  # the network's centre selection (arbfn_*)
+    basis: PayloadBasis | None = None  # phase 1's fit (arbfn_* under the two-phase law)
     tuned: Tuned | None = None  # the closed-loop tuning (arbfn_aco, _random, _cmaes; arbfn_kmeans: its cost)
 
 
@@ -70,6 +81,7 @@ class ControlComparison:
     tune_scenarios: TuneScenarios | None = None  # the closed-loop tuning's scenarios, where it ran
     tuning_seconds: float = 0.0  # wall time of the closed-loop tuning: the scenarios' smc references,
     # every search and its confirmation
+    phase_one_payloads: list[float] | None = None  # kg: the two-phase law's phase 1 conditions, where it ran
 
 
 def compare_controllers(
@@ -114,19 +126,28 @@ def compare_controllers(
     cost: ClosedLoopCost | None = None
     confirm: ClosedLoopCost | None = None  # the same scenarios at the evaluation's length
     objective = cfg.network.objective
+    two_phase = cfg.network.law == NetworkLaw.two_phase
+    schedule = setup.inertia_schedule(gains) if two_phase else None
+    conditions = torch.linspace(0.0, 1.25 * setup.rated_payload, cfg.network.conditions).tolist()
+    bases: dict[str, PayloadBasis] = {}
     tuning_seconds = 0.0
 
     def static(method: str) -> ControlNet:
-        """The network `method` selects from the pilot run (once per method)."""
+        """The network `method` selects from the pilot run (once per method); under the two-phase
+        law from phase 1's runs, fitting every condition's residual at once (each joint's in units
+        of its torque gain factor)."""
         assert pilot is not None
         if method not in nets:
             aco = cfg.network.aco
             if objective != NetworkObjective.closed_loop:  # the colony's static objective
                 aco = replace(aco, objective=Objective(str(objective)))
+            y = pilot[1].double().cpu()
+            if two_phase:
+                y = (y if scale is None else y / scale.double().cpu()).reshape(y.shape[0], -1)
             nets[method] = control_network(
                 method,
                 pilot[0].double().cpu(),
-                pilot[1].double().cpu(),
+                y,
                 m=cfg.network.num_centers,
                 seed=cfg.network.seed,
                 sample_dt=sc.dt * PILOT_STRIDE,
@@ -142,6 +163,20 @@ def compare_controllers(
     for name in cfg.controllers:
         features = w0 = None
         if name.startswith("arbfn_"):
+            if pilot is None and two_phase:
+                stage(f"phase 1: {len(conditions)} payload conditions")
+                pilot = payload_residuals(
+                    plant,
+                    sc,
+                    ref,
+                    gains,
+                    model,
+                    conditions,
+                    stride=PILOT_STRIDE,
+                    joint_scale=scale,
+                    compile=cfg.compile,
+                    aot=aot,
+                )
             if pilot is None:
                 stage("the pilot run")
                 pilot = pilot_residuals(
@@ -156,7 +191,14 @@ def compare_controllers(
                     aot=aot,
                 )
             method = name[len("arbfn_") :]
-            if objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
+            if two_phase:
+                net = static(method)
+                if method not in bases:
+                    bases[method] = payload_basis(net, pilot[0].double().cpu(), pilot[1].double().cpu(), conditions)
+                h = net.features(desired_states(ref, acceleration=True).double().cpu())
+                own = model_payload_torque(model, ref).double().cpu()
+                features, select_seconds[name] = bases[method].outputs(h, own).to(**kw), net.seconds
+            elif objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
                 t_tune = time.perf_counter()
                 args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
                 if cost is None:  # the tuning's scenarios, and smc's reference errors on them
@@ -173,7 +215,8 @@ def compare_controllers(
                 tuning_seconds += time.perf_counter() - t_tune
             else:
                 net = static(method)
-            features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
+            if not two_phase:
+                features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
         controllers.append(
             make_controller(
                 name,
@@ -186,6 +229,8 @@ def compare_controllers(
                 joint_scale=scale,
                 plant=plant,
                 rates=rates,
+                law=str(cfg.network.law),
+                schedule=schedule,
             )
         )
     k = len(controllers)
@@ -224,6 +269,7 @@ def compare_controllers(
             rollout=part,
             sim_seconds=seconds,
             select_seconds=select_seconds.get(name),
+            basis=bases.get(name[len("arbfn_") :]) if name.startswith("arbfn_") else None,
             tuned=tuned.get(name),
         )
     if cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
@@ -242,6 +288,7 @@ def compare_controllers(
         joint_scale=factors.listed,
         tune_scenarios=None if cost is None else cost.scenarios,
         tuning_seconds=tuning_seconds,
+        phase_one_payloads=conditions if bases else None,
     )
 
 

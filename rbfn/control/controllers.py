@@ -47,6 +47,10 @@ __all__ = [
     "SlidingMode",
     "SlidingState",
     "ExactSliding",
+    "TwoPhase",
+    "TwoPhaseState",
+    "InertiaSchedule",
+    "observer_factor",
     "Forces",
     "JointRates",
     "make_controller",
@@ -303,6 +307,160 @@ class ExactSliding(Controller):
         return tau, state
 
 
+class InertiaSchedule(NamedTuple):
+    """The nominal model's inertia diagonal at home as a function of the payload it carries,
+    M_jj(m) = base_j + per_kg_j m (exact for a point mass; `ControlRobot.inertia_schedule`), and
+    the heaviest payload the design allows, `high` = 1.25 x robot.rated_payload: base (n,) kg m^2
+    (kg), per_kg (n,) m^2 (1), high kg."""
+
+    base: torch.Tensor
+    per_kg: torch.Tensor
+    high: float
+
+
+def observer_factor(gains: Gains, scale: torch.Tensor, inertia: torch.Tensor) -> torch.Tensor:
+    """The observer gain's per-joint factor min(1, K s_j / (K_o M_jj)) for the joint scale s (n,)
+    and inertia diagonal M_jj (n,) or per environment (B, n): the observer no faster than the
+    feedback's bandwidth K s_j / M_jj at that inertia. Dimensionless, the shape of `inertia`."""
+    return (gains.K * scale / (gains.observer_gain * inertia)).clamp(max=1.0)
+
+
+class TwoPhaseState(NamedTuple):
+    """`TwoPhase`'s state, per environment: the sliding-mode law's (`SlidingState`, its w unused)
+    on the model carrying the estimate; the estimator's momentum observer, on the nominal model:
+    its integral (B, n), initial momentum (B, n), last momentum rate (B, n) and estimate d_e (B, n)
+    of what the nominal model misses less the command's share; and the payload estimate m_hat (B,)
+    kg. N m (N), N m s (N s)."""
+
+    law: SlidingState
+    e_integral: torch.Tensor
+    e_p0: torch.Tensor
+    e_beta: torch.Tensor
+    d_e: torch.Tensor
+    m_hat: torch.Tensor
+
+
+class TwoPhase(Controller):
+    """`arbfn_<method>` under `control.network.law=two_phase`: the paper's two phases.
+
+    Phase 1 (offline, `rbfn.control.network.payload_basis`) fits the torque the nominal model
+    misses, recorded at payloads from 0 to 1.25x the rated one, as W^T h(x) with W = W0 + m V
+    for a payload of m kg, h the network's Gaussians of the desired state x = (q_d, qd_d, qdd_d).
+    The features this law is given are that network's outputs along the reference (T, 3n):
+    [h^T W0, h^T V, h^T V - Y], the unloaded robot's residual, the payload's torque per kg and
+    what of it the nominal model carrying the payload leaves (Y: the model's own torque per kg,
+    `rbfn.control.network.model_payload_torque`; the model's factors scale the payload too).
+
+    Phase 2 (online) adapts only the network's coordinate m along V, the payload estimate m_hat,
+    by normalised LMS on a prediction error: a second momentum observer, on the nominal model and
+    `gains.estimator_gain` fast (it acts only through m_hat), estimates d_e ~ r - share, r the
+    torque the nominal model misses and share the command's part that is not the nominal law's,
+    so the error is
+
+        err = d_e + share - h^T W0 - m_hat h^T V,  m_hat += mu (phi^T D err) / (phi^T D phi + eps)
+
+    with phi = h^T V, D = diag(1 / s_j^2) (joints in comparable units), mu = `gains.estimate_rate`,
+    m_hat kept within [0, schedule.high]. The sliding-mode law then runs on the nominal model
+    carrying m_hat, with the observer's gain following M_jj(m_hat) (`observer_factor`) instead of
+    held at the rated payload's, plus what the network says that model misses:
+
+        tau = M_hat(m_hat) qr'' + C_hat(m_hat) qr' + G_hat(m_hat) + K s + eps sat(s)
+              + h^T W0 + m_hat (h^T V - Y) + d_hat.
+
+    The controller is not told the payload: the rating bounds m_hat, as it bounds the design."""
+
+    def __init__(
+        self,
+        gains: Gains,
+        dt: float,
+        model: Model,
+        features: torch.Tensor,
+        schedule: InertiaSchedule,
+        joint_scale: torch.Tensor | None = None,
+    ) -> None:
+        super().__init__(gains, dt, model, joint_scale)
+        self.features, self.schedule = features, schedule
+
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> TwoPhaseState:
+        z = torch.zeros_like(q0)
+        m = torch.full(q0.shape[:1], float(self.model.payload), dtype=q0.dtype, device=q0.device)
+        p0 = self.model.at(q0, qd0, payload=m).m_times(qd0)
+        law = SlidingState(z, z.clone(), p0, None, z.clone(), z.clone())
+        return TwoPhaseState(law, z.clone(), self.model.at(q0, qd0).m_times(qd0), z.clone(), z.clone(), m)
+
+    def share(self, state: TwoPhaseState, like: torch.Tensor) -> torch.Tensor:
+        assert state.law.share is not None
+        return state.law.share
+
+    def _growth(self, m: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+        """M_jj(m) / M_jj(the model's own payload) (B, n) at payload estimates m (B,), at most
+        `gains.feedback_growth`: by how much each joint is heavier than the model's design, by
+        which the feedback gain K grows so that each joint's feedback keeps its bandwidth whatever
+        it carries. The cap bounds the harm of an estimate that lags a payload's removal (the
+        joint then briefly driven at that many times its bandwidth)."""
+        sc = self.schedule
+        base, per_kg = sc.base.to(like), sc.per_kg.to(like)
+        ratio = (base + per_kg * m[:, None]) / (base + per_kg * float(self.model.payload))
+        return ratio.clamp(max=self.gains.feedback_growth)
+
+    def torque(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: TwoPhaseState,
+        *,
+        h: torch.Tensor | None = None,
+        alpha: torch.Tensor | None = None,
+        applied: Applied | None = None,
+        forces: Forces | None = None,
+    ) -> tuple[torch.Tensor, TwoPhaseState]:
+        """tau (B, n) and the next state; h: this period's [h^T W0, h^T V, h^T V - Y] (3n,) or
+        per environment (B, 3n); alpha unused (the estimate's step is `gains.estimate_rate`)."""
+        assert h is not None  # the network's outputs along the reference
+        g, dt, n = self.gains, self.dt, q.shape[-1]
+        law, e_integral, e_p0, e_beta, d_e, m = state
+        resid0, phi, beyond = h[..., :n], h[..., n : 2 * n], h[..., 2 * n :]
+        e, de = ref.q_d - q, ref.qd_d - qd
+        s = de + g.Lambda * e
+        at = self.model.at(q, qd, payload=m)  # the model carrying the estimate
+        robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
+        tau_m = at.m_times(ref.qdd_d + g.Lambda * de) + at.c_times(ref.qd_d + g.Lambda * e) + at.gravity()
+        growth = self._growth(m, q)
+        tau_m = tau_m + self._scaled(g.K) * growth * s + self._scaled(g.epsilon) * robust
+        # The law's observer on the model carrying the estimate: its gain min(1, K s_j / (K_o M_jj))
+        # with the feedback's gain and the inertia grown alike (the unloaded joint's rate).
+        integral, beta = law.integral, law.beta
+        if applied is not None:
+            assert beta is not None
+            integral = integral + dt * (applied.known + beta)
+        unit = torch.ones_like(q[0]) if self.scale is None else self.scale.to(q)
+        full = self.schedule.base.to(q) + self.schedule.per_kg.to(q) * m[:, None]  # M_jj(m_hat) (B, n)
+        factor = observer_factor(self.gains, unit * growth, full)
+        d_hat = g.observer_gain * factor * (integral + law.p0 - at.m_times(qd))
+        tau = tau_m + resid0 + m[:, None] * beyond + d_hat
+        beta = at.momentum_rate()
+        if applied is None:  # the ideal loop: this period's nominal share acts as commanded
+            integral = integral + dt * (tau_m + beta)
+        share = tau - tau_m
+        # The estimator: its own observer on the nominal model, what that model misses less the share.
+        at0 = self.model.at(q, qd)
+        known = tau_m if applied is None else applied.known
+        if applied is not None:
+            e_integral = e_integral + dt * (known + e_beta - d_e)
+        d_e = g.estimator_gain * (e_integral + e_p0 - at0.m_times(qd))
+        e_beta = at0.momentum_rate()
+        if applied is None:
+            e_integral = e_integral + dt * (known + e_beta - d_e)
+        weight = torch.ones_like(q[0]) if self.scale is None else 1.0 / self.scale.to(q) ** 2
+        err = d_e + share - resid0 - m[:, None] * phi
+        num = (phi * weight * err).sum(-1)
+        den = (phi * phi * weight).sum(-1) + 1e-3 * weight.sum()
+        m = (m + g.estimate_rate * num / den).clamp(0.0, self.schedule.high)
+        law = SlidingState(d_hat, integral, law.p0, None, beta, share)
+        return tau, TwoPhaseState(law, e_integral, e_p0, e_beta, d_e, m)
+
+
 def make_controller(
     name: str,
     gains: Gains,
@@ -314,12 +472,16 @@ def make_controller(
     joint_scale: torch.Tensor | None = None,
     plant: Any = None,
     rates: JointRates | None = None,
+    law: str = "tracking",
+    schedule: InertiaSchedule | None = None,
 ) -> Controller:
     """Controller by name: pd, ctc, smc, smc_obs, smc_exact (needs the `plant`), or arbfn* (needs
     `features`). `model`: the nominal model (`rbfn.control.models.NominalModel`; all but pd and
     smc_exact need it); `joint_scale` (n,): per-joint
     factor of the torque gains; `rates`: per-joint factors of the sliding-mode law's observer gain
-    and adaptation rate (None: 1)."""
+    and adaptation rate (None: 1). `law`: the adaptive network's (`control.network.law`):
+    `tracking`, features h (T, M) and dW/dt = Gamma h s^T from `w0`; `two_phase` (`TwoPhase`),
+    features [h^T W0, h^T V] (T, 2n) and the inertia `schedule`."""
     if name == "pd":
         return PD(gains, dt, model, joint_scale)
     if model is None and name != "smc_exact":
@@ -337,6 +499,13 @@ def make_controller(
     if name.startswith("arbfn"):
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
+        if law == "two_phase":
+            assert model is not None  # checked above: every controller but pd and smc_exact has one
+            if schedule is None:
+                raise ValueError(f"controller {name!r} under law 'two_phase' needs the inertia schedule")
+            return TwoPhase(gains, dt, model, features, schedule, joint_scale=joint_scale)
+        if law != "tracking":
+            raise ValueError(f"unknown adaptive law {law!r}; choose 'two_phase' or 'tracking'")
         return SlidingMode(
             gains, dt, model, observer=observer, features=features, w0=w0, joint_scale=joint_scale, rates=rates
         )

@@ -3,9 +3,10 @@ fixed payload (0: the unloaded robot), the factors `ModelScales` (the paper's 0.
 `gains.model_inertia`, `model_coriolis`, `model_gravity`), over any backend of
 `rbfn.robots.backend.Dynamics`.
 
-`model.at(q, qd)` gives what a controller asks of its model at one control period (B, n):
-`m_times(v)` = M_hat(q) v, `c_times(y)` = C_hat(q, qd) y, `gravity()` = G_hat(q) and
-`momentum_rate()` = dM_hat/dt qd - C_hat qd - G_hat (the momentum observer's known part).
+`model.at(q, qd)` (or `model.at(q, qd, payload=m)`, carrying m kg per environment instead) gives
+what a controller asks of its model at one control period (B, n): `m_times(v)` = M_hat(q) v,
+`c_times(y)` = C_hat(q, qd) y, `gravity()` = G_hat(q) and `momentum_rate()` = dM_hat/dt qd -
+C_hat qd - G_hat (the momentum observer's known part).
 """
 
 from __future__ import annotations
@@ -56,8 +57,11 @@ class NominalModel:
 
     __hash__ = None  # type: ignore[assignment]
 
-    def at(self, q: torch.Tensor, qd: torch.Tensor) -> ModelAt:
-        return ModelAt(self.scaled.at(q, load=self.load), qd)
+    def at(self, q: torch.Tensor, qd: torch.Tensor, payload: torch.Tensor | None = None) -> ModelAt:
+        """The model at joints q and velocities qd (B, n), carrying its own payload, or `payload`
+        kg per environment (B,) in its stead (an estimate: `rbfn.control.controllers.TwoPhase`)."""
+        load = self.load if payload is None else self.scaled.load(payload)
+        return ModelAt(self.scaled.at(q, load=load), qd)
 
 
 class ModelAt:

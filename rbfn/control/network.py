@@ -1,7 +1,8 @@
 """The adaptive controller's RBF network: inputs, a pilot run, and centres chosen by ACO.
 
-Inputs are the desired state x = (q_d, qd_d) (2n,), standardised over the trajectory, so the
-features h(x_d(t)) are known in advance for every step. Centres and widths come from
+Inputs are the desired state x = (q_d, qd_d) (2n,) (the tracking law), or (q_d, qd_d, qdd_d) (3n,)
+(the two-phase law: the payload acts through the acceleration), standardised over the
+trajectory, so the features h(x_d(t)) are known in advance for every step. Centres and widths come from
 `rbfn.select` on data recorded in a pilot run of `smc_obs` on the unloaded robot: the residual
 torque the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat), against x. The `fit`
 objective picks centres that fit that residual; `cluster` places them on the states alone
@@ -13,6 +14,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
+from typing import Any, NamedTuple
 
 import torch
 
@@ -25,7 +27,16 @@ from .controllers import Gains, Model, make_controller
 from .simulator import Plant, Scenario, simulate
 from .trajectory import Reference
 
-__all__ = ["ControlNet", "desired_states", "pilot_residuals", "control_network"]
+__all__ = [
+    "ControlNet",
+    "PayloadBasis",
+    "desired_states",
+    "pilot_residuals",
+    "payload_residuals",
+    "payload_basis",
+    "model_payload_torque",
+    "control_network",
+]
 PERIOD = 2 * math.pi  # s: every desired joint repeats with this period
 
 
@@ -47,9 +58,10 @@ class ControlNet:
         return gaussian_features(z, self.centers.to(x), self.widths.to(x))
 
 
-def desired_states(ref: Reference) -> torch.Tensor:
-    """Network inputs (T, 2n): desired joints and velocities."""
-    return torch.cat([ref.q_d, ref.qd_d], -1)
+def desired_states(ref: Reference, acceleration: bool = False) -> torch.Tensor:
+    """Network inputs (T, 2n): desired joints and velocities; with `acceleration` (T, 3n), and the
+    desired accelerations."""
+    return torch.cat([ref.q_d, ref.qd_d, ref.qdd_d] if acceleration else [ref.q_d, ref.qd_d], -1)
 
 
 def pilot_residuals(
@@ -85,6 +97,93 @@ def pilot_residuals(
     resid = tau - at.m_times(qdd) - at.c_times(qd) - at.gravity()
     x = desired_states(ref)[: q.shape[0]]
     return x[::stride], resid[::stride]
+
+
+def payload_residuals(
+    plant: Plant,
+    scenario: Scenario,
+    ref: Reference,
+    gains: Gains,
+    model: Model,
+    payloads: list[float],
+    stride: int = 10,
+    joint_scale: torch.Tensor | None = None,
+    compile: bool = False,
+    aot: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Phase 1's data: (x (N, 3n), residual torque (N, C, n)) every `stride` steps of calibration
+    runs of the ideal loop, one per payload of `payloads` (C,) kg, each carried for the whole run,
+    without the scenario's disturbance; the residual is what the nominal model misses,
+    tau - (M_hat qdd + C_hat qd + G_hat), N m (N). The runs are `smc_exact`'s: a calibration knows
+    the mass it attached, and its tracking keeps the state within ~1e-4 of the reference that x
+    describes (`smc_obs` at the heavier payloads strays far enough to put 10-35 % errors into the
+    residual as a function of x). `joint_scale`: the
+    controllers' (`make_controller`); `compile`, `aot`: as `simulate`'s."""
+    c = len(payloads)
+    kw: dict[str, Any] = {"dtype": ref.q_d.dtype, "device": ref.q_d.device}
+    q0, qd0 = ref.q_d[:1].expand(c, -1).clone(), ref.qd_d[:1].expand(c, -1).clone()
+    quiet = plant.varied(torch.zeros(c, q0.shape[1], **kw), torch.zeros(c, **kw), torch.zeros(c, **kw))
+    held = replace(scenario, payload_on=0.0, payload_off=scenario.duration)
+    ctrl = make_controller("smc_exact", gains, scenario.dt, model, joint_scale=joint_scale, plant=quiet)
+    roll = simulate(
+        quiet, ctrl, held, ref, q0=q0, qd0=qd0, payload=torch.tensor(payloads, **kw), compile=compile, aot=aot
+    )
+    q, qd, tau = roll.q[:-1], roll.qd[:-1], roll.tau[:-1]  # (T, C, n)
+    qdd = (roll.qd[1:] - qd) / scenario.dt
+    t, n = q.shape[0], q.shape[-1]
+    at = model.at(q.reshape(-1, n), qd.reshape(-1, n))
+    resid = tau.reshape(-1, n) - at.m_times(qdd.reshape(-1, n)) - at.c_times(qd.reshape(-1, n)) - at.gravity()
+    x = desired_states(ref, acceleration=True)[:t]
+    return x[::stride], resid.reshape(t, c, n)[::stride]
+
+
+class PayloadBasis(NamedTuple):
+    """Phase 1's fit on a network's Gaussians h (M,): the torque the nominal model misses carrying
+    m kg is h^T (w0 + m per_kg); w0 (M, n) N m (N), per_kg (M, n) N m (N) per kg; `fit_error`:
+    the relative RMS error of that fit on the held-out rows, per condition (C,)."""
+
+    w0: torch.Tensor
+    per_kg: torch.Tensor
+    fit_error: torch.Tensor
+
+    def outputs(self, h: torch.Tensor, model_per_kg: torch.Tensor) -> torch.Tensor:
+        """What `TwoPhase` is given along the reference (T, 3n), for features h (T, M) and the
+        torque per kg that the nominal model carrying a payload adds there (`model_payload_torque`,
+        (T, n)): [h^T w0, h^T per_kg, h^T per_kg - model_per_kg], the last what the network's
+        payload direction adds beyond the model's own (its scaled inertia and gravity)."""
+        phi = h @ self.per_kg.to(h)
+        return torch.cat([h @ self.w0.to(h), phi, phi - model_per_kg.to(h)], -1)
+
+
+def model_payload_torque(model: Model, ref: Reference) -> torch.Tensor:
+    """The torque per kg (T, n) that `model` carrying a payload adds along the reference, M_hat
+    qdd_d + C_hat qd_d + G_hat at 1 kg less at 0 kg (exact: a point mass enters affinely), N m (N)
+    per kg."""
+    q, qd, qdd = ref.q_d, ref.qd_d, ref.qdd_d
+
+    def torque(kg: float) -> torch.Tensor:
+        at = model.at(q, qd, payload=torch.full(q.shape[:1], kg, dtype=q.dtype, device=q.device))
+        return at.m_times(qdd) + at.c_times(qd) + at.gravity()
+
+    return torque(1.0) - torque(0.0)
+
+
+def payload_basis(net: ControlNet, x: torch.Tensor, y: torch.Tensor, payloads: list[float]) -> PayloadBasis:
+    """W0 and V of W = W0 + m V for `net`'s Gaussians from phase 1's data x (N, d), residuals y
+    (N, C, n) at `payloads` (C,) kg: a ridge fit per condition (even rows train, odd ones choose
+    the ridge), then the least-squares line through the C weights in m (the residual of a point
+    mass is affine in m, so the weights are too)."""
+    n, c = y.shape[-1], y.shape[1]
+    h = net.features(x)
+    flat = y.reshape(y.shape[0], c * n)
+    w = ridge_fit(h[0::2], flat[0::2], h[1::2], flat[1::2]).weights.reshape(-1, c, n)  # (M, C, n)
+    m = torch.tensor(payloads, dtype=w.dtype)
+    dm = m - m.mean()
+    per_kg = torch.einsum("c,mcj->mj", dm, w - w.mean(1, keepdim=True)) / dm.square().sum()
+    w0 = w.mean(1) - m.mean() * per_kg
+    pred = torch.einsum("nm,mcj->ncj", h[1::2], w0[:, None] + m[None, :, None] * per_kg[:, None])
+    err = (pred - y[1::2]).square().sum((0, 2)).sqrt() / y[1::2].square().sum((0, 2)).sqrt().clamp_min(1e-12)
+    return PayloadBasis(w0, per_kg, err)
 
 
 def control_network(

@@ -27,7 +27,7 @@ from ..robots.backend import Dynamics
 from ..robots.dynamics import load_arm, urdf_source
 from ..robots.registry import closed_form
 from ..robots.robot import check_joint_values
-from .controllers import JointRates
+from .controllers import InertiaSchedule, JointRates, observer_factor
 from .loop import RealLoop, crossover_limit, integration_limit
 from .models import PAPER, ModelScales, NominalModel, model_scales
 from .plants import Plant
@@ -146,8 +146,15 @@ class ControlRobot:
         if scale is None:
             scale = self.joint_scale(dtype=torch.float64)
         s = torch.ones(self.n, dtype=torch.float64) if scale is None else scale.double().cpu()
-        observer = (gains.K * s / (gains.observer_gain * rated)).clamp(max=1.0)
-        return JointRates(observer.to(**kw), (base / rated).clamp(max=1.0).to(**kw))
+        return JointRates(observer_factor(gains, s, rated).to(**kw), (base / rated).clamp(max=1.0).to(**kw))
+
+    def inertia_schedule(self, gains: GainsConfig) -> InertiaSchedule:
+        """The nominal model's inertia diagonal at home against the payload it carries (float64),
+        for the two-phase law's observer gain: M_jj(m) = M_jj(0) + m (M_jj(1) - M_jj(0)), affine in
+        a point mass m; the estimate's bound 1.25 x the rated payload."""
+        scales = model_scales(gains)
+        base = self.home_inertia(0.0, scales).diagonal()
+        return InertiaSchedule(base, self.home_inertia(1.0, scales).diagonal() - base, 1.25 * self.rated_payload)
 
     @property
     def units(self) -> list[tuple[str, str]]:

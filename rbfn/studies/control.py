@@ -62,6 +62,12 @@ def evaluate_control(
         "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()},
         "torque_limits": limits,
     }
+    bases = {n: r.basis for n, r in res.runs.items() if r.basis is not None}
+    if bases:  # the two-phase law's phase 1: its payloads and each network's fit at them
+        info["phase_one"] = {
+            "payloads": res.phase_one_payloads,
+            "fit_error": {n: b.fit_error.tolist() for n, b in bases.items()},
+        }
     tuned = {n: r.tuned for n, r in res.runs.items() if r.tuned is not None}
     if tuned:  # the closed-loop tuning: the cost each network reached on the tuning's scenarios
         info["tuning"] = {

@@ -13,6 +13,7 @@ from rbfn.config import (
     ControlConfig,
     GainsConfig,
     NetworkConfig,
+    NetworkLaw,
     NetworkObjective,
     Objective,
     TuneConfig,
@@ -67,6 +68,19 @@ def test_adaptive_network_learns_and_beats_smc_at_equal_gains():
         assert all(n <= 0.25 * s for n, s in zip(net, smc)), (case, net, smc)
 
 
+def test_the_two_phase_law_beats_the_observer_at_an_unknown_payload():
+    """Phase 1 at three payloads, then the law that estimates the payload online, against smc_obs
+    at the same gains in the realistic loop's gain set (per-joint rates for the rated payload)."""
+    net = NetworkConfig(num_centers=12, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3)
+    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    res = compare_controllers(cfg, GainsConfig(inertia_scaling=True))
+    basis = res.runs["arbfn_kmeans"].basis
+    assert basis is not None and basis.w0.shape == (12, 3) and float(basis.fit_error.max()) < 0.1
+    assert res.runs["smc_obs"].basis is None
+    obs, law = res.runs["smc_obs"].metrics["10kg"]["rms_err"], res.runs["arbfn_kmeans"].metrics["10kg"]["rms_err"]
+    assert all(a < o for a, o in zip(law, obs)), (law, obs)
+
+
 def test_a_diverging_controller_is_named_with_its_case():
     """All controllers share one batch; the one that diverges is named, with its payload case."""
     cfg = _short(controllers=["smc", "pd"], dt=0.005, duration=1.0, payload_on=0.5, payload_off=0.8, integrator="euler")
@@ -97,6 +111,11 @@ def test_cluster_controller_does_not_change_the_shared_aco_config():
         ({"payload_off": 5.0}, r"control.payload_on/payload_off=\[0.3, 5.0\]"),
         ({"network": NetworkConfig(num_centers=500)}, "control.network.num_centers=500 .*exceeds the pilot run"),
         ({"compile": True, "aot": True}, "control.aot=True.*choose one of control.compile and control.aot"),
+        (
+            {"network": NetworkConfig(law=NetworkLaw.two_phase)},
+            "control.network.objective='closed_loop'.*searches the tracking law's network",
+        ),
+        ({"network": NetworkConfig(conditions=1)}, "control.network.conditions=1"),
     ],
 )
 def test_bad_control_config(change, match):
@@ -110,6 +129,9 @@ def test_bad_control_config(change, match):
         ("K", float("nan"), "gains.K=nan.*must be finite"),
         ("Lambda", 0.0, "gains.Lambda=0.0.*must be > 0"),
         ("gamma", -1.0, "gains.gamma=-1.0.*must be >= 0"),
+        ("feedback_growth", 0.5, "gains.feedback_growth=0.5.*must be >= 1"),
+        ("estimate_rate", 0.0, r"gains.estimate_rate=0.0.*must be in \(0, 1\]"),
+        ("estimator_gain", 0.0, "gains.estimator_gain=0.0.*must be > 0"),
     ],
 )
 def test_bad_gains(field, value, match):

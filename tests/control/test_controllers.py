@@ -1,0 +1,83 @@
+"""The two-phase adaptive law: its payload estimate, its inputs, and its refusals."""
+
+import pytest
+import torch
+
+from rbfn.config import ControlConfig, GainsConfig, RobotConfig
+from rbfn.control.controllers import TwoPhase, make_controller, observer_factor
+from rbfn.control.models import model_scales
+from rbfn.control.network import ControlNet, desired_states, model_payload_torque, payload_basis, payload_residuals
+from rbfn.control.plants import Plant
+from rbfn.control.robot_setup import control_robot
+from rbfn.control.simulator import Scenario
+from rbfn.control.trajectory import Reference
+
+KW = {"dtype": torch.float64}
+
+
+def _two_phase(held: float, seconds: float = 1.5):
+    """The SCARA under the two-phase law in the ideal loop (no disturbance), carrying `held` kg
+    from the start: the law's payload estimate after `seconds`, and the largest tracking error."""
+    cfg = ControlConfig(duration=seconds, disturbance=0.0)
+    gains = GainsConfig(inertia_scaling=True)
+    rob = control_robot(RobotConfig(), cfg)
+    sc = Scenario(seconds, cfg.dt, "rk4", 0.2, 0.8)
+    ref = Reference(*rob.trajectory(sc.times(torch.float64))).to(**KW)
+    model = rob.nominal_model(0.0, model_scales(gains))
+    rates = rob.joint_rates(gains)
+    payloads = [0.0, 12.5, 25.0]
+    x, y = payload_residuals(rob.plant, sc, ref, gains, model, payloads, stride=10)
+    g = torch.Generator().manual_seed(0)
+    z = (x - x.mean(0)) / x.std(0)
+    net = ControlNet(
+        x.mean(0), x.std(0), z[torch.randperm(z.shape[0], generator=g)[:20]], torch.full((20,), 1.0, **KW), None, 0.0
+    )
+    basis = payload_basis(net, x, y, payloads)
+    feats = basis.outputs(net.features(desired_states(ref, acceleration=True)), model_payload_torque(model, ref))
+    ctrl = make_controller(
+        "arbfn_kmeans",
+        gains,
+        sc.dt,
+        model,
+        features=feats,
+        law="two_phase",
+        schedule=rob.inertia_schedule(gains),
+        rates=rates,
+    )
+    assert isinstance(ctrl, TwoPhase)
+    plant = Plant(rob.dynamics, disturbance=0.0)
+    q, qd = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
+    state = ctrl.init_state(q, qd)
+    load = plant.load(torch.full((1,), held, **KW))
+    dist = torch.zeros(3, **KW)
+    worst = 0.0
+    for k in range(ref.q_d.shape[0] - 1):
+        r = Reference(ref.q_d[k], ref.qd_d[k], ref.qdd_d[k])
+        tau, state = ctrl.torque(r, q, qd, state, h=feats[k], alpha=torch.tensor(0.0, **KW))
+        q, qd = plant.step(q, qd, tau, dist, sc.dt, load, "rk4")
+        worst = max(worst, float((ref.q_d[k + 1] - q).abs().max()))
+    return float(state.m_hat[0]), worst
+
+
+@pytest.mark.parametrize("held", [0.0, 8.0, 20.0])
+def test_the_estimate_finds_the_payload_the_law_is_not_told(held):
+    m_hat, worst = _two_phase(held)
+    assert abs(m_hat - held) < 0.5 + 0.05 * held, (held, m_hat)
+    assert worst < 0.1, worst  # stable from the first period, the payload unknown
+
+
+def test_observer_factor_is_the_feedback_bandwidth_over_the_observers():
+    gains = GainsConfig(K=50.0, observer_gain=100.0)
+    f = observer_factor(gains, torch.tensor([1.0, 2.0]), torch.tensor([[0.1, 4.0], [1.0, 1.0]]))
+    assert torch.allclose(f, torch.tensor([[1.0, 0.25], [0.5, 1.0]]))
+
+
+def test_the_two_phase_law_needs_its_schedule_and_a_known_law_name():
+    cfg, gains = ControlConfig(), GainsConfig()
+    rob = control_robot(RobotConfig(), cfg)
+    model = rob.nominal_model(0.0, model_scales(gains))
+    feats = torch.zeros(10, 9, **KW)
+    with pytest.raises(ValueError, match="inertia schedule"):
+        make_controller("arbfn_aco", gains, 1e-3, model, features=feats, law="two_phase")
+    with pytest.raises(ValueError, match="unknown adaptive law 'fast'"):
+        make_controller("arbfn_aco", gains, 1e-3, model, features=feats, law="fast")
