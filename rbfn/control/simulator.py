@@ -20,7 +20,7 @@ import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (s
 
 from ..config import Integrator
 from .aot import aot_chunk, chunk_key, map_tensors, serializable
-from .controllers import Controller, Forces, SlidingState
+from .controllers import Controller, Forces, SlidingState, TwoPhaseState
 from .loop import Actuation, Applied, RealLoop, Sensing, filtered_velocity, quantise, saturate
 from .plants import Plant
 from .trajectory import Reference
@@ -607,7 +607,9 @@ def _simulate_real(
 
 
 # in an AOT package's call spec
-serializable(Reference, Loop, Periods, Recorded, SlidingState, RealState, RealPeriods, Sensing, Actuation, Applied)
+serializable(
+    Reference, Loop, Periods, Recorded, SlidingState, TwoPhaseState, RealState, RealPeriods, Sensing, Actuation, Applied
+)
 
 
 def metric_tensors(

@@ -81,3 +81,17 @@ def test_the_two_phase_law_needs_its_schedule_and_a_known_law_name():
         make_controller("arbfn_aco", gains, 1e-3, model, features=feats, law="two_phase")
     with pytest.raises(ValueError, match="unknown adaptive law 'fast'"):
         make_controller("arbfn_aco", gains, 1e-3, model, features=feats, law="fast")
+
+
+def test_the_two_phase_state_can_enter_a_compiled_package():
+    """An AOT package stores its inputs' tree spec: the law's state must serialise (it is
+    registered beside the simulator's other named states)."""
+    import torch.utils._pytree as pytree
+
+    import rbfn.control.simulator  # noqa: F401  (registers the named states)
+    from rbfn.control.controllers import SlidingState, TwoPhaseState
+
+    z = torch.zeros(2, 3, **KW)
+    state = TwoPhaseState(SlidingState(z, z, z, None, z, z), z, z, z, z, torch.zeros(2, **KW))
+    spec = pytree.tree_flatten(state)[1]
+    assert pytree.treespec_loads(pytree.treespec_dumps(spec)) == spec
