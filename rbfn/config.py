@@ -614,7 +614,7 @@ class GainsConfig:
     estimate_rate: float = 0.05
     # the two-phase law: the most by which a joint's feedback gain K grows with the inertia the
     # estimated payload adds (1: fixed gains)
-    feedback_growth: float = 2.0
+    feedback_growth: float = 1.5
     nominal_payload: float = 0.0  # kg: the payload the nominal model carries (0: the unloaded robot, the paper's)
     # The nominal model's factors, M_hat = model_inertia M, C_hat = model_coriolis C, G_hat = model_gravity G:
     # the paper's 0.9, 0.8 and 0.85 (its controller knows the robot to within 10-20 %).

@@ -396,8 +396,9 @@ class TwoPhase(Controller):
         """M_jj(m) / M_jj(the model's own payload) (B, n) at payload estimates m (B,), at most
         `gains.feedback_growth`: by how much each joint is heavier than the model's design, by
         which the feedback gain K grows so that each joint's feedback keeps its bandwidth whatever
-        it carries. The cap bounds the harm of an estimate that lags a payload's removal (the
-        joint then briefly driven at that many times its bandwidth)."""
+        it carries. The cap bounds the gain where the estimate is wrong (it overshoots a payload's
+        arrival and lags its removal) and where the diagonal understates the coupled joints'
+        dynamics; uncapped, the feedback saturated."""
         sc = self.schedule
         base, per_kg = sc.base.to(like), sc.per_kg.to(like)
         ratio = (base + per_kg * m[:, None]) / (base + per_kg * float(self.model.payload))
