@@ -361,10 +361,12 @@ class TwoPhase(Controller):
 
     with phi = h^T V, D = diag(1 / s_j^2) (joints in comparable units), mu = `gains.estimate_rate`,
     m_hat kept within [0, schedule.high]. The sliding-mode law then runs on the nominal model
-    carrying m_hat, with the observer's gain following M_jj(m_hat) (`observer_factor`) instead of
-    held at the rated payload's, plus what the network says that model misses:
+    carrying m_hat, its feedback gain grown by g_j = M_jj(m_hat) / M_jj(design) (at most
+    `gains.feedback_growth`) and the observer's gain following (`observer_factor` at g_j K and
+    M_jj(m_hat), instead of held at the rated payload's), plus what the network says that model
+    misses:
 
-        tau = M_hat(m_hat) qr'' + C_hat(m_hat) qr' + G_hat(m_hat) + K s + eps sat(s)
+        tau = M_hat(m_hat) qr'' + C_hat(m_hat) qr' + G_hat(m_hat) + g K s + eps sat(s)
               + h^T W0 + m_hat (h^T V - Y) + d_hat.
 
     The controller is not told the payload: the rating bounds m_hat, as it bounds the design."""
