@@ -128,7 +128,8 @@ def compare_controllers(
     objective = cfg.network.objective
     two_phase = cfg.network.law == NetworkLaw.two_phase
     schedule = setup.inertia_schedule(gains) if two_phase else None
-    conditions = torch.linspace(0.0, 1.25 * setup.rated_payload, cfg.network.conditions).tolist()
+    # phase 1's payloads, kg: evenly up to the heaviest the design allows
+    conditions = [] if schedule is None else torch.linspace(0.0, schedule.high, cfg.network.conditions).tolist()
     bases: dict[str, PayloadBasis] = {}
     tuning_seconds = 0.0
 

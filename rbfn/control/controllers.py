@@ -394,17 +394,9 @@ class TwoPhase(Controller):
         assert state.law.share is not None
         return state.law.share
 
-    def _growth(self, m: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-        """M_jj(m) / M_jj(the model's own payload) (B, n) at payload estimates m (B,), at most
-        `gains.feedback_growth`: by how much each joint is heavier than the model's design, by
-        which the feedback gain K grows so that each joint's feedback keeps its bandwidth whatever
-        it carries. The cap bounds the gain where the estimate is wrong (it overshoots a payload's
-        arrival and lags its removal) and where the diagonal understates the coupled joints'
-        dynamics; uncapped, the feedback saturated."""
-        sc = self.schedule
-        base, per_kg = sc.base.to(like), sc.per_kg.to(like)
-        ratio = (base + per_kg * m[:, None]) / (base + per_kg * float(self.model.payload))
-        return ratio.clamp(max=self.gains.feedback_growth)
+    def _inertia(self, m: torch.Tensor | float, like: torch.Tensor) -> torch.Tensor:
+        """M_jj(m) = base_j + per_kg_j m at payloads m (B, 1) or one payload: (B, n) or (n,)."""
+        return self.schedule.base.to(like) + self.schedule.per_kg.to(like) * m
 
     def torque(
         self,
@@ -429,7 +421,12 @@ class TwoPhase(Controller):
         at = self.model.at(q, qd, payload=m)  # the model carrying the estimate
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
         tau_m = at.m_times(ref.qdd_d + g.Lambda * de) + at.c_times(ref.qd_d + g.Lambda * e) + at.gravity()
-        growth = self._growth(m, q)
+        # Each joint's feedback grows by how much heavier it is than the model's design, so that it
+        # keeps its bandwidth whatever it carries; capped where the estimate is wrong (it overshoots
+        # a payload's arrival and lags its removal) and where the diagonal understates the coupled
+        # joints' dynamics: uncapped, the feedback saturated.
+        inertia = self._inertia(m[:, None], q)  # M_jj(m_hat) (B, n)
+        growth = (inertia / self._inertia(float(self.model.payload), q)).clamp(max=g.feedback_growth)
         tau_m = tau_m + self._scaled(g.K) * growth * s + self._scaled(g.epsilon) * robust
         # The law's observer on the model carrying the estimate: its gain min(1, K s_j / (K_o M_jj))
         # with the feedback's gain and the inertia grown alike (the unloaded joint's rate).
@@ -438,8 +435,7 @@ class TwoPhase(Controller):
             assert beta is not None
             integral = integral + dt * (applied.known + beta)
         unit = torch.ones_like(q[0]) if self.scale is None else self.scale.to(q)
-        full = self.schedule.base.to(q) + self.schedule.per_kg.to(q) * m[:, None]  # M_jj(m_hat) (B, n)
-        factor = observer_factor(self.gains, unit * growth, full)
+        factor = observer_factor(self.gains, unit * growth, inertia)
         d_hat = g.observer_gain * factor * (integral + law.p0 - at.m_times(qd))
         tau = tau_m + resid0 + m[:, None] * beyond + d_hat
         beta = at.momentum_rate()
@@ -484,7 +480,7 @@ def make_controller(
     factor of the torque gains; `rates`: per-joint factors of the sliding-mode law's observer gain
     and adaptation rate (None: 1). `law`: the adaptive network's (`control.network.law`):
     `tracking`, features h (T, M) and dW/dt = Gamma h s^T from `w0`; `two_phase` (`TwoPhase`),
-    features [h^T W0, h^T V] (T, 2n) and the inertia `schedule`."""
+    features [h^T W0, h^T V, h^T V - Y] (T, 3n) and the inertia `schedule`."""
     if name == "pd":
         return PD(gains, dt, model, joint_scale)
     if model is None and name != "smc_exact":

@@ -91,12 +91,21 @@ def pilot_residuals(
         compile=compile,
         aot=aot,
     )
-    q, qd, tau = roll.q[:-1, 0], roll.qd[:-1, 0], roll.tau[:-1, 0]
-    qdd = (roll.qd[1:, 0] - qd) / scenario.dt
-    at = model.at(q, qd)
-    resid = tau - at.m_times(qdd) - at.c_times(qd) - at.gravity()
-    x = desired_states(ref)[: q.shape[0]]
+    resid = _missed_torque(model, roll, scenario.dt)[:, 0]
+    x = desired_states(ref)[: resid.shape[0]]
     return x[::stride], resid[::stride]
+
+
+def _missed_torque(model: Model, roll: Any, dt: float) -> torch.Tensor:
+    """What `model` misses along an ideal-loop rollout (T + 1 rows, B environments): the applied
+    torque less M_hat qdd + C_hat qd + G_hat at each step's start, qdd the step's mean
+    acceleration; (T, B, n), N m (N)."""
+    q, qd, tau = roll.q[:-1], roll.qd[:-1], roll.tau[:-1]
+    qdd = (roll.qd[1:] - qd) / dt
+    t, b, n = q.shape
+    at = model.at(q.reshape(-1, n), qd.reshape(-1, n))
+    rows = tau.reshape(-1, n) - at.m_times(qdd.reshape(-1, n)) - at.c_times(qd.reshape(-1, n)) - at.gravity()
+    return rows.reshape(t, b, n)
 
 
 def payload_residuals(
@@ -116,7 +125,7 @@ def payload_residuals(
     without the scenario's disturbance; the residual is what the nominal model misses,
     tau - (M_hat qdd + C_hat qd + G_hat), N m (N). The runs are `smc_exact`'s: a calibration knows
     the mass it attached, and its tracking keeps the state within ~1e-4 of the reference that x
-    describes (`smc_obs` at the heavier payloads strays far enough to put 10-35 % errors into the
+    describes (`smc_obs` at the heavier payloads strays far enough to put 10-36 % errors into the
     residual as a function of x). `joint_scale`: the
     controllers' (`make_controller`); `compile`, `aot`: as `simulate`'s."""
     c = len(payloads)
@@ -128,13 +137,9 @@ def payload_residuals(
     roll = simulate(
         quiet, ctrl, held, ref, q0=q0, qd0=qd0, payload=torch.tensor(payloads, **kw), compile=compile, aot=aot
     )
-    q, qd, tau = roll.q[:-1], roll.qd[:-1], roll.tau[:-1]  # (T, C, n)
-    qdd = (roll.qd[1:] - qd) / scenario.dt
-    t, n = q.shape[0], q.shape[-1]
-    at = model.at(q.reshape(-1, n), qd.reshape(-1, n))
-    resid = tau.reshape(-1, n) - at.m_times(qdd.reshape(-1, n)) - at.c_times(qd.reshape(-1, n)) - at.gravity()
-    x = desired_states(ref, acceleration=True)[:t]
-    return x[::stride], resid.reshape(t, c, n)[::stride]
+    resid = _missed_torque(model, roll, scenario.dt)  # (T, C, n)
+    x = desired_states(ref, acceleration=True)[: resid.shape[0]]
+    return x[::stride], resid[::stride]
 
 
 class PayloadBasis(NamedTuple):
