@@ -66,6 +66,7 @@ __all__ = [
     "NetworkLaw",
     "TuneConfig",
     "ControlConfig",
+    "PickAndPlaceConfig",
     "OnlineConfig",
     "LoopConfig",
     "EvalConfig",
@@ -801,6 +802,27 @@ class NetworkConfig:
 
 
 @dataclass
+class PickAndPlaceConfig:
+    """A long run beside the payload cases, every controller along the same trajectory: the payload
+    is picked up and put down `picks` times, its masses drawn between none and robot.rated_payload
+    (`rbfn.control.simulator.pick_and_place`); metrics.json's case `pick_and_place`."""
+
+    picks: int = 0  # 0: no such run
+    duration: float = 60.0  # s
+    seed: int = 0  # draws the masses
+
+    def check(self, key: str, dt: float) -> None:
+        _need(self.picks >= 0, f"{key}.picks", self.picks, "must be >= 0 (0: no pick-and-place run)")
+        _need(
+            finite(self.duration) and self.duration >= 1.0 + 10 * dt * max(self.picks, 1),
+            f"{key}.duration",
+            self.duration,
+            f"must be finite, the first pick is at 1 s, and each of the {key}.picks={self.picks} cycles needs "
+            f"10 steps of dt={dt} s",
+        )
+
+
+@dataclass
 class ControlConfig:
     """The closed-loop scenario of evaluate.py (times in s, masses in kg), for the robot `robot`.
 
@@ -836,6 +858,7 @@ class ControlConfig:
     # configuration): auto (compiled on a CPU unless $ACO_RBFN_AOT says 0, eager on CUDA), true, false
     aot: str = "auto"
     figure_payload: Optional[float] = None  # kg, the case drawn in the figures; null: half the rated payload
+    pick_and_place: PickAndPlaceConfig = field(default_factory=PickAndPlaceConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
     def check(self, key: str = "control") -> None:
@@ -912,6 +935,7 @@ class ControlConfig:
             list(self.joint_scale),
             "positive finite factors, one per joint (empty: derived from the robot)",
         )
+        self.pick_and_place.check(f"{key}.pick_and_place", self.dt)
         n = self.network
         _need(n.num_centers >= 1, f"{key}.network.num_centers", n.num_centers, "must be >= 1")
         if any(name.startswith("arbfn_") for name in self.controllers):

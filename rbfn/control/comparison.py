@@ -44,11 +44,22 @@ from .network import (
     pilot_residuals,
 )
 from .robot_setup import ControlRobot, GainFactors, control_robot
-from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, simulate
+from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, pick_and_place, simulate
 from .trajectory import Reference
 from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, tune_network, tuning_scenarios
 
-__all__ = ["ControlRun", "ControlComparison", "compare_controllers", "case_name", "gap_closure"]
+__all__ = [
+    "ControlRun",
+    "ControlComparison",
+    "PickedAndPlaced",
+    "PICK_AND_PLACE",
+    "compare_controllers",
+    "case_name",
+    "gap_closure",
+]
+
+
+PICK_AND_PLACE = "pick_and_place"  # the case key of control.pick_and_place's run
 
 
 def case_name(payload: float) -> str:
@@ -82,6 +93,25 @@ class ControlComparison:
     tuning_seconds: float = 0.0  # wall time of the closed-loop tuning: the scenarios' smc references,
     # every search and its confirmation
     phase_one_payloads: list[float] | None = None  # kg: the two-phase law's phase 1 conditions, where it ran
+    phase_one_seconds: float = 0.0  # wall time of phase 1's calibration runs
+    pick_and_place: PickedAndPlaced | None = None  # control.pick_and_place's run, where it ran
+
+
+@dataclass
+class PickedAndPlaced:
+    """The pick-and-place run: its rollout (B = controllers, in control.controllers' order), the
+    desired joints at its rows (T, n), its scenario (the carries: shares of `rated`, kg) and its
+    simulation's wall time (s)."""
+
+    rollout: Rollout
+    q_des: torch.Tensor
+    scenario: Scenario
+    rated: float
+    seconds: float
+
+    def masses(self) -> list[tuple[float, float, float]]:
+        """(pick time s, place time s, mass kg) of each carry."""
+        return [(c.on, c.off, c.share * self.rated) for c in self.scenario.carries]
 
 
 def compare_controllers(
@@ -116,11 +146,9 @@ def compare_controllers(
     factors = setup.gain_factors(gains, real, dt=sc.dt, **kw)  # the joint scale, capped where the loop needs
     scale, rates = factors.scale, factors.rates
     period = sc.dt if real is None else real.period  # the controllers' time step, s
-    payload = torch.tensor(setup.payloads, **kw)
-    b, n = payload.shape[0], setup.n
-    q0, qd0 = ref.q_d[:1].expand(b, n).clone(), ref.qd_d[:1].expand(b, n).clone()
+    payload, n = torch.tensor(setup.payloads, **kw), setup.n
     pilot = None
-    controllers, select_seconds = [], {}
+    select_seconds: dict[str, float] = {}
     nets: dict[str, ControlNet] = {}
     tuned: dict[str, Tuned] = {}
     cost: ClosedLoopCost | None = None
@@ -131,7 +159,7 @@ def compare_controllers(
     # phase 1's payloads, kg: evenly up to the heaviest the design allows
     conditions = [] if schedule is None else torch.linspace(0.0, schedule.high, cfg.network.conditions).tolist()
     bases: dict[str, PayloadBasis] = {}
-    tuning_seconds = 0.0
+    tuning_seconds = phase_one_seconds = 0.0
 
     def static(method: str) -> ControlNet:
         """The network `method` selects from the pilot run (once per method); under the two-phase
@@ -161,118 +189,155 @@ def compare_controllers(
         if progress is not None:
             progress.at(what, 0, 0)
 
+    made: dict[str, ControlNet] = {}  # arbfn_*: its network
     for name in cfg.controllers:
-        features = w0 = None
-        if name.startswith("arbfn_"):
-            if pilot is None and two_phase:
-                stage(f"phase 1: {len(conditions)} payload conditions")
-                pilot = payload_residuals(
-                    plant,
-                    sc,
-                    ref,
-                    gains,
-                    model,
-                    conditions,
-                    stride=PILOT_STRIDE,
-                    joint_scale=scale,
-                    compile=cfg.compile,
-                    aot=aot,
-                )
-            if pilot is None:
-                stage("the pilot run")
-                pilot = pilot_residuals(
-                    plant,
-                    sc,
-                    ref,
-                    gains,
-                    model,
-                    stride=PILOT_STRIDE,
-                    joint_scale=scale,
-                    compile=cfg.compile,
-                    aot=aot,
-                )
-            method = name[len("arbfn_") :]
-            if two_phase:
-                net = static(method)
-                if method not in bases:
-                    bases[method] = payload_basis(net, pilot[0].double().cpu(), pilot[1].double().cpu(), conditions)
-                h = net.features(desired_states(ref, acceleration=True).double().cpu())
-                own = model_payload_torque(model, ref).double().cpu()
-                features, select_seconds[name] = bases[method].outputs(h, own).to(**kw), net.seconds
-            elif objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
-                t_tune = time.perf_counter()
-                args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
-                if cost is None:  # the tuning's scenarios, and smc's reference errors on them
-                    stage("smc on the tuning scenarios")
-                    cost = _closed_loop_cost(*args)
-                found = tune_network(
-                    method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor, progress=progress
-                )
-                stage(f"confirming {name}'s network at the evaluation's length")
-                if confirm is None:  # the same scenarios, as long as the evaluation's episode
-                    confirm = _closed_loop_cost(*args, full_length=True)
-                tuned[name] = confirmed(found, cost, confirm)
-                net = tuned[name].net
-                tuning_seconds += time.perf_counter() - t_tune
-            else:
-                net = static(method)
-            if not two_phase:
-                features, w0, select_seconds[name] = net.features(desired_states(ref)), net.w0, net.seconds
-        controllers.append(
-            make_controller(
-                name,
+        if not name.startswith("arbfn_"):
+            continue
+        if pilot is None and two_phase:
+            stage(f"phase 1: {len(conditions)} payload conditions")
+            t_one = time.perf_counter()
+            pilot = payload_residuals(
+                plant,
+                sc,
+                ref,
                 gains,
-                period,
                 model,
-                features=features,
-                w0=w0,
-                observer=cfg.network.observer,
+                conditions,
+                stride=PILOT_STRIDE,
                 joint_scale=scale,
-                plant=plant,
-                rates=rates,
-                law=str(cfg.network.law),
-                schedule=schedule,
+                compile=cfg.compile,
+                aot=aot,
             )
-        )
-    k = len(controllers)
-    ctrl = Stacked(controllers, [b] * k)
-    stage(f"simulating {k} controllers x {b} payload cases")
-    t0 = time.perf_counter()
-    try:
-        roll = simulate(
-            plant,
-            ctrl,
-            sc,
-            ref,
-            q0=q0.repeat(k, 1),
-            qd0=qd0.repeat(k, 1),
-            payload=payload.repeat(k),
-            compile=cfg.compile,
-            aot=aot,
-            loop=real,
-        )
-    except SimulationDiverged as e:
-        i, j = divmod(e.environment, b)
-        raise SimulationDiverged(
-            f"controller {cfg.controllers[i]}, payload {case_name(setup.payloads[j])}: {e}", e.environment
-        ) from None
-    seconds = time.perf_counter() - t0
-    q_des = ref.q_d if real is None else ref.q_d[:: real.substeps][: roll.t.shape[0]]  # at the rollout's rows
+            phase_one_seconds = time.perf_counter() - t_one
+        if pilot is None:
+            stage("the pilot run")
+            pilot = pilot_residuals(
+                plant,
+                sc,
+                ref,
+                gains,
+                model,
+                stride=PILOT_STRIDE,
+                joint_scale=scale,
+                compile=cfg.compile,
+                aot=aot,
+            )
+        method = name[len("arbfn_") :]
+        if two_phase:
+            net = static(method)
+            if method not in bases:
+                bases[method] = payload_basis(net, pilot[0].double().cpu(), pilot[1].double().cpu(), conditions)
+        elif objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
+            t_tune = time.perf_counter()
+            args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
+            if cost is None:  # the tuning's scenarios, and smc's reference errors on them
+                stage("smc on the tuning scenarios")
+                cost = _closed_loop_cost(*args)
+            found = tune_network(
+                method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor, progress=progress
+            )
+            stage(f"confirming {name}'s network at the evaluation's length")
+            if confirm is None:  # the same scenarios, as long as the evaluation's episode
+                confirm = _closed_loop_cost(*args, full_length=True)
+            tuned[name] = confirmed(found, cost, confirm)
+            net = tuned[name].net
+            tuning_seconds += time.perf_counter() - t_tune
+        else:
+            net = static(method)
+        made[name], select_seconds[name] = net, net.seconds
+
+    def along(ref: Reference, b: int) -> Stacked:
+        """Every controller along `ref`, stacked, each on b environments (an adaptive network's
+        features are the reference's)."""
+        controllers = []
+        for name in cfg.controllers:
+            features = w0 = None
+            if name in made:
+                net = made[name]
+                if two_phase:
+                    h = net.features(desired_states(ref, acceleration=True).double().cpu())
+                    own = model_payload_torque(model, ref).double().cpu()
+                    features = bases[name[len("arbfn_") :]].outputs(h, own).to(**kw)
+                else:
+                    features, w0 = net.features(desired_states(ref)), net.w0
+            controllers.append(
+                make_controller(
+                    name,
+                    gains,
+                    period,
+                    model,
+                    features=features,
+                    w0=w0,
+                    observer=cfg.network.observer,
+                    joint_scale=scale,
+                    plant=plant,
+                    rates=rates,
+                    law=str(cfg.network.law),
+                    schedule=schedule,
+                )
+            )
+        return Stacked(controllers, [b] * len(controllers))
+
+    def run_all(
+        sc: Scenario, ref: Reference, payload: torch.Tensor, cases: list[str]
+    ) -> tuple[Rollout, torch.Tensor, list[dict], float]:
+        """Every controller on the `payload` cases (B,) kg named `cases`: (rollout, B = controllers x
+        cases; the desired joints at its rows; metrics per environment; seconds)."""
+        b, k = payload.shape[0], len(cfg.controllers)
+        ctrl = along(ref, b)
+        stage(f"simulating {k} controllers on {b} cases for {sc.duration:g} s")
+        q0, qd0 = ref.q_d[:1].expand(b * k, n).clone(), ref.qd_d[:1].expand(b * k, n).clone()
+        real_b = None if real is None else replace(real, noise_envs=b)  # every controller meets the same noise
+        t0 = time.perf_counter()
+        try:
+            roll = simulate(
+                plant,
+                ctrl,
+                sc,
+                ref,
+                q0=q0,
+                qd0=qd0,
+                payload=payload.repeat(k),
+                compile=cfg.compile,
+                aot=aot,
+                loop=real_b,
+            )
+        except SimulationDiverged as e:
+            i, j = divmod(e.environment, b)
+            case = cases[j] if cases[j] == PICK_AND_PLACE else f"payload {cases[j]}"
+            raise SimulationDiverged(f"controller {cfg.controllers[i]}, {case}: {e}", e.environment) from None
+        seconds = time.perf_counter() - t0
+        q_des = ref.q_d if real is None else ref.q_d[:: real.substeps][: roll.t.shape[0]]  # at the rollout's rows
+        return roll, q_des, control_metrics(roll, q_des, sc, limits), seconds
+
     limits = None if setup.lower is None else (torch.tensor(setup.lower), torch.tensor(setup.upper))
-    per_env = control_metrics(roll, q_des, sc, limits)
+    cases = [case_name(p) for p in setup.payloads]
+    roll, q_des, per_env, seconds = run_all(sc, ref, payload, cases)
+    b = len(cases)
     runs: dict[str, ControlRun] = {}
     for i, name in enumerate(cfg.controllers):
         envs = slice(i * b, (i + 1) * b)
         sat = None if roll.saturated is None else roll.saturated[envs]
         part = Rollout(roll.t, roll.q[:, envs], roll.qd[:, envs], roll.tau[:, envs], sat)
         runs[name] = ControlRun(
-            metrics={case_name(p): m for p, m in zip(setup.payloads, per_env[envs])},
+            metrics=dict(zip(cases, per_env[envs])),
             rollout=part,
             sim_seconds=seconds,
             select_seconds=select_seconds.get(name),
             basis=bases.get(name[len("arbfn_") :]) if name.startswith("arbfn_") else None,
             tuned=tuned.get(name),
         )
+    picked = None
+    if cfg.pick_and_place.picks:  # the same controllers along a longer run of the same trajectory
+        pnp = cfg.pick_and_place
+        long = replace(sc, duration=pnp.duration, carries=pick_and_place(pnp.duration, pnp.picks, pnp.seed))
+        long.validate()
+        ref_long = Reference(*setup.trajectory(long.times(torch.float64))).to(**kw)
+        rated = torch.tensor([setup.rated_payload], **kw)
+        roll_long, q_des_long, per_env, seconds = run_all(long, ref_long, rated, [PICK_AND_PLACE])
+        for i, name in enumerate(cfg.controllers):
+            runs[name].metrics[PICK_AND_PLACE] = per_env[i]
+        picked = PickedAndPlaced(roll_long, q_des_long, long, setup.rated_payload, seconds)
     if cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
         t0 = time.perf_counter()
         runs["arbfn_kmeans"].tuned = Tuned(nets["kmeans"], cost.twin_cost, cost.s, time.perf_counter() - t0)
@@ -290,6 +355,8 @@ def compare_controllers(
         tune_scenarios=None if cost is None else cost.scenarios,
         tuning_seconds=tuning_seconds,
         phase_one_payloads=conditions if bases else None,
+        phase_one_seconds=phase_one_seconds,
+        pick_and_place=picked,
     )
 
 

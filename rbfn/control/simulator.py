@@ -2,7 +2,8 @@
 friction, disturbance and payload) driven by a controller along a desired
 trajectory, B environments at once, n joints.
 
-A scenario is a time grid, an integrator (RK4, or semi-implicit Euler) and a payload window;
+A scenario is a time grid, an integrator (RK4, or semi-implicit Euler) and when the payload is
+carried (one window, or a pick-and-place sequence of `Carry`s);
 `simulate` runs it in chunks of fused periods (optionally torch.compile'd) and stops with the
 step, time, environment and state where a run diverges; `control_metrics` scores a rollout.
 """
@@ -29,6 +30,8 @@ __all__ = [
     "Plant",
     "Reference",
     "Scenario",
+    "Carry",
+    "pick_and_place",
     "Rollout",
     "SimulationDiverged",
     "Loop",
@@ -57,9 +60,19 @@ class SimulationDiverged(RuntimeError):
         self.environment = environment
 
 
+class Carry(NamedTuple):
+    """The payload carried from `on` to `off` (s), `share` of the environment's payload mass (>= 0):
+    a pick at `on`, a place at `off`."""
+
+    on: float
+    off: float
+    share: float
+
+
 @dataclass
 class Scenario:
-    """Time grid, integrator and payload schedule; times in s, masses in kg."""
+    """Time grid, integrator and payload schedule; times in s, masses in kg. The payload is carried
+    in [payload_on, payload_off), or, where `carries` are given, in each of them instead."""
 
     duration: float = 10.0
     dt: float = 1e-3
@@ -67,6 +80,7 @@ class Scenario:
     payload_on: float = 1.0
     payload_off: float = 4.0
     metrics_after: float = 0.5  # errors are measured for t > metrics_after
+    carries: tuple[Carry, ...] = ()
 
     def validate(self) -> None:
         if not (math.isfinite(self.dt) and self.dt > 0):
@@ -84,6 +98,19 @@ class Scenario:
             )
         if not 0 <= self.metrics_after < self.duration:
             raise ValueError(f"metrics_after={self.metrics_after} must be in [0, duration={self.duration})")
+        last = 0.0
+        for c in self.carries:
+            if not (last <= c.on < c.off <= self.duration and math.isfinite(c.share) and c.share >= 0):
+                raise ValueError(
+                    f"carries: {c} needs {last:g} <= on < off <= duration={self.duration} (in order, not "
+                    "overlapping) and a finite share >= 0"
+                )
+            last = c.off
+
+    @property
+    def windows(self) -> tuple[Carry, ...]:
+        """When the payload is carried: the carries, else the one window at the full payload."""
+        return self.carries or (Carry(self.payload_on, self.payload_off, 1.0),)
 
     @property
     def steps(self) -> int:
@@ -126,12 +153,25 @@ def stage_disturbances(plant: Plant, n: int, dt: float, **kw) -> torch.Tensor:
 
 
 def payload_schedule(scenario: Scenario, steps: int, payload: torch.Tensor, **kw) -> torch.Tensor:
-    """The payload at each of `steps` integration steps (steps, B) kg: the payload (B,) inside the
-    scenario's window, none outside; dtype and device from kw."""
+    """The payload at each of `steps` integration steps (steps, B) kg: the payload (B,) times the
+    carried share inside the scenario's windows, none outside; dtype and device from kw."""
     k = torch.arange(steps, device=kw.get("device"))
     dt = scenario.dt
-    inside = ((k >= round(scenario.payload_on / dt)) & (k < round(scenario.payload_off / dt))).to(kw["dtype"])
-    return inside[:, None] * payload.to(**kw)[None, :]
+    share = torch.zeros(steps, **kw)
+    for c in scenario.windows:
+        share = torch.where((k >= round(c.on / dt)) & (k < round(c.off / dt)), c.share, share)
+    return share[:, None] * payload.to(**kw)[None, :]
+
+
+def pick_and_place(duration: float, picks: int, seed: int, start: float = 1.0) -> tuple[Carry, ...]:
+    """`picks` carries over [start, duration] s: the cycles split it evenly, each carrying for its
+    first 60 % and empty for the rest; the shares are drawn uniformly in [0, 1] (times the
+    environment's payload: masses between none and all of it) by a generator seeded `seed`."""
+    if picks < 1 or not (0 <= start < duration):
+        raise ValueError(f"pick_and_place: picks={picks} must be >= 1 and start={start} in [0, duration={duration})")
+    cycle = (duration - start) / picks
+    shares = torch.rand(picks, generator=torch.Generator().manual_seed(seed), dtype=torch.float64).tolist()
+    return tuple(Carry(start + i * cycle, start + (i + 0.6) * cycle, s) for i, s in enumerate(shares))
 
 
 class Loop(NamedTuple):
@@ -619,7 +659,7 @@ def metric_tensors(
     limits: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
     """Each metric as (B, n), per environment and joint: rms_err, max_err (t > metrics_after),
-    max_err_payload (inside the payload window), peak_tau (whole run) and chattering (mean
+    max_err_payload (while the payload is carried), peak_tau (whole run) and chattering (mean
     |dtau/dt|) (rad or m; N m or N; N m/s or N/s); in the realistic loop also `saturated`, the fraction of control
     periods the joint's torque was at its limit. q_des: the desired joints at the rollout's rows.
     With `limits` (lower, upper) (n,) (the URDF's position limits, rad or m, +-inf where none) also
@@ -627,7 +667,9 @@ def metric_tensors(
     and `limit_excess`, its largest distance beyond one (rad or m; 0 where it stayed within)."""
     err = (q_des[:, None, :] - roll.q).abs()  # (T, B, n)
     after = roll.t > scenario.metrics_after
-    window = (roll.t >= scenario.payload_on) & (roll.t <= scenario.payload_off)
+    window = torch.zeros_like(roll.t, dtype=torch.bool)
+    for c in scenario.windows:
+        window |= (roll.t >= c.on) & (roll.t <= c.off)
     step = scenario.dt if roll.saturated is None else float(roll.t[1] - roll.t[0])  # a row's time, s
     per_key = {  # each (B, n)
         "rms_err": err[after].square().mean(0).sqrt(),

@@ -7,14 +7,15 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from torch.utils.tensorboard import SummaryWriter
 
 from ..config import ControlConfig, GainsConfig, LoopConfig, RobotConfig, plain
-from ..control.comparison import ControlComparison, compare_controllers
+from ..control.comparison import PICK_AND_PLACE, ControlComparison, PickedAndPlaced, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
 from ..progress import Progress
 from .beside import Beside, can_fork
-from .plots import robot_label, tracking_figure
+from .plots import pick_and_place_figure, robot_label, tracking_figure
 from .rundir import write_figure
 
 __all__ = ["check_control", "evaluate_control", "control_table", "held_out"]
@@ -66,7 +67,15 @@ def evaluate_control(
     if bases:  # the two-phase law's phase 1: its payloads and each network's fit at them
         info["phase_one"] = {
             "payloads": res.phase_one_payloads,
+            "seconds": res.phase_one_seconds,  # its calibration runs (each network's selection: select_seconds)
             "fit_error": {n: b.fit_error.tolist() for n, b in bases.items()},
+        }
+    picked = res.pick_and_place
+    if picked is not None:  # metrics.json's case pick_and_place: what was carried when
+        info["pick_and_place"] = {
+            "duration": picked.scenario.duration,
+            "carries": [{"pick": on, "place": off, "kg": kg} for on, off, kg in picked.masses()],
+            "sim_seconds": picked.seconds,
         }
     tuned = {n: r.tuned for n, r in res.runs.items() if r.tuned is not None}
     if tuned:  # the closed-loop tuning: the cost each network reached on the tuning's scenarios
@@ -100,6 +109,8 @@ def evaluate_control(
     fork = parallel and half > 0 and can_fork(device)
     with Beside(_figures, res, names[half:], label, cfg, gains, out_dir, None if fork else writer, fork=fork) as other:
         _figures(res, names[:half], label, cfg, gains, out_dir, writer)
+        if picked is not None:
+            _pick_and_place_figure(picked, names, setup, label, writer, out_dir)
         other.result()
     log.info("%s", control_table(metrics, setup.units, setup.joint_names))
     out = {"control": metrics, "control_info": info}
@@ -138,13 +149,14 @@ def torque_limits(setup: ControlRobot, loop: LoopConfig | None, metrics: dict) -
 
 
 def held_out(metrics: dict, name: str) -> float | None:
-    """The evaluation's counterpart of the tuning cost: the mean over the payload cases of
-    sum_j rms_j / rms_j(smc) of controller `name` (None without smc)."""
+    """The evaluation's counterpart of the tuning cost: the mean over the payload cases (not the
+    pick-and-place run) of sum_j rms_j / rms_j(smc) of controller `name` (None without smc)."""
     if "smc" not in metrics:
         return None
     ratios = [
         sum(r / max(s, 1e-12) for r, s in zip(m["rms_err"], metrics["smc"][case]["rms_err"]))
         for case, m in metrics[name].items()
+        if case != PICK_AND_PLACE
     ]
     return sum(ratios) / len(ratios)
 
@@ -192,6 +204,22 @@ def _figure(
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
 
 
+def _pick_and_place_figure(
+    picked: PickedAndPlaced, names: list[str], setup: ControlRobot, label: str, writer, out_dir: Path
+) -> None:
+    """control_pick_and_place.png: every controller's tracking error and the mass carried."""
+    roll = picked.rollout
+    t = roll.t.cpu().numpy()
+    carried = np.zeros_like(t)
+    for on, off, kg in picked.masses():
+        carried[(t >= on) & (t < off)] = kg
+    err = (picked.q_des[:, None, :] - roll.q).cpu().numpy()  # (T, controllers, n)
+    fig = pick_and_place_figure(
+        t, err, names, carried, robot=label, units=[u for u, _ in setup.units], joint_names=setup.joint_names
+    )
+    write_figure(fig, out_dir / "control_pick_and_place.png", 110, writer, "control/pick_and_place")
+
+
 def control_table(
     metrics: dict, units: list[tuple[str, str]] | None = None, joint_names: list[str] | None = None
 ) -> str:
@@ -209,12 +237,13 @@ def control_table(
     first: dict = next(iter(next(iter(metrics.values())).values()), {}) if metrics else {}
     extra = ("   sat max" if "saturated" in first else "") + ("  gap min" if "gap_closure" in first else "")
     extra += "  beyond limit" if "limit_breach" in first else ""
-    lines = [f"{'controller':14s} {'case':>6s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}{extra}"]
+    wide = max([6] + [len(case) for cases in metrics.values() for case in cases])
+    lines = [f"{'controller':14s} {'case':>{wide}s}  {'RMS ' + pos:>{10 * n}s}  {last:>17s}  {tq:>{9 * n}s}{extra}"]
     for name, cases in metrics.items():
         for case, m in cases.items():
             rms = " ".join(f"{v:9.2e}" for v in m["rms_err"])
             peak = " ".join(f"{v:8.1f}" for v in m["peak_tau"])
-            row = f"{name:14s} {case:>6s}  {rms:>{10 * n}s}  {m['max_err_payload'][-1]:17.3e}  {peak:>{9 * n}s}"
+            row = f"{name:14s} {case:>{wide}s}  {rms:>{10 * n}s}  {m['max_err_payload'][-1]:17.3e}  {peak:>{9 * n}s}"
             if "saturated" in m:
                 sat = [v for v in m["saturated"] if v is not None]
                 row += f"  {100 * max(sat):7.2f}%" if sat else "  no limit"

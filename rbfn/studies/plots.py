@@ -31,6 +31,7 @@ __all__ = [
     "workspace_error_map",
     "pose_error_figure",
     "tracking_figure",
+    "pick_and_place_figure",
     "online_figure",
     "MAX_POINTS",
     "PAYLOAD_LABEL",
@@ -202,6 +203,47 @@ def tracking_figure(
         names.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
     fig.legend(handles, names, loc="outside upper right", ncols=len(names), fontsize=8, frameon=False)
     fig.suptitle(_title(robot, detail))
+    return fig
+
+
+def pick_and_place_figure(
+    t: np.ndarray,
+    err: np.ndarray,
+    names: Sequence[str],
+    carried: np.ndarray,
+    *,
+    robot: str,
+    units: list[str],
+    joint_names: Sequence[str],
+    window: float = 0.5,
+) -> Figure:
+    """The pick-and-place run: the mass carried (kg) over time on top, then per joint each
+    controller's tracking error as its RMS over a sliding `window` (s), on a log scale.
+
+    t (T,) s, evenly spaced; err (T, C, n) desired minus actual joints for the C controllers
+    `names`; carried (T,) kg; `units` the joints' position units (n,)."""
+    n = err.shape[2]
+    w = max(1, int(round(window / float(t[1] - t[0]))))
+    sq = np.concatenate([np.zeros((1, *err.shape[1:])), np.cumsum(err**2, 0)])
+    rms = np.sqrt(np.maximum(sq[w:] - sq[:-w], 0.0) / w)  # (T - w + 1, C, n), the window ending at each row
+    tr = t[w - 1 :]
+    k = max(1, -(-tr.shape[0] // MAX_POINTS))
+    fig = Figure(figsize=(11, 1.6 * (n + 1) + 0.8), layout="constrained")
+    axes = fig.subplots(n + 1, 1, sharex=True, squeeze=False)[:, 0]
+    axes[0].fill_between(t, carried, step="post", color="0.75")
+    axes[0].set_ylabel("payload [kg]")
+    for j in range(n):
+        ax = axes[j + 1]
+        for c, name in enumerate(names):
+            ax.semilogy(tr[::k], np.maximum(rms[::k, c, j], 1e-12), lw=0.8, label=name)
+        ax.set_ylabel(f"{joint_names[j]}\nRMS e [{units[j]}]", fontsize=8)
+        ax.tick_params(labelsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3, which="both")
+    axes[-1].set_xlabel("t [s]")
+    handles, labels = axes[1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right upper", fontsize=8, frameon=False)
+    fig.suptitle(_title(robot, f"pick and place, tracking error as RMS over {window:g} s"))
     return fig
 
 

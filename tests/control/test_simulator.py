@@ -1,3 +1,5 @@
+import itertools
+
 import pytest
 import torch
 
@@ -5,7 +7,15 @@ from rbfn.control import Plant, Scenario, SimulationDiverged, make_controller, p
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, NominalModel
 from rbfn.control.models import ModelScales
-from rbfn.control.simulator import Loop, Periods, make_chunk, stage_disturbances
+from rbfn.control.simulator import (
+    Carry,
+    Loop,
+    Periods,
+    make_chunk,
+    payload_schedule,
+    pick_and_place,
+    stage_disturbances,
+)
 from rbfn.robots.scara import (
     ScaraTerms,
     coriolis,
@@ -194,6 +204,9 @@ def test_divergence_stops_with_step_and_state():
         ({"dt": -1e-3}, "dt=-0.001 must be a positive"),
         ({"payload_on": 5.0, "payload_off": 12.0}, r"payload window \[5.0, 12.0\]"),
         ({"integrator": "rk45"}, "integrator='rk45' is not allowed"),
+        ({"carries": (Carry(1.0, 3.0, 0.5), Carry(2.0, 4.0, 0.5))}, "not overlapping"),
+        ({"carries": (Carry(1.0, 11.0, 0.5),)}, "on < off <= duration=10.0"),
+        ({"carries": (Carry(1.0, 2.0, -0.5),)}, "share >= 0"),
     ],
 )
 def test_bad_scenarios_fail_early(kwargs, match):
@@ -260,3 +273,27 @@ def test_control_metrics_count_the_time_and_distance_beyond_the_joint_limits():
     unlimited = (torch.full((2,), -float("inf")), torch.full((2,), float("inf")))
     assert control_metrics(roll, q[:, 0], sc, unlimited)[0]["limit_breach"] == [0.0, 0.0]
     assert "limit_breach" not in control_metrics(roll, q[:, 0], sc)[0]
+
+
+def test_pick_and_place_carries_drawn_masses_in_turn():
+    carries = pick_and_place(60.0, 4, seed=3)
+    assert carries == pick_and_place(60.0, 4, seed=3) != pick_and_place(60.0, 4, seed=4)
+    assert len(carries) == 4 and carries[0].on == 1.0 and carries[-1].off < 60.0
+    assert all(0 <= c.share <= 1 for c in carries) and len({c.share for c in carries}) == 4
+    assert all(a.off < b.on for a, b in itertools.pairwise(carries))
+    Scenario(duration=60.0, carries=carries).validate()
+    with pytest.raises(ValueError, match="picks=0 must be >= 1"):
+        pick_and_place(60.0, 0, seed=0)
+
+
+def test_payload_schedule_carries_each_share_of_the_payload_in_its_window():
+    sc = Scenario(duration=1.0, dt=0.1, carries=(Carry(0.2, 0.4, 0.5), Carry(0.6, 0.9, 1.0)))
+    m = payload_schedule(sc, sc.steps, torch.tensor([10.0, 2.0]), dtype=torch.float64)
+    assert m.shape == (10, 2)
+    assert m[:, 0].tolist() == [0, 0, 5, 5, 0, 0, 10, 10, 10, 0]
+    assert torch.equal(m[:, 1], m[:, 0] / 5)
+    # without carries, the one window at the whole payload
+    one = payload_schedule(
+        Scenario(duration=1.0, dt=0.1, payload_on=0.3, payload_off=0.5), 10, torch.tensor([4.0]), dtype=torch.float64
+    )
+    assert one[:, 0].tolist() == [0, 0, 0, 4, 4, 0, 0, 0, 0, 0]

@@ -16,11 +16,12 @@ from rbfn.config import (
     NetworkLaw,
     NetworkObjective,
     Objective,
+    PickAndPlaceConfig,
     TuneConfig,
 )
 from rbfn.control import SimulationDiverged
 from rbfn.control.comparison import compare_controllers
-from rbfn.studies.control import evaluate_control
+from rbfn.studies.control import evaluate_control, held_out
 
 from ..conftest import compose_config
 
@@ -81,6 +82,30 @@ def test_the_two_phase_law_beats_the_observer_at_an_unknown_payload():
     assert all(a < o for a, o in zip(law, obs)), (law, obs)
 
 
+def test_a_pick_and_place_run_is_a_case_of_every_controller(tmp_path):
+    """The payload picked up and put down twice in a run of its own: a case beside the payload
+    cases, with its carries in control_info and a figure."""
+    net = NetworkConfig(num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3)
+    pnp = PickAndPlaceConfig(picks=2, duration=2.5, seed=1)
+    cfg = _short(controllers=["smc", "smc_exact", "arbfn_kmeans"], network=net, pick_and_place=pnp)
+    with SummaryWriter(str(tmp_path)) as writer:
+        out = evaluate_control(cfg, GainsConfig(), "cpu", writer, tmp_path)
+    metrics, info = out["control"], out["control_info"]["pick_and_place"]
+    for cases in metrics.values():
+        assert list(cases) == ["0kg", "10kg", "pick_and_place"]
+        assert cases["pick_and_place"].keys() == cases["0kg"].keys()
+    carries = info["carries"]
+    assert info["duration"] == 2.5 and len(carries) == 2 and carries[0]["pick"] == 1.0
+    assert all(0 <= c["kg"] <= 20.0 for c in carries) and carries[0]["kg"] != carries[1]["kg"]  # rated: 20 kg
+    assert metrics["smc_exact"]["pick_and_place"]["gap_closure"] == [1.0, 1.0, 1.0]
+    # the carried masses load the arm: the vertical axis's error follows them under smc
+    assert metrics["smc"]["pick_and_place"]["max_err_payload"][2] > 3 * metrics["smc"]["0kg"]["max_err_payload"][2]
+    assert (tmp_path / "control_pick_and_place.png").stat().st_size > 10_000
+    assert held_out(metrics, "arbfn_kmeans") == held_out(
+        {k: {c: m for c, m in v.items() if c != "pick_and_place"} for k, v in metrics.items()}, "arbfn_kmeans"
+    )
+
+
 def test_a_diverging_controller_is_named_with_its_case():
     """All controllers share one batch; the one that diverges is named, with its payload case."""
     cfg = _short(controllers=["smc", "pd"], dt=0.005, duration=1.0, payload_on=0.5, payload_off=0.8, integrator="euler")
@@ -116,6 +141,8 @@ def test_cluster_controller_does_not_change_the_shared_aco_config():
             "control.network.objective='closed_loop'.*searches the tracking law's network",
         ),
         ({"network": NetworkConfig(conditions=1)}, "control.network.conditions=1"),
+        ({"pick_and_place": PickAndPlaceConfig(picks=-1)}, "control.pick_and_place.picks=-1"),
+        ({"pick_and_place": PickAndPlaceConfig(picks=3, duration=1.0)}, "control.pick_and_place.duration=1.0"),
     ],
 )
 def test_bad_control_config(change, match):
