@@ -1,5 +1,6 @@
 """ACO-tuned against k-means centres in the closed loop, over seeds: runs `evaluate.py`'s control
-part once per seed (realistic loop, the robot's defaults) with the three searches and the twin,
+part once per seed (realistic loop, the robot's defaults, the tracking law whose network the
+searches tune) with the three searches and the twin,
 then writes the held-out tables and the tuning curves.
 
     python -m bench.closed_loop --robot scara --seeds 0,1,2,3,4 --out multirun/closed_loop
@@ -48,6 +49,7 @@ def run_seed(robot: str, seed: int, out: Path, extra: list[str]) -> Path:
         "ik=false",
         "online.enabled=false",
         f"control.controllers=[{','.join(CONTROLLERS)}]",
+        "control.network.law=tracking",  # the law whose network the closed-loop searches tune
         f"control.network.seed={seed}",
         f"control.network.tune.seed={seed + 1}",
         f"loop.noise_seed={seed}",

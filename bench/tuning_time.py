@@ -1,5 +1,6 @@
 """Wall time of the closed-loop tuning in one `evaluate.py`: the robot's evaluation config as
-evaluate.py composes it (realistic loop, its gains, `control.network.objective=closed_loop`),
+evaluate.py composes it (realistic loop, its gains) under the law the tuning searches
+(`control.network.law=tracking`, whose objective is then `closed_loop`),
 its control comparison run with `--controllers` (default: evaluate.py's own, whose one tuned
 controller is `arbfn_aco`), timed as a whole and in its tuning part
 (`control_info.tuning_seconds`: the tuning scenarios' `smc` references, every search and its
@@ -44,11 +45,14 @@ def composed(name: str, overrides: list[str]):
 
 
 def evaluation_config(robot: str, overrides: list[str] | None = None):
-    """evaluate.py's composed config (its dataclass) for `robot` with `overrides`."""
+    """evaluate.py's composed config (its dataclass) for `robot` with `overrides`, under the
+    tracking law (whose network the closed-loop tuning searches) unless they choose one."""
     from rbfn.robots.derive import derive_evaluate
 
     extra = list(overrides or [])
     chosen = [] if any(o.startswith("robot=") for o in extra) else [f"robot={robot}"]
+    if not any(o.startswith("control.network.law=") for o in extra):
+        chosen.append("control.network.law=tracking")
     return derive_evaluate(composed("evaluate", [*chosen, *extra]))
 
 

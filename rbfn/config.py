@@ -17,7 +17,7 @@ import math
 import os
 import typing
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from enum import Enum
 from typing import Any, Optional
 
@@ -740,18 +740,37 @@ class NetworkConfig:
     """The adaptive controller's RBF network (controllers arbfn_<method>). `objective`: what
     arbfn_aco's colony minimises: `closed_loop`, the tracking error of the adapted network on
     `tune`'s scenarios (arbfn_random and arbfn_cmaes search the same at the same budget); `fit`, the
-    pilot run's residual torque (arbfn_random: random centres); `cluster`, k-means' objective."""
+    pilot run's residual torque, or phase 1's at every payload (arbfn_random: random centres);
+    `cluster`, k-means' objective. `law` and `objective` null: derived by `resolved`."""
 
     num_centers: int = 25
     observer: bool = True  # combine the network with the momentum observer
     warm_start: bool = False  # start W at the ridge fit of the pilot run's residual torque
     seed: int = 0
-    objective: NetworkObjective = NetworkObjective.closed_loop
+    objective: Optional[NetworkObjective] = None  # null: closed_loop under the tracking law, else fit
     # two_phase: a basis fitted offline to the residual at `conditions` payloads from 0 to 1.25x the
     # rated one, then only the payload's coordinate adapts online (TwoPhase); tracking: the paper's
-    # dW/dt = Gamma h s^T from zero weights
-    law: NetworkLaw = NetworkLaw.tracking
+    # dW/dt = Gamma h s^T from zero weights; null: two_phase in the realistic loop, tracking in the
+    # ideal one or where objective is closed_loop
+    law: Optional[NetworkLaw] = None
     conditions: int = 6
+
+    def resolved(self, realistic: bool) -> NetworkConfig:
+        """This config with a null `law` and `objective` derived, for the realistic loop or (not
+        `realistic`) the ideal one. The law: `tracking` where the objective is `closed_loop` (the
+        tuning searches that law's network) or the loop is ideal (there `smc_obs` alone reaches the
+        perfect-knowledge ceiling, and the two-phase law's observer, which carries the estimate,
+        does not: docs/control.md), else `two_phase`. The objective: `closed_loop` under the
+        tracking law, `fit` under the two-phase one."""
+        law = self.law
+        if law is None:
+            tracking = self.objective == NetworkObjective.closed_loop or not realistic
+            law = NetworkLaw.tracking if tracking else NetworkLaw.two_phase
+        objective = self.objective
+        if objective is None:
+            objective = NetworkObjective.closed_loop if law == NetworkLaw.tracking else NetworkObjective.fit
+        return replace(self, law=law, objective=objective)
+
     aco: ACOConfig = field(default_factory=ACOConfig)
     tune: TuneConfig = field(default_factory=TuneConfig)
 
@@ -761,9 +780,13 @@ class NetworkConfig:
         duration: float = 10.0,
         controllers: tuple = (),
         window: tuple[float, float] = (1.0, 4.0),
+        realistic: bool = True,
     ) -> None:
         """`duration`: control.duration (s); `controllers`: control.controllers; `window`: control's
-        payload window (s)."""
+        payload window (s); `realistic`: the loop is the realistic one (`resolved`)."""
+        if self.law is None or self.objective is None:
+            self.resolved(realistic).check(key, duration, controllers, window, realistic)
+            return
         _need(self.num_centers >= 1, f"{key}.num_centers", self.num_centers, "must be >= 1")
         _need(self.conditions >= 2, f"{key}.conditions", self.conditions, "must be >= 2 (a direction needs two)")
         _seed(f"{key}.seed", self.seed)
@@ -787,7 +810,8 @@ class NetworkConfig:
                 "arbfn_cmaes" not in controllers,
                 "control.controllers",
                 "arbfn_cmaes",
-                f"CMA-ES searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective})",
+                f"CMA-ES searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective}; "
+                f"{key}.law=tracking makes it the default)",
             )
             return
         if "arbfn_aco" in controllers:
@@ -861,7 +885,8 @@ class ControlConfig:
     pick_and_place: PickAndPlaceConfig = field(default_factory=PickAndPlaceConfig)
     network: NetworkConfig = field(default_factory=NetworkConfig)
 
-    def check(self, key: str = "control") -> None:
+    def check(self, key: str = "control", realistic: bool = True) -> None:
+        """`realistic`: the loop is the realistic one (what a null control.network.law means)."""
         arbfn = [f"arbfn_{m}" for m in CONTROL_CENTER_METHODS]
         for name in self.controllers:
             _need(
@@ -948,7 +973,13 @@ class ControlConfig:
                 f"exceeds the pilot run's {n_train} training samples ({key}.duration={self.duration} s, "
                 f"one sample per {PILOT_STRIDE} periods, half of them for training)",
             )
-            n.check(f"{key}.network", self.duration, tuple(self.controllers), (self.payload_on, self.payload_off))
+            n.check(
+                f"{key}.network",
+                self.duration,
+                tuple(self.controllers),
+                (self.payload_on, self.payload_off),
+                realistic,
+            )
 
 
 @dataclass
@@ -1119,7 +1150,7 @@ class EvalConfig:
         validate_device(self.device, self.num_threads)
         self.robot.check()
         if self.control.enabled:
-            self.control.check()
+            self.control.check(realistic=not self.loop.ideal)
             self.gains.check()
             self.loop.check(self.control.dt)
         if self.online.enabled:

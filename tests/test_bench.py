@@ -99,7 +99,8 @@ def test_tuning_time_times_the_whole_tuning_and_each_search():
     small += ["control.network.tune.iterations=2", "control.network.tune.population=3"]
     small += ["control.network.tune.scenarios=1", "control.network.tune.duration=1"]
     cfg = evaluation_config("scara", small)
-    assert cfg.control.network.objective == "closed_loop" and not cfg.loop.ideal  # evaluate.py's defaults
+    net = cfg.control.network.resolved(realistic=not cfg.loop.ideal)
+    assert net.law == "tracking" and net.objective == "closed_loop" and not cfg.loop.ideal  # the tuned law
     r = measure(cfg, ["smc", "arbfn_kmeans", "arbfn_aco"], repeats=1, device="cpu")
     assert r["comparison_s"] >= r["tuning_s"] >= r["search_s"]["arbfn_aco"] > 0
     # 2 x 3 candidates on 1 scenario, then the confirmation's 2 (and the twin's 1 where it was kept)

@@ -22,6 +22,7 @@ from ..config import (
     Dtype,
     GainsConfig,
     LoopConfig,
+    NetworkConfig,
     NetworkLaw,
     NetworkObjective,
     Objective,
@@ -95,6 +96,7 @@ class ControlComparison:
     phase_one_payloads: list[float] | None = None  # kg: the two-phase law's phase 1 conditions, where it ran
     phase_one_seconds: float = 0.0  # wall time of phase 1's calibration runs
     pick_and_place: PickedAndPlaced | None = None  # control.pick_and_place's run, where it ran
+    network: NetworkConfig | None = None  # control.network as it ran: its law and objective resolved
 
 
 @dataclass
@@ -143,6 +145,7 @@ def compare_controllers(
         real = real_loop(loop, sc.dt, setup.prismatic, effort, setup.joint_scale(**kw))
         if real is not None:  # every controller meets the same noise in each payload case
             real = replace(real, noise_envs=len(setup.payloads))
+    cfg = replace(cfg, network=cfg.network.resolved(realistic=real is not None))  # a null law and objective
     factors = setup.gain_factors(gains, real, dt=sc.dt, **kw)  # the joint scale, capped where the loop needs
     scale, rates = factors.scale, factors.rates
     period = sc.dt if real is None else real.period  # the controllers' time step, s
@@ -357,6 +360,7 @@ def compare_controllers(
         phase_one_payloads=conditions if bases else None,
         phase_one_seconds=phase_one_seconds,
         pick_and_place=picked,
+        network=cfg.network,
     )
 
 

@@ -184,7 +184,8 @@ def payload_basis(net: ControlNet, x: torch.Tensor, y: torch.Tensor, payloads: l
     w = ridge_fit(h[0::2], flat[0::2], h[1::2], flat[1::2]).weights.reshape(-1, c, n)  # (M, C, n)
     m = torch.tensor(payloads, dtype=w.dtype)
     dm = m - m.mean()
-    per_kg = torch.einsum("c,mcj->mj", dm, w - w.mean(1, keepdim=True)) / dm.square().sum()
+    # (no payload to rate, robot.rated_payload 0: every condition at 0 kg, V = 0)
+    per_kg = torch.einsum("c,mcj->mj", dm, w - w.mean(1, keepdim=True)) / dm.square().sum().clamp_min(1e-12)
     w0 = w.mean(1) - m.mean() * per_kg
     pred = torch.einsum("nm,mcj->ncj", h[1::2], w0[:, None] + m[None, :, None] * per_kg[:, None])
     err = (pred - y[1::2]).square().sum((0, 2)).sqrt() / y[1::2].square().sum((0, 2)).sqrt().clamp_min(1e-12)

@@ -50,6 +50,7 @@ def evaluate_control(
     source = urdf_text if urdf_text is not None else Path(robot.urdf) if robot.urdf else robot.name
     label = robot_label(robot.name, source)
     res = compare_controllers(cfg, gains, device, setup=setup, loop=loop, progress=progress)
+    net = res.network
     metrics = {name: run.metrics for name, run in res.runs.items()}
     limits, undefined = torque_limits(setup, loop, metrics)
     gain_record: dict[str, Any] = {
@@ -58,6 +59,7 @@ def evaluate_control(
     gain_record["joint_scale"] = res.joint_scale or [1.0] * setup.n  # the torque gains' factor per joint
     info: dict[str, Any] = {
         "loop": plain(loop) if loop is not None else {"name": "ideal"},
+        "network": {"law": str(net.law), "objective": str(net.objective)} if net is not None else None,
         "gains": gain_record,
         "select_seconds": {n: r.select_seconds for n, r in res.runs.items() if r.select_seconds is not None},
         "sim_seconds": {n: r.sim_seconds for n, r in res.runs.items()},

@@ -200,10 +200,16 @@ def _what(part: str, cfg: EvalConfig, charted: bool = False) -> str:
         )
     c = cfg.control
     payloads = len(payload_cases(c, cfg.robot.rated_payload)[0])  # without loading the URDF
-    return (
+    said = (
         f"{len(c.controllers)} controllers x {payloads} payloads, {c.duration:g} s at {1 / c.dt:g} Hz, "
         f"{cfg.loop.name} loop"
     )
+    if c.pick_and_place.picks:
+        said += f", then {c.pick_and_place.picks} picks and places in {c.pick_and_place.duration:g} s"
+    if any(name.startswith("arbfn_") for name in c.controllers):
+        net = c.network.resolved(realistic=not cfg.loop.ideal)
+        said += f"; the adaptive network's law {net.law}, its centres' objective {net.objective}"
+    return said
 
 
 def checkpoint_parts(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path) -> tuple[dict, dict[str, float]]:

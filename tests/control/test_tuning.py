@@ -17,6 +17,7 @@ from rbfn.config import (
     GainsConfig,
     LoopConfig,
     NetworkConfig,
+    NetworkLaw,
     NetworkObjective,
     Objective,
     RobotConfig,
@@ -54,7 +55,7 @@ def _control(**kw) -> ControlConfig:
         payload_on=0.3,
         payload_off=0.9,
         payloads=[0.0, 10.0],
-        network=NetworkConfig(num_centers=6, tune=TUNE),
+        network=NetworkConfig(num_centers=6, tune=TUNE, law=NetworkLaw.tracking),  # the law the tuning searches
         controllers=["smc", "arbfn_kmeans", *SEARCHES],
     )
     base.update(kw)
@@ -265,7 +266,7 @@ def test_the_static_objectives_stay():
 def test_bad_tuning_settings_are_refused_by_name(change, match):
     tune = replace(TuneConfig(duration=1.0, payload_on=0.2, payload_off=0.9), **change)
     with pytest.raises(ValueError, match=match):
-        _control(network=NetworkConfig(num_centers=6, tune=tune)).check()
+        _control(network=NetworkConfig(num_centers=6, tune=tune, law=NetworkLaw.tracking)).check()
 
 
 @pytest.mark.parametrize(
@@ -278,7 +279,7 @@ def test_bad_tuning_settings_are_refused_by_name(change, match):
 )
 def test_settings_the_closed_loop_search_cannot_take_are_refused_by_name(change, match):
     with pytest.raises(ValueError, match=match):
-        _control(network=NetworkConfig(num_centers=6, tune=TUNE, **change)).check()
+        _control(network=NetworkConfig(num_centers=6, tune=TUNE, law=NetworkLaw.tracking, **change)).check()
 
 
 def test_bad_keys_fail_at_composition_naming_the_options():
@@ -289,8 +290,15 @@ def test_bad_keys_fail_at_composition_naming_the_options():
     with pytest.raises(Exception) as e:
         compose_config("evaluate", "control.network.tune.episodes=3")
     assert "tune.episodes" in f"{e.value} {e.value.__cause__}"
-    cfg = compose_config("evaluate")
-    assert cfg.control.network.objective == NetworkObjective.closed_loop
+    net = compose_config("evaluate").control.network  # the law and objective derived from the loop
+    assert net.law is None and net.objective is None
+    assert net.resolved(realistic=True).law == NetworkLaw.two_phase
+    assert net.resolved(realistic=True).objective == NetworkObjective.fit
+    ideal = net.resolved(realistic=False)
+    assert ideal.law == NetworkLaw.tracking and ideal.objective == NetworkObjective.closed_loop
+    # asking for the closed-loop tuning asks for the law it tunes
+    tuned = replace(net, objective=NetworkObjective.closed_loop).resolved(realistic=True)
+    assert tuned.law == NetworkLaw.tracking
 
 
 def test_the_other_controllers_do_not_change_when_the_colony_tunes_on_the_closed_loop():

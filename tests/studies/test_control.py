@@ -137,7 +137,7 @@ def test_cluster_controller_does_not_change_the_shared_aco_config():
         ({"network": NetworkConfig(num_centers=500)}, "control.network.num_centers=500 .*exceeds the pilot run"),
         ({"compile": True, "aot": True}, "control.aot=True.*choose one of control.compile and control.aot"),
         (
-            {"network": NetworkConfig(law=NetworkLaw.two_phase)},
+            {"network": NetworkConfig(law=NetworkLaw.two_phase, objective=NetworkObjective.closed_loop)},
             "control.network.objective='closed_loop'.*searches the tracking law's network",
         ),
         ({"network": NetworkConfig(conditions=1)}, "control.network.conditions=1"),
