@@ -39,6 +39,16 @@ def test_the_fit_recovers_weights_affine_in_the_payload():
     assert basis.fit_error.shape == (4,) and float(basis.fit_error.max()) < 1e-5
 
 
+def test_an_arm_rated_for_no_payload_gets_no_payload_direction():
+    """robot.rated_payload 0: every condition at 0 kg, so the fit is W0 alone, V = 0 (not 0 / 0)."""
+    net = _net(d=4, m=12, seed=0)
+    x = torch.randn(400, 4, generator=torch.Generator().manual_seed(1), **KW)
+    y = (net.features(x) @ torch.ones(12, 3, **KW))[:, None].expand(-1, 3, -1)
+    basis = payload_basis(net, x, y, [0.0, 0.0, 0.0])
+    assert torch.equal(basis.per_kg, torch.zeros_like(basis.per_kg)) and bool(torch.isfinite(basis.w0).all())
+    assert float(basis.fit_error.max()) < 1e-5
+
+
 def _scara(duration: float):
     cfg = ControlConfig(duration=duration)
     gains = GainsConfig()
