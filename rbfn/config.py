@@ -754,6 +754,8 @@ class NetworkConfig:
     # ideal one or where objective is closed_loop
     law: Optional[NetworkLaw] = None
     conditions: int = 6
+    aco: ACOConfig = field(default_factory=ACOConfig)
+    tune: TuneConfig = field(default_factory=TuneConfig)
 
     def resolved(self, realistic: bool) -> NetworkConfig:
         """This config with a null `law` and `objective` derived, for the realistic loop or (not
@@ -770,9 +772,6 @@ class NetworkConfig:
         if objective is None:
             objective = NetworkObjective.closed_loop if law == NetworkLaw.tracking else NetworkObjective.fit
         return replace(self, law=law, objective=objective)
-
-    aco: ACOConfig = field(default_factory=ACOConfig)
-    tune: TuneConfig = field(default_factory=TuneConfig)
 
     def check(
         self,
