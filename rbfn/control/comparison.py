@@ -45,7 +45,15 @@ from .network import (
     pilot_residuals,
 )
 from .robot_setup import ControlRobot, GainFactors, control_robot
-from .simulator import Rollout, Scenario, SimulationDiverged, control_metrics, pick_and_place, simulate
+from .simulator import (
+    Rollout,
+    Scenario,
+    SimulationDiverged,
+    control_metrics,
+    payload_schedule,
+    pick_and_place,
+    simulate,
+)
 from .trajectory import Reference
 from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, tune_network, tuning_scenarios
 
@@ -102,11 +110,12 @@ class ControlComparison:
 @dataclass
 class PickedAndPlaced:
     """The pick-and-place run: its rollout (B = controllers, in control.controllers' order), the
-    desired joints at its rows (T, n), its scenario (the carries: shares of `rated`, kg) and its
-    simulation's wall time (s)."""
+    desired joints (T, n) and the mass carried (T,) at its rows, its scenario (the carries: shares
+    of `rated`, kg) and its simulation's wall time (s)."""
 
     rollout: Rollout
     q_des: torch.Tensor
+    carried: torch.Tensor  # (T,) kg at the rollout's rows (`payload_schedule`)
     scenario: Scenario
     rated: float
     seconds: float
@@ -253,16 +262,19 @@ def compare_controllers(
         """Every controller along `ref`, stacked, each on b environments (an adaptive network's
         features are the reference's)."""
         controllers = []
+        if made and two_phase:  # the reference's desired states and the model's torque per kg, once
+            x = desired_states(ref, acceleration=True).double().cpu()
+            own = model_payload_torque(model, ref).double().cpu()
+        elif made:
+            x = desired_states(ref)
         for name in cfg.controllers:
             features = w0 = None
             if name in made:
                 net = made[name]
                 if two_phase:
-                    h = net.features(desired_states(ref, acceleration=True).double().cpu())
-                    own = model_payload_torque(model, ref).double().cpu()
-                    features = bases[name[len("arbfn_") :]].outputs(h, own).to(**kw)
+                    features = bases[name[len("arbfn_") :]].outputs(net.features(x), own).to(**kw)
                 else:
-                    features, w0 = net.features(desired_states(ref)), net.w0
+                    features, w0 = net.features(x), net.w0
             controllers.append(
                 make_controller(
                     name,
@@ -340,7 +352,10 @@ def compare_controllers(
         roll_long, q_des_long, per_env, seconds = run_all(long, ref_long, rated, [PICK_AND_PLACE])
         for i, name in enumerate(cfg.controllers):
             runs[name].metrics[PICK_AND_PLACE] = per_env[i]
-        picked = PickedAndPlaced(roll_long, q_des_long, long, setup.rated_payload, seconds)
+        carried = payload_schedule(long, long.steps + 1, rated, **kw)[:, 0]  # kg, every step and the end
+        if real is not None:
+            carried = carried[:: real.substeps][: roll_long.t.shape[0]]
+        picked = PickedAndPlaced(roll_long, q_des_long, carried, long, setup.rated_payload, seconds)
     if cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
         t0 = time.perf_counter()
         runs["arbfn_kmeans"].tuned = Tuned(nets["kmeans"], cost.twin_cost, cost.s, time.perf_counter() - t0)

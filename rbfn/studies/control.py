@@ -7,7 +7,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from torch.utils.tensorboard import SummaryWriter
 
 from ..config import ControlConfig, GainsConfig, LoopConfig, RobotConfig, plain
@@ -211,13 +210,15 @@ def _pick_and_place_figure(
 ) -> None:
     """control_pick_and_place.png: every controller's tracking error and the mass carried."""
     roll = picked.rollout
-    t = roll.t.cpu().numpy()
-    carried = np.zeros_like(t)
-    for on, off, kg in picked.masses():
-        carried[(t >= on) & (t < off)] = kg
     err = (picked.q_des[:, None, :] - roll.q).cpu().numpy()  # (T, controllers, n)
     fig = pick_and_place_figure(
-        t, err, names, carried, robot=label, units=[u for u, _ in setup.units], joint_names=setup.joint_names
+        roll.t.cpu().numpy(),
+        err,
+        names,
+        picked.carried.cpu().numpy(),
+        robot=label,
+        units=[u for u, _ in setup.units],
+        joint_names=setup.joint_names,
     )
     write_figure(fig, out_dir / "control_pick_and_place.png", 110, writer, "control/pick_and_place")
 
