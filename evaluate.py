@@ -41,8 +41,8 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from rbfn.config import EvalConfig, check_overrides, register_configs
-from rbfn.studies.cli import one_line_errors, run_main, settings
+from rbfn.config import EvalConfig
+from rbfn.studies.cli import check_overrides, one_line_errors, register_configs, run_main, settings
 from rbfn.studies.evaluation import for_checkpoint, run
 from rbfn.studies.rundir import hydra_run_dir, hydra_run_files
 from rbfn.studies.stop import job

@@ -31,9 +31,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from rbfn.config import TrainConfig, check_overrides, register_configs
+from rbfn.config import TrainConfig
 from rbfn.resume import DifferentRun
-from rbfn.studies.cli import one_line_errors, run_main, settings
+from rbfn.studies.cli import check_overrides, one_line_errors, register_configs, run_main, settings
 from rbfn.studies.rundir import RunDirInUse, hydra_run_dir, hydra_run_files, write_json
 from rbfn.studies.stop import job
 from rbfn.studies.training import run
@@ -53,7 +53,7 @@ def main(dcfg: DictConfig) -> float:
             metrics = run(cast(TrainConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
         except Exception as e:
             # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json
-            # for `python -m rbfn.summarize` (never into a directory another process is using).
+            # for `python -m rbfn.studies.summarize` (never into a directory another process is using).
             # A refused job (directory in use, or another config's run there) writes nothing.
             if hc.mode == RunMode.MULTIRUN and not isinstance(e, (RunDirInUse, DifferentRun)):
                 log.error("job failed: %s: %s", type(e).__name__, e)

@@ -36,7 +36,7 @@ def composed(name: str, overrides: list[str]):
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from rbfn.config import register_configs
+    from rbfn.studies.cli import register_configs
 
     register_configs()
     conf = str(pathlib.Path(__file__).resolve().parents[1] / "conf")

@@ -8,8 +8,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from rbfn.config import RobotConfig, register_configs
+from rbfn.config import RobotConfig
 from rbfn.robots import load_serial_chain, scara
+from rbfn.studies.cli import register_configs
 
 torch.set_num_threads(1)
 register_configs()

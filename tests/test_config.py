@@ -1,6 +1,8 @@
 """Every config option composes; bad values fail early with a message naming the full key and value."""
 
 import re
+import subprocess
+import sys
 
 import pytest
 import torch
@@ -240,55 +242,6 @@ def test_the_centers_presets_are_the_files_of_the_group():
         assert _cfg(f"centers={name}").centers.name == name
 
 
-def _bool_keys(schema, prefix: str = "") -> list[str]:
-    """Every bool key of a config schema, by its full name."""
-    import dataclasses
-    import typing
-
-    hints, out = typing.get_type_hints(schema), []
-    for f in dataclasses.fields(schema):
-        if dataclasses.is_dataclass(hints[f.name]):
-            out += _bool_keys(hints[f.name], f"{prefix}{f.name}.")
-        elif hints[f.name] is bool:
-            out.append(prefix + f.name)
-    return out
-
-
-@pytest.mark.parametrize("schema", ["TrainConfig", "EvalConfig"])
-def test_a_bool_key_takes_only_true_or_false(schema):
-    """OmegaConf takes export=2, export=yes or progress=1 for true: every bool key of either entry
-    point refuses anything but true and false on the command line, naming the key and the value."""
-    import rbfn.config as config
-
-    cls = getattr(config, schema)
-    keys = _bool_keys(cls)
-    some = {"TrainConfig": {"export", "progress"}, "EvalConfig": {"ik", "control.enabled", "loop.torque_limits"}}
-    assert some[schema] <= set(keys)
-    for key in keys:
-        config.check_overrides(cls, [f"{key}=true", f"{key}=false", f"++{key}=True"])
-        for bad in ("2", "0", "yes", "'no'", "1.0"):
-            with pytest.raises(ValueError, match=re.escape(f"{key}={bad} is not allowed: must be true or false")):
-                config.check_overrides(cls, [f"{key}={bad}"])
-
-
-def test_overrides_of_other_types_are_checked_as_typed():
-    from rbfn.config import TrainConfig, check_overrides
-
-    check_overrides(  # groups, lists, dicts, null, interpolations and keys outside the schema pass
-        TrainConfig,
-        ["robot=urdf", "centers=kmeans", "robot.home=[1,2,3]", "+robot.locked.j=1", "robot.target=null",
-         "export=${progress}", "hydra.run.dir=x", "robot.end_link=7", "seed=3", "data.n_train=2,3"],
-    )  # fmt: skip
-    for bad, allowed in [
-        ("robot.name=true", "must be a string"),
-        ("robot.gravity=true", "must be a number"),
-        ("robot.joint_low=[0,true,1]", "each entry must be a number"),
-        ("seed=1.5", "must be an integer"),
-    ]:
-        with pytest.raises(ValueError, match=re.escape(f"{bad} is not allowed: {allowed}")):
-            check_overrides(TrainConfig, [bad])
-
-
 def test_the_python_api_checks_every_field_type():
     from dataclasses import replace
 
@@ -386,3 +339,39 @@ def test_num_threads_beyond_what_the_machine_can_run_is_refused():
     validate_device("cpu", most)
     with pytest.raises(ValueError, match=rf"num_threads=100000 is not allowed: .* up to {most} "):
         validate_device("cpu", 100_000)
+
+
+def test_from_mapping_builds_a_schema_as_composition_does():
+    """A YAML mapping becomes the schema Hydra would compose: choices from their names, integers
+    as floats where a float is declared, the rest at its defaults; a key the schema lacks or a
+    value of another type is named with its full key."""
+    from rbfn.config import RobotConfig, Target, TrainConfig, from_mapping
+
+    cfg = from_mapping(RobotConfig, {"target": "pose", "home": [0, 1], "rated_payload": 5, "locked": {"j": 1}})
+    assert cfg.target is Target.pose and cfg.home == [0.0, 1.0] and isinstance(cfg.home[0], float)
+    assert cfg.rated_payload == 5.0 and isinstance(cfg.rated_payload, float) and cfg.locked == {"j": 1.0}
+    assert cfg.end_link == RobotConfig().end_link
+    nested = from_mapping(TrainConfig, {"robot": {"name": "ur5"}, "seed": 3})
+    assert nested.robot.name == "ur5" and nested.seed == 3
+    for data, message in [
+        ({"end_links": "x"}, "end_links is not a key of RobotConfig"),
+        ({"target": "posture"}, "target='posture' is not allowed: expected one of ['position', 'pose']"),
+        ({"home": [0, "a"]}, "home=[0, 'a'] is not allowed: each entry must be a number"),
+        ({"derive": 1}, "derive=1 is not allowed: must be true or false"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            from_mapping(RobotConfig, data)
+    with pytest.raises(ValueError, match=re.escape("robot.seed is not a key of RobotConfig")):
+        from_mapping(TrainConfig, {"robot": {"seed": 1}})
+
+
+def test_the_library_below_the_studies_imports_neither_hydra_nor_omegaconf():
+    """Every module of rbfn outside rbfn.studies imports without Hydra or OmegaConf loading."""
+    code = (
+        "import importlib, pkgutil, sys, rbfn\n"
+        "names = [m.name for m in pkgutil.walk_packages(rbfn.__path__, 'rbfn.') if not m.name.startswith('rbfn.studies')]\n"
+        "[importlib.import_module(n) for n in names]\n"
+        "print(len(names), sorted({k.split('.')[0] for k in sys.modules} & {'hydra', 'omegaconf'}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert int(out[0]) > 40 and out[1:] == ["[]"]

@@ -4,7 +4,7 @@
 - every `python train.py ...` / `python evaluate.py ...` in a fenced code block composes with Hydra
   (a multirun's comma lists: each swept key's first value) and passes validate_train /
   validate_evaluate, so a renamed or removed key breaks the tests;
-- every flag of a `python -m rbfn.summarize` / `python -m rbfn.export` command shown exists;
+- every flag of a `python -m rbfn.studies.summarize` / `python -m rbfn.export` command shown exists;
 - the README's test command is the one CI runs (.ci/run), and the README stays a front page.
 """
 
@@ -133,7 +133,7 @@ def _hydra_commands():
 
 def _cli_commands():
     for page, argv in _commands():
-        if argv[:3] in (["python", "-m", "rbfn.summarize"], ["python", "-m", "rbfn.export"]):
+        if argv[:3] in (["python", "-m", "rbfn.studies.summarize"], ["python", "-m", "rbfn.export"]):
             yield pytest.param(page, argv, id=f"{_rel(page)}: {' '.join(argv)}")
 
 
@@ -230,7 +230,7 @@ def test_commands_are_found():
     """The extraction itself works: the README's own tour is among the commands checked."""
     pages = {_rel(p.values[0]) for p in HYDRA_COMMANDS}
     assert "README.md" in pages and len(HYDRA_COMMANDS) >= 10
-    assert {p.values[1][2] for p in CLI_COMMANDS} == {"rbfn.summarize", "rbfn.export"}
+    assert {p.values[1][2] for p in CLI_COMMANDS} == {"rbfn.studies.summarize", "rbfn.export"}
 
 
 def test_python_examples_name_existing_functions():
@@ -267,7 +267,7 @@ def test_readme_is_a_front_page_with_ci_test_command():
 
 def test_docs_never_name_issue_numbers():
     for page in PAGES:
-        if page.name in ("results.md", "benchmarks.md"):  # written by the bench/ tools
+        if page.name.startswith(("results", "benchmarks")):  # measured history, commit names
             continue
         text = page.read_text(encoding="utf-8")
         assert not re.search(r"(?<![\w&])#\d+\b", _split(text)[1]), f"{_rel(page)} mentions an issue number"

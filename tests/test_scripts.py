@@ -11,7 +11,7 @@ import pytest
 SCRIPTS = {
     "aco-rbfn-train": "rbfn.scripts:train",
     "aco-rbfn-evaluate": "rbfn.scripts:evaluate",
-    "aco-rbfn-summarize": "rbfn.summarize:main",
+    "aco-rbfn-summarize": "rbfn.studies.summarize:main",
     "aco-rbfn-export": "rbfn.export:main",
 }
 

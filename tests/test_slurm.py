@@ -142,7 +142,11 @@ def test_multirun_on_slurm_writes_every_job_and_summarizes(cluster, tmp_path):
         assert json.loads((job / "metrics.json").read_text())["test_pos_err_mm_median"] > 0
     results = list((sweep / ".submitit").glob("*/*_result.pkl"))
     out = subprocess.run(
-        [sys.executable, "-m", "rbfn.summarize", str(sweep)], cwd=ROOT, capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "rbfn.studies.summarize", str(sweep)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
     ).stdout
     assert len([line for line in out.splitlines() if line.startswith(("| kmeans |", "| random |"))]) == 2, out
     assert "2 jobs: 2 completed, 0 failed, 0 unfinished" in out

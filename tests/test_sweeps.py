@@ -61,7 +61,7 @@ def test_joblib_multirun_writes_every_job_and_summarizes(joblib_sweep):
         assert (job / "checkpoint.pt").is_file(), job
         assert list(job.glob("events.out.tfevents.*")), job
         assert json.loads((job / "metrics.json").read_text())["test_pos_err_mm_median"] > 0
-    out = _python("-m", "rbfn.summarize", str(joblib_sweep))
+    out = _python("-m", "rbfn.studies.summarize", str(joblib_sweep))
     rows = [line for line in out.splitlines() if line.startswith(("| kmeans |", "| random |"))]
     assert len(rows) == 4, out
     assert (joblib_sweep / "summary.md").is_file() and (joblib_sweep / "summary.png").is_file()
@@ -95,7 +95,7 @@ def test_a_failed_job_does_not_stop_the_others_and_is_summarized(tmp_path):
     assert failed["error"] == "ValueError" and bad in failed["message"]
     assert "rbfn.num_centers=100000" in failed["overrides"]
     assert f"job failed: ValueError: {bad}" in (tmp_path / "1" / "train.log").read_text()
-    out = _python("-m", "rbfn.summarize", str(tmp_path))
+    out = _python("-m", "rbfn.studies.summarize", str(tmp_path))
     assert f"| 1 | failed | rbfn.num_centers=100000 | ValueError: {bad}" in out, out
     assert "3 jobs: 2 completed, 1 failed, 0 unfinished" in out
     assert [line.split("|")[1].strip() for line in out.splitlines() if line.startswith(("| 10 |", "| 20 |"))] == [

@@ -62,7 +62,6 @@ class ControlRobot:
     home: list[float]  # per joint, rad or m (sinusoid)
     amplitude: list[float]  # per joint, rad or m (sinusoid)
     payloads: list[float]  # kg, the payload cases
-    figure_payload: float  # kg
     effort: list[float] | None = None  # per joint, the URDF's effort limits, N m (N); inf where none
     closed: Any = None  # the robot's closed forms where the registry has them (rbfn.robots.registry)
     rated_payload: float = 0.0  # kg, the most the arm is meant to carry (robot.rated_payload)
@@ -173,18 +172,16 @@ class ControlRobot:
         return sinusoid_trajectory(t, home, amplitude)
 
 
-def payload_cases(cfg: ControlConfig, rated: float) -> tuple[list[float], float]:
-    """(payload cases, figure payload) in kg: control.payloads, else 0, rated/2 and rated (once
-    each); control.figure_payload, else rated/2."""
-    cases = list(cfg.payloads) or list(dict.fromkeys([0.0, rated / 2, float(rated)]))
-    return cases, (rated / 2 if cfg.figure_payload is None else cfg.figure_payload)
+def payload_cases(cfg: ControlConfig, rated: float) -> list[float]:
+    """The payload cases in kg: control.payloads, else 0, rated/2 and rated (once each)."""
+    return list(cfg.payloads) or list(dict.fromkeys([0.0, rated / 2, float(rated)]))
 
 
 def control_robot(robot: RobotConfig, cfg: ControlConfig, urdf_text: str | None = None) -> ControlRobot:
     """The closed loop's robot for `robot` and the scenario `cfg` (ValueError naming the bad key).
     `urdf_text`: the URDF's text (a checkpoint's robot entry: data, never a file name), used
     instead of the file robot.urdf or the preset robot.name."""
-    payloads, figure_payload = payload_cases(cfg, robot.rated_payload)
+    payloads = payload_cases(cfg, robot.rated_payload)
     heavy = [p for p in payloads if p > robot.rated_payload]
     if heavy:
         log.warning(
@@ -230,7 +227,6 @@ def control_robot(robot: RobotConfig, cfg: ControlConfig, urdf_text: str | None 
         home,
         amplitude,
         payloads,
-        figure_payload,
         arm.effort_limits().tolist(),
         closed,
         robot.rated_payload,

@@ -22,11 +22,13 @@ other referenced files (`package://...`) are never opened.
 from __future__ import annotations
 
 import codecs
+import logging
 import math
 import os
 import re
 import reprlib
 import stat
+import threading
 import weakref
 from collections.abc import Sequence
 from importlib.resources import files
@@ -37,6 +39,7 @@ import pytorch_kinematics as pk
 import torch
 from lxml import etree
 from pytorch_kinematics.urdf_parser_py.urdf import URDF
+from pytorch_kinematics.urdf_parser_py.xml_reflection import core as xml_reflection
 from pytorch_kinematics.urdf_parser_py.xml_reflection.core import Path as XmlPath
 
 from ..config import ROBOT_PRESETS
@@ -55,6 +58,9 @@ __all__ = [
     "urdf_text",
     "urdf_tree",
 ]
+
+log = logging.getLogger(__name__)
+_PARSER_NOTES = threading.Lock()  # the parser's error hook is a module global
 
 MAX_URDF_BYTES = 16 * 2**20
 """Largest URDF read, in bytes (a file, bytes) or characters (text): 16 MiB, 80 times the largest
@@ -280,11 +286,22 @@ def parse_urdf(text: str, source: str, inertials: bool = False) -> URDF:
     """The URDF of `text` (joints, links and, with `inertials`, their inertials), pruned and parsed
     as `urdf_tree` says; ValueError naming `source` when it is no URDF."""
     root = urdf_tree(text, source, inertials)
+    notes: list[str] = []
     try:
-        robot = URDF.from_xml(root, XmlPath(URDF.XML_REFL.tag, tree=etree.ElementTree(root)))
+        # The parser writes a line to stderr for each attribute or tag it does not know (a real
+        # URDF's <robot version="1.0">, a vendor's extension), on every parse: kept for the log's
+        # debug level instead, once a parse.
+        with _PARSER_NOTES:
+            xml_reflection.on_error = notes.append
+            try:
+                robot = URDF.from_xml(root, XmlPath(URDF.XML_REFL.tag, tree=etree.ElementTree(root)))
+            finally:
+                xml_reflection.on_error = xml_reflection.on_error_stderr
     except Exception as e:  # the parser's ParseError, AssertionError, ...
         msg = " ".join(str(e).split()) or type(e).__name__
         raise ValueError(f"{source}: malformed URDF: {msg}") from e
+    if notes:
+        log.debug("%s: the URDF parser passed over %d item(s): %s", source, len(notes), "; ".join(notes))
     if robot is None or not robot.links:
         raise ValueError(f"{source}: malformed URDF: no <robot> with <link> elements")
     return robot

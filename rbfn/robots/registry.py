@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import torch
+import yaml  # type: ignore[import-untyped]
 
-from ..config import ROBOT_PRESETS, RobotConfig
+from ..config import ROBOT_PRESETS, RobotConfig, from_mapping
 from . import scara
 from .backend import Dynamics
 from .kinematics import read_urdf
@@ -36,8 +37,6 @@ def preset(name: str) -> RobotConfig:
     """The packaged robot `name`'s preset, conf/robot/NAME.yaml, as a RobotConfig (no Hydra).
     ValueError for a name that is no packaged robot, FileNotFoundError where conf/ is not there
     (a package installed without its repository: give the values instead)."""
-    from omegaconf import DictConfig, OmegaConf
-
     if name not in ROBOT_PRESETS:
         raise ValueError(f"name={name!r} is not a packaged robot; allowed: {list(ROBOT_PRESETS)}")
     path = CONF_ROBOT / f"{name}.yaml"
@@ -46,10 +45,10 @@ def preset(name: str) -> RobotConfig:
             f"{path}: no such file; the presets of the packaged robots are the repository's "
             "conf/robot/*.yaml (install from a checkout, or give the robot's values)"
         )
-    raw = OmegaConf.load(path)
-    assert isinstance(raw, DictConfig), f"{path}: a mapping of RobotConfig's keys"
+    raw = yaml.safe_load(path.read_text())
+    assert isinstance(raw, dict), f"{path}: a mapping of RobotConfig's keys"
     raw.pop("defaults", None)
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RobotConfig), raw))  # type: ignore[return-value]
+    return from_mapping(RobotConfig, raw)
 
 
 class ClosedForm(Protocol):

@@ -23,14 +23,19 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+import typing
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from typing import Any
 
+from hydra.core.config_store import ConfigStore
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException, OverrideParseException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from ..config import EvalConfig, TrainConfig
+from ..config.base import type_mismatch
 from ..control.simulator import SimulationDiverged
 from ..files import discard
 from ..progress import Progress
@@ -115,6 +120,46 @@ def settings(dcfg: DictConfig) -> Any:
             "(misspelt?); --help lists the config groups, --cfg job every key"
         )
     return obj
+
+
+def check_overrides(schema: type, overrides: Sequence[str]) -> None:
+    """ValueError naming the first command-line override (`key=value`, as Hydra parses it) that sets
+    a key of the config dataclass `schema` to a value of another type (`type_mismatch`), before
+    OmegaConf converts it: `export=2`, `export=yes` and `progress=1` would each become true, and
+    `robot.name=true` "True". Overrides of groups, of keys outside `schema` (hydra.*), sweeps and
+    interpolations are left to Hydra."""
+    for o in OverridesParser.create().parse_overrides(list(overrides)):
+        if o.is_delete() or o.is_sweep_override():
+            continue
+        annotation: Any = schema
+        for part in o.key_or_group.split("."):
+            origin = typing.get_origin(annotation)
+            if dataclasses.is_dataclass(annotation):
+                hints = typing.get_type_hints(annotation)
+                annotation = hints.get(part)
+            elif origin is dict:
+                annotation = typing.get_args(annotation)[1]
+            else:
+                annotation = None
+            if annotation is None:
+                break
+        value = o.value()
+        if annotation is None or dataclasses.is_dataclass(annotation) or (isinstance(value, str) and "${" in value):
+            continue
+        error = type_mismatch(annotation, value)
+        if error:
+            line = o.input_line or f"{o.key_or_group}={value!r}"
+            raise ValueError(f"{line} is not allowed: {error}")
+
+
+def register_configs() -> None:
+    """Register train.py's and evaluate.py's schemas with Hydra's ConfigStore (the first entry of
+    conf/train.yaml's and conf/evaluate.yaml's defaults). A group's preset (conf/GROUP/*.yaml) is
+    merged into its typed field of that schema, which checks its keys and values: the groups need
+    no schema entries of their own (which `--help` would list as options)."""
+    cs = ConfigStore.instance()
+    cs.store(name="train_schema", node=TrainConfig)
+    cs.store(name="evaluate_schema", node=EvalConfig)
 
 
 def _unknown(node: Any, obj: Any, prefix: str = "") -> list[str]:

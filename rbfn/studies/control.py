@@ -9,13 +9,13 @@ from typing import Any
 
 from torch.utils.tensorboard import SummaryWriter
 
-from ..config import ControlConfig, GainsConfig, LoopConfig, RobotConfig, plain
+from ..config import ControlConfig, GainsConfig, LoopConfig, NetworkConfig, RobotConfig, plain
 from ..control.comparison import PICK_AND_PLACE, ControlComparison, PickedAndPlaced, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
 from ..progress import Progress
 from .beside import Beside, can_fork
 from .plots import pick_and_place_figure, robot_label, tracking_figure
-from .rundir import write_figure
+from .rundir import write_figure, write_summary
 
 __all__ = ["check_control", "evaluate_control", "control_table", "held_out"]
 
@@ -97,12 +97,8 @@ def evaluate_control(
         for n, t in tuned.items():
             for it, v in enumerate(t.curve):
                 writer.add_scalar(f"control/tuning/{n}/cost", v, it + 1)
-    for name, cases in metrics.items():
-        for case, m in cases.items():
-            for key, vals in m.items():
-                for j, v in enumerate(vals):
-                    if v is not None:  # (no torque limit on that joint)
-                        writer.add_scalar(f"control/{name}/{case}/{key}_j{j + 1}", v)
+    write_summary(writer, "control/summary", control_table(metrics, setup.units, setup.joint_names))
+    tracking_curves(writer, res)
     # The second half of the figures is drawn in a forked process beside this one where it can be
     # (rbfn.studies.beside), with a TensorBoard writer of its own.
     names = list(metrics)
@@ -116,6 +112,21 @@ def evaluate_control(
     log.info("%s", control_table(metrics, setup.units, setup.joint_names))
     out = {"control": metrics, "control_info": info}
     return {**out, "undefined": undefined} if undefined else out
+
+
+def tracking_curves(writer, res: ControlComparison, every: float = 0.01) -> None:
+    """TensorBoard's curves of the closed loop: per controller and payload case the largest
+    tracking error over the joints, max_j |q_d,j - q_j| (rad, or m for a prismatic joint), every
+    `every` s of the run (step: ms), tags control/tracking_error/<controller>/<case>."""
+    for name, run in res.runs.items():
+        roll = run.rollout
+        k = max(1, round(every / float(roll.t[1] - roll.t[0])))
+        err = (res.q_des[::k, None, :] - roll.q[::k]).abs().amax(-1).cpu()  # (T/k, cases)
+        steps = (roll.t[::k] * 1000).round().long().tolist()
+        for i, payload in enumerate(res.payloads):
+            tag = f"control/tracking_error/{name}/{payload:g}kg"
+            for step, v in zip(steps, err[:, i].tolist()):
+                writer.add_scalar(tag, v, step)
 
 
 def torque_limits(setup: ControlRobot, loop: LoopConfig | None, metrics: dict) -> tuple[list, dict[str, str]]:
@@ -186,23 +197,41 @@ def _figures(
 def _figure(
     res: ControlComparison, name: str, label: str, cfg: ControlConfig, gains: GainsConfig, writer, out_dir: Path
 ) -> None:
-    """control_<name>.png: the case whose payload is closest to the figure payload."""
+    """control_<name>.png: every payload case, the joints by their URDF names, the controller's own
+    gains in the title."""
     assert res.robot is not None  # compare_controllers records it
-    target = res.robot.figure_payload
-    i = min(range(len(res.payloads)), key=lambda i: abs(res.payloads[i] - target))
     roll = res.runs[name].rollout
     fig = tracking_figure(
         roll.t.cpu().numpy(),
-        roll.q[:, i].cpu().numpy(),
+        roll.q.cpu().numpy(),
         res.q_des.cpu().numpy(),
-        roll.tau[:, i].cpu().numpy(),
+        roll.tau.cpu().numpy(),
         robot=label,
-        detail=f"{name}, payload {res.payloads[i]:g} kg, K = {gains.K:g}, Lambda = {gains.Lambda:g}",
+        detail=f"{name}, {controller_gains(name, gains, res.network)}",
         window=(cfg.payload_on, cfg.payload_off),
         units=res.robot.units,
         limits=None if res.robot.lower is None or res.robot.upper is None else (res.robot.lower, res.robot.upper),
+        cases=[f"{m:g} kg" for m in res.payloads],
+        joint_names=res.robot.joint_names,
     )
     write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
+
+
+def controller_gains(name: str, gains: GainsConfig, network: NetworkConfig | None = None) -> str:
+    """The gains controller `name` runs with, as a figure's title gives them (per unit of the
+    joint scale s_j): pd its Kp and Kd, ctc its Lambda, the sliding-mode family K and Lambda (and
+    the observer's and the network's law where they have them). `network`: control.network as it
+    ran (`ControlComparison.network`)."""
+    if name == "pd":
+        return f"Kp = {gains.pd_kp or gains.K * gains.Lambda:g}, Kd = {gains.pd_kd or gains.K:g}"
+    if name == "ctc":
+        return f"Lambda = {gains.Lambda:g} 1/s (critically damped)"
+    text = f"K = {gains.K:g}, Lambda = {gains.Lambda:g} 1/s"
+    if name == "smc_obs":
+        text += f", observer {gains.observer_gain:g} 1/s"
+    if name.startswith("arbfn_") and network is not None and network.law is not None:
+        text += f", {network.law} law"
+    return text
 
 
 def _pick_and_place_figure(

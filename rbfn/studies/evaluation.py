@@ -199,7 +199,7 @@ def _what(part: str, cfg: EvalConfig, charted: bool = False) -> str:
             f"{o.duration:g} s at {1 / o.dt:g} Hz"
         )
     c = cfg.control
-    payloads = len(payload_cases(c, cfg.robot.rated_payload)[0])  # without loading the URDF
+    payloads = len(payload_cases(c, cfg.robot.rated_payload))  # without loading the URDF
     said = (
         f"{len(c.controllers)} controllers x {payloads} payloads, {c.duration:g} s at {1 / c.dt:g} Hz, "
         f"{cfg.loop.name} loop"

@@ -17,7 +17,7 @@ from ..pipeline import TrainResult
 from ..robots.robot import Robot, robot_from_record
 from ..solver import CHARTED_ERROR_DAMPING, CHARTED_ITERATIONS, DEFAULT_ITERATIONS, IKSolver
 from .plots import pose_error_figure, robot_label, workspace_error_map
-from .rundir import write_figure, write_json
+from .rundir import write_figure, write_json, write_summary
 
 __all__ = [
     "training_metrics",
@@ -26,7 +26,6 @@ __all__ = [
     "ik_table",
     "charted_metrics",
     "charted_line",
-    "write_scalars",
 ]
 
 ALL_POSES = 500  # whole-range poses `charted_metrics` asks IKSolver.solve_all for every solution of
@@ -165,13 +164,6 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
     return out
 
 
-def write_scalars(writer, metrics: dict) -> None:
-    """The float metrics as TensorBoard scalars ik/KEY."""
-    for k, v in metrics.items():
-        if isinstance(v, float):
-            writer.add_scalar(f"ik/{k}", v)
-
-
 def charted_line(m: dict) -> str:
     """One log line of `charted_metrics`' figures."""
     return (
@@ -185,7 +177,7 @@ def charted_line(m: dict) -> str:
 
 def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) -> dict:
     """Accuracy of checkpoint dict `ckpt` (read from `path`) on a fresh evaluation set, float64
-    and float32; writes workspace_error_map.png and TensorBoard scalars. A charted network
+    and float32; writes workspace_error_map.png and a TensorBoard text summary. A charted network
     (robot.workspace=full): `charted_metrics` on fresh box and whole-range poses."""
     robot = robot_from_record(ckpt["robot"], cfg.device)
     seed = int(ckpt["config"]["seed"]) if cfg.seed is None else cfg.seed
@@ -194,7 +186,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
         full = full_range_split(robot, cfg.n_test, seed, evaluation=True)
         res: dict = {"checkpoint": str(path), "test_seed": seed}
         res.update(charted_metrics(charted, robot, evaluation_split(robot, cfg.n_test, seed), full))
-        write_scalars(writer, res)
+        write_summary(writer, "ik/summary", res)
         log.info("IK on fresh poses (%d, evaluation stream of seed %d): %s", cfg.n_test, seed, charted_line(res))
         return res
     model = model_from_checkpoint(ckpt).to(cfg.device)
@@ -207,7 +199,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
         robot, test.q.cpu().numpy(), test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), model.num_centers
     )
     write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "ik/workspace_error_map")
-    write_scalars(writer, out)
+    write_summary(writer, "ik/summary", out)
     log.info(
         "%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of seed {seed})", out)
     )

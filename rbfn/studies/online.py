@@ -14,7 +14,7 @@ from ..checkpoint import model_from_checkpoint, save_sealed
 from ..config import GainsConfig, OnlineConfig
 from ..control.task_space import check_online, path_name, run_online
 from .plots import online_figure, robot_label
-from .rundir import write_figure
+from .rundir import write_figure, write_summary
 
 __all__ = ["evaluate_online", "online_table", "check_online"]
 
@@ -92,9 +92,7 @@ def evaluate_online(
                 ("analytic_nominal", r.err_analytic),
             ):
                 writer.add_scalar(f"online/task_err_mm/{name}", float(err[k, i]), step)
-        for key, v in out.items():
-            if isinstance(v, float):
-                writer.add_scalar(f"online/{key}", v)
+        write_summary(writer, "online/summary", out)
     if out_dir is not None:
         fig = online_figure(
             t.cpu().numpy(),

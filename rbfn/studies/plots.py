@@ -90,7 +90,7 @@ def workspace_error_map(x: np.ndarray, err_mm: np.ndarray, inside: np.ndarray, *
     fig.colorbar(sc, ax=ax, label="FK position error (mm)", shrink=0.75)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="datalim")  # the box stays where the layout put it: no label clipped
     ax.set_title(_title(robot, f"IK position error, M = {num_centers}"))
     return fig
 
@@ -149,38 +149,56 @@ def tracking_figure(
     window: tuple[float, float] | None = None,
     units: list[tuple[str, str]] | None = None,
     limits: tuple[Sequence[float], Sequence[float]] | None = None,
+    cases: Sequence[str] | None = None,
+    joint_names: Sequence[str] | None = None,
 ) -> Figure:
-    """The paper's n x 3 figure: per joint (rows), position vs desired, error, control input.
+    """The paper's n x 3 figure: per joint (rows), position against desired, error, control input,
+    one line per case (payload) in each panel.
 
-    t (T,) s; q, q_des (T, n); tau (T, n); title "robot: detail"; `units` per joint (position,
-    torque), default the SCARA's (rad, N m), (rad, N m), (m, N) for 3 joints, else (rad, N m) on
-    every joint; `window` (s) shades the payload interval, named in the legend. Lines show every
-    k-th sample, at most MAX_POINTS per line. Rows are shorter, with fewer ticks and smaller
-    labels, past 3 joints. `limits` (lower, upper) (n,) the joints' position limits (rad or m,
-    +-inf where none): a limit near the drawn range is a dotted line on the position panel, and
-    stretches of time beyond one are marked (a stretch shorter than a drawn sample still shows).
+    t (T,) s; q (T, P, n) for P cases, or (T, n) for one; q_des (T, n); tau as q; `cases` (P,) the
+    cases' names in the legend; title "robot: detail"; `units` per joint (position, torque),
+    default the SCARA's (rad, N m), (rad, N m), (m, N) for 3 joints, else (rad, N m) on every
+    joint; `joint_names` (n,) the rows' labels (default "joint j"); `window` (s) shades the payload
+    interval, named in the legend. Lines show every k-th sample, at most MAX_POINTS per line. Rows
+    are shorter, with fewer ticks and smaller labels, past 3 joints. `limits` (lower, upper) (n,)
+    the joints' position limits (rad or m, +-inf where none): a limit near the drawn range is a
+    dotted line on the position panel, and stretches of time where any case is beyond one are
+    marked (a stretch shorter than a drawn sample still shows).
     """
-    n = q.shape[1]
+    q = q[:, None] if q.ndim == 2 else q
+    tau = tau[:, None] if tau.ndim == 2 else tau
+    p, n = q.shape[1], q.shape[2]
+    cases = list(cases) if cases is not None else (["actual"] if p == 1 else [f"case {c + 1}" for c in range(p)])
+    if len(cases) != p:
+        raise ValueError(f"cases={cases!r}: one name per case of q, {p}")
+    names = list(joint_names) if joint_names is not None else [f"joint {j + 1}" for j in range(n)]
     units = units or ([("rad", "N m"), ("rad", "N m"), ("m", "N")] if n == 3 else [("rad", "N m")] * n)
+    colours = [f"C{c}" for c in (0, 1, 2, 4, 5, 6, 7, 8, 9)]  # C3 (red) marks the limits
     k = max(1, -(-t.shape[0] // MAX_POINTS))  # every k-th sample: a figure, not a record
     lower, upper = (np.full(n, -np.inf), np.full(n, np.inf)) if limits is None else map(np.asarray, limits)
-    beyond = np.maximum.reduceat((q < lower) | (q > upper), np.arange(0, t.shape[0], k), axis=0)  # (T/k, n)
+    out = ((q < lower) | (q > upper)).any(axis=1)  # (T, n): any case beyond
+    beyond = np.maximum.reduceat(out, np.arange(0, t.shape[0], k), axis=0)  # (T/k, n)
+    worst = np.abs(q - q_des[:, None]).sum(axis=(0, 2)).argmax()  # the case whose curve marks a breach
     t, q, q_des, tau = t[::k], q[::k], q_des[::k], tau[::k]
     many = n > 3
-    fig = Figure(figsize=(13, (2.1 if many else 2.7) * n + 0.6), layout="constrained")
+    fig = Figure(figsize=(13, (2.1 if many else 2.7) * n + 0.8), layout="constrained")
     axes = fig.subplots(n, 3, sharex=True, squeeze=False)
+    for c, heading in enumerate(("position", "tracking error e = q_d - q", "torque")):
+        axes[0, c].set_title(heading, fontsize=9 if many else 10)
     for j in range(n):
         panels = (
-            (q[:, j], f"q{j + 1} [{units[j][0]}]"),
-            (q_des[:, j] - q[:, j], f"e{j + 1} [{units[j][0]}]"),
-            (tau[:, j], f"tau{j + 1} [{units[j][1]}]"),
+            (q[:, :, j], f"{names[j]} [{units[j][0]}]"),
+            (q_des[:, None, j] - q[:, :, j], f"[{units[j][0]}]"),
+            (tau[:, :, j], f"[{units[j][1]}]"),
         )
         for c, (y, label) in enumerate(panels):
             ax = axes[j, c]
-            ax.plot(t, y, lw=0.8, color="C0")
             if c == 0:
-                ax.plot(t, q_des[:, j], "--", lw=0.8, color="C1")
-                _draw_limits(ax, t, q[:, j], q_des[:, j], lower[j], upper[j], beyond[:, j])
+                ax.plot(t, q_des[:, j], "--", lw=0.9, color="k", zorder=3)
+            for i in range(p):
+                ax.plot(t, y[:, i], lw=0.8, color=colours[i % len(colours)])
+            if c == 0:
+                _draw_limits(ax, t, q[:, worst, j], q_des[:, j], lower[j], upper[j], beyond[:, j])
             if window is not None:
                 ax.axvspan(*window, color="0.9", zorder=0)
             ax.set_ylabel(label, fontsize=9 if many else None)
@@ -191,17 +209,17 @@ def tracking_figure(
                 ax.yaxis.get_offset_text().set_fontsize(8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
-    handles = [axes[0, 0].lines[0], axes[0, 0].lines[1]]
-    names = ["actual", "desired"]
+    handles = [axes[0, 0].lines[0], *axes[0, 0].lines[1 : 1 + p]]
+    labels = ["desired", *cases]
     for label in (LIMIT_LABEL, BEYOND_LABEL):
         drawn = [ln for ax in axes[:, 0] for ln in ax.lines if ln.get_label() == label]
         if drawn:
             handles.append(drawn[0])
-            names.append(label)
+            labels.append(label)
     if window is not None:
         handles.append(Patch(color="0.9", label=PAYLOAD_LABEL))
-        names.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
-    fig.legend(handles, names, loc="outside upper right", ncols=len(names), fontsize=8, frameon=False)
+        labels.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
+    fig.legend(handles, labels, loc="outside upper right", ncols=len(labels), fontsize=8, frameon=False)
     fig.suptitle(_title(robot, detail))
     return fig
 
@@ -288,7 +306,7 @@ def online_figure(
     a1.legend(fontsize=8)
     a1.grid(alpha=0.3, which="both")
     a2.plot(t_update, dw, lw=0.8)
-    a2.set_ylabel("|W - W0|")
+    a2.set_ylabel("|W - W0| (Frobenius)\n[the joints' units: rad, m]")
     a2.set_xlabel("t [s]")
     a2.grid(alpha=0.3)
     fig.suptitle(

@@ -61,6 +61,7 @@ __all__ = [
     "remove_new_empty_parents",
     "strict_json",
     "write_figure",
+    "write_summary",
     "write_json",
     "write_text",
 ]
@@ -383,6 +384,28 @@ def write_text(path: Path, text: str) -> None:
     """`text` at `path`, written atomically."""
     data = text.encode()
     atomic_write_bytes(Path(path), lambda f: f.write(data))
+
+
+def write_summary(writer, tag: str, summary: dict | str) -> None:
+    """A run's final numbers as one entry `tag` of TensorBoard's Text page, where a scalar each
+    would be a chart of one point: a dict's numbers, strings and lists of numbers as a Markdown
+    table of metric and value (nested dicts and other values left out), or a str (a table the log
+    prints) as it is, in a fixed-width block."""
+    if isinstance(summary, str):
+        writer.add_text(tag, "```\n" + summary.strip("\n") + "\n```")
+        return
+
+    def shown(v: Any) -> str | None:
+        if isinstance(v, float):
+            return f"{v:.6g}"
+        if isinstance(v, (bool, int, str)):
+            return str(v)
+        if isinstance(v, list) and all(isinstance(x, (int, float)) or x is None for x in v):
+            return ", ".join("-" if x is None else f"{x:.4g}" for x in v)
+        return None
+
+    rows = [f"| {k} | {text} |" for k, v in summary.items() if (text := shown(v)) is not None]
+    writer.add_text(tag, "\n".join(["| metric | value |", "|---|---|", *rows]))
 
 
 def write_figure(fig, path: Path, dpi: int = 110, writer=None, tag: str = "") -> None:

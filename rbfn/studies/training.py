@@ -22,8 +22,8 @@ from ..resume import DifferentRun, StateFile, TrainState, comparable
 from ..robots.derive import derive_train
 from ..robots.robot import Robot, check_ik_is_function, load_robot
 from .cli import announced
-from .ik import charted_line, charted_metrics, training_metrics, write_scalars, write_training
-from .rundir import RunDir, bookkeeping, write_json, write_text
+from .ik import charted_line, charted_metrics, training_metrics, write_training
+from .rundir import RunDir, bookkeeping, write_json, write_summary, write_text
 
 __all__ = ["claim", "outputs", "run"]
 
@@ -149,7 +149,7 @@ def _fit_charts(cfg: TrainConfig, robot: Robot, out_dir: Path, run_files: dict[s
         write_json(out_dir / "metrics.json", metrics)
         writer = SummaryWriter(log_dir=str(out_dir))
         try:
-            write_scalars(writer, metrics)
+            write_summary(writer, "train/summary", metrics)
         finally:
             writer.close()
     return metrics

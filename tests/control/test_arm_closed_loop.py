@@ -93,7 +93,7 @@ def test_ur5_batched_run_matches_single_runs(integrator):
     ref = setup.trajectory(sc.times())
     scale = setup.joint_scale(dtype=torch.float64)
     pay = torch.tensor(setup.payloads, dtype=torch.float64)
-    assert setup.payloads == [0.0, 2.5, 5.0] and setup.figure_payload == 2.5
+    assert setup.payloads == [0.0, 2.5, 5.0]
     ctrl = make_controller("smc_obs", Gains(), sc.dt, setup.model, joint_scale=scale)
     q0, qd0 = ref.q_d[:1].expand(3, 6).clone(), ref.qd_d[:1].expand(3, 6).clone()
     batch = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
@@ -133,14 +133,14 @@ def test_sinusoid_trajectory_is_differentiated_exactly():
 
 def test_robot_setup_derives_cases_scale_and_path():
     scara = control_robot(RobotConfig(), ControlConfig())
-    assert scara.payloads == [0.0, 10.0, 20.0] and scara.figure_payload == 10.0 and scara.scale is None
+    assert scara.payloads == [0.0, 10.0, 20.0] and scara.scale is None
     assert scara.units == [("rad", "N m"), ("rad", "N m"), ("m", "N")]
     ur5 = _ur5()
     assert ur5.n == 6 and len(ur5.scale) == 6 and ur5.scale[1] > 1.0 and ur5.scale[5] < 1e-3
     assert ur5.amplitude == pytest.approx([0.1] * 6) and ur5.home == UR5.home
     # Explicit settings win; a payload of 0 rated gives one case.
-    assert payload_cases(ControlConfig(payloads=[1.0], figure_payload=1.0), 5.0) == ([1.0], 1.0)
-    assert payload_cases(ControlConfig(), 0.0) == ([0.0], 0.0)
+    assert payload_cases(ControlConfig(payloads=[1.0]), 5.0) == [1.0]
+    assert payload_cases(ControlConfig(), 0.0) == [0.0]
     # The Panda's locked joint 3 is controlled, held at its locked value.
     panda = control_robot(PANDA, ControlConfig())
     assert panda.n == 7 and panda.amplitude[2] > 0.0 and panda.home[2] == 0.0  # all 7 joints move

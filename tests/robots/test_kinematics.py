@@ -596,3 +596,18 @@ def test_inertial_numbers_are_checked_where_the_dynamics_read_them():
     )
     with pytest.raises(ValueError, match=r"<inertia ixx=\"nan\".* of link 'link1': allowed are finite numbers"):
         urdf_tree(text.replace('ixx="0"', 'ixx="nan"', 1), "scara.urdf", inertials=True)
+
+
+def test_the_parsers_notes_on_unknown_attributes_go_to_the_debug_log(capfd, caplog):
+    """A real URDF's <robot version="1.0"> (or a vendor's extension) is no line on stderr a parse:
+    the parser's note goes to the log's debug level."""
+    import logging
+
+    from rbfn.robots.kinematics import parse_urdf, read_urdf, urdf_path
+
+    text = read_urdf(urdf_path("ur5")).replace('<robot name="ur5"', '<robot name="ur5" version="1.0"', 1)
+    with caplog.at_level(logging.DEBUG, logger="rbfn.robots.kinematics"):
+        robot = parse_urdf(text, "ur5.urdf")
+    assert robot.name == "ur5"
+    assert capfd.readouterr().err == ""
+    assert 'Unknown attribute "version"' in caplog.text

@@ -2,6 +2,7 @@
 leaves nothing behind."""
 
 import os
+import re
 import subprocess
 import sys
 
@@ -254,3 +255,63 @@ def test_a_failed_multirun_job_ends_the_sweep_with_its_error_not_a_traceback(tmp
     assert (tmp_path / "sweep" / "0" / "metrics.json").is_file() and (
         tmp_path / "sweep" / "1" / "failed.json"
     ).is_file()
+
+
+def _bool_keys(schema, prefix: str = "") -> list[str]:
+    """Every bool key of a config schema, by its full name."""
+    import dataclasses
+    import typing
+
+    hints, out = typing.get_type_hints(schema), []
+    for f in dataclasses.fields(schema):
+        if dataclasses.is_dataclass(hints[f.name]):
+            out += _bool_keys(hints[f.name], f"{prefix}{f.name}.")
+        elif hints[f.name] is bool:
+            out.append(prefix + f.name)
+    return out
+
+
+@pytest.mark.parametrize("schema", ["TrainConfig", "EvalConfig"])
+def test_a_bool_key_takes_only_true_or_false(schema):
+    """OmegaConf takes export=2, export=yes or progress=1 for true: every bool key of either entry
+    point refuses anything but true and false on the command line, naming the key and the value."""
+    import rbfn.config as config
+    from rbfn.studies.cli import check_overrides
+
+    cls = getattr(config, schema)
+    keys = _bool_keys(cls)
+    some = {"TrainConfig": {"export", "progress"}, "EvalConfig": {"ik", "control.enabled", "loop.torque_limits"}}
+    assert some[schema] <= set(keys)
+    for key in keys:
+        check_overrides(cls, [f"{key}=true", f"{key}=false", f"++{key}=True"])
+        for bad in ("2", "0", "yes", "'no'", "1.0"):
+            with pytest.raises(ValueError, match=re.escape(f"{key}={bad} is not allowed: must be true or false")):
+                check_overrides(cls, [f"{key}={bad}"])
+
+
+def test_overrides_of_other_types_are_checked_as_typed():
+    from rbfn.config import TrainConfig
+    from rbfn.studies.cli import check_overrides
+
+    check_overrides(  # groups, lists, dicts, null, interpolations and keys outside the schema pass
+        TrainConfig,
+        ["robot=urdf", "centers=kmeans", "robot.home=[1,2,3]", "+robot.locked.j=1", "robot.target=null",
+         "export=${progress}", "hydra.run.dir=x", "robot.end_link=7", "seed=3", "data.n_train=2,3"],
+    )  # fmt: skip
+    for bad, allowed in [
+        ("robot.name=true", "must be a string"),
+        ("robot.gravity=true", "must be a number"),
+        ("robot.joint_low=[0,true,1]", "each entry must be a number"),
+        ("seed=1.5", "must be an integer"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(f"{bad} is not allowed: {allowed}")):
+            check_overrides(TrainConfig, [bad])
+
+
+@pytest.mark.parametrize("script", ["train.py", "evaluate.py"])
+def test_help_lists_what_a_user_may_set_and_no_internal_entry(script):
+    out = subprocess.run([sys.executable, str(ROOT / script), "--help"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "_schema" not in out.stdout
+    assert f"python {script} [group=option ...]" in out.stdout
+    assert "robot: panda, scara, ur5, urdf" in out.stdout and "loop: ideal, realistic" in out.stdout

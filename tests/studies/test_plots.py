@@ -30,15 +30,19 @@ def _z1_text() -> str:
     return read_urdf(urdf_path("ur5")).replace('<robot name="ur5"', '<robot name="z1"', 1)
 
 
-def _tracking(n: int, seed: int = 0, **kw):
-    """The tracking figure of n joints with synthetic signals whose scales span 1e-6 to 1e4."""
+def _tracking(n: int, seed: int = 0, cases: int = 3, **kw):
+    """The tracking figure of n joints with long URDF names and `cases` payload cases, synthetic
+    signals whose scales span 1e-6 to 1e4."""
     rng = np.random.default_rng(seed)
     t = np.linspace(0.0, 4.0, 3000)
     q_des = 0.5 * np.sin(t[:, None] * np.arange(1, n + 1))
     q_des[:, 1] = 1.5708  # a joint held still: offset tick labels
-    q = q_des + 1e-4 * rng.standard_normal((t.size, n)) * np.geomspace(1e-2, 1e3, n)
-    tau = rng.standard_normal((t.size, n)) * np.geomspace(0.5, 2e4, n)
-    return tracking_figure(t, q, q_des, tau, robot="z1", detail="smc, payload 2 kg", **kw)
+    noise = 1e-4 * rng.standard_normal((t.size, cases, n)) * np.geomspace(1e-2, 1e3, n)
+    q = q_des[:, None] + noise
+    tau = rng.standard_normal((t.size, cases, n)) * np.geomspace(0.5, 2e4, n)
+    names = [f"shoulder_pan_joint_{j + 1}" for j in range(n)]
+    labels = [f"{m:g} kg" for m in range(cases)]
+    return tracking_figure(t, q, q_des, tau, robot="z1", detail="smc", cases=labels, joint_names=names, **kw)
 
 
 def _titles(fig) -> list[str]:
@@ -116,6 +120,49 @@ def test_many_joint_tracking_figure_lays_out_without_overlap(n):
             assert not hit, (a.get_ylabel(), b.get_ylabel())
     suptitle = fig._suptitle.get_window_extent(renderer)
     assert not any(suptitle.overlaps(ax.bbox) for ax in fig.axes)
+
+
+def test_the_tracking_figure_draws_every_case_and_names_the_joints():
+    fig = _tracking(6, cases=3)
+    names = [x.get_text() for x in fig.legends[0].get_texts()]
+    assert names[:4] == ["desired", "0 kg", "1 kg", "2 kg"]
+    assert all(len(ax.lines) >= 3 for ax in fig.axes)  # one line a case in every panel
+    assert [fig.axes[3 * j].get_ylabel() for j in range(6)] == [f"shoulder_pan_joint_{j + 1} [rad]" for j in range(6)]
+    assert fig.axes[2].get_ylabel() == "[N m]" and fig.axes[0].get_title() == "position"
+    with pytest.raises(ValueError, match="one name per case"):
+        tracking_figure(
+            np.arange(3.0),
+            np.zeros((3, 2, 1)),
+            np.zeros((3, 1)),
+            np.zeros((3, 2, 1)),
+            robot="z1",
+            detail="pd",
+            cases=["a"],
+        )
+
+
+def _inside_the_figure(fig) -> None:
+    """Every text drawn (titles, tick labels within view, axis labels, the colour bar's) lies
+    within the figure."""
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    whole = fig.bbox
+    for ax in fig.axes:
+        boxes = _boxes(ax, renderer) + [ax.title.get_window_extent(renderer)] * bool(ax.get_title())
+        for box in boxes:
+            assert whole.x0 - 1 <= box.x0 and box.x1 <= whole.x1 + 1, (ax.get_ylabel(), box)
+            assert whole.y0 - 1 <= box.y0 and box.y1 <= whole.y1 + 1, (ax.get_ylabel(), box)
+
+
+@pytest.mark.parametrize("spread", [(3.0, 1.5), (1.0, 3.0)])
+def test_the_workspace_map_clips_no_label(spread):
+    """A workspace wider than tall (the SCARA's) or taller than wide keeps its axis labels in the figure."""
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-1, 1, (3000, 3)) * np.array([*spread, 0.0])
+    _inside_the_figure(
+        workspace_error_map(x, rng.uniform(0.01, 2, 3000), np.ones(3000, bool), robot="scara", num_centers=80)
+    )
 
 
 def test_the_payload_band_is_named_in_the_legend():

@@ -1,6 +1,6 @@
 """Summarize a Hydra multirun: one row per swept setting, mean +- std over seeds.
 
-    python -m rbfn.summarize SWEEP_DIR [--metrics KEY ...] [--out PREFIX] [--compare KEY=A,B ...] [--force]
+    python -m rbfn.studies.summarize SWEEP_DIR [--metrics KEY ...] [--out PREFIX] [--compare KEY=A,B ...] [--force]
 
 Reads every job's metrics.json and .hydra/overrides.yaml under SWEEP_DIR, groups the jobs by the
 overrides that vary across the sweep (all but `seed`), prints a Markdown table and writes
@@ -47,9 +47,9 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from yaml import YAMLError  # type: ignore[import-untyped]
 
-from .files import mode_kind, unwritable, write_files
-from .memory import size_text
-from .scripts import fail
+from ..files import mode_kind, unwritable, write_files
+from ..memory import size_text
+from ..scripts import fail
 
 __all__ = ["Job", "SweepList", "compare", "find_jobs", "load_jobs", "main", "summarize", "sweep_list"]
 
@@ -603,7 +603,7 @@ def _compare_pair(p: argparse.ArgumentParser, spec: str, jobs) -> tuple[str, str
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
-        prog="python -m rbfn.summarize",
+        prog="python -m rbfn.studies.summarize",
         description=__doc__.splitlines()[0],
         epilog="Jobs whose metrics.json is damaged are listed as malformed and left out of the tables. A bad "
         "argument is an error (exit status 2) that writes nothing; the outputs are replaced all together "

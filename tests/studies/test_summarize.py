@@ -4,9 +4,9 @@ import shutil
 
 import pytest
 
-from rbfn.summarize import compare, find_jobs, load_jobs, main, summarize
+from rbfn.studies.summarize import compare, find_jobs, load_jobs, main, summarize
 
-from .conftest import error_line
+from ..conftest import error_line
 
 
 def _job(root, num, overrides, metrics):
@@ -148,7 +148,7 @@ def _outputs(root):
 
 
 def _error_line(capsys, *argv, status=2):
-    return error_line(capsys, main, "python -m rbfn.summarize", *argv, status=status)
+    return error_line(capsys, main, "python -m rbfn.studies.summarize", *argv, status=status)
 
 
 @pytest.mark.parametrize(
@@ -369,12 +369,12 @@ def test_an_unreadable_job_or_sweep_directory_is_named_not_skipped(tmp_path, cap
 
 
 def test_a_log_is_searched_in_its_tail_only(tmp_path, monkeypatch):
-    import rbfn.summarize
+    import rbfn.studies.summarize
 
     (tmp_path / "0").mkdir()
     first, last = "[t][train][ERROR] - early\n", "[t][train][ERROR] - the last\n"
     (tmp_path / "0" / "train.log").write_text(first + "x" * 5000 + "\n" + last)
-    monkeypatch.setattr(rbfn.summarize, "LOG_TAIL_BYTES", 200)
+    monkeypatch.setattr(rbfn.studies.summarize, "LOG_TAIL_BYTES", 200)
     assert find_jobs(tmp_path)[0].error == "the last"
 
 
