@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .layer import gaussian, gaussian_features
+from .gaussians import gaussian_features, gaussian_matrix
 
 __all__ = [
     "design_matrix",
@@ -45,14 +45,10 @@ def design_matrix(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, 
 
     Without the tail there is no bias column either (P = M); `assemble` then sets a zero bias.
 
-    The Gaussians are `rbfn.layer.gaussian_features` (within 1e-12 in float64, tested), their
-    squared distances taken as |z|^2 + |c|^2 - 2 z.c (one matmul, clamped at 0) instead of by
-    broadcasting: no (..., N, M, d) differences, exact enough in float64, the precision fitting
-    runs in; then `rbfn.layer.gaussian` in place on that one (..., N, M) buffer.
+    The Gaussians are `rbfn.gaussians.gaussian_matrix`, fitting's form of the reference
+    `gaussian_features` (within 1e-12 in float64, tested).
     """
-    d2 = (z @ centers.transpose(-1, -2)).mul_(-2.0)
-    d2.add_(z.square().sum(-1, keepdim=True)).add_(centers.square().sum(-1).unsqueeze(-2))
-    phi = gaussian(d2.clamp_(min=0.0), widths, inplace=True)
+    phi = gaussian_matrix(z, centers, widths)
     if not tail:
         return phi
     shape = phi.shape[:-1]

@@ -6,43 +6,12 @@
 
 Scaling, centres mu and widths sigma are buffers (chosen, not trained); the head (W, b) is an
 nn.Linear and the optional linear tail A z an nn.Linear without bias. The Gaussian is written once,
-here (`sq_distances`, `gaussian`, `gaussian_features`); fitting (`rbfn.fit.design_matrix`), the
-colony's objective (`rbfn.objectives`) and refinement (`rbfn.refine.gaussian_product`) call it or
-say why they compute it in another order, and are tested against it.
-
-`forward` shows the equation as written above (`fast = False`, the plain path) beside the path
-predictions take by default (`fast = True`), which computes the same numbers another way, for
-speed. The fast path (`forward`, `solve`, `in_workspace`, `design`: the IK path, and the exported
-graph's) takes all Gaussian exponents in one matrix product: with u = z - (the centres' centroid)
-and v = [u, 1], -||z - mu_i||^2 / (2 sigma_i^2) = [v, |v|^2] @ K_i, K from the centres and widths
-(`_expand`; |v|^2 = |u|^2 + 1), in base 2 in eager calls (exp2 is faster than exp on CPU). `solve`
-also folds the workspace flag's cover test into that product: it adds s_i = r^2 / (2 sigma_i^2)
-to exponent i, so that "some centre lies within the cover radius r" reads
-max_i (exponent_i + s_i) >= 0, and scales head weight i by exp(-s_i), so the outputs are the same;
-one pass over the (B, M) exponents less (where every s_i <= MAX_COVER_SHIFT, so that nothing
-overflows float32; otherwise the squared distances are taken).
-
-The expansion cancels: its terms are of size (|u|^2 + |mu_i - centroid|^2) / (2 sigma_i^2), the
-exponent far smaller where a Gaussian is narrow beside its distance from the centroid (the `full`
-refinement makes such Gaussians), and a float32 product loses 2^-24 times that size, a
-relative error of the Gaussian that depends on the product's order of operations (ONNX Runtime's
-against torch's). So v and the product are taken in float64 whatever the module's dtype
-(`EXPONENT_DTYPE`; the factors built in float64 from the buffers), and the exponents are cast to
-the module's dtype once, before exp2 / exp and the head: a float32 module then rounds only the
-Gaussians and the head (the float32 rule's scale, `rbfn.fit.ROUND_TOL`), whatever the order. On
-the trained SCARA networks (M = 40 and 160, five seeds each, 10 000 positions in the trained joint
-box) float32 `solve` is within 2.6e-6 to 4.3e-6 (rad, m) of float64, on the UR5's (M = 2000,
-10 000 poses) within 2.1e-6 (a float32 product: 6.6e-6 to 3.4e-5 and 1.2e-5), and the ONNX and
-.pt2 exports within 9.5e-6 of the module, flagging alike. The float64 product costs a
-float32 module's fast path 1.22x (`solve`) to 1.26x (`forward`) on the SCARA at M = 160 and 1.38x
-(`forward`) to 1.57x (`solve`) on the UR5 at M = 2000, in time at B = 10 000 on one CPU thread
-(quiet machine; the exports 1.1x to 1.9x on a busy one), and needs a device with float64
-(CPU, CUDA); a float64 module computes as it did, bit for bit. In float64 the two paths agree to
-about 1e-12 (tested).
-
-Eager calls of the fast path process rows in blocks of about `block_elements` exponents, which
-stay in cache; traced and exported graphs are one piece with a dynamic batch dimension.
-`features` takes the plain broadcast distances.
+in `rbfn.gaussians`, with its faster forms beside it: `forward` shows the equation as written
+above (`fast = False`, the plain path) beside the path predictions take by default
+(`fast = True`): every exponent by one float64 matrix product (`rbfn.gaussians.expand`), the
+workspace flag's cover test folded into it in `solve`. Eager calls of the fast path process rows
+in blocks of about `block_elements` exponents, which stay in cache; traced and exported graphs
+are one piece with a dynamic batch dimension. `features` takes the plain broadcast distances.
 
 The output weights as one matrix: net(x) = net.design(x) @ net.output_weights(), the design
 columns being the M Gaussians, then z (d) and a ones column with the tail, or a ones column
@@ -52,14 +21,25 @@ without it (the order of rbfn.fit.design_matrix, which builds them in float64 fo
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from .gaussians import (  # the Gaussian and its fast form; re-exported: rbfn.layer's API
+    EXPONENT_DTYPE,
+    LOG2E,
+    MIN_WIDTH,
+    Expansion,
+    cover_foldable,
+    distance_rows,
+    expand,
+    gaussian,
+    gaussian_features,
+    sq_distances,
+)
 from .targets import TargetFeatures
 
 __all__ = [
@@ -73,128 +53,6 @@ __all__ = [
     "MIN_WIDTH",
     "LOG2E",
 ]
-
-MIN_WIDTH = 1e-12
-"""Smallest Gaussian width sigma (scaled input units, those of z = (x - offset) / scale) a network
-or checkpoint may hold. Below it exp(-d^2 / (2 sigma^2)) underflows to 0 in float64 for every input
-farther than 4e-11 from the centre (d^2 / (2 sigma^2) > 745), far inside the 6e-8 resolution of
-float32 inputs of order 1, so the Gaussian answers 0 everywhere but at its centre (and far enough
-below, 1 / (2 sigma^2) overflows float32 and the network returns NaN). Training never makes one:
-the smallest width it gives is rbfn.widths' floor 1e-9 times the smallest scale tried, 0.25."""
-
-
-LOG2E = math.log2(math.e)
-"""log2(e): an exponent in base e times LOG2E is the same exponent in base 2, exp(t) = exp2(t LOG2E)
-(the fast forms here, in the colony's objective and in refinement take exp2, faster than exp on CPU)."""
-
-
-# ------------------------------------------------------------------------------------ the Gaussian
-def sq_distances(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
-    """Squared distances |z - mu|^2 (..., N, M) of inputs z (..., N, d) to centres (..., M, d), by
-    broadcasting (accurate in float32, exportable)."""
-    return (z.unsqueeze(-2) - centers.unsqueeze(-3)).square().sum(-1)
-
-
-def gaussian(d2: torch.Tensor, widths: torch.Tensor, inplace: bool = False) -> torch.Tensor:
-    """The Gaussian exp(-d2 / (2 sigma^2)) (..., N, M) of squared distances d2 (..., N, M) to
-    centres of widths sigma (..., M) (scaled units, those of z). With `inplace`, computed in d2's
-    storage (fitting's (N, M) float64 matrices: no temporaries of that size).
-
-    Written d2 / (-2 sigma^2): in IEEE arithmetic x / (-y) = -(x / y) exactly, so this is
-    bit for bit -d2 / (2 sigma^2)."""
-    two_var = widths.unsqueeze(-2).square() * -2.0  # -2 sigma^2 (..., 1, M)
-    return d2.div_(two_var).exp_() if inplace else (d2 / two_var).exp_()
-
-
-def gaussian_features(z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    """Gaussian activations h (..., N, M) = exp(-|z - mu|^2 / (2 sigma^2)) of inputs z (..., N, d),
-    centres mu (..., M, d), widths sigma (..., M): the paper's features, the reference for every
-    faster form."""
-    return gaussian(sq_distances(z, centers), widths)
-
-
-def distance_rows(z: torch.Tensor) -> torch.Tensor:
-    """[z, |z|^2, 1] (N, d + 2) of inputs z (N, d): times a centre's column [-2 mu, 1, |mu|^2] it is
-    |z|^2 + |mu|^2 - 2 z.mu = |z - mu|^2, so every squared distance (scaled by any per-centre
-    factor: an exponent) is one matrix product. Exact enough in float64 (where the colony's
-    objective and refinement use it); cancellation costs float32 more than `sq_distances`."""
-    return torch.cat([z, z.square().sum(-1, keepdim=True), torch.ones_like(z[:, :1])], 1)
-
-
-# ------------------------------------------------------- the fast path: exponents by one product
-class _Expansion(NamedTuple):
-    """Gaussian exponents of features x (B, d) as matrix products, in base 2 (eager) or e (traced):
-    v = [u, 1] = x @ in_weight + in_bias with u = z - centroid, then [v, |v|^2] @ weight, both in
-    EXPONENT_DTYPE (float64). The fast path's form of `gaussian_features` (see the module
-    docstring), tested against the plain path; it keeps its own rounding order, which the trained
-    metrics and the exports carry."""
-
-    centroid: torch.Tensor  # (d,) the centres' mean, the origin of u (the module's dtype)
-    in_weight: torch.Tensor  # (d, d + 1): [diag(1 / scale), 0] (float64, as are the weights below)
-    in_bias: torch.Tensor  # (d + 1,): [-offset / scale - centroid, 1]
-    weight: torch.Tensor  # (d + 2, M): rows mu_i' / sigma_i^2, (1 - |mu_i'|^2) / (2 sigma_i^2) and
-    # -1 / (2 sigma_i^2), times log_base(e), mu_i' = mu_i - centroid
-    to_sq_dist: torch.Tensor  # (M,): exponents -> squared distances (-2 sigma_i^2 ln(base)), module dtype
-    gaussians: Callable[[torch.Tensor], torch.Tensor]  # exponents -> activations (eager: in place)
-    cover_weight: torch.Tensor | None  # (d + 2, M): weight with the cover shift s_i (base units) added
-    # to the constant row; None where the cover test is not folded
-    head_scale: torch.Tensor | None  # (M,): base^-s_i, the head weights' factor for cover_weight's exponents
-    # (module dtype)
-
-
-EXPONENT_DTYPE = torch.float64
-"""The dtype of the fast path's input transform and exponent product whatever the module's own
-(the module docstring): the exponents are cast to the module's dtype after the product."""
-
-MAX_COVER_SHIFT = 60.0  # largest cover shift s_i folded (natural units): e^60 and e^-60 are normal float32
-
-
-def cover_foldable(widths: torch.Tensor, cover_radius: torch.Tensor) -> bool:
-    """Whether `solve` folds the cover test into the exponents: a finite cover radius with every
-    shift r^2 / (2 sigma_i^2) <= MAX_COVER_SHIFT (an eager check; `RBFNetwork.for_export` records it)."""
-    r = float(cover_radius)
-    return math.isfinite(r) and r * r * 0.5 / float(widths.min()) ** 2 <= MAX_COVER_SHIFT
-
-
-def _expand(
-    centers: torch.Tensor,
-    widths: torch.Tensor,
-    offset: torch.Tensor,
-    scale: torch.Tensor,
-    cover_radius: torch.Tensor,
-    base2: bool,
-    fold: bool,
-) -> _Expansion:
-    """The exponents' matrix form for centres (M, d), widths (M,), the input scaling (d,) and,
-    with `fold`, the cover radius (0-dim): the products' factors in float64 whatever the buffers'
-    dtype (see the module docstring), what multiplies the float32 exponents and head in theirs."""
-    dtype = centers.dtype
-    centers, widths, offset, scale, cover_radius = (
-        t.to(EXPONENT_DTYPE) for t in (centers, widths, offset, scale, cover_radius)
-    )
-    centroid = centers.mean(0)
-    mu = centers - centroid
-    log_e = LOG2E if base2 else 1.0
-    inv = log_e / widths.square()  # log_base(e) / sigma^2
-    weight = torch.stack([*(mu.T * inv), 0.5 * (1.0 - mu.square().sum(-1)) * inv, -0.5 * inv])
-    in_weight = torch.cat([torch.diag(1.0 / scale), torch.zeros_like(scale)[:, None]], 1)
-    in_bias = torch.cat([-offset / scale - centroid, torch.ones_like(scale[:1])])
-    cover_weight = head_scale = None
-    if fold:
-        shift = 0.5 * cover_radius.square() * inv  # (M,) in base units
-        d = centers.shape[1]
-        cover_weight = torch.cat([weight[:d], (weight[d] + shift)[None], weight[d + 1 :]])
-        head_scale = (torch.exp2(-shift) if base2 else torch.exp(-shift)).to(dtype)
-    return _Expansion(
-        centroid.to(dtype),
-        in_weight,
-        in_bias,
-        weight,
-        (-2.0 / log_e * widths.square()).to(dtype),
-        torch.Tensor.exp2_ if base2 else torch.exp,
-        cover_weight,
-        head_scale,
-    )
 
 
 def row_blocks(fn: Callable, rows: int, *xs: torch.Tensor):
@@ -435,7 +293,7 @@ class RBFNetwork(nn.Module):
         self.head.bias.copy_(w[-1])
 
     # ------------------------------------------------------------------------------ prediction
-    def _expansion(self) -> _Expansion:
+    def _expansion(self) -> Expansion:
         """The exponents' matrix form for the centres, widths and input scaling as they are now.
 
         Eager calls take base 2 (torch's exp2 is ~2.7x faster than exp on CPU) and reuse it while
@@ -444,10 +302,10 @@ class RBFNetwork(nn.Module):
         """
         bufs = (self.centers, self.widths, self.offset, self.scale, self.cover_radius)
         if torch.compiler.is_compiling() or torch.compiler.is_exporting():
-            return _expand(*bufs, base2=False, fold=self.traced_cover_fold)
+            return expand(*bufs, base2=False, fold=self.traced_cover_fold)
 
-        def eager() -> _Expansion:
-            return _expand(*bufs, base2=True, fold=cover_foldable(self.widths, self.cover_radius))
+        def eager() -> Expansion:
+            return expand(*bufs, base2=True, fold=cover_foldable(self.widths, self.cover_radius))
 
         if any(t.is_inference() or t.requires_grad for t in bufs):
             return eager()  # no version counter, or a graph to keep
@@ -457,7 +315,7 @@ class RBFNetwork(nn.Module):
             hit = self._expansion_cache = (bufs, key, eager())
         return hit[2]
 
-    def _exponents(self, x: torch.Tensor, cover: bool = False) -> tuple[torch.Tensor, torch.Tensor, _Expansion]:
+    def _exponents(self, x: torch.Tensor, cover: bool = False) -> tuple[torch.Tensor, torch.Tensor, Expansion]:
         """[u, 1] (B, d + 1) and the Gaussian exponents (B, M), -||z - mu_i||^2 / (2 sigma_i^2) in
         the expansion's base, for public inputs x (B, in_features); and the expansion. With `cover`
         and a folded cover test, the exponents carry the cover shift (see the module docstring).
@@ -469,7 +327,7 @@ class RBFNetwork(nn.Module):
         a = torch.cat([v, (v * v).sum(-1, keepdim=True)], -1) @ weight  # (B, M) float64 (v * v: square is slow in it)
         return v.to(dtype), a.to(dtype), e
 
-    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: _Expansion, cover: bool = False) -> torch.Tensor:
+    def _head(self, v: torch.Tensor, phi: torch.Tensor, e: Expansion, cover: bool = False) -> torch.Tensor:
         """Outputs (B, out) from [u, 1] (B, d + 1) and the activations phi (B, M) of
         `_exponents(x, cover)`'s exponents (cover-shifted ones: the head weights scaled back)."""
         w = self.head.weight * e.head_scale if cover and e.head_scale is not None else self.head.weight
@@ -552,7 +410,7 @@ class RBFNetwork(nn.Module):
         y = self._head(v, e.gaussians(a), e, cover=True)
         return y, self._mask(x, covered, y)
 
-    def _covered(self, a: torch.Tensor, e: _Expansion) -> torch.Tensor:
+    def _covered(self, a: torch.Tensor, e: Expansion) -> torch.Tensor:
         """Rows (B,) with some centre within the cover radius, from `_exponents(..., cover=True)`'s
         exponents a (B, M): a shifted exponent >= 0 where the test is folded, else the nearest
         centre's squared distance."""

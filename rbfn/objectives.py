@@ -12,7 +12,7 @@ from typing import Any, cast
 import torch
 
 from .fit import DEFAULT_RIDGES, ROUND_TOL, ridge_choose, rounding_tolerance
-from .layer import LOG2E, distance_rows
+from .gaussians import distance_rows, exponent_coefficients, gaussians_from_exponents
 
 __all__ = ["FitObjective", "cluster_objective"]
 
@@ -113,7 +113,7 @@ class FitObjective:
     def _batch(self, centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
         """Validation MSE (K,) of one batch of ants, centres (K, M, d), widths (K, M)."""
         k, m = centers.shape[:2]
-        coef = _exponent_coefficients(centers, widths)
+        coef = exponent_coefficients(centers, widths)
         # Rows a block: as many as stay in cache on the CPU; on a GPU every row at once (`block`).
         # (float("inf") // n is NaN in Python, which is why the GPU takes its own branch.)
         fit = max(MIN_ROWS, BLOCK_BYTES // (k * m * coef.element_size()))
@@ -144,7 +144,7 @@ class FitObjective:
         gram = coef.new_zeros(k, m, m)
         beside = coef.new_zeros(self._beside.shape[1], k * m)  # [z, 1, y]^T phi
         for r0 in range(0, self.z_train.shape[0], rows):
-            phi = _gaussians(coef, self._train_rows[:, r0 : r0 + rows])  # (K, M, B)
+            phi = gaussians_from_exponents(coef, self._train_rows[:, r0 : r0 + rows])  # (K, M, B)
             gram.baddbmm_(phi, phi.transpose(1, 2))
             beside.addmm_(self._beside[r0 : r0 + rows].T, phi.view(k * m, -1).T)
             del phi
@@ -173,7 +173,7 @@ class FitObjective:
         def build(r0: int) -> tuple[int, torch.Tensor]:
             tail = self._tail_val[:, r0 : r0 + rows]
             a = torch.empty(k, m + n_t * (1 + bounds), tail.shape[1], dtype=dtype, device=coef.device)
-            _gaussians(coef, self._val_rows[:, r0 : r0 + rows], out=a[:, :m])  # float64, then rounded
+            gaussians_from_exponents(coef, self._val_rows[:, r0 : r0 + rows], out=a[:, :m])  # float64, then rounded
             a[:, m : m + n_t] = tail
             if bounds:
                 a[:, m + n_t :] = self._tail_val_abs[:, r0 : r0 + rows]
@@ -218,33 +218,15 @@ class FitObjective:
         return mse, bound.view(k, n_l, n_out).amax(-1) * (torch.finfo(cast(torch.dtype, self.eval_dtype)).eps / 2)
 
 
-# The colony's Gaussians are rbfn.layer.gaussian_features (within 1e-12 in float64, tested) in another
-# form, for speed: all ants' exponents of a row block as one product of the data's `distance_rows`
-# with the ants' coefficients (no (K, M, B, d) differences), in base 2 (exp2 is about twice as fast
-# as exp in float64 on CPU). Its own rounding order, kept: the colony's choices depend on its bits.
+# The colony's Gaussians are rbfn.gaussians' colony form (exponent_coefficients,
+# gaussians_from_exponents): all ants' exponents of a row block as one product of the data's
+# `distance_rows` with the ants' coefficients, in base 2. Its own rounding order, kept: the
+# colony's choices depend on its bits.
 
 
 def _exponent_rows(z: torch.Tensor) -> torch.Tensor:
     """`rbfn.layer.distance_rows` [z, |z|^2, 1] transposed, (d + 2, N), contiguous."""
     return distance_rows(z).T.contiguous()
-
-
-def _exponent_coefficients(centers: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    """[-2 mu, 1, |mu|^2] / (-2 sigma^2 ln 2) (K, M, d + 2) of ants' centres (K, M, d) and widths
-    (K, M): times `_exponent_rows` (d + 2, N), the Gaussians' exponents in base 2,
-    -|z - mu|^2 / (2 sigma^2 ln 2) (K, M, N)."""
-    s2 = widths.square().unsqueeze(-1) * (-2.0 / LOG2E)  # -2 sigma^2 ln 2 (K, M, 1)
-    return torch.cat([centers * (-2.0 / s2), 1.0 / s2, centers.square().sum(-1, keepdim=True) / s2], -1)
-
-
-def _gaussians(coef: torch.Tensor, rows: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
-    """Gaussians (K, M, B) of ants' exponent coefficients (K, M, d + 2) on rows (d + 2, B), by
-    exp2 of their product (clamped at 0, which rounding may pass); into `out` where given, the
-    exponents computed in the coefficients' dtype and exponentiated in out's (as a deployed
-    network of that dtype does; float32's exp2 from float64 exponents is ~2x faster again)."""
-    if out is None:
-        return (coef @ rows).clamp_(max=0.0).exp2_()
-    return out.copy_(coef @ rows).clamp_(max=0.0).exp2_()  # rounded, then clamped in out's dtype
 
 
 def cluster_objective(z: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:

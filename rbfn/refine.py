@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import torch
 
 from .fit import RoundingRule, design_matrix, ridge_fit, ridge_solve
-from .layer import LOG2E, distance_rows
+from .gaussians import gaussian_product
 from .progress import Progress
 
 __all__ = [
@@ -42,7 +42,6 @@ __all__ = [
     "refine_full",
     "refine_minibatch",
     "row_loss",
-    "gaussian_product",
     "FULL_ROWS_MAX",
 ]
 
@@ -219,57 +218,6 @@ def refine_full(
                 best = (e, c.detach().clone(), log_w.detach().clone(), log_s.detach().clone())
     e, cb, lwb, lsb = best
     return Refined(centers=cb, widths=lwb.clamp(max=log_max).exp(), input_scale=lsb.exp(), val_mse=e, history=history)
-
-
-class _GaussianProduct(torch.autograd.Function):
-    """phi(z) @ w (B, out) for Gaussians phi (B, M) = exp(-|z - c|^2 / (2 s^2)), with a backward
-    that needs no (B, M) temporaries beyond phi and one product.
-
-    The Gaussians are `rbfn.layer.gaussian_features` (within 1e-13 in float64, tested) in another
-    form, fused for speed: autograd through `design_matrix` keeps about ten (B, M) intermediates
-    and walks each in the backward; here the exponent is one product of `rbfn.layer.distance_rows`
-    [z, |z|^2, 1] (B, d + 2) with per-centre coefficients, in base 2 (exp2), and the gradients of
-    c, s and z are products of h = (dL/dphi) * phi with [z, |z|^2, 1] and [a, a c]
-    (a = 1 / (2 s^2)). Every product is written with its long side last: on a CPU the
-    (M, out)-shaped ones (phi^T G) took 5-7x as long as their transposes. Its coefficients keep
-    their own rounding order (not the colony's, `rbfn.objectives`): the refined networks depend on
-    its bits.
-    """
-
-    @staticmethod
-    def forward(ctx, z: torch.Tensor, c: torch.Tensor, s: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        a = 0.5 / s.square()  # (M,)
-        rows = distance_rows(z)  # (B, d + 2)
-        coef = torch.cat([2.0 * c, -torch.ones_like(a)[:, None], -c.square().sum(-1, keepdim=True)], 1)
-        coef = coef * (a * LOG2E)[:, None]  # exponent in base 2
-        phi = torch.exp2((rows @ coef.T).clamp_(max=0.0))  # (B, M)
-        ctx.save_for_backward(rows, c, s, w, a, phi)
-        return (w.T @ phi.T).T
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor):
-        rows, c, s, w, a, phi = ctx.saved_tensors
-        d = c.shape[1]
-        grad_w = (grad.T @ phi).T if ctx.needs_input_grad[3] else None
-        h = (grad @ w.T).mul_(phi)  # (B, M)
-        q = (rows.T @ h).T  # (M, d + 2)
-        hz, hzz, hs = q[:, :d], q[:, d], q[:, d + 1]  # h^T z, h^T |z|^2, sum h
-        grad_c = 2.0 * a[:, None] * (hz - c * hs[:, None])
-        hd = hzz + c.square().sum(-1) * hs - 2.0 * (hz * c).sum(-1)  # sum_b h_bj |z_b - c_j|^2
-        grad_s = hd / s.pow(3)
-        grad_z = None
-        if ctx.needs_input_grad[0]:
-            r = (torch.cat([a[:, None], a[:, None] * c], 1).T @ h.T).T  # (B, 1 + d)
-            grad_z = 2.0 * (r[:, 1:] - rows[:, :d] * r[:, :1])
-        return grad_z, grad_c, grad_s, grad_w
-
-
-def gaussian_product(
-    z: torch.Tensor, centers: torch.Tensor, widths: torch.Tensor, weights: torch.Tensor
-) -> torch.Tensor:
-    """phi(z) @ weights (B, out): Gaussians of z (B, d) about centres (M, d) with widths (M,),
-    times weights (M, out); differentiable in all four at the cost of a few products."""
-    return _GaussianProduct.apply(z, centers, widths, weights)
 
 
 def row_loss(err: torch.Tensor, jac: torch.Tensor | None = None, huber: float = 0.0) -> torch.Tensor:

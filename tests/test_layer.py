@@ -349,7 +349,7 @@ def test_for_export_is_a_frozen_float32_copy_with_the_cover_fold_decided():
 def test_cover_test_folded_into_the_exponents_or_not_matches_the_reference():
     """solve folds the cover test into the exponents where every shift r^2 / (2 sigma_i^2) is at
     most MAX_COVER_SHIFT, and takes the squared distances otherwise: the same outputs and mask."""
-    from rbfn.layer import MAX_COVER_SHIFT, cover_foldable
+    from rbfn.gaussians import MAX_COVER_SHIFT, cover_foldable
 
     net, x = _wide_net()
     assert cover_foldable(net.widths, net.cover_radius)
@@ -455,14 +455,14 @@ def test_non_finite_output_weights_are_refused():
 
 def test_the_plain_path_runs_in_blocks_too(monkeypatch):
     """`fast = False` holds (rows, M, d) differences a block, not (B, M, d): any batch is bounded."""
-    from rbfn import layer
+    from rbfn import gaussians
 
     net = _net()
     x = torch.randn(50, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
     ref = _plain(net, x)
     calls = []
-    sq = layer.sq_distances
-    monkeypatch.setattr(layer, "sq_distances", lambda z, c: calls.append(z.shape[0]) or sq(z, c))
+    sq = gaussians.sq_distances
+    monkeypatch.setattr(gaussians, "sq_distances", lambda z, c: calls.append(z.shape[0]) or sq(z, c))
     net.block_rows = 16
     assert torch.allclose(_plain(net, x), ref, rtol=0, atol=1e-12)
     assert calls == [16, 16, 16, 2]

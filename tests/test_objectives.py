@@ -53,20 +53,6 @@ def test_rounding_scale_near_the_tolerance_is_judged_in_float64():
     assert chosen[0] > chosen[1]  # the tolerance decides ant 0's ridge
 
 
-def test_colony_gaussians_are_the_layers():
-    """The colony's base-2 Gaussians by one product of the data's rows with the ants' coefficients
-    are rbfn.layer.gaussian_features to 1e-12 in float64, and in float32 where exponentiated there."""
-    from rbfn.layer import gaussian_features
-    from rbfn.objectives import _exponent_coefficients, _exponent_rows, _gaussians
-
-    z, _y, c, w = _problem()
-    coef, rows = _exponent_coefficients(c, w), _exponent_rows(z)
-    want = gaussian_features(z, c, w).transpose(-1, -2)  # (K, M, N)
-    assert (_gaussians(coef, rows) - want).abs().max() < 1e-12
-    out = torch.empty(want.shape, dtype=torch.float32)
-    assert (_gaussians(coef, rows, out=out).double() - want).abs().max() < 1e-6
-
-
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_objective_on_cuda_equals_cpu():
     z, y, c, w = _problem()

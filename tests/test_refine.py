@@ -6,7 +6,6 @@ import torch
 import rbfn.refine as rf
 from rbfn.config import RefineConfig, RefineMode
 from rbfn.fit import ROUND_TOL, RoundingRule, design_matrix, ridge_fit, ridge_solve
-from rbfn.layer import gaussian_features
 
 
 def _problem(m: int = 15, width: float = 0.4):
@@ -99,21 +98,6 @@ def test_mode_picks_the_way(monkeypatch, mode, rows_max, full):
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
     rf.refine(z_tr, y_tr, z_val, y_val, c, w, weights, 1e-8, RefineConfig(mode=RefineMode(mode)))
     assert calls == ["full" if full else "minibatch"]
-
-
-def test_gaussian_product_equals_the_layers_gaussians_and_its_gradients_are_exact():
-    g = torch.Generator().manual_seed(1)
-    z = torch.randn(30, 4, dtype=torch.float64, generator=g).requires_grad_(True)
-    c = torch.randn(6, 4, dtype=torch.float64, generator=g).requires_grad_(True)
-    s = (torch.rand(6, dtype=torch.float64, generator=g) + 0.5).requires_grad_(True)
-    w = torch.randn(6, 3, dtype=torch.float64, generator=g).requires_grad_(True)
-    ref = gaussian_features(z, c, s) @ w
-    assert torch.allclose(rf.gaussian_product(z, c, s, w), ref, atol=1e-13)
-    assert torch.autograd.gradcheck(rf.gaussian_product, (z, c, s, w))
-    # Without the input's gradient (fixed input scales) the others are unchanged.
-    grads = torch.autograd.grad(rf.gaussian_product(z.detach(), c, s, w).sin().sum(), (c, s, w))
-    want = torch.autograd.grad((gaussian_features(z.detach(), c, s) @ w).sin().sum(), (c, s, w))
-    assert all(torch.allclose(a, b, atol=1e-12) for a, b in zip(grads, want))
 
 
 def test_row_loss_squared_task_and_pseudo_huber():

@@ -20,7 +20,7 @@ import torch
 
 from ..config import CONTROL_CENTER_METHODS, ACOConfig, CentersConfig, Method, Objective, WidthRule
 from ..fit import design_matrix, ridge_fit
-from ..layer import gaussian_features
+from ..gaussians import gaussian_features
 from ..objectives import FitObjective
 from ..select import choose_widths, select
 from .controllers import Gains, Model, make_controller

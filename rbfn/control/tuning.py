@@ -40,7 +40,7 @@ from aco import ACOR
 
 from ..config import ACORConfig, TuneConfig
 from ..fit import design_matrix, ridge_fit
-from ..layer import gaussian_features
+from ..gaussians import gaussian_features
 from ..progress import Progress
 from .controllers import Gains, JointRates, Model, make_controller
 from .loop import RealLoop
