@@ -214,7 +214,7 @@ def _figure(
         cases=[f"{m:g} kg" for m in res.payloads],
         joint_names=res.robot.joint_names,
     )
-    write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"control/{name}")
+    write_figure(fig, out_dir / f"control_{name}.png", 110, writer, f"figures/control_{name}")
 
 
 def controller_gains(name: str, gains: GainsConfig, network: NetworkConfig | None = None) -> str:
@@ -249,7 +249,7 @@ def _pick_and_place_figure(
         units=[u for u, _ in setup.units],
         joint_names=setup.joint_names,
     )
-    write_figure(fig, out_dir / "control_pick_and_place.png", 110, writer, "control/pick_and_place")
+    write_figure(fig, out_dir / "control_pick_and_place.png", 110, writer, "figures/control_pick_and_place")
 
 
 def control_table(

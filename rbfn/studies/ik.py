@@ -198,7 +198,7 @@ def evaluate_ik(ckpt: dict, path: Path, cfg: EvalConfig, out_dir: Path, writer) 
     fig = _error_figure(
         robot, test.q.cpu().numpy(), test.x.cpu().numpy(), err_mm.cpu().numpy(), inside.cpu().numpy(), model.num_centers
     )
-    write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "ik/workspace_error_map")
+    write_figure(fig, out_dir / "workspace_error_map.png", 120, writer, "figures/workspace_error_map")
     write_summary(writer, "ik/summary", out)
     log.info(
         "%s", ik_table(f"IK accuracy on a fresh test set ({cfg.n_test} samples, evaluation stream of seed {seed})", out)

@@ -106,7 +106,7 @@ def evaluate_online(
             path=path,
             link_error=sizes[i],
         )
-        write_figure(fig, out_dir / "online_task_error.png", 110, writer, "online/task_error")
+        write_figure(fig, out_dir / "online_task_error.png", 110, writer, "figures/online_task_error")
         if cfg.save_checkpoint:
             adapted = copy.deepcopy(net)
             adapted.set_output_weights(r.weights[i].to(net.centers.dtype))

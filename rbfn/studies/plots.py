@@ -219,7 +219,7 @@ def tracking_figure(
     if window is not None:
         handles.append(Patch(color="0.9", label=PAYLOAD_LABEL))
         labels.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
-    fig.legend(handles, labels, loc="outside upper right", ncols=len(labels), fontsize=8, frameon=False)
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8, frameon=False)
     fig.suptitle(_title(robot, detail))
     return fig
 
