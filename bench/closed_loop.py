@@ -27,11 +27,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+from rbfn.config import ADAPTIVE, CLOSED_LOOP_SEARCHES
 from rbfn.studies.control import held_out
 
 __all__ = ["CONTROLLERS", "SEARCHES", "run_seed", "load", "tables", "figure", "main"]
 
-SEARCHES = ("arbfn_aco", "arbfn_random", "arbfn_cmaes")
+SEARCHES = tuple(ADAPTIVE + m for m in CLOSED_LOOP_SEARCHES)  # arbfn_aco, arbfn_random, arbfn_cmaes
 CONTROLLERS = ("pd", "ctc", "smc", "smc_obs", "arbfn_kmeans", *SEARCHES)
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .config import PILOT_STRIDE, Colony, Method, Objective, Target
+from .config import PILOT_STRIDE, Colony, Method, Objective, Target, network_method
 
 if TYPE_CHECKING:
     from .config import ACOConfig, EvalConfig, TrainConfig
@@ -158,7 +158,7 @@ def check_evaluate(cfg: EvalConfig) -> None:
     c = cfg.control
     if c.enabled:  # q, qd and tau (n each) recorded every step, for each payload case at least
         _trajectory_fits("control.duration", c.duration, c.dt, max(1, len(c.payloads)), 3 * n, cfg.device)
-        if any(name.startswith("arbfn_") for name in c.controllers):
+        if any(network_method(name) for name in c.controllers):
             # desired states of one joint at least: d >= 2; candidates at most the pilot's training samples
             n_train = (int(round(c.duration / c.dt)) // PILOT_STRIDE + 1) // 2
             a = c.network.aco

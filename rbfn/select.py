@@ -13,13 +13,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import torch
 
 from aco import ACOR, ACOResult, AntSystem
 
 from .centers import kmeans_centers, ols_centers, random_centers
-from .config import CentersConfig
+from .config import CentersConfig, Method
 from .objectives import FitObjective, cluster_objective
 from .refine import refine_mode
 from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
@@ -76,35 +77,90 @@ def select(
     For the ACO methods, `on_state` receives the colony's snapshots and `resume` continues from
     one; the generator must then be in the state it had when this selection first started.
     """
-    z = objective.z_train
     g = generator or torch.Generator().manual_seed(seed)
     t0 = time.perf_counter()
-    aco_best: list[float] = []
-    aco_mean: list[float] = []
-    chosen_by, note = str(cfg.method), ""
-    if cfg.method == "random":
-        centers = random_centers(z, m, g)
-        widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
-    elif cfg.method == "kmeans":
-        centers = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
-        widths = choose_widths(objective, centers, cfg.width_rule, cfg.width_scale, max_width)
-    elif cfg.method == "ols":
-        pool = _candidate_pool(z, cfg.ols.candidates, g)
-        base = paper_widths(pool[None])[0, 0] * (pool.shape[0] / m) ** 0.5  # d_max / sqrt(2M)
-        grid = torch.as_tensor(SCALE_GRID, dtype=z.dtype, device=z.device)
-        scales = grid if cfg.width_scale is None else grid.new_tensor([cfg.width_scale])
-        sets = ols_centers(z, objective.y_train, m, (scales * base).clamp(max=max_width), pool, objective.tail)
-        w = (scales * base).clamp(max=max_width)[:, None].expand(-1, m)
-        best = int(objective(sets, w).argmin())
-        centers, widths = sets[best], w[best].clone()
-    elif cfg.aco.colony == "ant_system":
-        centers, widths, res = _ant_system(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
-        aco_best, aco_mean = res.best_history, res.mean_history
-    else:
-        centers, widths, res, note = _acor(cfg, objective, m, seed, max_width, progress, g, resume, on_state)
-        aco_best, aco_mean = res.best_history, res.mean_history
-        chosen_by = "kmeans" if note else chosen_by
-    return Selection(centers, widths, time.perf_counter() - t0, aco_best, aco_mean, chosen_by, note)
+    chosen = _METHODS[Method(cfg.method)](_Task(cfg, objective, m, seed, max_width, progress, g, resume, on_state))
+    return Selection(
+        chosen.centers,
+        chosen.widths,
+        time.perf_counter() - t0,
+        chosen.best,
+        chosen.mean,
+        chosen.chosen_by or str(cfg.method),
+        chosen.note,
+    )
+
+
+class _Task(NamedTuple):
+    """What `select` gives a method: its settings, the objective, M, the seed, the widest width,
+    whether to show progress, the generator, and the colony's snapshot to resume and hook."""
+
+    cfg: CentersConfig
+    objective: FitObjective
+    m: int
+    seed: int
+    max_width: float
+    progress: bool
+    g: torch.Generator
+    resume: dict | None
+    on_state: Callable[[dict], None] | None
+
+
+class _Chosen(NamedTuple):
+    """A method's answer: centres (M, d), widths (M,), the colony's best and mean objective per
+    iteration (empty for the others), the method that chose them where another did (""), and why."""
+
+    centers: torch.Tensor
+    widths: torch.Tensor
+    best: list[float]
+    mean: list[float]
+    chosen_by: str = ""
+    note: str = ""
+
+
+def _random(t: _Task) -> _Chosen:
+    centers = random_centers(t.objective.z_train, t.m, t.g)
+    return _Chosen(
+        centers, choose_widths(t.objective, centers, t.cfg.width_rule, t.cfg.width_scale, t.max_width), [], []
+    )
+
+
+def _kmeans(t: _Task) -> _Chosen:
+    centers = kmeans_centers(t.objective.z_train, t.m, t.seed, t.cfg.kmeans_restarts)
+    return _Chosen(
+        centers, choose_widths(t.objective, centers, t.cfg.width_rule, t.cfg.width_scale, t.max_width), [], []
+    )
+
+
+def _ols(t: _Task) -> _Chosen:
+    cfg, objective, m, z = t.cfg, t.objective, t.m, t.objective.z_train
+    pool = _candidate_pool(z, cfg.ols.candidates, t.g)
+    base = paper_widths(pool[None])[0, 0] * (pool.shape[0] / m) ** 0.5  # d_max / sqrt(2M)
+    grid = torch.as_tensor(SCALE_GRID, dtype=z.dtype, device=z.device)
+    scales = grid if cfg.width_scale is None else grid.new_tensor([cfg.width_scale])
+    sets = ols_centers(z, objective.y_train, m, (scales * base).clamp(max=t.max_width), pool, objective.tail)
+    w = (scales * base).clamp(max=t.max_width)[:, None].expand(-1, m)
+    best = int(objective(sets, w).argmin())
+    return _Chosen(sets[best], w[best].clone(), [], [])
+
+
+def _aco(t: _Task) -> _Chosen:
+    args = (t.cfg, t.objective, t.m, t.seed, t.max_width, t.progress, t.g, t.resume, t.on_state)
+    if t.cfg.aco.colony == "ant_system":
+        centers, widths, res = _ant_system(*args)
+        return _Chosen(centers, widths, res.best_history, res.mean_history)
+    centers, widths, res, note = _acor(*args)
+    return _Chosen(centers, widths, res.best_history, res.mean_history, "kmeans" if note else "", note)
+
+
+# The centre selectors by `rbfn.config.Method`, the one list of their names.
+_METHODS: dict[Method, Callable[[_Task], _Chosen]] = {
+    Method.aco: _aco,
+    Method.kmeans: _kmeans,
+    Method.random: _random,
+    Method.ols: _ols,
+}
+assert set(_METHODS) == set(Method), "each rbfn.config.Method needs its selector here"
 
 
 # The colony's subset keeps at least this many rows per design column P (the fit's excess

@@ -271,3 +271,12 @@ def test_docs_never_name_issue_numbers():
             continue
         text = page.read_text(encoding="utf-8")
         assert not re.search(r"(?<![\w&])#\d+\b", _split(text)[1]), f"{_rel(page)} mentions an issue number"
+
+
+def test_the_network_methods_table_is_the_registrys():
+    """docs/control.md's table of adaptive controllers is rbfn.config.NETWORK_METHODS, row for row."""
+    from rbfn.config import NETWORK_METHODS
+
+    text = (ROOT / "docs" / "control.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^\s*\| `arbfn_(\w+)` \| (.*) \|$", text, re.M)
+    assert rows == [(name, m.what) for name, m in NETWORK_METHODS.items()]

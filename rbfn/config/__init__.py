@@ -32,9 +32,11 @@ from .base import (
     validate_device,
 )
 from .control import (
+    ADAPTIVE,
     BASE_CONTROLLERS,
     CLOSED_LOOP_SEARCHES,
     CONTROL_CENTER_METHODS,
+    NETWORK_METHODS,
     PILOT_STRIDE,
     ControlConfig,
     Friction,
@@ -43,11 +45,13 @@ from .control import (
     LoopConfig,
     NetworkConfig,
     NetworkLaw,
+    NetworkMethod,
     NetworkObjective,
     PickAndPlaceConfig,
     Robust,
     Trajectory,
     TuneConfig,
+    network_method,
 )
 from .evaluation import EvalConfig, validate_evaluate
 from .online import Learner, OnlineConfig, PathName
@@ -104,6 +108,10 @@ __all__ = [
     "BASE_CONTROLLERS",
     "CONTROL_CENTER_METHODS",
     "CLOSED_LOOP_SEARCHES",
+    "ADAPTIVE",
+    "NETWORK_METHODS",
+    "NetworkMethod",
+    "network_method",
     "MAX_SEED",
     "MAX_THREADS_PER_CPU",
     "MIN_WIDTH_SCALE",

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Optional
+from typing import NamedTuple, Optional
 
 from .base import Choice, Dtype, _check_aot, _check_sensing, _need, _seed, finite
-from .training import ACOConfig, Colony, Objective
+from .training import ACOConfig, Colony, Method, Objective
 
 
 class NetworkObjective(Choice):  # what the adaptive controller's centre search minimises
@@ -43,11 +43,47 @@ class Trajectory(Choice):  # the desired joint path of the closed loop
     sinusoid = "sinusoid"
 
 
-# Controllers by name; the adaptive RBFN is arbfn_<one of CONTROL_CENTER_METHODS>.
+# Controllers by name; the adaptive RBFN is ADAPTIVE + one of NETWORK_METHODS (arbfn_aco, ...).
 BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs", "smc_exact")
-CONTROL_CENTER_METHODS = ("aco", "aco_cluster", "kmeans", "random", "grid", "cmaes")
+ADAPTIVE = "arbfn_"
+
+
+class NetworkMethod(NamedTuple):
+    """One way to choose the adaptive network's centres and widths, the controller arbfn_<name>.
+
+    `selector`: the selector (`Method`, `rbfn.select.select`) it runs on the pilot run's or phase
+    1's fit; None where it has its own (`grid`) or searches the closed loop only (`cmaes`).
+    `cluster`: the colony on k-means' objective instead of the fit. `searches`: it searches the
+    closed loop itself under control.network.objective=closed_loop (`rbfn.control.tuning`, which
+    implements each such search). `what`: one line for messages and the docs."""
+
+    selector: Method | None
+    cluster: bool
+    searches: bool
+    what: str
+
+
+# The one list of network methods: the config's allowed names, the dispatch (rbfn.control.network,
+# rbfn.control.tuning) and the docs' table come from it.
+NETWORK_METHODS: dict[str, NetworkMethod] = {
+    "aco": NetworkMethod(Method.aco, False, True, "ACO_R on the fit; on the closed loop under objective=closed_loop"),
+    "aco_cluster": NetworkMethod(Method.aco, True, False, "ACO_R on k-means' objective"),
+    "kmeans": NetworkMethod(Method.kmeans, False, False, "k-means: the twin the closed-loop searches start from"),
+    "random": NetworkMethod(Method.random, False, True, "random centres; random search on the closed loop"),
+    "grid": NetworkMethod(None, False, False, "centres evenly along one period of the reference"),
+    "cmaes": NetworkMethod(None, False, True, "CMA-ES (the cmaes package) on the closed loop only"),
+}
+CONTROL_CENTER_METHODS = tuple(NETWORK_METHODS)
 # The searches that tune the network on the closed loop itself (control.network.objective=closed_loop).
-CLOSED_LOOP_SEARCHES = ("aco", "random", "cmaes")
+CLOSED_LOOP_SEARCHES = tuple(name for name, m in NETWORK_METHODS.items() if m.searches)
+
+
+def network_method(controller: str) -> str | None:
+    """The network method of an adaptive controller's name (arbfn_kmeans -> kmeans); None for any
+    other controller. The one place the prefix is read."""
+    return controller[len(ADAPTIVE) :] if controller.startswith(ADAPTIVE) else None
+
+
 PILOT_STRIDE = 10  # the control network's pilot run is sampled every 10 control periods
 
 
@@ -265,13 +301,15 @@ class NetworkConfig:
             f"the control network's objective is {key}.objective (closed_loop, fit or cluster); leave this at fit",
         )
         if self.objective != NetworkObjective.closed_loop:
-            _need(
-                "arbfn_cmaes" not in controllers,
-                "control.controllers",
-                "arbfn_cmaes",
-                f"CMA-ES searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective}; "
-                f"{key}.law=tracking makes it the default)",
-            )
+            for name in controllers:
+                method = NETWORK_METHODS.get(network_method(name) or "")
+                _need(
+                    method is None or method.selector is not None or not method.searches,
+                    "control.controllers",
+                    name,
+                    f"it searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective}; "
+                    f"{key}.law=tracking makes it the default)",
+                )
             return
         if "arbfn_aco" in controllers:
             _need(
@@ -280,7 +318,7 @@ class NetworkConfig:
                 str(self.aco.colony),
                 f"the closed_loop objective searches continuous offsets with acor; or set {key}.objective=fit",
             )
-        if any(f"arbfn_{m}" in controllers for m in CLOSED_LOOP_SEARCHES):
+        if any(network_method(name) in CLOSED_LOOP_SEARCHES for name in controllers):
             self.tune.check(f"{key}.tune", duration, window)
 
 
@@ -345,7 +383,7 @@ class ControlConfig:
 
     def check(self, key: str = "control", realistic: bool = True) -> None:
         """`realistic`: the loop is the realistic one (what a null control.network.law means)."""
-        arbfn = [f"arbfn_{m}" for m in CONTROL_CENTER_METHODS]
+        arbfn = [ADAPTIVE + m for m in NETWORK_METHODS]
         for name in self.controllers:
             _need(
                 name in BASE_CONTROLLERS or name in arbfn,
@@ -415,7 +453,7 @@ class ControlConfig:
         self.pick_and_place.check(f"{key}.pick_and_place", self.dt)
         n = self.network
         _need(n.num_centers >= 1, f"{key}.network.num_centers", n.num_centers, "must be >= 1")
-        if any(name.startswith("arbfn_") for name in self.controllers):
+        if any(network_method(name) for name in self.controllers):
             steps = int(round(self.duration / self.dt))
             n_train = (steps // PILOT_STRIDE + 1) // 2  # even pilot samples train the network
             _need(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, cast
 
 import torch
 
@@ -27,6 +27,7 @@ from ..config import (
     NetworkObjective,
     Objective,
     RobotConfig,
+    network_method,
 )
 from ..progress import Progress
 from .aot import ahead_of_time
@@ -203,7 +204,8 @@ def compare_controllers(
 
     made: dict[str, ControlNet] = {}  # arbfn_*: its network
     for name in cfg.controllers:
-        if not name.startswith("arbfn_"):
+        method = network_method(name)
+        if method is None:
             continue
         if pilot is None and two_phase:
             stage(f"phase 1: {len(conditions)} payload conditions")
@@ -234,7 +236,6 @@ def compare_controllers(
                 compile=cfg.compile,
                 aot=aot,
             )
-        method = name[len("arbfn_") :]
         if two_phase:
             net = static(method)
             if method not in bases:
@@ -272,7 +273,7 @@ def compare_controllers(
             if name in made:
                 net = made[name]
                 if two_phase:
-                    features = bases[name[len("arbfn_") :]].outputs(net.features(x), own).to(**kw)
+                    features = bases[cast(str, network_method(name))].outputs(net.features(x), own).to(**kw)
                 else:
                     features, w0 = net.features(x), net.w0
             controllers.append(
@@ -339,7 +340,7 @@ def compare_controllers(
             rollout=part,
             sim_seconds=seconds,
             select_seconds=select_seconds.get(name),
-            basis=bases.get(name[len("arbfn_") :]) if name.startswith("arbfn_") else None,
+            basis=bases.get(network_method(name) or ""),
             tuned=tuned.get(name),
         )
     picked = None

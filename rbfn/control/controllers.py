@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from ..config import BASE_CONTROLLERS, CONTROL_CENTER_METHODS, GainsConfig as Gains, Robust
+from ..config import ADAPTIVE, BASE_CONTROLLERS, NETWORK_METHODS, GainsConfig as Gains, Robust, network_method
 from .loop import Applied
 from .models import NominalModel
 from .trajectory import Reference
@@ -495,7 +495,7 @@ def make_controller(
         if plant is None:
             raise ValueError("controller 'smc_exact' needs the plant (it knows every force exactly)")
         return ExactSliding(gains, dt, plant, joint_scale)
-    if name.startswith("arbfn"):
+    if network_method(name) is not None:
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
         if law == "two_phase":
@@ -510,5 +510,5 @@ def make_controller(
         )
     raise ValueError(
         f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
-        f"arbfn_<{'|'.join(CONTROL_CENTER_METHODS)}>"
+        f"{ADAPTIVE}<{'|'.join(NETWORK_METHODS)}>"
     )

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from ..config import CONTROL_CENTER_METHODS, ACOConfig, CentersConfig, Method, Objective, WidthRule
+from ..config import NETWORK_METHODS, ACOConfig, CentersConfig, Objective, WidthRule
 from ..fit import design_matrix, ridge_fit
 from ..gaussians import gaussian_features
 from ..objectives import FitObjective
@@ -202,16 +202,18 @@ def control_network(
     aco: ACOConfig | None = None,
     warm_start: bool = False,
 ) -> ControlNet:
-    """Centres and widths for the controller's network by `method` (CONTROL_CENTER_METHODS) from pilot
+    """Centres and widths for the controller's network by `method` (rbfn.config.NETWORK_METHODS) from pilot
     data x (N, 2n), y (N, n) sampled every `sample_dt` s; even samples train, odd ones validate
     (widths, ridge, ACO's fit objective). `warm_start` starts the weights at the ridge fit of y."""
-    if method not in CONTROL_CENTER_METHODS:
-        raise ValueError(f"unknown centre method {method!r}; choose one of {list(CONTROL_CENTER_METHODS)}")
+    entry = NETWORK_METHODS.get(method)
+    if entry is None or (entry.selector is None and entry.searches):  # (those search the closed loop only)
+        allowed = [name for name, e in NETWORK_METHODS.items() if e.selector is not None or not e.searches]
+        raise ValueError(f"unknown centre method {method!r} for a fit; choose one of {allowed}")
     offset, scale = x.mean(0), x.std(0).clamp_min(1e-9)
     z = (x - offset) / scale
     objective = FitObjective(z[0::2], y[0::2], z[1::2], y[1::2], tail=False)
     g = torch.Generator().manual_seed(seed)
-    if method == "grid":
+    if entry.selector is None:  # its own (grid): evenly along one period of the reference
         t0 = time.perf_counter()
         period_n = min(z.shape[0], max(m, int(round(PERIOD / sample_dt))))
         centers = z[torch.linspace(0, period_n - 1, m + 1)[:-1].round().long()]
@@ -219,14 +221,9 @@ def control_network(
         seconds = time.perf_counter() - t0
     else:
         aco = aco or ACOConfig()
-        if method == "aco_cluster":  # a new value: the caller's config is never mutated
+        if entry.cluster:  # a new value: the caller's config is never mutated
             aco = replace(aco, objective=Objective.cluster)
-        cfg = CentersConfig(
-            name=method,
-            method=Method.aco if method.startswith("aco") else Method(method),
-            width_rule=WidthRule.per_center,
-            aco=aco,
-        )
+        cfg = CentersConfig(name=method, method=entry.selector, width_rule=WidthRule.per_center, aco=aco)
         sel = select(cfg, objective, m, seed, max_width=4.0, generator=g)
         centers, widths, seconds = sel.centers, sel.widths, sel.seconds
     w0 = torch.zeros(m, y.shape[1], dtype=x.dtype)

@@ -31,14 +31,15 @@ from __future__ import annotations
 import functools
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 
 from aco import ACOR
 
-from ..config import ACORConfig, TuneConfig
+from ..config import ADAPTIVE, CLOSED_LOOP_SEARCHES, ACORConfig, TuneConfig
 from ..fit import design_matrix, ridge_fit
 from ..gaussians import gaussian_features
 from ..progress import Progress
@@ -48,9 +49,7 @@ from .network import ControlNet, desired_states
 from .simulator import Plant, Scenario, SimulationDiverged, metric_tensors, simulate
 from .trajectory import Reference
 
-__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed", "SEARCHES"]
-
-SEARCHES = ("aco", "random", "cmaes")
+__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed"]
 MAX_DRAWS = 1000  # redraws of a scenario value that falls on an evaluation case before giving up
 
 
@@ -236,7 +235,7 @@ class ClosedLoopCost:
             feats = gaussian_features(self.z, centers[idx], widths[idx])  # (K', T, M)
             feats = feats.transpose(0, 1).repeat_interleave(self.s, 1)  # (T, K' S, M)
             ctrl = make_controller(
-                "arbfn_tune",
+                ADAPTIVE + "tune",
                 self.gains,
                 self.period,
                 self.model,
@@ -358,57 +357,91 @@ def tune_network(
     acor: ACORConfig | None = None,
     progress: Progress | None = None,
 ) -> Tuned:
-    """The best network `search` (one of SEARCHES) finds in tune.iterations batches of
+    """The best network `search` (one of rbfn.config.CLOSED_LOOP_SEARCHES) finds in tune.iterations batches of
     tune.population candidates, starting at the twin (x = 0): `aco`, ACO_R (its archive
     min(acor.archive_size, population), q and xi from `acor`) whose first ants are the twin and
     population - 1 draws N(0, spread^2) around it; `random`, the same first batch, then batch after
     batch of such draws; `cmaes`, CMA-ES from mean 0 with step size `spread`. Every candidate is
     clipped to the same box (cost.lower, cost.upper). progress: where given, follows the batches."""
-    if search not in SEARCHES:
-        raise ValueError(f"unknown closed-loop search {search!r}; choose one of {list(SEARCHES)}")
+    if search not in _SEARCHES:
+        raise ValueError(f"unknown closed-loop search {search!r}; choose one of {list(CLOSED_LOOP_SEARCHES)}")
     g = torch.Generator().manual_seed(seed)
     tally = _Tally(cost, tune.iterations, f"tuning the network by {search}", progress)
-    lo, hi, dim, pop = cost.lower, cost.upper, cost.dimension, tune.population
     t0 = time.perf_counter()
-
-    def around_twin(first: bool) -> torch.Tensor:
-        x = tune.spread * torch.randn(pop, dim, generator=g, dtype=torch.float64)
-        if first:
-            x[0] = 0.0  # the twin itself
-        return torch.maximum(torch.minimum(x, hi), lo)
-
-    if search == "aco":
-        acor = acor or ACORConfig()
-        colony = ACOR(
-            archive_size=min(acor.archive_size, pop),
-            ants=pop,
-            q=acor.q,
-            xi=acor.xi,
-            iterations=tune.iterations - 1,
-            lower=lo,
-            upper=hi,
-        )
-        colony.minimize(tally, around_twin(True), generator=g)
-    elif search == "random":
-        for it in range(tune.iterations):
-            tally(around_twin(it == 0))
-    else:
-        import numpy as np
-        from cmaes import CMA
-
-        opt = CMA(
-            mean=np.zeros(dim),
-            sigma=tune.spread,
-            bounds=np.stack([lo.numpy(), hi.numpy()], 1),
-            seed=seed,
-            population_size=pop,
-        )
-        for _ in range(tune.iterations):
-            xs = [opt.ask() for _ in range(pop)]
-            values = tally(torch.tensor(np.stack(xs), dtype=torch.float64))
-            finite = values[torch.isfinite(values)]
-            worst = float(finite.max()) * 10 if finite.numel() else 1e6  # CMA-ES ranks: a diverged run is worst
-            opt.tell([(x, float(v) if math.isfinite(float(v)) else worst) for x, v in zip(xs, values)])
+    _SEARCHES[search](_Search(tally, cost, tune, g, seed, acor or ACORConfig()))
     seconds = time.perf_counter() - t0
     assert tally.best_x is not None
     return Tuned(cost.net(tally.best_x, seconds), tally.best, tally.episodes, seconds, tally.curve, tally.best_x)
+
+
+class _Search(NamedTuple):
+    """What a closed-loop search is given: the cost it calls (`_Tally`, batches of candidates
+    (K, dimension) -> costs (K,)), the problem's box and size (`cost`), the budget (`tune`), the
+    generator and seed, and the colony's parameters."""
+
+    tally: Any
+    cost: ClosedLoopCost
+    tune: TuneConfig
+    g: torch.Generator
+    seed: int
+    acor: ACORConfig
+
+    def around_twin(self, first: bool) -> torch.Tensor:
+        """A batch of draws N(0, spread^2) around the twin (x = 0), the first one the twin itself
+        where `first`, clipped to the box."""
+        x = self.tune.spread * torch.randn(
+            self.tune.population, self.cost.dimension, generator=self.g, dtype=torch.float64
+        )
+        if first:
+            x[0] = 0.0  # the twin itself
+        return torch.maximum(torch.minimum(x, self.cost.upper), self.cost.lower)
+
+
+def _aco(s: _Search) -> None:
+    """ACO_R: its archive min(acor.archive_size, population), q and xi from `acor`; the first ants
+    the twin and population - 1 draws around it."""
+    pop = s.tune.population
+    colony = ACOR(
+        archive_size=min(s.acor.archive_size, pop),
+        ants=pop,
+        q=s.acor.q,
+        xi=s.acor.xi,
+        iterations=s.tune.iterations - 1,
+        lower=s.cost.lower,
+        upper=s.cost.upper,
+    )
+    colony.minimize(s.tally, s.around_twin(True), generator=s.g)
+
+
+def _random(s: _Search) -> None:
+    """The same first batch as the colony's, then batch after batch of draws around the twin."""
+    for it in range(s.tune.iterations):
+        s.tally(s.around_twin(it == 0))
+
+
+def _cmaes(s: _Search) -> None:
+    """CMA-ES (the cmaes package) from mean 0 with step size `spread`, within the box."""
+    import numpy as np
+    from cmaes import CMA
+
+    lo, hi, pop = s.cost.lower, s.cost.upper, s.tune.population
+    opt = CMA(
+        mean=np.zeros(s.cost.dimension),
+        sigma=s.tune.spread,
+        bounds=np.stack([lo.numpy(), hi.numpy()], 1),
+        seed=s.seed,
+        population_size=pop,
+    )
+    for _ in range(s.tune.iterations):
+        xs = [opt.ask() for _ in range(pop)]
+        values = s.tally(torch.tensor(np.stack(xs), dtype=torch.float64))
+        finite = values[torch.isfinite(values)]
+        worst = float(finite.max()) * 10 if finite.numel() else 1e6  # CMA-ES ranks: a diverged run is worst
+        opt.tell([(x, float(v) if math.isfinite(float(v)) else worst) for x, v in zip(xs, values)])
+
+
+# Each closed-loop search of rbfn.config.NETWORK_METHODS (searches=True), by its name.
+_SEARCHES: dict[str, Callable[[_Search], None]] = {"aco": _aco, "random": _random, "cmaes": _cmaes}
+assert set(_SEARCHES) == set(CLOSED_LOOP_SEARCHES), (
+    "every closed-loop search of NETWORK_METHODS needs its function here"
+)

@@ -9,7 +9,7 @@ from typing import Any
 
 from torch.utils.tensorboard import SummaryWriter
 
-from ..config import ControlConfig, GainsConfig, LoopConfig, NetworkConfig, RobotConfig, plain
+from ..config import ControlConfig, GainsConfig, LoopConfig, NetworkConfig, RobotConfig, network_method, plain
 from ..control.comparison import PICK_AND_PLACE, ControlComparison, PickedAndPlaced, compare_controllers
 from ..control.robot_setup import ControlRobot, control_robot
 from ..progress import Progress
@@ -229,7 +229,7 @@ def controller_gains(name: str, gains: GainsConfig, network: NetworkConfig | Non
     text = f"K = {gains.K:g}, Lambda = {gains.Lambda:g} 1/s"
     if name == "smc_obs":
         text += f", observer {gains.observer_gain:g} 1/s"
-    if name.startswith("arbfn_") and network is not None and network.law is not None:
+    if network_method(name) and network is not None and network.law is not None:
         text += f", {network.law} law"
     return text
 

@@ -25,7 +25,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from ..checkpoint import CHARTS_KIND, read_checkpoint, refuse_url
-from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, validate_evaluate
+from ..config import ROBOT_PRESETS, EvalConfig, RobotConfig, network_method, validate_evaluate
 from ..control.robot_setup import payload_cases
 from ..memory import check_evaluate
 from ..robots.derive import derive_evaluate
@@ -206,7 +206,7 @@ def _what(part: str, cfg: EvalConfig, charted: bool = False) -> str:
     )
     if c.pick_and_place.picks:
         said += f", then {c.pick_and_place.picks} picks and places in {c.pick_and_place.duration:g} s"
-    if any(name.startswith("arbfn_") for name in c.controllers):
+    if any(network_method(name) for name in c.controllers):
         net = c.network.resolved(realistic=not cfg.loop.ideal)
         said += f"; the adaptive network's law {net.law}, its centres' objective {net.objective}"
     return said
