@@ -9,8 +9,9 @@ full key, the bad value and what is allowed):
 - `robot`: `RobotConfig` (group `robot`);
 - `training`: train.py's `TrainConfig` and its parts (data, centres, colonies, refinement, growth,
   network);
-- `control`: the closed loop's gains, adaptive network, tuning, pick-and-place, scenario
-  (`ControlConfig`) and loop (`LoopConfig`, group `loop`);
+- `control`: the closed loop's gains, adaptive network and its methods, tuning,
+  pick-and-place and scenario (`ControlConfig`);
+- `loop`: how real the loop is (`LoopConfig`, group `loop`);
 - `online`: the online part (`OnlineConfig`);
 - `evaluation`: evaluate.py's `EvalConfig`.
 
@@ -42,7 +43,6 @@ from .control import (
     Friction,
     GainsConfig,
     Integrator,
-    LoopConfig,
     NetworkConfig,
     NetworkLaw,
     NetworkMethod,
@@ -54,6 +54,7 @@ from .control import (
     network_method,
 )
 from .evaluation import EvalConfig, validate_evaluate
+from .loop import LoopConfig
 from .online import Learner, OnlineConfig, PathName
 from .robot import ROBOT_PRESETS, RobotConfig, Target, Workspace
 from .training import (

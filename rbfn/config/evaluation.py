@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from .base import _need, _seed, check_types, validate_device
-from .control import ControlConfig, GainsConfig, LoopConfig
+from .control import ControlConfig, GainsConfig
+from .loop import LoopConfig
 from .online import OnlineConfig
 from .robot import RobotConfig
 

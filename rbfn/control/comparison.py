@@ -32,7 +32,7 @@ from ..config import (
 from ..progress import Progress
 from .aot import ahead_of_time
 from .batch import Stacked
-from .controllers import Model, make_controller
+from .controllers import InertiaSchedule, Model, make_controller
 from .loop import RealLoop, real_loop
 from .models import model_scales
 from .network import (
@@ -141,197 +141,14 @@ def compare_controllers(
     loop: how real the loop is (None: ideal). In the realistic loop the controllers act every
     control period (their adaptation steps gamma times it), the pilot run stays ideal. progress:
     where given, follows the closed-loop tuning's batches."""
-    setup = setup or control_robot(robot or RobotConfig(), cfg)
-    dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
-    kw: dict[str, Any] = {"dtype": dtype, "device": device}
-    sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
-    sc.validate()
-    aot = ahead_of_time(cfg.aot, device, cfg.compile)
-    ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
-    plant, model = setup.plant, setup.nominal_model(gains.nominal_payload, model_scales(gains))
-    real: RealLoop | None = None
-    if loop is not None:
-        effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)
-        real = real_loop(loop, sc.dt, setup.prismatic, effort, setup.joint_scale(**kw))
-        if real is not None:  # every controller meets the same noise in each payload case
-            real = replace(real, noise_envs=len(setup.payloads))
-    cfg = replace(cfg, network=cfg.network.resolved(realistic=real is not None))  # a null law and objective
-    factors = setup.gain_factors(gains, real, dt=sc.dt, **kw)  # the joint scale, capped where the loop needs
-    scale, rates = factors.scale, factors.rates
-    period = sc.dt if real is None else real.period  # the controllers' time step, s
-    payload, n = torch.tensor(setup.payloads, **kw), setup.n
-    pilot = None
-    select_seconds: dict[str, float] = {}
-    nets: dict[str, ControlNet] = {}
-    tuned: dict[str, Tuned] = {}
-    cost: ClosedLoopCost | None = None
-    confirm: ClosedLoopCost | None = None  # the same scenarios at the evaluation's length
-    objective = cfg.network.objective
-    two_phase = cfg.network.law == NetworkLaw.two_phase
-    schedule = setup.inertia_schedule(gains) if two_phase else None
-    # phase 1's payloads, kg: evenly up to the heaviest the design allows
-    conditions = [] if schedule is None else torch.linspace(0.0, schedule.high, cfg.network.conditions).tolist()
-    bases: dict[str, PayloadBasis] = {}
-    tuning_seconds = phase_one_seconds = 0.0
-
-    def static(method: str) -> ControlNet:
-        """The network `method` selects from the pilot run (once per method); under the two-phase
-        law from phase 1's runs, fitting every condition's residual at once (each joint's in units
-        of its torque gain factor)."""
-        assert pilot is not None
-        if method not in nets:
-            aco = cfg.network.aco
-            if objective != NetworkObjective.closed_loop:  # the colony's static objective
-                aco = replace(aco, objective=Objective(str(objective)))
-            y = pilot[1].double().cpu()
-            if two_phase:
-                y = (y if scale is None else y / scale.double().cpu()).reshape(y.shape[0], -1)
-            nets[method] = control_network(
-                method,
-                pilot[0].double().cpu(),
-                y,
-                m=cfg.network.num_centers,
-                seed=cfg.network.seed,
-                sample_dt=sc.dt * PILOT_STRIDE,
-                aco=aco,
-                warm_start=cfg.network.warm_start,
-            )
-        return nets[method]
-
-    def stage(what: str) -> None:  # a step of no counted parts, for the progress line
-        if progress is not None:
-            progress.at(what, 0, 0)
-
-    made: dict[str, ControlNet] = {}  # arbfn_*: its network
-    for name in cfg.controllers:
-        method = network_method(name)
-        if method is None:
-            continue
-        if pilot is None and two_phase:
-            stage(f"phase 1: {len(conditions)} payload conditions")
-            t_one = time.perf_counter()
-            pilot = payload_residuals(
-                plant,
-                sc,
-                ref,
-                gains,
-                model,
-                conditions,
-                stride=PILOT_STRIDE,
-                joint_scale=scale,
-                compile=cfg.compile,
-                aot=aot,
-            )
-            phase_one_seconds = time.perf_counter() - t_one
-        if pilot is None:
-            stage("the pilot run")
-            pilot = pilot_residuals(
-                plant,
-                sc,
-                ref,
-                gains,
-                model,
-                stride=PILOT_STRIDE,
-                joint_scale=scale,
-                compile=cfg.compile,
-                aot=aot,
-            )
-        if two_phase:
-            net = static(method)
-            if method not in bases:
-                bases[method] = payload_basis(net, pilot[0].double().cpu(), pilot[1].double().cpu(), conditions)
-        elif objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
-            t_tune = time.perf_counter()
-            args = (cfg, gains, setup, static("kmeans"), model, factors, real, loop, pilot)
-            if cost is None:  # the tuning's scenarios, and smc's reference errors on them
-                stage("smc on the tuning scenarios")
-                cost = _closed_loop_cost(*args)
-            found = tune_network(
-                method, cost, cfg.network.tune, cfg.network.seed, cfg.network.aco.acor, progress=progress
-            )
-            stage(f"confirming {name}'s network at the evaluation's length")
-            if confirm is None:  # the same scenarios, as long as the evaluation's episode
-                confirm = _closed_loop_cost(*args, full_length=True)
-            tuned[name] = confirmed(found, cost, confirm)
-            net = tuned[name].net
-            tuning_seconds += time.perf_counter() - t_tune
-        else:
-            net = static(method)
-        made[name], select_seconds[name] = net, net.seconds
-
-    def along(ref: Reference, b: int) -> Stacked:
-        """Every controller along `ref`, stacked, each on b environments (an adaptive network's
-        features are the reference's)."""
-        controllers = []
-        if made and two_phase:  # the reference's desired states and the model's torque per kg, once
-            x = desired_states(ref, acceleration=True).double().cpu()
-            own = model_payload_torque(model, ref).double().cpu()
-        elif made:
-            x = desired_states(ref)
-        for name in cfg.controllers:
-            features = w0 = None
-            if name in made:
-                net = made[name]
-                if two_phase:
-                    features = bases[cast(str, network_method(name))].outputs(net.features(x), own).to(**kw)
-                else:
-                    features, w0 = net.features(x), net.w0
-            controllers.append(
-                make_controller(
-                    name,
-                    gains,
-                    period,
-                    model,
-                    features=features,
-                    w0=w0,
-                    observer=cfg.network.observer,
-                    joint_scale=scale,
-                    plant=plant,
-                    rates=rates,
-                    law=str(cfg.network.law),
-                    schedule=schedule,
-                )
-            )
-        return Stacked(controllers, [b] * len(controllers))
-
-    def run_all(
-        sc: Scenario, ref: Reference, payload: torch.Tensor, cases: list[str]
-    ) -> tuple[Rollout, torch.Tensor, list[dict], float]:
-        """Every controller on the `payload` cases (B,) kg named `cases`: (rollout, B = controllers x
-        cases; the desired joints at its rows; metrics per environment; seconds)."""
-        b, k = payload.shape[0], len(cfg.controllers)
-        ctrl = along(ref, b)
-        stage(f"simulating {k} controllers on {b} cases for {sc.duration:g} s")
-        q0, qd0 = ref.q_d[:1].expand(b * k, n).clone(), ref.qd_d[:1].expand(b * k, n).clone()
-        real_b = None if real is None else replace(real, noise_envs=b)  # every controller meets the same noise
-        t0 = time.perf_counter()
-        try:
-            roll = simulate(
-                plant,
-                ctrl,
-                sc,
-                ref,
-                q0=q0,
-                qd0=qd0,
-                payload=payload.repeat(k),
-                compile=cfg.compile,
-                aot=aot,
-                loop=real_b,
-            )
-        except SimulationDiverged as e:
-            i, j = divmod(e.environment, b)
-            case = cases[j] if cases[j] == PICK_AND_PLACE else f"payload {cases[j]}"
-            raise SimulationDiverged(f"controller {cfg.controllers[i]}, {case}: {e}", e.environment) from None
-        seconds = time.perf_counter() - t0
-        q_des = ref.q_d if real is None else ref.q_d[:: real.substeps][: roll.t.shape[0]]  # at the rollout's rows
-        return roll, q_des, control_metrics(roll, q_des, sc, limits), seconds
-
-    limits = None if setup.lower is None else (torch.tensor(setup.lower), torch.tensor(setup.upper))
-    cases = [case_name(p) for p in setup.payloads]
-    roll, q_des, per_env, seconds = run_all(sc, ref, payload, cases)
+    c = _Context.of(cfg, gains, device, setup or control_robot(robot or RobotConfig(), cfg), loop, progress)
+    nw = _networks(c)
+    cases = [case_name(p) for p in c.setup.payloads]
+    payload = torch.tensor(c.setup.payloads, **c.kw)
+    roll, q_des, per_env, seconds = _run_all(c, nw, c.sc, c.ref, payload, cases)
     b = len(cases)
     runs: dict[str, ControlRun] = {}
-    for i, name in enumerate(cfg.controllers):
+    for i, name in enumerate(c.cfg.controllers):
         envs = slice(i * b, (i + 1) * b)
         sat = None if roll.saturated is None else roll.saturated[envs]
         part = Rollout(roll.t, roll.q[:, envs], roll.qd[:, envs], roll.tau[:, envs], sat)
@@ -339,27 +156,14 @@ def compare_controllers(
             metrics=dict(zip(cases, per_env[envs])),
             rollout=part,
             sim_seconds=seconds,
-            select_seconds=select_seconds.get(name),
-            basis=bases.get(network_method(name) or ""),
-            tuned=tuned.get(name),
+            select_seconds=nw.select_seconds.get(name),
+            basis=nw.bases.get(network_method(name) or ""),
+            tuned=nw.tuned.get(name),
         )
-    picked = None
-    if cfg.pick_and_place.picks:  # the same controllers along a longer run of the same trajectory
-        pnp = cfg.pick_and_place
-        long = replace(sc, duration=pnp.duration, carries=pick_and_place(pnp.duration, pnp.picks, pnp.seed))
-        long.validate()
-        ref_long = Reference(*setup.trajectory(long.times(torch.float64))).to(**kw)
-        rated = torch.tensor([setup.rated_payload], **kw)
-        roll_long, q_des_long, per_env, seconds = run_all(long, ref_long, rated, [PICK_AND_PLACE])
-        for i, name in enumerate(cfg.controllers):
-            runs[name].metrics[PICK_AND_PLACE] = per_env[i]
-        carried = payload_schedule(long, long.steps + 1, rated, **kw)[:, 0]  # kg, every step and the end
-        if real is not None:
-            carried = carried[:: real.substeps][: roll_long.t.shape[0]]
-        picked = PickedAndPlaced(roll_long, q_des_long, carried, long, setup.rated_payload, seconds)
-    if cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
+    picked = _pick_and_place_run(c, nw, runs) if c.cfg.pick_and_place.picks else None
+    if nw.cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
         t0 = time.perf_counter()
-        runs["arbfn_kmeans"].tuned = Tuned(nets["kmeans"], cost.twin_cost, cost.s, time.perf_counter() - t0)
+        runs["arbfn_kmeans"].tuned = Tuned(nw.nets["kmeans"], nw.cost.twin_cost, nw.cost.s, time.perf_counter() - t0)
     if "smc" in runs and "smc_exact" in runs:
         for run in runs.values():
             for case, m in run.metrics.items():
@@ -367,17 +171,273 @@ def compare_controllers(
     return ControlComparison(
         runs,
         q_des=q_des,
-        scenario=sc,
-        payloads=list(setup.payloads),
-        robot=setup,
-        joint_scale=factors.listed,
-        tune_scenarios=None if cost is None else cost.scenarios,
-        tuning_seconds=tuning_seconds,
-        phase_one_payloads=conditions if bases else None,
-        phase_one_seconds=phase_one_seconds,
+        scenario=c.sc,
+        payloads=list(c.setup.payloads),
+        robot=c.setup,
+        joint_scale=c.factors.listed,
+        tune_scenarios=None if nw.cost is None else nw.cost.scenarios,
+        tuning_seconds=nw.tuning_seconds,
+        phase_one_payloads=nw.conditions if nw.bases else None,
+        phase_one_seconds=nw.phase_one_seconds,
         pick_and_place=picked,
-        network=cfg.network,
+        network=c.cfg.network,
     )
+
+
+@dataclass
+class _Context:
+    """What every stage of a comparison shares: the settings (control.network's law and objective
+    resolved), the robot, the tensors' dtype and device (`kw`), the scenario and its reference,
+    the plant and nominal model, the realistic loop (None: ideal), the gains' per-joint factors,
+    the ahead-of-time setting, the progress line and the URDF's position limits."""
+
+    cfg: ControlConfig
+    gains: GainsConfig
+    setup: ControlRobot
+    kw: dict[str, Any]
+    sc: Scenario
+    ref: Reference
+    model: Model
+    real: RealLoop | None
+    loop: LoopConfig | None
+    factors: GainFactors
+    aot: bool
+    progress: Progress | None
+    limits: tuple[torch.Tensor, torch.Tensor] | None
+
+    @classmethod
+    def of(
+        cls,
+        cfg: ControlConfig,
+        gains: GainsConfig,
+        device: str,
+        setup: ControlRobot,
+        loop: LoopConfig | None,
+        progress: Progress | None,
+    ) -> _Context:
+        dtype = torch.float64 if cfg.dtype == Dtype.float64 else torch.float32
+        kw: dict[str, Any] = {"dtype": dtype, "device": device}
+        sc = Scenario(cfg.duration, cfg.dt, cfg.integrator, cfg.payload_on, cfg.payload_off)
+        sc.validate()
+        aot = ahead_of_time(cfg.aot, device, cfg.compile)
+        ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(**kw)  # each (T, n)
+        model = setup.nominal_model(gains.nominal_payload, model_scales(gains))
+        real: RealLoop | None = None
+        if loop is not None:
+            effort = torch.tensor(setup.effort if setup.effort is not None else [float("inf")] * setup.n)
+            real = real_loop(loop, sc.dt, setup.prismatic, effort, setup.joint_scale(**kw))
+            if real is not None:  # every controller meets the same noise in each payload case
+                real = replace(real, noise_envs=len(setup.payloads))
+        cfg = replace(cfg, network=cfg.network.resolved(realistic=real is not None))  # a null law and objective
+        factors = setup.gain_factors(gains, real, dt=sc.dt, **kw)  # the joint scale, capped where the loop needs
+        limits = None if setup.lower is None else (torch.tensor(setup.lower), torch.tensor(setup.upper))
+        return cls(cfg, gains, setup, kw, sc, ref, model, real, loop, factors, aot, progress, limits)
+
+    @property
+    def two_phase(self) -> bool:
+        return self.cfg.network.law == NetworkLaw.two_phase
+
+    @property
+    def period(self) -> float:
+        """The controllers' time step, s."""
+        return self.sc.dt if self.real is None else self.real.period
+
+    def stage(self, what: str) -> None:
+        """A step of no counted parts, for the progress line."""
+        if self.progress is not None:
+            self.progress.at(what, 0, 0)
+
+
+@dataclass
+class _Networks:
+    """The adaptive controllers' networks (`made`, by controller) and how they came: the networks
+    selected on the pilot run or phase 1 (`nets`, by method), phase 1's fits (`bases`, by method),
+    the closed-loop tunings (`tuned`, by controller) and their cost, the inertia schedule and phase
+    1's payloads (kg) of the two-phase law, and the seconds each stage took."""
+
+    made: dict[str, ControlNet] = field(default_factory=dict)
+    nets: dict[str, ControlNet] = field(default_factory=dict)
+    bases: dict[str, PayloadBasis] = field(default_factory=dict)
+    tuned: dict[str, Tuned] = field(default_factory=dict)
+    select_seconds: dict[str, float] = field(default_factory=dict)
+    cost: ClosedLoopCost | None = None
+    schedule: InertiaSchedule | None = None
+    conditions: list[float] = field(default_factory=list)
+    pilot: tuple[torch.Tensor, torch.Tensor] | None = None
+    tuning_seconds: float = 0.0
+    phase_one_seconds: float = 0.0
+
+
+def _networks(c: _Context) -> _Networks:
+    """Every adaptive controller's network: the pilot run (or phase 1's runs, under the two-phase
+    law) once, then per controller its method's selection, phase 1's fit, or the closed-loop
+    tuning with its confirmation."""
+    nw = _Networks()
+    network = c.cfg.network
+    if c.two_phase:
+        nw.schedule = c.setup.inertia_schedule(c.gains)
+        # phase 1's payloads, kg: evenly up to the heaviest the design allows
+        nw.conditions = torch.linspace(0.0, nw.schedule.high, network.conditions).tolist()
+    confirm: ClosedLoopCost | None = None  # the tuning's scenarios at the evaluation's length
+    for name in c.cfg.controllers:
+        method = network_method(name)
+        if method is None:
+            continue
+        if nw.pilot is None:
+            nw.pilot = _pilot(c, nw)
+        if c.two_phase:
+            net = _static(c, nw, method)
+            if method not in nw.bases:
+                x, y = nw.pilot[0].double().cpu(), nw.pilot[1].double().cpu()
+                nw.bases[method] = payload_basis(net, x, y, nw.conditions)
+        elif network.objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
+            t_tune = time.perf_counter()
+            args = (c.cfg, c.gains, c.setup, _static(c, nw, "kmeans"), c.model, c.factors, c.real, c.loop, nw.pilot)
+            if nw.cost is None:  # the tuning's scenarios, and smc's reference errors on them
+                c.stage("smc on the tuning scenarios")
+                nw.cost = _closed_loop_cost(*args)
+            found = tune_network(method, nw.cost, network.tune, network.seed, network.aco.acor, progress=c.progress)
+            c.stage(f"confirming {name}'s network at the evaluation's length")
+            if confirm is None:  # the same scenarios, as long as the evaluation's episode
+                confirm = _closed_loop_cost(*args, full_length=True)
+            nw.tuned[name] = confirmed(found, nw.cost, confirm)
+            net = nw.tuned[name].net
+            nw.tuning_seconds += time.perf_counter() - t_tune
+        else:
+            net = _static(c, nw, method)
+        nw.made[name], nw.select_seconds[name] = net, net.seconds
+    return nw
+
+
+def _pilot(c: _Context, nw: _Networks) -> tuple[torch.Tensor, torch.Tensor]:
+    """The residual torques the networks are chosen on: phase 1's calibration runs under the
+    two-phase law (their seconds in `nw`), else the pilot run."""
+    plant, scale, compile = c.setup.plant, c.factors.scale, c.cfg.compile
+    if c.two_phase:
+        c.stage(f"phase 1: {len(nw.conditions)} payload conditions")
+        t_one = time.perf_counter()
+        pilot = payload_residuals(
+            plant, c.sc, c.ref, c.gains, c.model, nw.conditions, stride=PILOT_STRIDE, joint_scale=scale,
+            compile=compile, aot=c.aot,
+        )  # fmt: skip
+        nw.phase_one_seconds = time.perf_counter() - t_one
+        return pilot
+    c.stage("the pilot run")
+    return pilot_residuals(
+        plant, c.sc, c.ref, c.gains, c.model, stride=PILOT_STRIDE, joint_scale=scale, compile=compile, aot=c.aot
+    )
+
+
+def _static(c: _Context, nw: _Networks, method: str) -> ControlNet:
+    """The network `method` selects from the pilot run (once per method); under the two-phase law
+    from phase 1's runs, fitting every condition's residual at once (each joint's in units of its
+    torque gain factor)."""
+    assert nw.pilot is not None
+    if method not in nw.nets:
+        network, scale = c.cfg.network, c.factors.scale
+        aco = network.aco
+        if network.objective != NetworkObjective.closed_loop:  # the colony's static objective
+            aco = replace(aco, objective=Objective(str(network.objective)))
+        y = nw.pilot[1].double().cpu()
+        if c.two_phase:
+            y = (y if scale is None else y / scale.double().cpu()).reshape(y.shape[0], -1)
+        nw.nets[method] = control_network(
+            method,
+            nw.pilot[0].double().cpu(),
+            y,
+            m=network.num_centers,
+            seed=network.seed,
+            sample_dt=c.sc.dt * PILOT_STRIDE,
+            aco=aco,
+            warm_start=network.warm_start,
+        )
+    return nw.nets[method]
+
+
+def _along(c: _Context, nw: _Networks, ref: Reference, b: int) -> Stacked:
+    """Every controller along `ref`, stacked, each on b environments (an adaptive network's
+    features are the reference's)."""
+    controllers = []
+    if nw.made and c.two_phase:  # the reference's desired states and the model's torque per kg, once
+        x = desired_states(ref, acceleration=True).double().cpu()
+        own = model_payload_torque(c.model, ref).double().cpu()
+    elif nw.made:
+        x = desired_states(ref)
+    for name in c.cfg.controllers:
+        features = w0 = None
+        if name in nw.made:
+            net = nw.made[name]
+            if c.two_phase:
+                features = nw.bases[cast(str, network_method(name))].outputs(net.features(x), own).to(**c.kw)
+            else:
+                features, w0 = net.features(x), net.w0
+        controllers.append(
+            make_controller(
+                name,
+                c.gains,
+                c.period,
+                c.model,
+                features=features,
+                w0=w0,
+                observer=c.cfg.network.observer,
+                joint_scale=c.factors.scale,
+                plant=c.setup.plant,
+                rates=c.factors.rates,
+                law=str(c.cfg.network.law),
+                schedule=nw.schedule,
+            )
+        )
+    return Stacked(controllers, [b] * len(controllers))
+
+
+def _run_all(
+    c: _Context, nw: _Networks, sc: Scenario, ref: Reference, payload: torch.Tensor, cases: list[str]
+) -> tuple[Rollout, torch.Tensor, list[dict], float]:
+    """Every controller on the `payload` cases (B,) kg named `cases`: (rollout, B = controllers x
+    cases; the desired joints at its rows; metrics per environment; seconds)."""
+    b, k, n = payload.shape[0], len(c.cfg.controllers), c.setup.n
+    ctrl = _along(c, nw, ref, b)
+    c.stage(f"simulating {k} controllers on {b} cases for {sc.duration:g} s")
+    q0, qd0 = ref.q_d[:1].expand(b * k, n).clone(), ref.qd_d[:1].expand(b * k, n).clone()
+    real_b = None if c.real is None else replace(c.real, noise_envs=b)  # every controller meets the same noise
+    t0 = time.perf_counter()
+    try:
+        roll = simulate(
+            c.setup.plant,
+            ctrl,
+            sc,
+            ref,
+            q0=q0,
+            qd0=qd0,
+            payload=payload.repeat(k),
+            compile=c.cfg.compile,
+            aot=c.aot,
+            loop=real_b,
+        )
+    except SimulationDiverged as e:
+        i, j = divmod(e.environment, b)
+        case = cases[j] if cases[j] == PICK_AND_PLACE else f"payload {cases[j]}"
+        raise SimulationDiverged(f"controller {c.cfg.controllers[i]}, {case}: {e}", e.environment) from None
+    seconds = time.perf_counter() - t0
+    q_des = ref.q_d if c.real is None else ref.q_d[:: c.real.substeps][: roll.t.shape[0]]  # at the rollout's rows
+    return roll, q_des, control_metrics(roll, q_des, sc, c.limits), seconds
+
+
+def _pick_and_place_run(c: _Context, nw: _Networks, runs: dict[str, ControlRun]) -> PickedAndPlaced:
+    """The same controllers along a longer run of the same trajectory while the payload is picked
+    and placed; its metrics join each run's as the case PICK_AND_PLACE."""
+    pnp = c.cfg.pick_and_place
+    long = replace(c.sc, duration=pnp.duration, carries=pick_and_place(pnp.duration, pnp.picks, pnp.seed))
+    long.validate()
+    ref_long = Reference(*c.setup.trajectory(long.times(torch.float64))).to(**c.kw)
+    rated = torch.tensor([c.setup.rated_payload], **c.kw)
+    roll_long, q_des_long, per_env, seconds = _run_all(c, nw, long, ref_long, rated, [PICK_AND_PLACE])
+    for i, name in enumerate(c.cfg.controllers):
+        runs[name].metrics[PICK_AND_PLACE] = per_env[i]
+    carried = payload_schedule(long, long.steps + 1, rated, **c.kw)[:, 0]  # kg, every step and the end
+    if c.real is not None:
+        carried = carried[:: c.real.substeps][: roll_long.t.shape[0]]
+    return PickedAndPlaced(roll_long, q_des_long, carried, long, c.setup.rated_payload, seconds)
 
 
 def _closed_loop_cost(

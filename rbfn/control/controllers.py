@@ -495,7 +495,7 @@ def make_controller(
         if plant is None:
             raise ValueError("controller 'smc_exact' needs the plant (it knows every force exactly)")
         return ExactSliding(gains, dt, plant, joint_scale)
-    if network_method(name) is not None:
+    if name == ADAPTIVE.rstrip("_") or network_method(name) is not None:  # arbfn, arbfn_<method>
         if features is None:
             raise ValueError(f"controller {name!r} needs RBF features (T, M)")
         if law == "two_phase":
