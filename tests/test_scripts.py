@@ -37,8 +37,8 @@ def test_entry_points_resolve():
     [
         ("aco-rbfn-summarize", "SWEEP_DIR"),
         ("aco-rbfn-export", "CHECKPOINT"),
-        ("aco-rbfn-train", "train is powered by Hydra"),
-        ("aco-rbfn-evaluate", "evaluate is powered by Hydra"),
+        ("aco-rbfn-train", "python train.py [group=option ...]"),
+        ("aco-rbfn-evaluate", "python evaluate.py [group=option ...]"),
     ],
 )
 def test_help_runs(name, shows, tmp_path):

@@ -1,4 +1,4 @@
-"""evaluate.py's `control` part: run the comparison, then its table, figures and TensorBoard scalars."""
+"""evaluate.py's `control` part: run the comparison, then its table, figures and TensorBoard summary and curves."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from ..config import ControlConfig, GainsConfig, LoopConfig, NetworkConfig, RobotConfig, network_method, plain
@@ -114,18 +115,22 @@ def evaluate_control(
     return {**out, "undefined": undefined} if undefined else out
 
 
-def tracking_curves(writer, res: ControlComparison, every: float = 0.01) -> None:
+def tracking_curves(writer, res: ControlComparison, every: float = 0.05) -> None:
     """TensorBoard's curves of the closed loop: per controller and payload case the largest
-    tracking error over the joints, max_j |q_d,j - q_j| (rad, or m for a prismatic joint), every
-    `every` s of the run (step: ms), tags control/tracking_error/<controller>/<case>."""
+    tracking error over the joints, max_j |q_d,j - q_j| (rad, or m for a prismatic joint), its
+    maximum over each `every` s of the run (so that no peak is lost between points; step: the
+    window's end, ms), tags control/tracking_error/<controller>/<case>."""
     for name, run in res.runs.items():
         roll = run.rollout
         k = max(1, round(every / float(roll.t[1] - roll.t[0])))
-        err = (res.q_des[::k, None, :] - roll.q[::k]).abs().amax(-1).cpu()  # (T/k, cases)
-        steps = (roll.t[::k] * 1000).round().long().tolist()
+        err = (res.q_des[:, None, :] - roll.q).abs().amax(-1)  # (T, cases), row 0 at t = 0
+        windows = (err.shape[0] - 1) // k  # rows 1..k end at t = every, k+1..2k at 2 every, ...
+        peaks = err[1 : 1 + windows * k].reshape(windows, k, -1).amax(1)  # (windows, cases)
+        peaks[0] = torch.maximum(peaks[0], err[0])  # the start with the first window
+        steps = (roll.t[k : 1 + windows * k : k] * 1000).round().long().tolist()
         for i, payload in enumerate(res.payloads):
             tag = f"control/tracking_error/{name}/{payload:g}kg"
-            for step, v in zip(steps, err[:, i].tolist()):
+            for step, v in zip(steps, peaks[:, i].cpu().tolist()):
                 writer.add_scalar(tag, v, step)
 
 

@@ -5,6 +5,7 @@ from dataclasses import replace
 
 import pytest
 import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from torch.utils.tensorboard import SummaryWriter
 
 from rbfn.config import (
@@ -59,6 +60,17 @@ def test_evaluate_control_writes_the_nested_metrics_and_figures(tmp_path):
     json.dumps(out)
     # The unknown payload hurts the controller without an observer far more than with one.
     assert metrics["smc"]["10kg"]["rms_err"][2] > 10 * metrics["smc_obs"]["10kg"]["rms_err"][2]
+    # TensorBoard: the table as one text entry, the tracking error as curves (a point a 50 ms
+    # window, its peak), the figures under figures/; no final number as a chart of one point.
+    events = EventAccumulator(str(tmp_path), size_guidance={"scalars": 0, "images": 0, "tensors": 0}).Reload()
+    scalars = events.Tags()["scalars"]
+    curves = {f"control/tracking_error/{n}/{c}" for n in cfg.controllers for c in ("0kg", "10kg")}
+    assert set(scalars) == curves | {"control/tuning/arbfn_aco/cost"}  # and the tuning's cost per iteration
+    curve = events.Scalars("control/tracking_error/smc/10kg")
+    assert [p.step for p in curve] == [50 * (i + 1) for i in range(round(cfg.duration / 0.05))]
+    assert max(p.value for p in curve) >= max(metrics["smc"]["10kg"]["max_err"]) * (1 - 1e-6)  # peaks kept (float32)
+    assert "control/summary/text_summary" in events.Tags()["tensors"]
+    assert {f"figures/control_{n}" for n in cfg.controllers} <= set(events.Tags()["images"])
 
 
 def test_adaptive_network_learns_and_beats_smc_at_equal_gains():
