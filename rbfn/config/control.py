@@ -383,6 +383,13 @@ class ControlConfig:
 
     def check(self, key: str = "control", realistic: bool = True) -> None:
         """`realistic`: the loop is the realistic one (what a null control.network.law means)."""
+        self._check_controllers(key)
+        self._check_scenario(key)
+        self.pick_and_place.check(f"{key}.pick_and_place", self.dt)
+        self._check_network(key, realistic)
+
+    def _check_controllers(self, key: str) -> None:
+        """The controllers' names, once each, and how their loop is compiled."""
         arbfn = [ADAPTIVE + m for m in NETWORK_METHODS]
         for name in self.controllers:
             _need(
@@ -404,6 +411,10 @@ class ControlConfig:
             self.aot,
             f"choose one of {key}.compile and {key}.aot",
         )
+
+    def _check_scenario(self, key: str) -> None:
+        """The scenario: its trajectory's amplitude, time step and length, payload window and cases,
+        friction and disturbance, and joint scale."""
         _need(
             finite(self.amplitude) and 0 <= self.amplitude <= 1, f"{key}.amplitude", self.amplitude, "must be in [0, 1]"
         )
@@ -450,7 +461,10 @@ class ControlConfig:
             list(self.joint_scale),
             "positive finite factors, one per joint (empty: derived from the robot)",
         )
-        self.pick_and_place.check(f"{key}.pick_and_place", self.dt)
+
+    def _check_network(self, key: str, realistic: bool) -> None:
+        """The adaptive network's settings, where an adaptive controller runs: its size against the
+        pilot run's samples, then `NetworkConfig.check`."""
         n = self.network
         _need(n.num_centers >= 1, f"{key}.network.num_centers", n.num_centers, "must be >= 1")
         if any(network_method(name) for name in self.controllers):

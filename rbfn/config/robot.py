@@ -118,6 +118,12 @@ class RobotConfig:
             self.rotation_scale,
             "must be > 0 m",
         )
+        self._check_physics(key, derived)
+        self._check_charts(key)
+
+    def _check_physics(self, key: str, derived: str) -> None:
+        """The robot's physical facts: gravity, home, rated payload, controller rate and encoders."""
+        n = len(self.joint_low)
         _need(
             self.gravity is None or (finite(self.gravity) and self.gravity >= 0),
             f"{key}.gravity",
@@ -125,10 +131,10 @@ class RobotConfig:
             "must be >= 0 m/s^2 or null",
         )
         _need(
-            len(self.home) in (0, len(lo)) and all(finite(v) for v in self.home),
+            len(self.home) in (0, n) and all(finite(v) for v in self.home),
             f"{key}.home",
             list(self.home),
-            f"empty (the box centre) or one finite value per joint ({len(lo)})",
+            f"empty (the box centre) or one finite value per joint ({n})",
         )
         _need(
             finite(self.rated_payload) and self.rated_payload >= 0,
@@ -137,6 +143,9 @@ class RobotConfig:
             f"must be >= 0 kg; < 0: derived {derived}",
         )
         _check_sensing(self.control_rate, self.encoder_counts, key)
+
+    def _check_charts(self, key: str) -> None:
+        """The whole-range IK's charts (workspace=full): their count, centres and samples."""
         _need(
             not isinstance(self.charts, bool) and isinstance(self.charts, int) and self.charts >= 1,
             f"{key}.charts",

@@ -209,7 +209,15 @@ def tracking_figure(
                 ax.yaxis.get_offset_text().set_fontsize(8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
-    handles = [axes[0, 0].lines[0], *axes[0, 0].lines[1 : 1 + p]]
+    _tracking_legend(fig, axes, cases, window)
+    fig.suptitle(_title(robot, detail))
+    return fig
+
+
+def _tracking_legend(fig: Figure, axes, cases: list[str], window: tuple[float, float] | None) -> None:
+    """The tracking figure's legend, below its panels: the desired path, each case's line, the
+    joint limits and breaches where drawn, the payload band."""
+    handles = [axes[0, 0].lines[0], *axes[0, 0].lines[1 : 1 + len(cases)]]
     labels = ["desired", *cases]
     for label in (LIMIT_LABEL, BEYOND_LABEL):
         drawn = [ln for ax in axes[:, 0] for ln in ax.lines if ln.get_label() == label]
@@ -220,8 +228,6 @@ def tracking_figure(
         handles.append(Patch(color="0.9", label=PAYLOAD_LABEL))
         labels.append(f"{PAYLOAD_LABEL} ({window[0]:g}-{window[1]:g} s)")
     fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8, frameon=False)
-    fig.suptitle(_title(robot, detail))
-    return fig
 
 
 def pick_and_place_figure(
