@@ -118,18 +118,19 @@ class _Chosen(NamedTuple):
     note: str = ""
 
 
+def _widths(t: _Task, centers: torch.Tensor) -> torch.Tensor:
+    """The width rule's widths (`choose_widths`) for centres chosen without them."""
+    return choose_widths(t.objective, centers, t.cfg.width_rule, t.cfg.width_scale, t.max_width)
+
+
 def _random(t: _Task) -> _Chosen:
     centers = random_centers(t.objective.z_train, t.m, t.g)
-    return _Chosen(
-        centers, choose_widths(t.objective, centers, t.cfg.width_rule, t.cfg.width_scale, t.max_width), [], []
-    )
+    return _Chosen(centers, _widths(t, centers), [], [])
 
 
 def _kmeans(t: _Task) -> _Chosen:
     centers = kmeans_centers(t.objective.z_train, t.m, t.seed, t.cfg.kmeans_restarts)
-    return _Chosen(
-        centers, choose_widths(t.objective, centers, t.cfg.width_rule, t.cfg.width_scale, t.max_width), [], []
-    )
+    return _Chosen(centers, _widths(t, centers), [], [])
 
 
 def _ols(t: _Task) -> _Chosen:

@@ -62,6 +62,11 @@ class NetworkMethod(NamedTuple):
     searches: bool
     what: str
 
+    @property
+    def closed_loop_only(self) -> bool:
+        """It has no fit of its own: it searches the closed loop only (cmaes)."""
+        return self.selector is None and self.searches
+
 
 # The one list of network methods: the config's allowed names, the dispatch (rbfn.control.network,
 # rbfn.control.tuning) and the docs' table come from it.
@@ -304,7 +309,7 @@ class NetworkConfig:
             for name in controllers:
                 method = NETWORK_METHODS.get(network_method(name) or "")
                 _need(
-                    method is None or method.selector is not None or not method.searches,
+                    method is None or not method.closed_loop_only,
                     "control.controllers",
                     name,
                     f"it searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective}; "

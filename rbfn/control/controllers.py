@@ -43,6 +43,7 @@ __all__ = [
     "Reference",
     "Controller",
     "PD",
+    "pd_gains",
     "ComputedTorque",
     "SlidingMode",
     "SlidingState",
@@ -142,12 +143,17 @@ class Controller:
         return self.gains.gamma * self.dt / (1.0 + t / self.gains.gamma_decay)
 
 
+def pd_gains(gains: Gains) -> tuple[float, float]:
+    """(Kp, Kd) of `pd`, per unit of the joint scale: gains.pd_kp and pd_kd, or where 0 the
+    sliding-mode feedback's own, K Lambda and K."""
+    return gains.pd_kp or gains.K * gains.Lambda, gains.pd_kd or gains.K
+
+
 class PD(Controller):
-    """tau = Kp e + Kd de (no model)."""
+    """tau = Kp e + Kd de (no model); the gains `pd_gains`."""
 
     def torque(self, ref, q, qd, state, *, h=None, alpha=None, applied=None, forces=None):
-        g = self.gains
-        kp, kd = self._scaled(g.pd_kp or g.K * g.Lambda), self._scaled(g.pd_kd or g.K)
+        kp, kd = (self._scaled(v) for v in pd_gains(self.gains))
         return kp * (ref.q_d - q) + kd * (ref.qd_d - qd), state
 
 

@@ -12,6 +12,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from ..config import ControlConfig, GainsConfig, LoopConfig, NetworkConfig, RobotConfig, network_method, plain
 from ..control.comparison import PICK_AND_PLACE, ControlComparison, PickedAndPlaced, compare_controllers
+from ..control.controllers import pd_gains
 from ..control.robot_setup import ControlRobot, control_robot
 from ..progress import Progress
 from .beside import Beside, can_fork
@@ -228,7 +229,8 @@ def controller_gains(name: str, gains: GainsConfig, network: NetworkConfig | Non
     the observer's and the network's law where they have them). `network`: control.network as it
     ran (`ControlComparison.network`)."""
     if name == "pd":
-        return f"Kp = {gains.pd_kp or gains.K * gains.Lambda:g}, Kd = {gains.pd_kd or gains.K:g}"
+        kp, kd = pd_gains(gains)
+        return f"Kp = {kp:g}, Kd = {kd:g}"
     if name == "ctc":
         return f"Lambda = {gains.Lambda:g} 1/s (critically damped)"
     text = f"K = {gains.K:g}, Lambda = {gains.Lambda:g} 1/s"
