@@ -44,7 +44,7 @@ from omegaconf import DictConfig
 from rbfn.config import EvalConfig
 from rbfn.studies.cli import check_overrides, one_line_errors, register_configs, run_main, settings
 from rbfn.studies.evaluation import for_checkpoint, run
-from rbfn.studies.rundir import hydra_run_dir, hydra_run_files
+from rbfn.studies.rundir import hydra_run_dir, hydra_run_files, relabel
 from rbfn.studies.stop import job
 
 __all__ = ["main", "run"]
@@ -57,6 +57,7 @@ def main(dcfg: DictConfig) -> None:
     with one_line_errors(HydraConfig.get().mode == RunMode.RUN), job(), hydra_run_dir(own=True) as out_dir:
         check_overrides(EvalConfig, HydraConfig.get().overrides.task)  # as typed: OmegaConf would take ik=2 for true
         dcfg = for_checkpoint(dcfg, HydraConfig.get().overrides.task)  # the checkpoint's robot, before any work
+        out_dir = relabel(out_dir, dcfg.robot.name or "urdf")  # TIME_ROBOT: TensorBoard's run name
         run(cast(EvalConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
 
 

@@ -34,7 +34,7 @@ from omegaconf import DictConfig
 from rbfn.config import TrainConfig
 from rbfn.resume import DifferentRun
 from rbfn.studies.cli import check_overrides, one_line_errors, register_configs, run_main, settings
-from rbfn.studies.rundir import RunDirInUse, hydra_run_dir, hydra_run_files, write_json
+from rbfn.studies.rundir import RunDirInUse, hydra_run_dir, hydra_run_files, relabel, write_json
 from rbfn.studies.stop import job
 from rbfn.studies.training import run
 
@@ -50,6 +50,7 @@ def main(dcfg: DictConfig) -> float:
     with one_line_errors(hc.mode == RunMode.RUN), job(), hydra_run_dir() as out_dir:
         try:
             check_overrides(TrainConfig, hc.overrides.task)  # as typed: OmegaConf would take export=2 for true
+            out_dir = relabel(out_dir, dcfg.robot.name or "urdf")  # TIME_ROBOT: TensorBoard's run name
             metrics = run(cast(TrainConfig, settings(dcfg)), out_dir, hydra_run_files(dcfg, out_dir))
         except Exception as e:
             # A multirun goes on past a failed job; its error and overrides go to RUN_DIR/failed.json

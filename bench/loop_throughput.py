@@ -53,12 +53,12 @@ def measure(batch: int, repeats: int, device: str) -> dict[str, float]:
     for _ in range(repeats):
         for name, (loop, period) in loops.items():  # turn by turn
             ctrl = make_controller(
-                "smc_obs", GAINS, period, SCARA_MODEL, joint_scale=factors.scale, rates=factors.rates
+                "smc_obs", GAINS, period, model=SCARA_MODEL, joint_scale=factors.scale, rates=factors.rates
             )
             if device != "cpu":
                 torch.cuda.synchronize()
             t0 = time.perf_counter()
-            simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, record=False, loop=loop)
+            simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, record=False, loop=loop)
             if device != "cpu":
                 torch.cuda.synchronize()
             times[name].append(time.perf_counter() - t0)

@@ -48,7 +48,7 @@ def setup(robot: str, b: int, duration: float) -> dict:
     assert loop is not None, "evaluate.py's default loop is the realistic one"
     factors = rob.gain_factors(gains, loop, dt=sc.dt, **kw)
     model = rob.nominal_model(gains.nominal_payload, model_scales(gains))
-    ctrl = make_controller("smc_obs", gains, loop.period, model, joint_scale=factors.scale, rates=factors.rates)
+    ctrl = make_controller("smc_obs", gains, loop.period, model=model, joint_scale=factors.scale, rates=factors.rates)
     q0, qd0 = ref.q_d[:1].expand(b, rob.n).clone(), ref.qd_d[:1].expand(b, rob.n).clone()
     payload = torch.full((b,), rob.rated_payload / 2, **kw)
     return {

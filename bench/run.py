@@ -2,7 +2,7 @@
 in one process, with how cost grows.
 
     python -m bench [--quick] [--device cpu|cuda] [--threads 1] [--out bench/results]
-    python bench/run.py --checkpoint outputs/train/DATE/TIME/checkpoint.pt
+    python bench/run.py --checkpoint outputs/train/DATE/TIME_ROBOT/checkpoint.pt
     python -m bench --merge a/benchmarks.json b/benchmarks.json --out DIR   # sections run apart
 
 Writes `benchmarks.md` (tables, the performance targets met or missed, torch.profiler tables of the

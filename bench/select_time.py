@@ -75,7 +75,7 @@ def time_aco(objective: FitObjective, name: str, m: int, iterations: int, device
 
     sync(device)
     t0 = time.perf_counter()
-    select(aco_config(name, iterations), objective, m, 0, 2.0, on_state=on_state)
+    select(aco_config(name, iterations), objective, m, seed=0, max_width=2.0, on_state=on_state)
     sync(device)
     total = time.perf_counter() - t0
     iters = [b - a for a, b in itertools.pairwise(stamps)]

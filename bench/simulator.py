@@ -79,11 +79,13 @@ def closed_loop(
     on, off = payload_window or (0.0, duration)
     sc = Scenario(duration=duration, dt=DT, payload_on=on, payload_off=off, metrics_after=0.0)
     ref = tuple(r.to(device) for r in paper_trajectory(sc.times(torch.float32, device)))
-    ctrl = make_controller("smc_obs", Gains(), DT, SCARA_MODEL)
+    ctrl = make_controller("smc_obs", Gains(), DT, model=SCARA_MODEL)
     q0, qd0 = ref[0][0].expand(b, 3).clone(), ref[1][0].expand(b, 3).clone()
     payload = torch.full((b,), PAYLOAD, device=device)
     plant = Plant(scara.ScaraTerms())
-    return lambda: simulate(plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile, aot=aot)
+    return lambda: simulate(
+        plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, record=False, compile=compile, aot=aot
+    )
 
 
 def env_steps_rows(steps_for: dict[int, int], device: str = "cpu", repeats: int = 3) -> list[dict]:
@@ -362,10 +364,10 @@ def arm_closed_loop(
         duration=steps * DT, dt=DT, integrator=integrator, payload_on=0.0, payload_off=steps * DT, metrics_after=0.0
     )
     ref = tuple(r.to(**kw) for r in setup.trajectory(sc.times()))
-    ctrl = make_controller("smc_obs", Gains(), DT, setup.model, joint_scale=setup.joint_scale(**kw))
+    ctrl = make_controller("smc_obs", Gains(), DT, model=setup.model, joint_scale=setup.joint_scale(**kw))
     q0, qd0 = ref[0][:1].expand(b, setup.n).clone(), ref[1][:1].expand(b, setup.n).clone()
     payload = torch.full((b,), ARM_PAYLOAD, **kw)
-    return lambda: simulate(setup.plant, ctrl, sc, ref, q0, qd0, payload, record=False, compile=compile)
+    return lambda: simulate(setup.plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, record=False, compile=compile)
 
 
 def arm_rows(

@@ -1,7 +1,7 @@
 """Deploy the IK network with onnxruntime and numpy only (no torch, no aco-rbfn).
 
     pip install onnxruntime numpy
-    python examples/deploy_onnx.py outputs/train/DATE/TIME/ik.onnx
+    python examples/deploy_onnx.py outputs/train/DATE/TIME_ROBOT/ik.onnx
 
 Works on any exported network, for any robot: the file says what it takes. Its input is
 "positions" (B, 3) float32 in m for a position network, "poses" (B, 7) float32 for a pose network

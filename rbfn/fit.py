@@ -105,6 +105,7 @@ def ridge_fit(
     a_val: torch.Tensor,
     y_val: torch.Tensor,
     ridges: tuple[float, ...] = DEFAULT_RIDGES,
+    *,
     eval_dtype: torch.dtype | None = None,
     a_val_eval: torch.Tensor | None = None,
     round_tol: float = ROUND_TOL,

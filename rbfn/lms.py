@@ -114,6 +114,7 @@ def lms_fit(
     a: torch.Tensor,
     y: torch.Tensor,
     weights: torch.Tensor | None = None,
+    *,
     alpha0: float = 0.5,
     decay: float = 1000.0,
     epochs: int = 50,

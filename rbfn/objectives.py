@@ -45,6 +45,7 @@ class FitObjective:
         y_train: torch.Tensor,
         z_val: torch.Tensor,
         y_val: torch.Tensor,
+        *,
         tail: bool = True,
         ridges: tuple[float, ...] = DEFAULT_RIDGES,
         eval_dtype: torch.dtype | None = None,
@@ -81,13 +82,13 @@ class FitObjective:
             self.y_train[tr],
             self.z_val[va],
             self.y_val[va],
-            self.tail,
-            self.ridges,
-            self.eval_dtype,
-            self.memory,
-            self.block,
-            self.round_tol,
-            self.round_rel,
+            tail=self.tail,
+            ridges=self.ridges,
+            eval_dtype=self.eval_dtype,
+            memory=self.memory,
+            block=self.block,
+            round_tol=self.round_tol,
+            round_rel=self.round_rel,
         )
 
     def width(self, m: int) -> int:

@@ -9,9 +9,8 @@ run records its progress there and continues from it.
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, NamedTuple, cast
 
 import torch
 
@@ -33,9 +32,9 @@ from .lms import lms_fit
 from .objectives import FitObjective
 from .progress import Progress
 from .refine import Refined, refine, refine_mode
-from .resume import StateFile, TrainState
+from .resume import Resumable, StateFile, TrainState
 from .robots.robot import check_ik_is_function
-from .select import select
+from .select import Selection, select
 from .targets import TargetFeatures
 from .widths import check_max_width
 
@@ -73,6 +72,7 @@ def fit_weights(
     scale: torch.Tensor,
     centers: torch.Tensor,
     widths: torch.Tensor,
+    *,
     gen: torch.Generator,
     refined: Refined | None = None,
 ) -> RidgeFit:
@@ -155,144 +155,177 @@ def train_ik(
     """Train the IK network of `cfg` on `data` (targets (N, 3 or 7) -> joints (N, n)).
 
     With `states` and the `state` it loaded, progress is saved as it goes (every growth step, and
-    the running colony's snapshots) and an interrupted run continues where it stopped, ending with
-    exactly the result of an uninterrupted one. `robot` (the data's) gives the task Jacobians that
-    mini-batch refinement's task loss needs (`centers.refine.minibatch.loss=task`). `progress`, where
-    given, follows the colonies' iterations and the refinement's steps. An arm with more free
-    joints than its targets' degrees of freedom is refused first (check_ik_is_function).
+    the running colony's snapshots; `rbfn.resume.Resumable`) and an interrupted run continues where
+    it stopped, ending with exactly the result of an uninterrupted one. `robot` (the data's) gives
+    the task Jacobians that mini-batch refinement's task loss needs
+    (`centers.refine.minibatch.loss=task`). `progress`, where given, follows the colonies'
+    iterations and the refinement's steps. An arm with more free joints than its targets' degrees
+    of freedom is refused first (check_ik_is_function).
     """
     n_q = data.train.q.shape[1]
     joints = robot.joint_names if robot is not None else [f"joint {i + 1}" for i in range(n_q)]
     check_ik_is_function(str(cfg.robot.target), joints, cfg.robot.locked, cfg.robot.redundancy)
-    t_start = time.perf_counter()
-    state = state or TrainState(config={})
-    elapsed_before = state.elapsed
-    dev = cfg.device
-
-    def save(force: bool = True) -> None:
-        if states is not None:
-            state.elapsed = elapsed_before + time.perf_counter() - t_start
-            states.save(state, force=force)
-
-    features = TargetFeatures(
-        cfg.robot.target == Target.pose,
-        cfg.robot.rotation_scale,
-        device=data.train.x.device,
-        redundancy=bool(cfg.robot.redundancy),
-    )
-    feats = (features(data.train.x), features(data.val.x))
-    offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
-    z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
-    check_max_width(z_tr, cfg.rbfn.max_width, cfg.rbfn.num_centers)
-    # _uses_task_loss refuses robot=None where the task loss is asked for
-    uses_task = _uses_task_loss(cfg, data, z_tr.shape[1], robot)
-    jacobians = task_jacobians(cfg, cast("Robot", robot), data) if uses_task else None
+    run = Resumable(states, state, torch.Generator().manual_seed(cfg.seed))
+    x = _Inputs.of(cfg, data, robot)
+    feats, offset, scale = x.feats, x.offset, x.scale
     objective = FitObjective(
-        z_tr,
+        x.z_train,
         data.train.q,
-        z_val,
+        x.z_val,
         data.val.q,
         tail=cfg.rbfn.tail,
         eval_dtype=torch.float32,
         round_rel=cfg.rbfn.round_rel,
     )
-    gen = torch.Generator().manual_seed(cfg.seed)
-    if state.gen_after is not None:
-        gen.set_state(state.gen_after)
 
-    def fit_at(m: int):
-        resume = None
-        if state.current is not None and state.current["num_centers"] == m:
-            gen.set_state(state.current["gen_start"])
-            resume = state.current["colony"]
-        else:
-            state.current = {"num_centers": m, "gen_start": gen.get_state(), "colony": None}
-
-        def on_state(colony_state: dict) -> None:
-            assert state.current is not None  # the growth step's state, set above
-            state.current["colony"] = colony_state
-            save(force=False)
+    def fit_at(m: int) -> tuple[tuple[torch.Tensor, torch.Tensor, RidgeFit], float]:
+        def on_state(snapshot: dict) -> None:
+            run.colony(snapshot)
             if progress is not None:
-                progress.at(f"M = {m}: colony", colony_state["iteration"], colony_state["iterations"], "iterations")
+                progress.at(f"M = {m}: colony", snapshot["iteration"], snapshot["iterations"], "iterations")
 
-        sel = select(cfg.centers, objective, m, cfg.seed, cfg.rbfn.max_width, cfg.progress, gen, resume, on_state)
-        fit = fit_weights(cfg, data, feats, offset, scale, sel.centers, sel.widths, gen)
-        err = 0.5 * float(fit.val_mse)
-        state.done.append(
-            {
-                "num_centers": m,
-                "val_E": err,
-                "select_seconds": sel.seconds,
-                "aco_best": list(sel.aco_best),
-                "aco_mean": list(sel.aco_mean),
-                "chosen_by": sel.chosen_by,
-                "selection_note": sel.note,
-            }
+        sel = select(
+            cfg.centers,
+            objective,
+            m,
+            seed=cfg.seed,
+            max_width=cfg.rbfn.max_width,
+            progress=cfg.progress,
+            generator=run.gen,
+            resume=run.begin(m),
+            on_state=on_state,
         )
-        state.last_fit = {
-            "centers": sel.centers.cpu(),
-            "widths": sel.widths.cpu(),
-            "weights": fit.weights.cpu(),
-            "ridge": float(fit.ridge),
-            "val_mse": float(fit.val_mse),
-        }
-        state.gen_after, state.current = gen.get_state(), None
-        save()
+        fit = fit_weights(cfg, data, feats, offset, scale, sel.centers, sel.widths, gen=run.gen)
+        err = 0.5 * float(fit.val_mse)
+        run.finish(_step_record(m, err, sel), _fit_record(sel.centers, sel.widths, fit))
         log.info("M = %4d: validation E = %.3e (selection %.1f s)", m, err, sel.seconds)
         return (sel.centers, sel.widths, fit), err
 
-    schedule = growth_schedule(cfg.rbfn.growth.start, cfg.rbfn.growth.factor, cfg.rbfn.num_centers)
-    curve = [(d["num_centers"], d["val_E"]) for d in state.done]
-    if curve and (curve[-1][1] <= cfg.rbfn.growth.goal or curve[-1][0] == schedule[-1]):
-        schedule = []  # growth had finished before the interruption
-    else:
-        schedule = [m for m in schedule if m not in {c[0] for c in curve}]
+    schedule = run.remaining(
+        growth_schedule(cfg.rbfn.growth.start, cfg.rbfn.growth.factor, cfg.rbfn.num_centers), cfg.rbfn.growth.goal
+    )
+    curve = run.curve()
     if schedule:
         (centers, widths, fit), more = grow(fit_at, schedule, cfg.rbfn.growth.goal)
         curve += more
-    else:
-        lf = state.last_fit
-        assert lf is not None  # saved with the finished growth
-        centers, widths = lf["centers"].to(dev), lf["widths"].to(dev)
-        fit = RidgeFit(
-            lf["weights"].to(dev),
-            torch.tensor(lf["ridge"], dtype=torch.float64),
-            torch.tensor(lf["val_mse"], dtype=torch.float64),
-        )  # the floats saved, exactly
-
+    else:  # growth had finished before the interruption
+        centers, widths, fit = _restored_fit(run.state.last_fit, cfg.device)
     history: list[float] = []
     if cfg.centers.refine.enabled:  # centres, widths and input scales (rbfn.refine)
-        r = cfg.centers.refine
-        ref = refine(
-            z_tr,
-            data.train.q,
-            z_val,
-            data.val.q,
-            centers,
-            widths,
-            fit.weights,
-            max(float(fit.ridge), r.min_ridge),
-            r,
-            cfg.rbfn.tail,
-            cfg.rbfn.max_width,
-            cfg.seed,
-            jacobians,
-            rule=float32_rule(cfg),
-            progress=progress,
-        )
+        ref = _refine(cfg, data, x, centers, widths, fit, progress)
         scale = scale * ref.input_scale
         centers, widths, history = ref.centers, ref.widths, ref.history
-        fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen, ref)
-    model = assemble(centers, widths, fit.weights, offset, scale, cfg.rbfn.tail, inputs=features)
+        fit = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen=run.gen, refined=ref)
+    model = assemble(centers, widths, fit.weights, offset, scale, cfg.rbfn.tail, inputs=x.features)
     model.set_domain(data.train.x, data.train.q)
+    done = run.state.done
     return TrainResult(
         model,
         fit,
         curve,
-        colonies={d["num_centers"]: (d.get("aco_best", []), d.get("aco_mean", [])) for d in state.done},
+        colonies={d["num_centers"]: (d.get("aco_best", []), d.get("aco_mean", [])) for d in done},
         refine_history=history,
-        select_seconds=sum(d["select_seconds"] for d in state.done),
-        train_seconds=elapsed_before + time.perf_counter() - t_start,
-        chosen_by=state.done[-1].get("chosen_by", str(cfg.centers.method)),  # (a last.pt from before it was kept)
-        selection_note=state.done[-1].get("selection_note", ""),
+        select_seconds=sum(d["select_seconds"] for d in done),
+        train_seconds=run.elapsed(),
+        chosen_by=done[-1].get("chosen_by", str(cfg.centers.method)),  # (a last.pt from before it was kept)
+        selection_note=done[-1].get("selection_note", ""),
+    )
+
+
+def _step_record(m: int, err: float, sel: Selection) -> dict:
+    """A finished growth step as `rbfn.resume.TrainState.done` keeps it."""
+    return {
+        "num_centers": m,
+        "val_E": err,
+        "select_seconds": sel.seconds,
+        "aco_best": list(sel.aco_best),
+        "aco_mean": list(sel.aco_mean),
+        "chosen_by": sel.chosen_by,
+        "selection_note": sel.note,
+    }
+
+
+def _fit_record(centers: torch.Tensor, widths: torch.Tensor, fit: RidgeFit) -> dict:
+    """The last growth step's network as `rbfn.resume.TrainState.last_fit` keeps it (on the CPU)."""
+    return {
+        "centers": centers.cpu(),
+        "widths": widths.cpu(),
+        "weights": fit.weights.cpu(),
+        "ridge": float(fit.ridge),
+        "val_mse": float(fit.val_mse),
+    }
+
+
+def _restored_fit(last_fit: dict | None, device: str) -> tuple[torch.Tensor, torch.Tensor, RidgeFit]:
+    """`_fit_record`'s centres, widths and fit back on `device` (the floats saved, exactly)."""
+    assert last_fit is not None  # saved with the finished growth
+    return (
+        last_fit["centers"].to(device),
+        last_fit["widths"].to(device),
+        RidgeFit(
+            last_fit["weights"].to(device),
+            torch.tensor(last_fit["ridge"], dtype=torch.float64),
+            torch.tensor(last_fit["val_mse"], dtype=torch.float64),
+        ),
+    )
+
+
+class _Inputs(NamedTuple):
+    """The network's inputs: the target features, the training and validation features (N, d),
+    their offset and scale (d,), the scaled features z (N, d), and the task Jacobians where the
+    mini-batch refinement's task loss needs them (else None)."""
+
+    features: TargetFeatures
+    feats: tuple[torch.Tensor, torch.Tensor]
+    offset: torch.Tensor
+    scale: torch.Tensor
+    z_train: torch.Tensor
+    z_val: torch.Tensor
+    jacobians: tuple[torch.Tensor, torch.Tensor] | None
+
+    @classmethod
+    def of(cls, cfg: TrainConfig, data: Dataset, robot: Robot | None) -> _Inputs:
+        features = TargetFeatures(
+            cfg.robot.target == Target.pose,
+            cfg.robot.rotation_scale,
+            device=data.train.x.device,
+            redundancy=bool(cfg.robot.redundancy),
+        )
+        feats = (features(data.train.x), features(data.val.x))
+        offset, scale = input_scaling(feats[0], cfg.rbfn.input_scaling)
+        z_tr, z_val = (feats[0] - offset) / scale, (feats[1] - offset) / scale
+        check_max_width(z_tr, cfg.rbfn.max_width, cfg.rbfn.num_centers)
+        # _uses_task_loss refuses robot=None where the task loss is asked for
+        task = _uses_task_loss(cfg, data, z_tr.shape[1], robot)
+        jacobians = task_jacobians(cfg, cast("Robot", robot), data) if task else None
+        return cls(features, feats, offset, scale, z_tr, z_val, jacobians)
+
+
+def _refine(
+    cfg: TrainConfig,
+    data: Dataset,
+    x: _Inputs,
+    centers: torch.Tensor,
+    widths: torch.Tensor,
+    fit: RidgeFit,
+    progress: Progress | None,
+) -> Refined:
+    """The grown network's centres, widths and input scales refined by gradient (`rbfn.refine`)."""
+    r = cfg.centers.refine
+    return refine(
+        x.z_train,
+        data.train.q,
+        x.z_val,
+        data.val.q,
+        centers,
+        widths,
+        fit.weights,
+        ridge=max(float(fit.ridge), r.min_ridge),
+        cfg=r,
+        tail=cfg.rbfn.tail,
+        max_width=cfg.rbfn.max_width,
+        seed=cfg.seed,
+        jacobians=x.jacobians,
+        rule=float32_rule(cfg),
+        progress=progress,
     )

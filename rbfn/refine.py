@@ -28,6 +28,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 
@@ -85,6 +86,7 @@ def refine(
     centers: torch.Tensor,
     widths: torch.Tensor,
     weights: torch.Tensor,
+    *,
     ridge: float,
     cfg,
     tail: bool = True,
@@ -108,12 +110,12 @@ def refine(
             y_val,
             centers,
             widths,
-            ridge,
-            cfg.full.steps,
-            cfg.full.lr,
-            tail,
-            cfg.learn_input_scale,
-            max_width,
+            ridge=ridge,
+            steps=cfg.full.steps,
+            lr=cfg.full.lr,
+            tail=tail,
+            learn_input_scale=cfg.learn_input_scale,
+            max_width=max_width,
             rule=rule,
             min_ridge=cfg.min_ridge,
             progress=progress,
@@ -127,13 +129,13 @@ def refine(
         centers,
         widths,
         weights,
-        mb.epochs,
-        mb.batch,
-        mb.lr,
-        tail,
-        cfg.learn_input_scale,
-        max_width,
-        seed,
+        epochs=mb.epochs,
+        batch=mb.batch,
+        lr=mb.lr,
+        tail=tail,
+        learn_input_scale=cfg.learn_input_scale,
+        max_width=max_width,
+        seed=seed,
         huber=mb.huber,
         jacobians=jacobians,
         progress=progress,
@@ -147,6 +149,7 @@ def refine_full(
     y_val: torch.Tensor,
     centers: torch.Tensor,
     widths: torch.Tensor,
+    *,
     ridge: float,
     steps: int = 300,
     lr: float = 0.01,
@@ -240,6 +243,7 @@ def refine_minibatch(
     centers: torch.Tensor,
     widths: torch.Tensor,
     weights: torch.Tensor,
+    *,
     epochs: int = 300,
     batch: int = 256,
     lr: float = 3e-3,
@@ -261,25 +265,13 @@ def refine_minibatch(
     trained weights every `eval_every` epochs and at the end, the best iterate kept. Returned
     tensors have the inputs' dtype."""
     out_dtype = z_train.dtype
-    z_tr, y_tr, z_v, _y_v = (t.to(dtype) for t in (z_train, y_train, z_val, y_val))
+    z_tr, y_tr, z_v = (t.to(dtype) for t in (z_train, y_train, z_val))
     j_tr = None if jacobians is None else jacobians[0].to(dtype)
-    m = centers.shape[0]
-    c = centers.detach().to(dtype).clone().requires_grad_(True)
-    log_w = widths.detach().to(dtype).log().clone().requires_grad_(True)
-    w_out = weights.detach().to(dtype).clone().requires_grad_(True)
-    log_s = torch.zeros(z_tr.shape[-1], dtype=dtype, device=z_tr.device, requires_grad=learn_input_scale)
-    params = [c, log_w, w_out] + ([log_s] if learn_input_scale else [])
-    opt = torch.optim.Adam(params, lr=lr)
+    net = _Trained(centers, widths, weights, dtype, learn_input_scale, max_width, tail)
+    opt = torch.optim.Adam(net.params, lr=lr)
     n = z_tr.shape[0]
-    per_epoch = -(-n // batch)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs * per_epoch))
-    log_max = math.log(max_width)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs * -(-n // batch)))
     g = torch.Generator().manual_seed(seed)
-
-    def predict(z: torch.Tensor) -> torch.Tensor:
-        z = z / log_s.exp()
-        out = gaussian_product(z, c, log_w.clamp(max=log_max).exp(), w_out[:m])
-        return out + z @ w_out[m:-1] + w_out[-1] if tail else out
 
     def val_loss(pred: torch.Tensor) -> float:
         """Mean loss of validation predictions (Nv, out), in their dtype."""
@@ -288,20 +280,15 @@ def refine_minibatch(
 
     def val_error() -> float:
         with torch.no_grad():
-            return val_loss(torch.cat([predict(zb) for zb in z_v.split(4096)]))
+            return val_loss(torch.cat([net(zb) for zb in z_v.split(4096)]))
 
-    def snapshot() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        return c.detach().clone(), log_w.detach().clone(), log_s.detach().clone(), w_out.detach().clone()
-
-    best = (val_error(), *snapshot())
-    history = [best[0]]
-    diverged = False
+    best_e, best = val_error(), net.snapshot()
+    history = [best_e]
     for epoch in range(1, epochs + 1):
         if progress is not None:
             progress.at("refinement", epoch - 1, epochs, "epochs")
         for rows in torch.randperm(n, generator=g).to(z_tr.device).split(batch):
-            jac = None if j_tr is None else j_tr[rows]
-            loss = row_loss(predict(z_tr[rows]) - y_tr[rows], jac, huber).mean()
+            loss = row_loss(net(z_tr[rows]) - y_tr[rows], None if j_tr is None else j_tr[rows], huber).mean()
             if not torch.isfinite(loss):
                 log.warning(
                     "mini-batch refinement diverged in epoch %d (loss %s); keeping the best iterate before "
@@ -310,26 +297,69 @@ def refine_minibatch(
                     loss.item(),
                     lr,
                 )
-                diverged = True
-                break
+                return net.refined(best_e, best, history, val_loss, out_dtype)
             opt.zero_grad()
             loss.backward()
             opt.step()
             sched.step()
-        if diverged:
-            break
         if epoch % eval_every == 0 or epoch == epochs:
             e = val_error()
             history.append(e)
-            if e < best[0]:
-                best = (e, *snapshot())
-    e, cb, lwb, lsb, wb = best
-    return Refined(
-        centers=cb.to(out_dtype),
-        widths=lwb.clamp(max=log_max).exp().to(out_dtype),
-        input_scale=lsb.exp().to(out_dtype),
-        val_mse=e,
-        history=history,
-        weights=wb.to(out_dtype),
-        val_loss=val_loss,
-    )
+            if e < best_e:
+                best_e, best = e, net.snapshot()
+    return net.refined(best_e, best, history, val_loss, out_dtype)
+
+
+class _Iterate(NamedTuple):
+    """A snapshot of `_Trained`'s parameters (detached copies)."""
+
+    centers: torch.Tensor
+    log_widths: torch.Tensor
+    log_scales: torch.Tensor
+    weights: torch.Tensor
+
+
+class _Trained:
+    """What the mini-batch refinement trains, in `dtype`: centres (M, d), log widths (M,) (clamped
+    to log `max_width` where used), output weights (P, out) and, with `learn_input_scale`, log
+    input scales (d,); called on scaled inputs (B, d), the network's outputs (B, out)."""
+
+    def __init__(
+        self,
+        centers: torch.Tensor,
+        widths: torch.Tensor,
+        weights: torch.Tensor,
+        dtype: torch.dtype,
+        learn_input_scale: bool,
+        max_width: float,
+        tail: bool,
+    ) -> None:
+        self.m, self.tail, self.log_max = centers.shape[0], tail, math.log(max_width)
+        self.c = centers.detach().to(dtype).clone().requires_grad_(True)
+        self.log_w = widths.detach().to(dtype).log().clone().requires_grad_(True)
+        self.w_out = weights.detach().to(dtype).clone().requires_grad_(True)
+        self.log_s = torch.zeros(centers.shape[-1], dtype=dtype, device=centers.device, requires_grad=learn_input_scale)
+        self.params = [self.c, self.log_w, self.w_out] + ([self.log_s] if learn_input_scale else [])
+
+    def __call__(self, z: torch.Tensor) -> torch.Tensor:
+        z = z / self.log_s.exp()
+        m, w_out = self.m, self.w_out
+        out = gaussian_product(z, self.c, self.log_w.clamp(max=self.log_max).exp(), w_out[:m])
+        return out + z @ w_out[m:-1] + w_out[-1] if self.tail else out
+
+    def snapshot(self) -> _Iterate:
+        return _Iterate(*(t.detach().clone() for t in (self.c, self.log_w, self.log_s, self.w_out)))
+
+    def refined(
+        self, e: float, best: _Iterate, history: list[float], val_loss: Callable, dtype: torch.dtype
+    ) -> Refined:
+        """The best iterate (validation loss `e`) as the refinement's result, in `dtype`."""
+        return Refined(
+            centers=best.centers.to(dtype),
+            widths=best.log_widths.clamp(max=self.log_max).exp().to(dtype),
+            input_scale=best.log_scales.exp().to(dtype),
+            val_mse=e,
+            history=history,
+            weights=best.weights.to(dtype),
+            val_loss=val_loss,
+        )

@@ -16,9 +16,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from .checkpoint import TRAIN_STATE_KIND, load_sealed, save_sealed
 
-__all__ = ["TrainState", "StateFile", "DifferentRun", "comparable"]
+__all__ = ["TrainState", "StateFile", "Resumable", "DifferentRun", "comparable"]
 
 
 class DifferentRun(ValueError):
@@ -102,3 +104,60 @@ class StateFile:
         if force or now - self._last_write >= self.every:
             save_sealed(self.path, {"kind": KIND, "format_version": FORMAT_VERSION, "state": asdict(state)})
             self._last_write = now
+
+
+class Resumable:
+    """One training run's bookkeeping, as `rbfn.pipeline.train_ik` uses it: the growth steps done,
+    the step in progress and the generator's state between steps, recorded in `state` and saved
+    to `states` as they change (None: kept in memory only). The run's generator `gen` is put back
+    where the interrupted run left it."""
+
+    def __init__(self, states: StateFile | None, state: TrainState | None, gen: torch.Generator) -> None:
+        self.states, self.state, self.gen = states, state or TrainState(config={}), gen
+        self._start, self._before = time.perf_counter(), self.state.elapsed
+        if self.state.gen_after is not None:
+            gen.set_state(self.state.gen_after)
+
+    def elapsed(self) -> float:
+        """Seconds spent training, over every process so far."""
+        return self._before + time.perf_counter() - self._start
+
+    def save(self, force: bool = True) -> None:
+        if self.states is not None:
+            self.state.elapsed = self.elapsed()
+            self.states.save(self.state, force=force)
+
+    def begin(self, m: int) -> dict | None:
+        """Start (or continue) the growth step at M = m: the colony's snapshot to resume from (None:
+        from the start), the generator set to where the step started."""
+        current = self.state.current
+        if current is not None and current["num_centers"] == m:
+            self.gen.set_state(current["gen_start"])
+            return current["colony"]
+        self.state.current = {"num_centers": m, "gen_start": self.gen.get_state(), "colony": None}
+        return None
+
+    def colony(self, snapshot: dict) -> None:
+        """The running colony's latest snapshot (saved at most every `StateFile.every` seconds)."""
+        assert self.state.current is not None  # set by `begin`
+        self.state.current["colony"] = snapshot
+        self.save(force=False)
+
+    def finish(self, step: dict, last_fit: dict) -> None:
+        """The step at hand is done: its record (`TrainState.done`) and its fit (`last_fit`)."""
+        self.state.done.append(step)
+        self.state.last_fit = last_fit
+        self.state.gen_after, self.state.current = self.gen.get_state(), None
+        self.save()
+
+    def curve(self) -> list[tuple[int, float]]:
+        """The growth curve (M, E) of the steps done."""
+        return [(d["num_centers"], d["val_E"]) for d in self.state.done]
+
+    def remaining(self, schedule: list[int], goal: float) -> list[int]:
+        """The steps of `schedule` still to run: none where growth had finished (the goal met or the
+        last M reached) before the interruption."""
+        curve = self.curve()
+        if curve and (curve[-1][1] <= goal or curve[-1][0] == schedule[-1]):
+            return []
+        return [m for m in schedule if m not in {c[0] for c in curve}]

@@ -65,6 +65,7 @@ def select(
     cfg: CentersConfig,
     objective: FitObjective,
     m: int,
+    *,
     seed: int,
     max_width: float,
     progress: bool = False,
@@ -146,12 +147,7 @@ def _ols(t: _Task) -> _Chosen:
 
 
 def _aco(t: _Task) -> _Chosen:
-    args = (t.cfg, t.objective, t.m, t.seed, t.max_width, t.progress, t.g, t.resume, t.on_state)
-    if t.cfg.aco.colony == "ant_system":
-        centers, widths, res = _ant_system(*args)
-        return _Chosen(centers, widths, res.best_history, res.mean_history)
-    centers, widths, res, note = _acor(*args)
-    return _Chosen(centers, widths, res.best_history, res.mean_history, "kmeans" if note else "", note)
+    return _ant_system(t) if t.cfg.aco.colony == "ant_system" else _acor(t)
 
 
 # The centre selectors by `rbfn.config.Method`, the one list of their names.
@@ -193,8 +189,9 @@ def visibility(z: torch.Tensor, pool: torch.Tensor, k: int = 10) -> torch.Tensor
     return 1.0 / d.clamp_min(1e-12)
 
 
-def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
+def _ant_system(t: _Task) -> _Chosen:
     """The paper's colony: ants choose M of the candidate points; widths by the rule."""
+    cfg, objective, m, seed, max_width, g = t.cfg, t.objective, t.m, t.seed, t.max_width, t.g
     pool = _candidate_pool(objective.z_train, cfg.aco.ant_system.candidates, g)
     scale = cfg.width_scale
     if cfg.width_rule != "paper" and scale is None:
@@ -219,12 +216,12 @@ def _ant_system(cfg, objective, m, seed, max_width, progress, g, resume=None, on
 
     a, s = cfg.aco, cfg.aco.ant_system
     colony = AntSystem(
-        ants=a.ants, iterations=a.iterations, rho=s.rho, Q=s.Q, alpha=s.alpha, beta=s.beta, progress=progress
+        ants=a.ants, iterations=a.iterations, rho=s.rho, Q=s.Q, alpha=s.alpha, beta=s.beta, progress=t.progress
     )
     eta = visibility(objective.z_train, pool) if s.beta else None
-    res = colony.minimize(obj, pool.shape[0], m, eta=eta, generator=g, state=resume, on_state=on_state)
+    res = colony.minimize(obj, pool.shape[0], m, eta=eta, generator=g, state=t.resume, on_state=t.on_state)
     centers = pool[res.best.to(pool.device)]
-    return centers, widths_of(centers[None])[0], res
+    return _Chosen(centers, widths_of(centers[None])[0], res.best_history, res.mean_history)
 
 
 # Above this many centre coordinates M * d, or where the full colony's fits would cost more than
@@ -239,21 +236,22 @@ FULL_FLOPS = 2e11
 REDUCED_FLOPS = 1e12
 
 
-def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state=None):
+def _acor(t: _Task) -> _Chosen:
     """ACO_R over centre coordinates (bounded to the data's box) and widths (per-centre log
     widths, one log scale of the seed widths, or none: `cfg.aco.acor.search_widths`).
 
     The archive is seeded with k-means centres and their validation-tuned widths, plus
     perturbations of them (so archive members share one centre ordering and the Gaussian
-    sampling compares like with like). Returns (centres, widths, the colony's result, note): the
-    note says why k-means chose the centres ("" where the colony searched them).
+    sampling compares like with like). Where the full search costs too much (`_too_large`),
+    k-means chooses the centres and the answer's note says why.
     """
+    cfg, objective, m, max_width, g = t.cfg, t.objective, t.m, t.max_width, t.g
     a, r = cfg.aco, cfg.aco.acor
     z = objective.z_train
     d = z.shape[1]
-    c0 = kmeans_centers(z, m, seed, cfg.kmeans_restarts)
+    c0 = kmeans_centers(z, m, t.seed, cfg.kmeans_restarts)
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
-    ranked = colony_objective(objective, m, a.fit_rows, seed) if a.objective == "fit" else objective
+    ranked = colony_objective(objective, m, a.fit_rows, t.seed) if a.objective == "fit" else objective
     full_cost = (r.archive_size + a.ants * a.iterations) * ranked.cost(m)
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
         why = (
@@ -261,24 +259,7 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
             if m * d > FULL_SEARCH_MAX
             else f"its fits would cost {full_cost:.2g} flops > {FULL_FLOPS:.2g}"
         )
-        if cfg.refine.enabled and refine_mode(cfg.refine, z.shape[0], objective.width(m)) == "minibatch":
-            # The reduced colony's two global width quantities are a subset of what the mini-batch
-            # refinement then trains per centre from the same k-means start, over many epochs, and
-            # it erased their gain (UR5, M = 2000: 2-4 % worse than without them, docs/results.md):
-            # the colony skips itself. Before the `full` refinement (the SCARA at M = 160) it still
-            # helps (0.125 against 0.142 mm over five seeds), so it runs there.
-            what = (
-                "it could search two global width quantities only, which the mini-batch refinement trains "
-                "per centre; the k-means centres and their validation-tuned widths go to the refinement as they are"
-            )
-            log.info("colony: skipped at M = %d (%s): %s", m, why, what)
-            note = f"the colony skipped itself at M = {m} ({why}): {what}"
-            return c0, w0, ACOResult(best=torch.empty(0), best_value=math.nan, iterations=0), note
-        note = (
-            f"the colony searched two global width quantities only at M = {m} ({why}); the centres are "
-            "k-means' (rbfn.select._acor_reduced)"
-        )
-        return (*_acor_reduced(cfg, ranked, c0, w0, max_width, progress, g, resume, on_state), note)
+        return _too_large(t, ranked, c0, w0, why)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
     # Width coordinates: M log widths, one log scale of the seed widths, or none.
@@ -326,15 +307,43 @@ def _acor(cfg, objective, m, seed, max_width, progress, g, resume=None, on_state
         iterations=a.iterations,
         lower=lower,
         upper=upper,
-        progress=progress,
+        progress=t.progress,
     )
-    res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
+    res = colony.minimize(obj, init, generator=g, state=t.resume, on_state=t.on_state)
     c, w = unpack(res.best[None])
-    return c[0], w[0].clamp(max=max_width), res, ""
+    return _Chosen(c[0], w[0].clamp(max=max_width), res.best_history, res.mean_history)
 
 
-def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, on_state=None):
-    """ACO_R over two global width quantities, the k-means centres c0 (M, d) held fixed.
+def _too_large(t: _Task, ranked: FitObjective, c0: torch.Tensor, w0: torch.Tensor, why: str) -> _Chosen:
+    """`_acor` where the full search costs too much (`why`): the k-means centres c0 (M, d) with
+    widths w0 (M,), searched over two global width quantities (`_acor_reduced`) or, before the
+    mini-batch refinement, as they are."""
+    m, z = t.m, t.objective.z_train
+    if t.cfg.refine.enabled and refine_mode(t.cfg.refine, z.shape[0], t.objective.width(m)) == "minibatch":
+        # The reduced colony's two global width quantities are a subset of what the mini-batch
+        # refinement then trains per centre from the same k-means start, over many epochs, and
+        # it erased their gain (UR5, M = 2000: 2-4 % worse than without them, docs/results.md):
+        # the colony skips itself. Before the `full` refinement (the SCARA at M = 160) it still
+        # helps (0.125 against 0.142 mm over five seeds), so it runs there.
+        what = (
+            "it could search two global width quantities only, which the mini-batch refinement trains "
+            "per centre; the k-means centres and their validation-tuned widths go to the refinement as they are"
+        )
+        log.info("colony: skipped at M = %d (%s): %s", m, why, what)
+        return _Chosen(c0, w0, [], [], "kmeans", f"the colony skipped itself at M = {m} ({why}): {what}")
+    note = (
+        f"the colony searched two global width quantities only at M = {m} ({why}); the centres are "
+        "k-means' (rbfn.select._acor_reduced)"
+    )
+    widths, res = _acor_reduced(t, ranked, c0, w0)
+    return _Chosen(c0, widths, res.best_history, res.mean_history, "kmeans", note)
+
+
+def _acor_reduced(
+    t: _Task, objective: FitObjective, c0: torch.Tensor, w0: torch.Tensor
+) -> tuple[torch.Tensor, ACOResult]:
+    """ACO_R over two global width quantities, the k-means centres c0 (M, d) held fixed; returns
+    the widths (M,) and the colony's result. `objective`: the colony's (`colony_objective`).
 
     x = (log scale s, exponent b): widths = e^s * w0_med * (w0 / w0_med)^(1 + b), w0 the seed's
     validation-tuned per-centre widths (median w0_med; its scale from a grid 2x apart), clamped
@@ -344,7 +353,7 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
     much the width follows the local centre spacing) are what the seed's coarse grid scale leaves
     open. The archive and ants shrink to 3 and the iterations to the budget `REDUCED_FLOPS`.
     """
-    a, r = cfg.aco, cfg.aco.acor
+    a, r, max_width, g = t.cfg.aco, t.cfg.aco.acor, t.max_width, t.g
     z = objective.z_train
     k = min(r.archive_size, 3)
     ants = min(a.ants, 3)
@@ -364,7 +373,7 @@ def _acor_reduced(cfg, objective, c0, w0, max_width, progress, g, resume=None, o
     noise = torch.randn(k - 1, 2, dtype=z.dtype, generator=g).to(z.device)
     init = torch.cat([torch.zeros(1, 2, dtype=z.dtype, device=z.device), 0.2 * noise])
     colony = ACOR(
-        archive_size=k, ants=ants, q=r.q, xi=r.xi, iterations=iterations, lower=lower, upper=upper, progress=progress
+        archive_size=k, ants=ants, q=r.q, xi=r.xi, iterations=iterations, lower=lower, upper=upper, progress=t.progress
     )
-    res = colony.minimize(obj, init, generator=g, state=resume, on_state=on_state)
-    return c0, widths_of(res.best[None])[0], res
+    res = colony.minimize(obj, init, generator=g, state=t.resume, on_state=t.on_state)
+    return widths_of(res.best[None])[0], res

@@ -112,6 +112,7 @@ class IKSolver:
         self,
         model: RBFNetwork | ChartedIK,
         robot: Robot,
+        *,
         tol_mm: float = 0.1,
         tol_deg: float = 0.1,
         damping: float = 1e-8,
@@ -588,5 +589,5 @@ def load_solver(
     robot = robot_from_record(ckpt["robot"], device)
     if ckpt["kind"] == CHARTS_KIND:  # a charted network (robot.workspace=full)
         charted = charts_from_checkpoint(ckpt).to(device)
-        return IKSolver(charted, robot, tol_mm, tol_deg, error_damping=CHARTED_ERROR_DAMPING)
-    return IKSolver(model_from_checkpoint(ckpt).to(device), robot, tol_mm, tol_deg, base_yaw=base_yaw)
+        return IKSolver(charted, robot, tol_mm=tol_mm, tol_deg=tol_deg, error_damping=CHARTED_ERROR_DAMPING)
+    return IKSolver(model_from_checkpoint(ckpt).to(device), robot, tol_mm=tol_mm, tol_deg=tol_deg, base_yaw=base_yaw)

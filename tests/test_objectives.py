@@ -27,7 +27,9 @@ def test_objective_equals_ridge_fit_on_whole_design_matrices(eval_dtype, tail):
     rtol = 1e-6 if eval_dtype else 1e-10  # float32 predictions: float32 sums in another order
     # All ants at once, validation Gaussians kept; one ant a batch in blocks of 64 rows, rebuilt.
     for memory, block in ((2**31, 2048), (0, 64)):
-        obj = FitObjective(z[:500], y[:500], z[500:], y[500:], tail, eval_dtype=eval_dtype, memory=memory, block=block)
+        obj = FitObjective(
+            z[:500], y[:500], z[500:], y[500:], tail=tail, eval_dtype=eval_dtype, memory=memory, block=block
+        )
         assert torch.allclose(obj(c, w), ref, rtol=rtol, atol=0), (memory, block)
 
 

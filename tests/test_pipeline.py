@@ -68,7 +68,7 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
     cfg, _, data = ur5
     feats, offset, scale, centers, widths = _fit_inputs(cfg, data)
     gen = torch.Generator().manual_seed(0)
-    ridge = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen)
+    ridge = fit_weights(cfg, data, feats, offset, scale, centers, widths, gen=gen)
     a_val = design_matrix((feats[1] - offset) / scale, centers, widths)
     other = ridge.weights + 1e-3 * torch.randn(ridge.weights.shape, dtype=torch.float64, generator=gen)
     # A loss that prefers `other`'s predictions: its weights are kept, with no ridge.
@@ -85,14 +85,16 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
         scale,
         centers,
         widths,
-        gen,
-        Refined(centers, widths, scale, 0.0, [], other, prefers_other),
+        gen=gen,
+        refined=Refined(centers, widths, scale, 0.0, [], other, prefers_other),
     )
     assert torch.equal(kept.weights, other) and math.isnan(float(kept.ridge)) and kept.rounding <= 2e-6
     assert float(kept.val_mse) == pytest.approx(float(((a_val @ other - data.val.q) ** 2).sum(-1).mean()), rel=1e-4)
     # The plain validation MSE prefers the ridge fit: it stays.
     mse = Refined(centers, widths, scale, 0.0, [], other, lambda p: float(((p - data.val.q) ** 2).sum(-1).mean()))
-    assert torch.equal(fit_weights(cfg, data, feats, offset, scale, centers, widths, gen, mse).weights, ridge.weights)
+    assert torch.equal(
+        fit_weights(cfg, data, feats, offset, scale, centers, widths, gen=gen, refined=mse).weights, ridge.weights
+    )
     # Weights that cancel in float32 (+-1e4 pairs on two equal columns) are refused however good.
     unstable = other.clone()
     unstable[0] += 1e4
@@ -106,11 +108,27 @@ def test_trained_weights_are_kept_only_where_better_and_stable(ur5):
         return float(len(calls) > 1)
 
     kept = fit_weights(
-        cfg, data, feats, offset, scale, c2, widths, gen, Refined(c2, widths, scale, 0.0, [], unstable, prefers_trained)
+        cfg,
+        data,
+        feats,
+        offset,
+        scale,
+        c2,
+        widths,
+        gen=gen,
+        refined=Refined(c2, widths, scale, 0.0, [], unstable, prefers_trained),
     )
     assert not torch.equal(kept.weights, unstable) and not math.isnan(float(kept.ridge))
     stable = fit_weights(
-        cfg, data, feats, offset, scale, c2, widths, gen, Refined(c2, widths, scale, 0.0, [], other, prefers_trained)
+        cfg,
+        data,
+        feats,
+        offset,
+        scale,
+        c2,
+        widths,
+        gen=gen,
+        refined=Refined(c2, widths, scale, 0.0, [], other, prefers_trained),
     )
     assert torch.equal(stable.weights, other)
 

@@ -59,7 +59,7 @@ def test_minibatch_refinement_stops_where_it_diverges(caplog):
 
 def test_full_refinement_keeps_the_best_on_validation():
     z_tr, y_tr, z_val, y_val, c, w, _ = _problem()
-    r = rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, 1e-8, steps=20, lr=0.01, eval_every=5)
+    r = rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, ridge=1e-8, steps=20, lr=0.01, eval_every=5)
     assert len(r.history) == 5 and r.val_mse == min(r.history) and r.val_mse < r.history[0]
 
 
@@ -77,12 +77,12 @@ def test_full_refinement_under_the_float32_rule_beats_re_solving_afterwards():
         return ridge_fit(a_tr, y_tr, a_val, y_val, eval_dtype=torch.float32, round_tol=ROUND_TOL)
 
     start = float(deployed(rf.Refined(c, w, torch.ones(2, dtype=torch.float64), 0.0, [])).ridge)
-    ruled = rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, start, steps=100, lr=0.02, rule=RoundingRule())
+    ruled = rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, ridge=start, steps=100, lr=0.02, rule=RoundingRule())
     fit = deployed(ruled)
     assert fit.rounding is not None and fit.rounding <= ROUND_TOL
     assert ruled.val_mse == min(ruled.history) and math.isclose(ruled.val_mse, float(fit.val_mse), rel_tol=1e-12)
     for ridge in (start, 1e-11):  # the old way: a fixed ridge in the loss, the rule only at the end
-        fixed = deployed(rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, ridge, steps=100, lr=0.02))
+        fixed = deployed(rf.refine_full(z_tr, y_tr, z_val, y_val, c, w, ridge=ridge, steps=100, lr=0.02))
         assert float(fit.val_mse) < 0.2 * float(fixed.val_mse)
 
 
@@ -96,7 +96,7 @@ def test_mode_picks_the_way(monkeypatch, mode, rows_max, full):
     monkeypatch.setattr(rf, "refine_full", lambda *a, **k: calls.append("full"))
     monkeypatch.setattr(rf, "refine_minibatch", lambda *a, **k: calls.append("minibatch"))
     z_tr, y_tr, z_val, y_val, c, w, weights = _problem()
-    rf.refine(z_tr, y_tr, z_val, y_val, c, w, weights, 1e-8, RefineConfig(mode=RefineMode(mode)))
+    rf.refine(z_tr, y_tr, z_val, y_val, c, w, weights, ridge=1e-8, cfg=RefineConfig(mode=RefineMode(mode)))
     assert calls == ["full" if full else "minibatch"]
 
 

@@ -292,14 +292,14 @@ def _networks(c: _Context) -> _Networks:
                 nw.bases[method] = payload_basis(net, x, y, nw.conditions)
         elif network.objective == NetworkObjective.closed_loop and method in CLOSED_LOOP_SEARCHES:
             t_tune = time.perf_counter()
-            args = (c.cfg, c.gains, c.setup, _static(c, nw, "kmeans"), c.model, c.factors, c.real, c.loop, nw.pilot)
+            twin = _static(c, nw, "kmeans")
             if nw.cost is None:  # the tuning's scenarios, and smc's reference errors on them
                 c.stage("smc on the tuning scenarios")
-                nw.cost = _closed_loop_cost(*args)
+                nw.cost = _closed_loop_cost(c, twin, nw.pilot)
             found = tune_network(method, nw.cost, network.tune, network.seed, network.aco.acor, progress=c.progress)
             c.stage(f"confirming {name}'s network at the evaluation's length")
             if confirm is None:  # the same scenarios, as long as the evaluation's episode
-                confirm = _closed_loop_cost(*args, full_length=True)
+                confirm = _closed_loop_cost(c, twin, nw.pilot, full_length=True)
             nw.tuned[name] = confirmed(found, nw.cost, confirm)
             net = nw.tuned[name].net
             nw.tuning_seconds += time.perf_counter() - t_tune
@@ -376,7 +376,7 @@ def _along(c: _Context, nw: _Networks, ref: Reference, b: int) -> Stacked:
                 name,
                 c.gains,
                 c.period,
-                c.model,
+                model=c.model,
                 features=features,
                 w0=w0,
                 observer=c.cfg.network.observer,
@@ -441,21 +441,14 @@ def _pick_and_place_run(c: _Context, nw: _Networks, runs: dict[str, ControlRun])
 
 
 def _closed_loop_cost(
-    cfg: ControlConfig,
-    gains: GainsConfig,
-    setup: ControlRobot,
-    twin: ControlNet,
-    model: Model,
-    factors: GainFactors,
-    real: RealLoop | None,
-    loop: LoopConfig | None,
-    pilot: tuple[torch.Tensor, torch.Tensor],
-    full_length: bool = False,
+    c: _Context, twin: ControlNet, pilot: tuple[torch.Tensor, torch.Tensor], full_length: bool = False
 ) -> ClosedLoopCost:
     """The closed-loop tuning's cost for this comparison: its own scenarios (`tuning_scenarios`,
     never the evaluation's payloads, disturbance frequency or noise seed) and episode (with
     `full_length`, as long as the evaluation's, its payload window: the confirmation), in the same
-    loop, at the same gains, factors and adaptation rate, from the twin's initial weights."""
+    loop, at the same gains, factors and adaptation rate, from the `twin`'s initial weights, with
+    the `pilot` run's (inputs, residuals) as its warm start."""
+    cfg, setup, loop = c.cfg, c.setup, c.loop
     tune, plant = cfg.network.tune, setup.plant
     amplitude = [float(plant.dist)] * setup.n if isinstance(plant.dist, (int, float)) else list(plant.dist)
     scenarios = tuning_scenarios(
@@ -476,17 +469,17 @@ def _closed_loop_cost(
     x, y = pilot[0].double().cpu(), pilot[1].double().cpu()
     return ClosedLoopCost(
         plant=plant,
-        model=model,
-        gains=gains,
+        model=c.model,
+        gains=c.gains,
         twin=twin,
         scenarios=scenarios,
         scenario=sc,
         ref=ref,
         tune=tune,
         observer=cfg.network.observer,
-        joint_scale=factors.scale,
-        rates=factors.rates,
-        loop=real,
+        joint_scale=c.factors.scale,
+        rates=c.factors.rates,
+        loop=c.real,
         pilot=((x - twin.offset) / twin.scale, y) if cfg.network.warm_start else None,
         compile=cfg.compile,
         aot=ahead_of_time(cfg.aot, like.device, cfg.compile),

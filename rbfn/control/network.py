@@ -70,6 +70,7 @@ def pilot_residuals(
     ref: Reference,
     gains: Gains,
     model: Model,
+    *,
     stride: int = 10,
     joint_scale: torch.Tensor | None = None,
     compile: bool = False,
@@ -79,7 +80,7 @@ def pilot_residuals(
     the residual is what the nominal model misses, tau - (M_hat qdd + C_hat qd + G_hat).
     `compile`, `aot`: as `simulate`'s."""
     q0, qd0 = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
-    ctrl = make_controller("smc_obs", gains, scenario.dt, model, joint_scale=joint_scale)
+    ctrl = make_controller("smc_obs", gains, scenario.dt, model=model, joint_scale=joint_scale)
     roll = simulate(
         plant,
         ctrl,
@@ -115,6 +116,7 @@ def payload_residuals(
     gains: Gains,
     model: Model,
     payloads: list[float],
+    *,
     stride: int = 10,
     joint_scale: torch.Tensor | None = None,
     compile: bool = False,
@@ -133,7 +135,7 @@ def payload_residuals(
     q0, qd0 = ref.q_d[:1].expand(c, -1).clone(), ref.qd_d[:1].expand(c, -1).clone()
     quiet = plant.varied(torch.zeros(c, q0.shape[1], **kw), torch.zeros(c, **kw), torch.zeros(c, **kw))
     held = replace(scenario, payload_on=0.0, payload_off=scenario.duration)
-    ctrl = make_controller("smc_exact", gains, scenario.dt, model, joint_scale=joint_scale, plant=quiet)
+    ctrl = make_controller("smc_exact", gains, scenario.dt, model=model, joint_scale=joint_scale, plant=quiet)
     roll = simulate(
         quiet, ctrl, held, ref, q0=q0, qd0=qd0, payload=torch.tensor(payloads, **kw), compile=compile, aot=aot
     )
@@ -197,6 +199,7 @@ def control_network(
     x: torch.Tensor,
     y: torch.Tensor,
     m: int,
+    *,
     seed: int,
     sample_dt: float,
     aco: ACOConfig | None = None,
@@ -224,7 +227,7 @@ def control_network(
         if entry.cluster:  # a new value: the caller's config is never mutated
             aco = replace(aco, objective=Objective.cluster)
         cfg = CentersConfig(name=method, method=entry.selector, width_rule=WidthRule.per_center, aco=aco)
-        sel = select(cfg, objective, m, seed, max_width=4.0, generator=g)
+        sel = select(cfg, objective, m, seed=seed, max_width=4.0, generator=g)
         centers, widths, seconds = sel.centers, sel.widths, sel.seconds
     w0 = torch.zeros(m, y.shape[1], dtype=x.dtype)
     if warm_start:

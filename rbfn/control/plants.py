@@ -41,6 +41,7 @@ class Plant:
     def __init__(
         self,
         dynamics: Dynamics,
+        *,
         viscous: PerJoint = 12.0,
         coulomb: PerJoint = 0.2,
         friction: str = "sign",

@@ -250,6 +250,7 @@ def simulate(
     controller: Controller,
     scenario: Scenario,
     ref: Reference,
+    *,
     q0: torch.Tensor,
     qd0: torch.Tensor,
     payload: torch.Tensor,
@@ -265,6 +266,7 @@ def simulate(
     controller: Controller,
     scenario: Scenario,
     ref: Reference,
+    *,
     q0: torch.Tensor,
     qd0: torch.Tensor,
     payload: torch.Tensor,
@@ -280,6 +282,7 @@ def simulate(
     controller: Controller,
     scenario: Scenario,
     ref: Reference,
+    *,
     q0: torch.Tensor,
     qd0: torch.Tensor,
     payload: torch.Tensor,
@@ -294,6 +297,7 @@ def simulate(
     controller: Controller,
     scenario: Scenario,
     ref: Reference,
+    *,
     q0: torch.Tensor,
     qd0: torch.Tensor,
     payload: torch.Tensor,
@@ -321,22 +325,23 @@ def simulate(
     delayed and saturated; the Rollout then holds one row per control period (its `tau` the
     torque applied, its `saturated` the fraction of periods each joint spent saturated).
     """
-    scenario.validate()
+    ref = _checked(plant, scenario, Reference(*ref), q0, qd0, payload)
     n, dt = scenario.steps, scenario.dt
-    ref = Reference(*ref)
-    if ref.q_d.shape[0] < n + 1:
-        raise ValueError(f"the reference has {ref.q_d.shape[0]} samples; the scenario needs {n + 1}")
-    if q0.dim() != 2 or q0.shape[1] != plant.n or qd0.shape != q0.shape or ref.q_d.shape[-1] != plant.n:
-        raise ValueError(
-            f"the plant has {plant.n} joints: q0, qd0 must be (B, {plant.n}) and the reference "
-            f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref.q_d.shape)}"
-        )
-    if not (torch.isfinite(q0).all() and torch.isfinite(qd0).all()):
-        raise ValueError("initial state q0/qd0 must be finite")
-    if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
-        raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
     if loop is not None:
-        return _simulate_real(plant, controller, scenario, ref, q0, qd0, payload, loop, record, compile, chunk, aot)
+        return _simulate_real(
+            plant,
+            controller,
+            scenario,
+            ref,
+            q0=q0,
+            qd0=qd0,
+            payload=payload,
+            loop=loop,
+            record=record,
+            compile=compile,
+            chunk=chunk,
+            aot=aot,
+        )
     chunk = chunk or (plant.compile_chunk if compile or aot else 100)
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
     periods = Periods(
@@ -358,37 +363,61 @@ def simulate(
         example = (state, _rows(periods, slice(0, chunk)))
         key = chunk_key(plant, controller, dt, scenario.integrator, chunk, example)
         run = aot_chunk(run, key, example, log.info)
-    state, rec = _run_chunks(
+    state, rec = run_chunks(
         run,
         lambda m: make_chunk(plant, controller, dt, scenario.integrator, m),
         state,
         lambda sl: _rows(periods, sl),
-        n,
-        chunk,
-        record,
-        CHECK_EVERY,
-        lambda k: (k, k * dt),
+        n=n,
+        chunk=chunk,
+        record=record,
+        every=CHECK_EVERY,
+        when=lambda k: (k, k * dt),
     )
     if rec is None:
         return state.q.clone(), state.qd.clone()
     return Rollout(scenario.times(state.q.dtype, state.q.device), *rec)
 
 
-def _run_chunks(
+def _checked(
+    plant: Plant, scenario: Scenario, ref: Reference, q0: torch.Tensor, qd0: torch.Tensor, payload: torch.Tensor
+) -> Reference:
+    """`simulate`'s inputs checked: the reference long enough, the states' and the reference's
+    shapes the plant's, the states finite, the payloads finite and >= 0 kg; returns `ref`."""
+    scenario.validate()
+    n = scenario.steps
+    if ref.q_d.shape[0] < n + 1:
+        raise ValueError(f"the reference has {ref.q_d.shape[0]} samples; the scenario needs {n + 1}")
+    if q0.dim() != 2 or q0.shape[1] != plant.n or qd0.shape != q0.shape or ref.q_d.shape[-1] != plant.n:
+        raise ValueError(
+            f"the plant has {plant.n} joints: q0, qd0 must be (B, {plant.n}) and the reference "
+            f"(T, {plant.n}); got {tuple(q0.shape)}, {tuple(qd0.shape)}, {tuple(ref.q_d.shape)}"
+        )
+    if not (torch.isfinite(q0).all() and torch.isfinite(qd0).all()):
+        raise ValueError("initial state q0/qd0 must be finite")
+    if not bool(torch.isfinite(payload).all()) or bool((payload < 0).any()):
+        raise ValueError(f"payload masses must be finite and >= 0 kg, got {payload.tolist()}")
+    return ref
+
+
+def run_chunks(
     run: Callable,
     make: Callable[[int], Callable],
     state: Any,
     rows: Callable[[slice], Any],
+    *,
     n: int,
     chunk: int,
     record: bool,
     every: int,
     when: Callable[[int], tuple[int, float]],
+    after: Callable[[slice, Any], None] | None = None,
 ) -> tuple[Any, tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None]:
     """Run n periods from `state` in chunks of `chunk` (`run`; a shorter last one `make(m)`), each
     fed `rows(periods' slice)`; check finiteness every `every` periods (0: every chunk) and at the
-    end, naming the step and time `when(period)`. Returns the final state and, with `record`, the
-    rows q, qd, tau (n + 1, B, nj) (the last row: the final state, tau repeated)."""
+    end, naming the step and time `when(period)`; then hand the chunk's output to `after(slice,
+    output)` where given (the online learner's update). Returns the final state and, with
+    `record`, the rows q, qd, tau (n + 1, B, nj) (the last row: the final state, tau repeated)."""
     q0 = state.q
     if record:
         qs = torch.empty(n + 1, *q0.shape, dtype=q0.dtype, device=q0.device)
@@ -414,6 +443,8 @@ def _run_chunks(
             if k0 - checked >= every or k0 == n:
                 _check(*when(k0), state.q, state.qd, out.tau[-1])
                 checked = k0
+            if after is not None:
+                after(sl, out)
     if not record:
         return state, None
     qs[n], qds[n], taus[n] = state.q, state.qd, taus[n - 1]
@@ -523,6 +554,7 @@ def _simulate_real(
     controller: Controller,
     scenario: Scenario,
     ref: Reference,
+    *,
     q0: torch.Tensor,
     qd0: torch.Tensor,
     payload: torch.Tensor,
@@ -554,58 +586,8 @@ def _simulate_real(
         position_noise=None,
         torque_noise=None,
     )
-    g = torch.Generator().manual_seed(loop.seed)
-
-    envs = loop.noise_envs or b
-    if b % envs:
-        raise ValueError(f"loop.noise_envs={envs} must divide the {b} environments")
-
-    def draw(rows: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """`rows` periods' noise, drawn on the CPU (the same numbers on every device), every
-        `envs`-th environment alike."""
-        pos = None
-        if loop.position_noise:
-            d = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
-            pos = (loop.position_noise * d).repeat(1, b // envs, 1).to(**kw)
-        tau = None
-        if loop.torque_noise is not None:
-            d = torch.randn(rows, envs, nj, generator=g, dtype=torch.float64)
-            tau = (loop.torque_noise * d).repeat(1, b // envs, 1).to(**kw)
-        return pos, tau
-
-    # The noise is drawn in blocks of NOISE_BLOCK periods whatever the chunk length (torch's CPU
-    # randn takes another algorithm from 16 numbers on, so draws per chunk made the run depend on
-    # the chunk), and sliced per chunk.
-    blocks: dict[int, tuple[torch.Tensor | None, torch.Tensor | None]] = {}
-
-    def join(parts: list[torch.Tensor | None]) -> torch.Tensor | None:
-        return None if parts[0] is None else parts[0] if len(parts) == 1 else torch.cat(parts)  # type: ignore[arg-type]
-
-    def noise_rows(start: int, stop: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
-        """Periods start .. stop - 1's noise: slices of the blocks, each drawn once, in order."""
-        pos: list[torch.Tensor | None] = []
-        tau: list[torch.Tensor | None] = []
-        for blk in range(start // NOISE_BLOCK, (stop - 1) // NOISE_BLOCK + 1):
-            if blk not in blocks:
-                blocks.clear()  # the chunks move forward: the earlier blocks are spent
-                blocks[blk] = draw(min(NOISE_BLOCK, periods - blk * NOISE_BLOCK))
-            lo, hi = max(start - blk * NOISE_BLOCK, 0), min(stop - blk * NOISE_BLOCK, NOISE_BLOCK)
-            p, t = blocks[blk]
-            pos.append(None if p is None else p[lo:hi])
-            tau.append(None if t is None else t[lo:hi])
-        return join(pos), join(tau)
-
-    q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
-    y0 = q if loop.resolution is None else quantise(q, loop.resolution.to(q))
-    z = torch.zeros_like(q)
-    wait = torch.zeros(loop.actuation_delay, b, nj, **kw)
-    state = RealState(
-        q,
-        qd,
-        controller.init_state(q, qd),
-        Sensing(y0[None].repeat(loop.sensing_delay + 1, 1, 1), y0.clone(), qd.clone()),
-        Actuation(wait, wait.clone(), Applied(z.clone(), z.clone()), z.clone()),
-    )
+    noise = _Noise(loop, periods, b, nj, kw)
+    state = _real_state(controller, loop, q0, qd0)
     # Compiled, a fifth of the ideal loop's chunk: a period here is several integration steps and
     # the sensing and actuation around them.
     chunk = chunk or (max(1, plant.compile_chunk // 5) if compile or aot else 100)
@@ -614,36 +596,105 @@ def _simulate_real(
         run = torch.compile(run, dynamic=False)
 
     def rows(sl: slice) -> RealPeriods:
-        pos, tau = noise_rows(sl.start, sl.stop)
+        pos, tau = noise.rows(sl.start, sl.stop)
         return _rows(inputs, sl)._replace(position_noise=pos, torque_noise=tau)
 
     if aot and periods >= chunk:
-        # The example draws no noise (the generator's stream stays the run's): zeros of its shape.
-        like = _rows(inputs, slice(0, chunk))
-        zeros = torch.zeros(chunk, b, nj, **kw)
-        like = like._replace(
-            position_noise=zeros if loop.position_noise else None,
-            torque_noise=zeros.clone() if loop.torque_noise is not None else None,
-        )
-        example = (pytree.tree_map_only(torch.Tensor, torch.clone, state), like)
+        example = _real_example(inputs, state, loop, chunk)
         key = chunk_key(plant, controller, dt, scenario.integrator, chunk, (loop, example))
         run = aot_chunk(run, key, example, log.info)
 
-    state, rec = _run_chunks(
+    state, rec = run_chunks(
         run,
         lambda m: make_real_chunk(plant, controller, loop, dt, scenario.integrator, m),
         state,
         rows,
-        periods,
-        chunk,
-        record,
-        max(1, CHECK_EVERY // sub),  # in periods
-        lambda k: (k * sub, k * loop.period),
+        n=periods,
+        chunk=chunk,
+        record=record,
+        every=max(1, CHECK_EVERY // sub),  # in periods
+        when=lambda k: (k * sub, k * loop.period),
     )
     if rec is None:
         return state.q.clone(), state.qd.clone()
     t = torch.arange(periods + 1, dtype=state.q.dtype, device=state.q.device) * loop.period
     return Rollout(t, *rec, saturated=state.actuation.saturated_periods.clone() / periods)
+
+
+class _Noise:
+    """The realistic loop's position and torque noise (`loop.position_noise`, `loop.torque_noise`)
+    for `periods` periods of b environments and nj joints: drawn on the CPU (the same numbers on
+    every device), every `loop.noise_envs`-th environment alike, in blocks of NOISE_BLOCK periods
+    whatever the chunk length (torch's CPU randn takes another algorithm from 16 numbers on, so
+    draws per chunk made the run depend on the chunk), and sliced per chunk."""
+
+    def __init__(self, loop: RealLoop, periods: int, b: int, nj: int, kw: dict[str, Any]) -> None:
+        self.g = torch.Generator().manual_seed(loop.seed)
+        self.envs = loop.noise_envs or b
+        if b % self.envs:
+            raise ValueError(f"loop.noise_envs={self.envs} must divide the {b} environments")
+        self.loop, self.periods, self.b, self.nj, self.kw = loop, periods, b, nj, kw
+        self.blocks: dict[int, tuple[torch.Tensor | None, torch.Tensor | None]] = {}
+
+    def _draw(self, rows: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """`rows` periods' noise (rows, b, nj) each, position first."""
+        loop, envs, b, nj = self.loop, self.envs, self.b, self.nj
+        pos = None
+        if loop.position_noise:
+            d = torch.randn(rows, envs, nj, generator=self.g, dtype=torch.float64)
+            pos = (loop.position_noise * d).repeat(1, b // envs, 1).to(**self.kw)
+        tau = None
+        if loop.torque_noise is not None:
+            d = torch.randn(rows, envs, nj, generator=self.g, dtype=torch.float64)
+            tau = (loop.torque_noise * d).repeat(1, b // envs, 1).to(**self.kw)
+        return pos, tau
+
+    def rows(self, start: int, stop: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """Periods start .. stop - 1's noise: slices of the blocks, each drawn once, in order."""
+        pos: list[torch.Tensor | None] = []
+        tau: list[torch.Tensor | None] = []
+        for blk in range(start // NOISE_BLOCK, (stop - 1) // NOISE_BLOCK + 1):
+            if blk not in self.blocks:
+                self.blocks.clear()  # the chunks move forward: the earlier blocks are spent
+                self.blocks[blk] = self._draw(min(NOISE_BLOCK, self.periods - blk * NOISE_BLOCK))
+            lo, hi = max(start - blk * NOISE_BLOCK, 0), min(stop - blk * NOISE_BLOCK, NOISE_BLOCK)
+            p, t = self.blocks[blk]
+            pos.append(None if p is None else p[lo:hi])
+            tau.append(None if t is None else t[lo:hi])
+        return _join(pos), _join(tau)
+
+
+def _join(parts: list[torch.Tensor | None]) -> torch.Tensor | None:
+    return None if parts[0] is None else parts[0] if len(parts) == 1 else torch.cat(parts)  # type: ignore[arg-type]
+
+
+def _real_state(controller: Controller, loop: RealLoop, q0: torch.Tensor, qd0: torch.Tensor) -> RealState:
+    """The realistic loop's state at (q0, qd0) (B, n): at rest in its sensing (every delayed
+    reading q0, quantised) and actuation (no torque waiting or applied)."""
+    q, qd = q0.T.contiguous().T, qd0.T.contiguous().T
+    y0 = q if loop.resolution is None else quantise(q, loop.resolution.to(q))
+    z = torch.zeros_like(q)
+    wait = torch.zeros(loop.actuation_delay, *q.shape, dtype=q.dtype, device=q.device)
+    return RealState(
+        q,
+        qd,
+        controller.init_state(q, qd),
+        Sensing(y0[None].repeat(loop.sensing_delay + 1, 1, 1), y0.clone(), qd.clone()),
+        Actuation(wait, wait.clone(), Applied(z.clone(), z.clone()), z.clone()),
+    )
+
+
+def _real_example(inputs: RealPeriods, state: RealState, loop: RealLoop, chunk: int) -> tuple:
+    """The example a chunk's ahead-of-time package is built for: the state, and the first chunk's
+    inputs with zeros for its noise (the generator's stream stays the run's)."""
+    like = _rows(inputs, slice(0, chunk))
+    q = state.q
+    zeros = torch.zeros(chunk, *q.shape, dtype=q.dtype, device=q.device)
+    like = like._replace(
+        position_noise=zeros if loop.position_noise else None,
+        torque_noise=zeros.clone() if loop.torque_noise is not None else None,
+    )
+    return (pytree.tree_map_only(torch.Tensor, torch.clone, state), like)
 
 
 # in an AOT package's call spec

@@ -39,7 +39,7 @@ from .controllers import Controller, make_controller
 from .loop import integration_limit
 from .models import model_scales
 from .robot_setup import control_robot
-from .simulator import Loop, Periods, Plant, Scenario, SimulationDiverged, make_chunk, stage_disturbances
+from .simulator import Loop, Periods, Plant, Scenario, SimulationDiverged, make_chunk, run_chunks, stage_disturbances
 from .trajectory import Reference, paper_trajectory, sinusoid_trajectory
 
 log = logging.getLogger(__name__)
@@ -235,7 +235,9 @@ def online_robot(
     setup = control_robot(robot, ControlConfig(trajectory=Trajectory.sinusoid), urdf_text=record["urdf"])
     listed = setup.feedback_scale(gains, integration_limit(cfg.dt))  # capped where the step cannot follow
     scale = None if listed is None else torch.tensor(listed, **kw)
-    ctrl = make_controller("smc_obs", gains, cfg.dt, setup.nominal_model(0.0, model_scales(gains)), joint_scale=scale)
+    ctrl = make_controller(
+        "smc_obs", gains, cfg.dt, model=setup.nominal_model(0.0, model_scales(gains)), joint_scale=scale
+    )
     trained = robot_from_record(record, kw.get("device", "cpu"))  # its chain, free joints, targets
     closed, n = record_closed_form(record), setup.n
     if closed is None:
@@ -321,60 +323,84 @@ def run_online(
     net = net.to(**kw)
     n_s, nj = len(sizes), rob.n
     b = 2 * n_s  # environments: [adapted (S), frozen (S)]
-    a_path = net.design(rob.x_d)  # (T, P)
-    da = torch.gradient(a_path, spacing=cfg.dt, dim=0)[0]
-    path = torch.stack([a_path, da, torch.gradient(da, spacing=cfg.dt, dim=0)[0]])  # (3, T, P): a, a', a''
-    del a_path, da
+    path = _design_path(net, rob.x_d, cfg.dt)  # (3, T, P)
     w0 = net.output_weights().to(**kw)
     learner = make_learner(cfg.learner, w0.expand(b, *w0.shape), cfg.alpha0, cfg.decay, cfg.forgetting)
     frozen = torch.cat(
         [torch.zeros(n_s, dtype=torch.bool, device=device), torch.ones(n_s, dtype=torch.bool, device=device)]
     )
-    plant, ctrl = rob.plant, rob.controller
+    plant, ctrl, every = rob.plant, rob.controller, cfg.update_every
     vel = torch.zeros(nj, **kw)  # locked joints: held, at rest
     q = rob.full(torch.einsum("p,bpj->bj", path[0, 0], learner.w))
     qd = rob.full(torch.einsum("p,bpj->bj", path[1, 0], learner.w), vel)
     loop = Loop(q, qd, ctrl.init_state(q, qd))
     dist = stage_disturbances(plant, n, cfg.dt, **kw)
-    load = plant.load(torch.zeros(cfg.update_every, b, **kw))  # no payload
-    alpha = torch.zeros(cfg.update_every, **kw)
-    run = make_chunk(plant, ctrl, cfg.dt, "rk4", cfg.update_every)
-    qs = torch.empty(n + 1, b, nj, **kw)
-    dw = []
-    k = 0
-    with torch.inference_mode():  # no autograd bookkeeping: a fifth of a small batch's step
-        while k < n:
-            m = min(cfg.update_every, n - k)
-            sl = slice(k, k + m)
-            stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
-            ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
-            periods = Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], load=tuple(c[:m] for c in load))
-            if aot and k == 0 and m == cfg.update_every:  # compiled ahead of time, cached on disk
-                run = aot_chunk(
-                    run, chunk_key(plant, ctrl, cfg.dt, "rk4", m, (loop, periods)), (loop, periods), log.info
-                )
-            fn = run if m == cfg.update_every else make_chunk(plant, ctrl, cfg.dt, "rk4", m)
-            out = fn(loop, periods)
-            loop, rq = out.loop, out.q
-            qs[sl] = rq
-            k += m
-            bad = (~torch.isfinite(loop.q).all(-1)).nonzero()
-            if bad.numel():
-                e = int(bad[0, 0])
-                row = f"{'frozen' if e >= n_s else 'adapted'} network, link-1 error {100 * sizes[e % n_s]:g} %"
-                raise SimulationDiverged(
-                    f"online run diverged by step {k} (t = {k * cfg.dt:.3f} s), {row}: q = {loop.q[e].tolist()}", e
-                )
-            # Pairs (x, q) of this segment; the frozen environments learn nothing.
-            rot, pos = rob.measure(rq)
-            x = rob.targets(rot, pos, rq)  # (m, B, d)
-            a = net.design(x).transpose(0, 1)  # (B, m, P)
-            y = rq[..., rob.free].transpose(0, 1)
-            keep = learner.w.clone()
-            learner.update(a, y, k * cfg.dt)
-            learner.w = torch.where(frozen[:, None, None], keep, learner.w)
-            dw.append((learner.w - w0).flatten(1).norm(dim=-1)[:n_s])
-    qs[n] = loop.q
+    load = plant.load(torch.zeros(every, b, **kw))  # no payload
+    alpha = torch.zeros(every, **kw)
+    dw: list[torch.Tensor] = []
+
+    def rows(sl: slice) -> Periods:
+        """The periods `sl`'s inputs, the reference from the networks' current weights."""
+        m = sl.stop - sl.start
+        stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
+        ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
+        return Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], load=tuple(c[:m] for c in load))
+
+    def learn(sl: slice, out: Any) -> None:
+        """The adapted networks learn the segment's pairs (x, q); the frozen ones learn nothing."""
+        rq = out.q
+        rot, pos = rob.measure(rq)
+        x = rob.targets(rot, pos, rq)  # (m, B, d)
+        a = net.design(x).transpose(0, 1)  # (B, m, P)
+        y = rq[..., rob.free].transpose(0, 1)
+        keep = learner.w.clone()
+        learner.update(a, y, sl.stop * cfg.dt)
+        learner.w = torch.where(frozen[:, None, None], keep, learner.w)
+        dw.append((learner.w - w0).flatten(1).norm(dim=-1)[:n_s])
+
+    run = make_chunk(plant, ctrl, cfg.dt, "rk4", every)
+    if aot and n >= every:  # compiled ahead of time, cached on disk
+        example = (loop, rows(slice(0, every)))
+        run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", every, example), example, log.info)
+    try:
+        _, rec = run_chunks(
+            run,
+            lambda m: make_chunk(plant, ctrl, cfg.dt, "rk4", m),
+            loop,
+            rows,
+            n=n,
+            chunk=every,
+            record=True,
+            every=0,  # every chunk, before its pairs are learnt
+            when=lambda k: (k, k * cfg.dt),
+            after=learn,
+        )
+    except SimulationDiverged as e:
+        which = "frozen" if e.environment >= n_s else "adapted"
+        size = 100 * sizes[e.environment % n_s]
+        raise SimulationDiverged(
+            f"online run diverged, {which} network, link-1 error {size:g} %: {e}", e.environment
+        ) from e
+    assert rec is not None  # record=True
+    qs = rec[0]
+    return _online_result(rob, qs, t, torch.stack(dw), learner, n_s, cfg)
+
+
+def _design_path(net: RBFNetwork, x_d: torch.Tensor, dt: float) -> torch.Tensor:
+    """The network's design rows along the desired targets x_d (T, d) and their first and second
+    time derivatives (central differences, step dt s): (3, T, P)."""
+    a_path = net.design(x_d)  # (T, P)
+    da = torch.gradient(a_path, spacing=dt, dim=0)[0]
+    return torch.stack([a_path, da, torch.gradient(da, spacing=dt, dim=0)[0]])
+
+
+def _online_result(
+    rob: OnlineRobot, qs: torch.Tensor, t: torch.Tensor, dw: torch.Tensor, learner: Any, n_s: int, cfg: OnlineConfig
+) -> OnlineRun:
+    """`run_online`'s answer from the joints (T, 2 S, n) of the adapted and frozen rows, the weight
+    changes dw (U, S) and the learner; the nominal model's exact IK measured on each real robot."""
+    b, nj = qs.shape[1], qs.shape[2]
+    kw: dict[str, Any] = {"dtype": qs.dtype, "device": qs.device}
     pos, rot = rob.errors(*rob.measure(qs))  # (T, B)
     # The nominal model's exact IK on each real robot (a kinematic perturbation: the same joints).
     q_an = rob.full(rob.q_nominal)[:, None, :].expand(-1, b, nj)
@@ -390,7 +416,7 @@ def run_online(
         q_adapt=qs[:, :n_s, rob.free],
         x_d=rob.x_d,
         q_real=rob.q_real,
-        dw=torch.stack(dw),
+        dw=dw,
         t_update=torch.arange(1, len(dw) + 1, **kw) * cfg.update_every * cfg.dt,
         weights=learner.w[:n_s],
         link_error=rob.link_error,

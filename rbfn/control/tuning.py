@@ -179,7 +179,7 @@ class ClosedLoopCost:
         kw: dict[str, Any] = {"dtype": ref.q_d.dtype, "device": ref.q_d.device}
         self.kw = kw
         t0 = time.perf_counter()
-        smc = make_controller("smc", gains, self.period, model, joint_scale=joint_scale, rates=rates)
+        smc = make_controller("smc", gains, self.period, model=model, joint_scale=joint_scale, rates=rates)
         rms, _ = self._run(smc, 1)
         self.smc_rms = rms[0].clamp_min(1e-12)  # (S, n)
         self.smc_seconds = time.perf_counter() - t0
@@ -238,7 +238,7 @@ class ClosedLoopCost:
                 ADAPTIVE + "tune",
                 self.gains,
                 self.period,
-                self.model,
+                model=self.model,
                 features=feats.to(**self.kw),
                 w0=w0[idx].repeat_interleave(self.s, 0).to(**self.kw),
                 observer=self.observer,

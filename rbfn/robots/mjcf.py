@@ -38,6 +38,7 @@ def _per_joint(value: float | Sequence[float], n: int, key: str) -> list[float]:
 
 def arm_model(
     urdf: str | bytes | os.PathLike,
+    *,
     payload: float = 0.0,
     payload_link: str | None = None,
     viscous: float | Sequence[float] = 0.0,

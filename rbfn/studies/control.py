@@ -34,6 +34,7 @@ def check_control(cfg: ControlConfig, robot: RobotConfig | None = None, urdf_tex
 def evaluate_control(
     cfg: ControlConfig,
     gains: GainsConfig,
+    *,
     device: str,
     writer,
     out_dir: Path,

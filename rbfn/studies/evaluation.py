@@ -323,12 +323,12 @@ def evaluate_parts(cfg: EvalConfig, path: Path | None, ckpt: dict | None, out_di
                     control = evaluate_control(
                         cfg.control,
                         cfg.gains,
-                        cfg.device,
-                        writer,
-                        out_dir,
-                        cfg.robot,
-                        cfg.parallel,
-                        cfg.loop,
+                        device=cfg.device,
+                        writer=writer,
+                        out_dir=out_dir,
+                        robot=cfg.robot,
+                        parallel=cfg.parallel,
+                        loop=cfg.loop,
                         urdf_text=ckpt["robot"]["urdf"] if ckpt is not None else None,
                         progress=progress,
                     )

@@ -54,6 +54,7 @@ __all__ = [
     "RunDir",
     "RunDirInUse",
     "hydra_run_dir",
+    "relabel",
     "hydra_run_files",
     "birth_time",
     "made_since",
@@ -107,6 +108,7 @@ class RunDir:
     """
 
     _held: ClassVar[dict[str, int]] = {}  # real path -> descriptor holding its lock, in this process
+    _entered: ClassVar[dict[str, RunDir]] = {}  # real path -> the RunDir that took it, in this process
 
     def __init__(self, path: str | Path, fresh: bool = False, own: bool = False, tidy: bool = False) -> None:
         self.path = Path(path)
@@ -123,7 +125,32 @@ class RunDir:
                 )
         self.path, self._fd = self._take_fresh() if self._fresh else self._take(self.path)
         RunDir._held[os.path.realpath(self.path)] = self._fd
+        RunDir._entered[os.path.realpath(self.path)] = self
         return self
+
+    def relabel(self, label: str) -> None:
+        """A clock-named directory (`fresh`) renamed NAME_label, so that TensorBoard, which names a
+        run by its directory, tells the runs of different robots apart (entered as NAME_label_1,
+        ... where NAME_label is taken). The lock moves with it; a directory the user named is kept."""
+        if not self._fresh or self._fd is None or not label:
+            return
+        for n in range(10_000):
+            path = self.path.with_name(f"{self.path.name}_{label}" + (f"_{n}" if n else ""))
+            try:
+                path.mkdir()  # claimed: another process's mkdir of this name now fails
+            except FileExistsError:
+                continue
+            os.rename(self.path, path)  # onto the empty directory just made, which it replaces
+            break
+        else:
+            return
+        old = os.path.realpath(self.path)
+        RunDir._held[os.path.realpath(path)] = RunDir._held.pop(old)
+        RunDir._entered[os.path.realpath(path)] = RunDir._entered.pop(old)
+        for handler in logging.getLogger().handlers:
+            if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == self.path:
+                handler.baseFilename = str(path / Path(handler.baseFilename).name)
+        self.path = path
 
     def _take(self, path: Path) -> tuple[Path, int]:
         while True:
@@ -174,9 +201,21 @@ class RunDir:
                 if _is_empty(self.path) and made_since(self.path, _STARTED):
                     self.path.rmdir()  # still under the lock: nobody else is starting in it
         del RunDir._held[os.path.realpath(self.path)]
+        del RunDir._entered[os.path.realpath(self.path)]
         fcntl.flock(self._fd, fcntl.LOCK_UN)
         os.close(self._fd)
         self._fd = None
+
+
+def relabel(out_dir: Path, label: str) -> Path:
+    """The run directory `out_dir` this process holds, renamed NAME_label where Hydra named it after
+    the clock (`RunDir.relabel`: train.py and evaluate.py label theirs with the robot, once it is
+    known); returns the directory used from now on."""
+    held = RunDir._entered.get(os.path.realpath(out_dir))
+    if held is None:
+        return out_dir
+    held.relabel(label)
+    return held.path
 
 
 @contextmanager

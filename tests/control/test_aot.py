@@ -23,11 +23,11 @@ def test_fingerprint_follows_values_not_identity_or_caches():
     assert fingerprint(a, 1e-3) == fingerprint(b, 1e-3)
     assert fingerprint(a, 1e-3) != fingerprint(Plant(ScaraTerms(), viscous=11.0), 1e-3)
     assert fingerprint(a, 1e-3) != fingerprint(a, 2e-3)
-    c1 = make_controller("smc_obs", Gains(), 1e-3, SCARA_MODEL)
-    c2 = make_controller("smc_obs", Gains(K=49.0), 1e-3, SCARA_MODEL)
+    c1 = make_controller("smc_obs", Gains(), 1e-3, model=SCARA_MODEL)
+    c2 = make_controller("smc_obs", Gains(K=49.0), 1e-3, model=SCARA_MODEL)
     assert fingerprint(c1) != fingerprint(c2)
-    f1 = make_controller("arbfn", Gains(), 1e-3, SCARA_MODEL, features=torch.zeros(5, 2))
-    f2 = make_controller("arbfn", Gains(), 1e-3, SCARA_MODEL, features=torch.ones(5, 2))
+    f1 = make_controller("arbfn", Gains(), 1e-3, model=SCARA_MODEL, features=torch.zeros(5, 2))
+    f2 = make_controller("arbfn", Gains(), 1e-3, model=SCARA_MODEL, features=torch.ones(5, 2))
     assert fingerprint(f1, skip=("features",)) == fingerprint(f2, skip=("features",))
     assert fingerprint(f1) != fingerprint(f2)
     assert fingerprint(torch.zeros(2)) != fingerprint(torch.zeros(2, dtype=torch.float64))
@@ -84,8 +84,8 @@ def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
     plant, feats = Plant(ScaraTerms()), torch.rand(sc.steps + 1, 4, dtype=torch.float64)
     ctrl = Stacked(
         [
-            make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL),
-            make_controller("arbfn", Gains(), sc.dt, SCARA_MODEL, features=feats),
+            make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL),
+            make_controller("arbfn", Gains(), sc.dt, model=SCARA_MODEL, features=feats),
         ],
         [1, 1],
     )
@@ -114,15 +114,17 @@ def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
     monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
     sc = Scenario(duration=0.02, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL)
     pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
-    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, pay, chunk=4)
+    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4)
     with caplog.at_level("INFO", logger="rbfn.control.simulator"):
-        first = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, pay, chunk=4, aot=True)
+        first = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4, aot=True)
         (pkg,) = (tmp_path / "aot").glob("chunk-*.pt2")
         built = pkg.stat().st_mtime_ns
-        again = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0 + 1e-3, qd0, pay, chunk=4, aot=True)  # other values
+        again = simulate(
+            Plant(ScaraTerms()), ctrl, sc, ref, q0=q0 + 1e-3, qd0=qd0, payload=pay, chunk=4, aot=True
+        )  # other values
     assert sum("compiling the closed-loop step" in r.message for r in caplog.records) == 1
     assert pkg.stat().st_mtime_ns == built and len(list((tmp_path / "aot").iterdir())) == 1
     assert torch.allclose(first.q, eager.q, rtol=0, atol=1e-12)

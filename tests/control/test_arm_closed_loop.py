@@ -33,8 +33,8 @@ PANDA_LOCKED = compose_config("evaluate", *PANDA_HELD).robot  # joint 3 held at 
 def _run(plant, model, name, sc, ref, payload, **kw):
     b, n = payload.shape[0], ref.q_d.shape[1]
     q0, qd0 = ref.q_d[:1].expand(b, n).clone(), ref.qd_d[:1].expand(b, n).clone()
-    ctrl = make_controller(name, Gains(), sc.dt, model, **kw)
-    return simulate(plant, ctrl, sc, ref, q0, qd0, payload)
+    ctrl = make_controller(name, Gains(), sc.dt, model=model, **kw)
+    return simulate(plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload)
 
 
 @pytest.mark.parametrize("name,integrator", [("smc_obs", "rk4"), ("ctc", "euler"), ("pd", "rk4")])
@@ -94,11 +94,11 @@ def test_ur5_batched_run_matches_single_runs(integrator):
     scale = setup.joint_scale(dtype=torch.float64)
     pay = torch.tensor(setup.payloads, dtype=torch.float64)
     assert setup.payloads == [0.0, 2.5, 5.0]
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, setup.model, joint_scale=scale)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=setup.model, joint_scale=scale)
     q0, qd0 = ref.q_d[:1].expand(3, 6).clone(), ref.qd_d[:1].expand(3, 6).clone()
-    batch = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
+    batch = simulate(setup.plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=7)
     for i in range(3):
-        one = simulate(setup.plant, ctrl, sc, ref, q0[i : i + 1], qd0[i : i + 1], pay[i : i + 1])
+        one = simulate(setup.plant, ctrl, sc, ref, q0=q0[i : i + 1], qd0=qd0[i : i + 1], payload=pay[i : i + 1])
         assert torch.allclose(batch.q[:, i], one.q[:, 0], atol=1e-12, rtol=0)
     assert batch.q.shape == (sc.steps + 1, 3, 6)
     k_on = round(0.02 / sc.dt)
@@ -110,10 +110,16 @@ def test_ur5_divergence_stops_with_step_and_state():
     setup = _ur5()
     sc = Scenario(duration=1.0, dt=0.01, payload_on=0.1, payload_off=0.3, integrator="euler")
     ref = setup.trajectory(sc.times())
-    ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, setup.model)
+    ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, model=setup.model)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = \["):
         simulate(
-            setup.plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+            setup.plant,
+            ctrl,
+            sc,
+            ref,
+            q0=ref.q_d[:1].clone(),
+            qd0=ref.qd_d[:1].clone(),
+            payload=torch.zeros(1, dtype=torch.float64),
         )
 
 
@@ -215,11 +221,11 @@ def test_ur5_compiled_step_equals_eager():
     sc = Scenario(duration=0.01, payload_on=0.002, payload_off=0.008, integrator="euler", metrics_after=0.0)
     ref = setup.trajectory(sc.times())
     scale = setup.joint_scale(dtype=torch.float64)
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, setup.model, joint_scale=scale)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=setup.model, joint_scale=scale)
     pay = torch.tensor([0.0, 2.5], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(2, 6).clone(), ref.qd_d[:1].expand(2, 6).clone()
-    eager = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay)
-    compiled = simulate(setup.plant, ctrl, sc, ref, q0, qd0, pay, compile=True)
+    eager = simulate(setup.plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay)
+    compiled = simulate(setup.plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, compile=True)
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-8)
 

@@ -38,7 +38,7 @@ def _two_phase(held: float, seconds: float = 1.5):
         "arbfn_kmeans",
         gains,
         sc.dt,
-        model,
+        model=model,
         features=feats,
         law="two_phase",
         schedule=rob.inertia_schedule(gains),
@@ -78,9 +78,9 @@ def test_the_two_phase_law_needs_its_schedule_and_a_known_law_name():
     model = rob.nominal_model(0.0, model_scales(gains))
     feats = torch.zeros(10, 9, **KW)
     with pytest.raises(ValueError, match="inertia schedule"):
-        make_controller("arbfn_aco", gains, 1e-3, model, features=feats, law="two_phase")
+        make_controller("arbfn_aco", gains, 1e-3, model=model, features=feats, law="two_phase")
     with pytest.raises(ValueError, match="unknown adaptive law 'fast'"):
-        make_controller("arbfn_aco", gains, 1e-3, model, features=feats, law="fast")
+        make_controller("arbfn_aco", gains, 1e-3, model=model, features=feats, law="fast")
 
 
 def test_the_two_phase_state_can_enter_a_compiled_package():

@@ -53,7 +53,14 @@ def _run(loop: RealLoop, ctrl: Controller, steps: int = 20, dt: float = 1e-3, re
         ref = (k, torch.zeros_like(k), torch.zeros_like(k))
     q0 = torch.tensor([[1.0, 1.0, 1.0]], dtype=torch.float64) if q0 is None else q0
     return simulate(
-        Plant(ScaraTerms()), ctrl, sc, ref, q0, torch.zeros_like(q0), torch.zeros(1, dtype=torch.float64), loop=loop
+        Plant(ScaraTerms()),
+        ctrl,
+        sc,
+        ref,
+        q0=q0,
+        qd0=torch.zeros_like(q0),
+        payload=torch.zeros(1, dtype=torch.float64),
+        loop=loop,
     )
 
 
@@ -153,8 +160,8 @@ def test_with_every_part_off_the_realistic_loop_is_the_ideal_one():
     payload = torch.tensor([10.0], dtype=torch.float64)
     runs = []
     for loop in (None, RealLoop()):
-        ctrl = make_controller("smc_obs", cfg.gains, sc.dt, SCARA_MODEL)
-        runs.append(simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, loop=loop))
+        ctrl = make_controller("smc_obs", cfg.gains, sc.dt, model=SCARA_MODEL)
+        runs.append(simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, loop=loop))
     ideal, real = runs
     assert torch.allclose(ideal.q, real.q, rtol=0, atol=1e-10)
     assert torch.allclose(ideal.tau, real.tau, rtol=1e-9, atol=1e-7)
@@ -237,9 +244,9 @@ def test_every_controller_meets_the_same_noise_in_a_case():
         Echo("measured"),
         sc,
         (k, 0 * k, 0 * k),
-        q0,
-        torch.zeros_like(q0),
-        torch.zeros(4),
+        q0=q0,
+        qd0=torch.zeros_like(q0),
+        payload=torch.zeros(4),
         loop=loop,
     )
     noise = roll.tau[:-1] - roll.q[:-1]  # what the controller saw less the truth
@@ -305,7 +312,7 @@ def test_joint_rates_scale_the_observer_and_the_adaptation_per_joint_alone_and_b
     alpha = torch.tensor(gains.gamma * dt, dtype=torch.float64)
 
     def step(r):
-        c = make_controller("arbfn_x", gains, dt, SCARA_MODEL, features=feats, rates=r)
+        c = make_controller("arbfn_x", gains, dt, model=SCARA_MODEL, features=feats, rates=r)
         st = c.init_state(q0, qd0)
         _, st = c.torque(ref, q0, qd0, st, h=feats[0], alpha=alpha)  # the observer integrates a period
         return c.torque(ref, q, qd, st, h=feats[1], alpha=alpha)[1]
@@ -314,7 +321,9 @@ def test_joint_rates_scale_the_observer_and_the_adaptation_per_joint_alone_and_b
     assert torch.allclose(scaled.d_hat, plain.d_hat * rates.observer, rtol=1e-12, atol=0)
     w0 = torch.zeros_like(plain.w)
     assert torch.allclose(scaled.w - w0, (plain.w - w0) * rates.gamma, rtol=1e-12, atol=1e-15)
-    parts = [make_controller(f"arbfn_{k}", gains, dt, SCARA_MODEL, features=feats, rates=rates) for k in ("a", "b")]
+    parts = [
+        make_controller(f"arbfn_{k}", gains, dt, model=SCARA_MODEL, features=feats, rates=rates) for k in ("a", "b")
+    ]
     batch = Stacked(parts, [2, 2])
     assert len(batch.units) == 1  # one SlidingModeBatch
     st = batch.init_state(q0.repeat(2, 1), qd0.repeat(2, 1))
@@ -438,10 +447,10 @@ def _realistic_scara(chunk: int, **kw):
     loop = real_loop(cfg.loop, sc.dt, [False, False, True], torch.tensor([80.0, 40.0, 300.0], dtype=torch.float64))
     assert loop is not None and loop.substeps > 1 and loop.position_noise
     loop = replace(loop, torque_noise=torch.full((3,), 0.05, dtype=torch.float64))  # both noise streams
-    ctrl = make_controller("smc_obs", cfg.gains, loop.period, SCARA_MODEL)
+    ctrl = make_controller("smc_obs", cfg.gains, loop.period, model=SCARA_MODEL)
     payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
-    return simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, loop=loop, chunk=chunk, **kw)
+    return simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, loop=loop, chunk=chunk, **kw)
 
 
 def test_the_realistic_run_does_not_depend_on_its_chunk_length():

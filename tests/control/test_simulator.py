@@ -99,9 +99,15 @@ def test_observer_estimates_the_model_gravity_error():
     model = NominalModel(ScaraTerms(), ModelScales(1.0, 1.0, 0.85))
     sc = Scenario(duration=1.0, payload_on=0.0, payload_off=1.0, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, model)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=model)
     roll = simulate(
-        plant, ctrl, sc, ref, ref.q_d[:1].clone(), ref.qd_d[:1].clone(), torch.zeros(1, dtype=torch.float64)
+        plant,
+        ctrl,
+        sc,
+        ref,
+        q0=ref.q_d[:1].clone(),
+        qd0=ref.qd_d[:1].clone(),
+        payload=torch.zeros(1, dtype=torch.float64),
     )
     err = (ref.q_d[-1] - roll.q[-1, 0]).abs()
     assert float(err.max()) < 1e-5  # with the bias observed and cancelled, tracking is tight
@@ -114,10 +120,10 @@ def test_batched_run_matches_single_runs(integrator):
     plant = Plant(ScaraTerms(), friction="smooth")
     pay = torch.tensor([0.0, 10.0, 20.0], dtype=torch.float64)
     q0, qd0 = ref.q_d[:1].expand(3, 3).clone(), ref.qd_d[:1].expand(3, 3).clone()
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL)
-    batch = simulate(plant, ctrl, sc, ref, q0, qd0, pay, chunk=7)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL)
+    batch = simulate(plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=7)
     for i in range(3):
-        one = simulate(plant, ctrl, sc, ref, q0[i : i + 1], qd0[i : i + 1], pay[i : i + 1])
+        one = simulate(plant, ctrl, sc, ref, q0=q0[i : i + 1], qd0=qd0[i : i + 1], payload=pay[i : i + 1])
         assert torch.allclose(batch.q[:, i], one.q[:, 0], atol=1e-12)
     assert batch.q.shape == (sc.steps + 1, 3, 3) and batch.t.shape == (sc.steps + 1,)
     # The payload changes the response only inside and after its window.
@@ -140,19 +146,19 @@ def test_stacked_controllers_equal_their_separate_runs():
     # pd alone; then one batched sliding-mode unit of four (two networks of different sizes, one
     # warm-started, with and without the observer); then ctc alone.
     parts = [
-        make_controller("pd", Gains(), sc.dt, SCARA_MODEL),
-        make_controller("arbfn", Gains(), sc.dt, SCARA_MODEL, features=feats),
-        make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL),
-        make_controller("smc", Gains(), sc.dt, SCARA_MODEL),
-        make_controller("arbfn", Gains(), sc.dt, SCARA_MODEL, features=other, w0=w0, observer=False),
-        make_controller("ctc", Gains(), sc.dt, SCARA_MODEL),
+        make_controller("pd", Gains(), sc.dt, model=SCARA_MODEL),
+        make_controller("arbfn", Gains(), sc.dt, model=SCARA_MODEL, features=feats),
+        make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL),
+        make_controller("smc", Gains(), sc.dt, model=SCARA_MODEL),
+        make_controller("arbfn", Gains(), sc.dt, model=SCARA_MODEL, features=other, w0=w0, observer=False),
+        make_controller("ctc", Gains(), sc.dt, model=SCARA_MODEL),
     ]
     stacked = Stacked(parts, [2] * len(parts))
     assert len(stacked.units) == 3 and stacked.unit_sizes == [2, 8, 2]
     k = len(parts)
-    both = simulate(plant, stacked, sc, ref, q0.repeat(k, 1), qd0.repeat(k, 1), pay.repeat(k))
+    both = simulate(plant, stacked, sc, ref, q0=q0.repeat(k, 1), qd0=qd0.repeat(k, 1), payload=pay.repeat(k))
     for i, ctrl in enumerate(parts):
-        one = simulate(plant, ctrl, sc, ref, q0, qd0, pay)
+        one = simulate(plant, ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay)
         assert torch.allclose(both.q[:, 2 * i : 2 * i + 2], one.q, rtol=0, atol=1e-12)
         assert torch.allclose(both.tau[:, 2 * i : 2 * i + 2], one.tau, rtol=0, atol=1e-9)
     with pytest.raises(ValueError, match="one batch size per controller"):
@@ -165,7 +171,7 @@ def test_adaptive_law_moves_the_weights():
     t = torch.arange(n, dtype=torch.float64) * dt
     ref = paper_trajectory(t)
     h = torch.rand(n, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
-    ctrl = make_controller("arbfn_x", Gains(), dt, NominalModel(ScaraTerms()), features=h)
+    ctrl = make_controller("arbfn_x", Gains(), dt, model=NominalModel(ScaraTerms()), features=h)
     plant = Plant(ScaraTerms())
     q, qd = ref.q_d[:1].clone(), ref.qd_d[:1].clone()
     periods = Periods(
@@ -184,16 +190,16 @@ def test_adaptive_law_moves_the_weights():
 def test_divergence_stops_with_step_and_state():
     sc = Scenario(duration=2.0, dt=0.05, payload_on=0.5, payload_off=1.0, integrator="euler")
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, SCARA_MODEL)
+    ctrl = make_controller("pd", Gains(pd_kp=1e6, pd_kd=1e5), sc.dt, model=SCARA_MODEL)
     with pytest.raises(SimulationDiverged, match=r"diverged by step \d+ \(t = .* s\) in environment 0: q = "):
         simulate(
             Plant(ScaraTerms()),
             ctrl,
             sc,
             ref,
-            ref.q_d[:1].clone(),
-            ref.qd_d[:1].clone(),
-            torch.zeros(1, dtype=torch.float64),
+            q0=ref.q_d[:1].clone(),
+            qd0=ref.qd_d[:1].clone(),
+            payload=torch.zeros(1, dtype=torch.float64),
         )
 
 
@@ -217,7 +223,7 @@ def test_bad_scenarios_fail_early(kwargs, match):
 def test_bad_inputs_fail_early():
     sc = Scenario(duration=0.1, payload_on=0.0, payload_off=0.05, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
-    ctrl = make_controller("smc", Gains(), sc.dt, SCARA_MODEL)
+    ctrl = make_controller("smc", Gains(), sc.dt, model=SCARA_MODEL)
     q0 = ref.q_d[:1].clone()
     with pytest.raises(ValueError, match="initial state"):
         simulate(
@@ -225,18 +231,24 @@ def test_bad_inputs_fail_early():
             ctrl,
             sc,
             ref,
-            q0 * float("nan"),
-            ref.qd_d[:1].clone(),
-            torch.zeros(1, dtype=torch.float64),
+            q0=q0 * float("nan"),
+            qd0=ref.qd_d[:1].clone(),
+            payload=torch.zeros(1, dtype=torch.float64),
         )
     with pytest.raises(ValueError, match="payload masses"):
         simulate(
-            Plant(ScaraTerms()), ctrl, sc, ref, q0, ref.qd_d[:1].clone(), torch.tensor([-1.0], dtype=torch.float64)
+            Plant(ScaraTerms()),
+            ctrl,
+            sc,
+            ref,
+            q0=q0,
+            qd0=ref.qd_d[:1].clone(),
+            payload=torch.tensor([-1.0], dtype=torch.float64),
         )
     with pytest.raises(ValueError, match="friction='coulomb' is not allowed"):
         Plant(ScaraTerms(), friction="coulomb")
     with pytest.raises(ValueError, match="unknown controller 'lqr'"):
-        make_controller("lqr", Gains(), 1e-3, SCARA_MODEL)
+        make_controller("lqr", Gains(), 1e-3, model=SCARA_MODEL)
 
 
 @pytest.mark.slow
@@ -250,9 +262,9 @@ def test_compiled_step_equals_eager():
     ref = paper_trajectory(sc.times())
     q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
     payload = torch.tensor([0.0, 10.0], dtype=torch.float64)
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, SCARA_MODEL)
-    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, chunk=5)
-    compiled = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0, qd0, payload, compile=True, chunk=5)
+    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL)
+    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, chunk=5)
+    compiled = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=payload, compile=True, chunk=5)
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(compiled.tau, eager.tau, rtol=0, atol=1e-9)
 

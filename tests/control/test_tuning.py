@@ -314,7 +314,7 @@ def test_the_other_controllers_do_not_change_when_the_colony_tunes_on_the_closed
 def test_metrics_json_reports_the_tuned_cost_beside_the_held_out_result(tmp_path):
     cfg = _control(controllers=["smc", "arbfn_kmeans", "arbfn_aco"])
     with SummaryWriter(str(tmp_path)) as writer:
-        info = evaluate_control(cfg, GainsConfig(), "cpu", writer, tmp_path)["control_info"]
+        info = evaluate_control(cfg, GainsConfig(), device="cpu", writer=writer, out_dir=tmp_path)["control_info"]
     json.dumps(info)
     assert set(info["tuning"]) == {"arbfn_kmeans", "arbfn_aco"}
     aco = info["tuning"]["arbfn_aco"]

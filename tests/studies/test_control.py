@@ -47,7 +47,7 @@ def _short(**kw):
 def test_evaluate_control_writes_the_nested_metrics_and_figures(tmp_path):
     cfg = _short()
     with SummaryWriter(str(tmp_path)) as writer:
-        out = evaluate_control(cfg, GainsConfig(), "cpu", writer, tmp_path)
+        out = evaluate_control(cfg, GainsConfig(), device="cpu", writer=writer, out_dir=tmp_path)
     metrics, info = out["control"], out["control_info"]
     assert list(metrics) == cfg.controllers
     for name, cases in metrics.items():
@@ -101,7 +101,7 @@ def test_a_pick_and_place_run_is_a_case_of_every_controller(tmp_path):
     pnp = PickAndPlaceConfig(picks=2, duration=2.5, seed=1)
     cfg = _short(controllers=["smc", "smc_exact", "arbfn_kmeans"], network=net, pick_and_place=pnp)
     with SummaryWriter(str(tmp_path)) as writer:
-        out = evaluate_control(cfg, GainsConfig(), "cpu", writer, tmp_path)
+        out = evaluate_control(cfg, GainsConfig(), device="cpu", writer=writer, out_dir=tmp_path)
     metrics, info = out["control"], out["control_info"]["pick_and_place"]
     for cases in metrics.values():
         assert list(cases) == ["0kg", "10kg", "pick_and_place"]

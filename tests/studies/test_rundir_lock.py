@@ -13,7 +13,7 @@ from contextlib import contextmanager
 import pytest
 
 import train
-from rbfn.studies.rundir import RunDir, RunDirInUse
+from rbfn.studies.rundir import RunDir, RunDirInUse, relabel
 
 from ..conftest import ROOT, TINY_TRAIN, compose_config
 
@@ -48,6 +48,26 @@ def test_a_clock_named_directory_in_use_or_holding_files_is_passed_over(tmp_path
     (named / "train.log").unlink()
     with RunDir(named, fresh=True) as third:
         assert third.path == named  # free and empty: taken as it is
+
+
+def test_a_clock_named_directory_is_labelled_with_its_robot_and_keeps_its_lock(tmp_path):
+    """relabel renames a clock-named directory NAME_robot (TensorBoard names runs by directory),
+    passes over a taken name, moves the lock with it, and keeps a directory the user named."""
+    named = tmp_path / "12-00-00"
+    (tmp_path / "12-00-00_ur5").mkdir()  # another run's
+    with RunDir(named, fresh=True, tidy=True) as run:
+        assert relabel(named, "ur5") == tmp_path / "12-00-00_ur5_1" == run.path
+        assert not named.exists()
+        fd = os.open(run.path, os.O_RDONLY)  # another open file description: the lock is another's to it
+        try:
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        finally:
+            os.close(fd)
+    assert not (tmp_path / "12-00-00_ur5_1").exists()  # tidied: empty, made for the run
+    mine = tmp_path / "my_run"
+    with RunDir(mine) as run:
+        assert relabel(mine, "ur5") == mine == run.path
 
 
 def test_a_named_directory_in_use_or_holding_files_is_refused(tmp_path):
