@@ -229,6 +229,12 @@ def _load(path: Path) -> Callable:
 # (tuples, NamedTuples, lists, None, tensors) are walked directly; anything else goes to pytree.
 
 
+def same_kind(like: tuple, parts: Any) -> tuple:
+    """`parts` as a tuple of `like`'s kind: its NamedTuple class (a payload's `load`, the loop's
+    state), or a plain tuple."""
+    return type(like)(*parts) if hasattr(like, "_fields") else tuple(parts)
+
+
 def map_tensors(fn: Callable[..., Any], tree: Any, *others: Any) -> Any:
     """`tree` with each tensor x replaced by fn(x, *the same places of `others`), other leaves kept:
     pytree.tree_map_only(torch.Tensor, ...) without its cost on the loop's named state."""
@@ -238,9 +244,7 @@ def map_tensors(fn: Callable[..., Any], tree: Any, *others: Any) -> Any:
         return tree
     if isinstance(tree, (tuple, list)):
         parts = [map_tensors(fn, v, *(o[i] for o in others)) for i, v in enumerate(tree)]
-        if isinstance(tree, list):
-            return parts
-        return type(tree)(*parts) if hasattr(tree, "_fields") else tuple(parts)
+        return parts if isinstance(tree, list) else same_kind(tree, parts)
     return pytree.tree_map(lambda x, *o: fn(x, *o) if isinstance(x, torch.Tensor) else x, tree, *others)
 
 

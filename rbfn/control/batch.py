@@ -15,6 +15,7 @@ from typing import cast
 
 import torch
 
+from .aot import same_kind
 from .controllers import Controller, Forces, Reference, SlidingMode, SlidingState
 from .loop import Applied
 
@@ -149,7 +150,12 @@ class Stacked(Controller):
     ) -> tuple[torch.Tensor, tuple]:
         assert alpha is not None  # one column per unit (K,)
         rows = (
-            [Forces(ld, forces.dist) for ld in zip(*(c.split(self.unit_sizes) for c in forces.load))] if forces else []
+            [
+                Forces(same_kind(forces.load, ld), forces.dist)
+                for ld in zip(*(c.split(self.unit_sizes) for c in forces.load))
+            ]
+            if forces
+            else []
         )
         taus, states = [], []
         parts = (

@@ -6,6 +6,11 @@ A scenario is a time grid, an integrator (RK4, or semi-implicit Euler) and when 
 carried (one window, or a pick-and-place sequence of `Carry`s);
 `simulate` runs it in chunks of fused periods (optionally torch.compile'd) and stops with the
 step, time, environment and state where a run diverges; `control_metrics` scores a rollout.
+
+Why one module of over 500 lines: the ideal and the realistic loop drive one chunk runner
+(`run_chunks`) with one scenario, record and divergence check, and their named state is
+registered together for the ahead-of-time packages; the realistic loop's own parts follow the
+ideal loop's.
 """
 
 from __future__ import annotations
@@ -20,7 +25,9 @@ import torch
 import torch.utils._pytree as pytree  # no public pytree module in torch 2.13 (see rbfn.control.aot)
 
 from ..config import Integrator
-from .aot import aot_chunk, chunk_key, map_tensors, serializable
+from ..robots.arm_terms import PointMass
+from ..robots.scara.closed_form import ScaraLoad
+from .aot import aot_chunk, chunk_key, map_tensors, same_kind, serializable
 from .controllers import Controller, Forces, SlidingState, TwoPhaseState
 from .loop import Actuation, Applied, RealLoop, Sensing, filtered_velocity, quantise, saturate
 from .plants import Plant
@@ -232,12 +239,13 @@ def make_chunk(
             periods.dist.unbind(0),
             *(c.unbind(0) for c in periods.load),
         )
-        for q_d, qd_d, qdd_d, h, alpha, dist, *load in rows:
+        for q_d, qd_d, qdd_d, h, alpha, dist, *parts in rows:
             qs.append(q)
             qds.append(qd)
-            forces = _forces(controller, tuple(load), dist)
+            load = same_kind(periods.load, parts)
+            forces = _forces(controller, load, dist)
             tau, state = controller.torque(Reference(q_d, qd_d, qdd_d), q, qd, state, h=h, alpha=alpha, forces=forces)
-            q, qd = plant.step(q, qd, tau, dist, dt, tuple(load), integrator)
+            q, qd = plant.step(q, qd, tau, dist, dt, load, integrator)
             taus.append(tau)
         return Recorded(Loop(q, qd, state), torch.stack(qs), torch.stack(qds), torch.stack(taus))
 
@@ -520,7 +528,7 @@ def make_real_chunk(
             # Control, told what the last period applied.
             ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
             h = None if periods.h is None else periods.h[k]
-            forces = _forces(controller, tuple(c[k, 0] for c in periods.load), periods.dist[k, 0])
+            forces = _forces(controller, same_kind(periods.load, [c[k, 0] for c in periods.load]), periods.dist[k, 0])
             cmd, cstate = controller.torque(
                 ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, forces=forces
             )
@@ -542,7 +550,15 @@ def make_real_chunk(
             if periods.torque_noise is not None:
                 u = u + periods.torque_noise[k]
             for j in range(loop.substeps):
-                q, qd = plant.step(q, qd, u, periods.dist[k, j], dt, tuple(c[k, j] for c in periods.load), integrator)
+                q, qd = plant.step(
+                    q,
+                    qd,
+                    u,
+                    periods.dist[k, j],
+                    dt,
+                    same_kind(periods.load, [c[k, j] for c in periods.load]),
+                    integrator,
+                )
             taus.append(u)
         return Recorded(RealState(q, qd, cstate, sensing, act), torch.stack(qs), torch.stack(qds), torch.stack(taus))
 
@@ -572,7 +588,9 @@ def _simulate_real(
     n_steps = periods * sub
     b, nj = q0.shape
     kw: dict[str, Any] = {"dtype": q0.dtype, "device": q0.device}
-    load = tuple(c.reshape(periods, sub, b) for c in plant.load(payload_schedule(scenario, n_steps, payload, **kw)))
+    load = map_tensors(
+        lambda c: c.reshape(periods, sub, b), plant.load(payload_schedule(scenario, n_steps, payload, **kw))
+    )
     dist = stage_disturbances(plant, n_steps, dt, **kw)
     dist = dist.reshape(periods, sub, *dist.shape[1:])
     starts = slice(0, n_steps, sub)  # each period's first integration step
@@ -699,7 +717,19 @@ def _real_example(inputs: RealPeriods, state: RealState, loop: RealLoop, chunk: 
 
 # in an AOT package's call spec
 serializable(
-    Reference, Loop, Periods, Recorded, SlidingState, TwoPhaseState, RealState, RealPeriods, Sensing, Actuation, Applied
+    Reference,
+    Loop,
+    Periods,
+    Recorded,
+    SlidingState,
+    TwoPhaseState,
+    RealState,
+    RealPeriods,
+    Sensing,
+    Actuation,
+    Applied,
+    ScaraLoad,
+    PointMass,
 )
 
 

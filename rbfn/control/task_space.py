@@ -34,7 +34,7 @@ from ..robots.dynamics import load_arm
 from ..robots.perturbed import PerturbedChain
 from ..robots.registry import ClosedForm, closed_form
 from ..robots.robot import robot_from_record, rotation_error_deg, unit_quaternions
-from .aot import ahead_of_time, aot_chunk, chunk_key
+from .aot import ahead_of_time, aot_chunk, chunk_key, map_tensors
 from .controllers import Controller, make_controller
 from .loop import integration_limit
 from .models import model_scales
@@ -344,7 +344,7 @@ def run_online(
         m = sl.stop - sl.start
         stacked = (path[:, None, sl] @ learner.w).transpose(1, 2)  # (3, m, B, n_free): q_d, qd_d, qdd_d
         ref = Reference(rob.full(stacked[0]), rob.full(stacked[1], vel), rob.full(stacked[2], vel))
-        return Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], load=tuple(c[:m] for c in load))
+        return Periods(ref=ref, h=None, alpha=alpha[:m], dist=dist[sl], load=map_tensors(lambda c: c[:m], load))
 
     def learn(sl: slice, out: Any) -> None:
         """The adapted networks learn the segment's pairs (x, q); the frozen ones learn nothing."""

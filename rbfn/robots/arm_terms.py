@@ -23,7 +23,7 @@ Motion and force vectors are pairs (angular or moment (n, 3, B), linear or force
 from __future__ import annotations
 
 import operator
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 
@@ -108,6 +108,13 @@ def _frame_to(axis: torch.Tensor) -> torch.Tensor:
     return torch.stack([x, torch.linalg.cross(z, x), z], 1)
 
 
+class PointMass(NamedTuple):
+    """A payload as a URDF arm's terms take it (`ArmTerms.load`): a point mass, kg (float or any
+    shape), at the payload link (`rbfn.robots.dynamics`)."""
+
+    mass: Payload
+
+
 class ArmTerms:
     """The URDF backend of `rbfn.robots.backend.Dynamics` for an `Arm` (its constants, float64 at
     load, cast per dtype and device): the batch-last terms, eager or compiled."""
@@ -158,15 +165,15 @@ class ArmTerms:
             self._cache[key] = c
         return self._cache[key]
 
-    def load(self, payload: Payload) -> tuple:
-        """What the terms need of a payload (kg, float or any shape): (payload,)."""
-        return (payload,)
+    def load(self, payload: Payload) -> PointMass:
+        """What the terms need of a payload (kg, float or any shape): its mass."""
+        return PointMass(payload)
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: tuple | None = None) -> Any:
+    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: PointMass | None = None) -> Any:
         """The arm at joints q (B, n) rad or m carrying `payload` kg (float or (B,)) at its payload
         link (or its `load`): a `Config`."""
         if load is not None:
-            (payload,) = load
+            payload = load.mass
         if q.dim() != 2 or q.shape[1] != self.n:
             raise ValueError(f"expected joint values (B, {self.n}), got {tuple(q.shape)}")
         return Config(self.n, self._consts(q.dtype, q.device), q, payload)

@@ -121,14 +121,16 @@ class Dynamics(Protocol):
     """An arm's equations of motion (a backend); see the module docstring.
 
     n: the joints; compile_chunk: control periods per torch.compile'd call that suit this backend
-    (its step's graph size)."""
+    (its step's graph size). `load(payload)`: what the terms need of a payload, computed once for
+    a whole schedule, as the backend's own NamedTuple (`rbfn.robots.scara.closed_form.ScaraLoad`,
+    `rbfn.robots.arm_terms.PointMass`), which `at` takes back."""
 
     n: int
     compile_chunk: int
 
-    def load(self, payload: Payload) -> tuple: ...
+    def load(self, payload: Payload) -> Any: ...
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: tuple | None = None) -> Terms: ...
+    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: Any = None) -> Terms: ...
 
     def scaled(self, m: float, c: float, g: float) -> Dynamics: ...
 
@@ -143,10 +145,10 @@ class Scaled:
         self.dynamics, self.n, self.compile_chunk = dynamics, dynamics.n, dynamics.compile_chunk
         self.m, self.c, self.g = m, c, g
 
-    def load(self, payload: Payload) -> tuple:
+    def load(self, payload: Payload) -> Any:
         return self.dynamics.load(payload)
 
-    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: tuple | None = None) -> ScaledTerms:
+    def at(self, q: torch.Tensor, payload: Payload = 0.0, load: Any = None) -> ScaledTerms:
         return ScaledTerms(self.dynamics.at(q, payload, load), self.m, self.c, self.g)
 
     def scaled(self, m: float, c: float, g: float) -> Scaled:

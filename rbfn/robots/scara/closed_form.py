@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any, NamedTuple
 
 import torch
 
@@ -209,6 +210,17 @@ def m_solve_parts(c2, co, r1: torch.Tensor, r2: torch.Tensor, r3: torch.Tensor) 
     return joint_vector([(p3 * r1 - m12 * r2) / det, (m11 * r2 - m12 * r1) / det, r3 / m3])
 
 
+class ScaraLoad(NamedTuple):
+    """A payload as the SCARA's terms take it (`ScaraTerms.load`): `inertia_params`' coefficients
+    with it, kg m^2 (p1, p2, p3) and kg (m3), and m3 g, N; each shaped like the payload."""
+
+    p1: Any
+    p2: Any
+    p3: Any
+    m3: Any
+    m3g: Any
+
+
 class ScaraTerms:
     """The SCARA's closed form as a backend of `rbfn.robots.backend.Dynamics`: elementwise terms
     (no (B, 3, 3) matrix, no chain walk), with M, C and G scaled by `scales` (m, c, g) folded into
@@ -223,13 +235,13 @@ class ScaraTerms:
         self.params, self.scales = params, scales
         self._gravity: dict = {}
 
-    def load(self, payload: float | torch.Tensor) -> tuple:
-        """What the terms need of a payload (kg, float or any shape, e.g. a whole schedule (T, B)):
-        (p1, p2, p3, m3, m3 g) of `inertia_params`, each shaped like it."""
+    def load(self, payload: float | torch.Tensor) -> ScaraLoad:
+        """What the terms need of a payload (kg, float or any shape, e.g. a whole schedule (T, B)),
+        each part shaped like it."""
         p1, p2, p3, m3 = inertia_params(payload, self.params)
-        return p1, p2, p3, m3, m3 * self.params.g
+        return ScaraLoad(p1, p2, p3, m3, m3 * self.params.g)
 
-    def at(self, q: torch.Tensor, payload: float | torch.Tensor = 0.0, load: tuple | None = None) -> ScaraAt:
+    def at(self, q: torch.Tensor, payload: float | torch.Tensor = 0.0, load: ScaraLoad | None = None) -> ScaraAt:
         """The arm at joints q (B, 3) carrying `payload` kg (float or (B,)) at the quill, or the
         payload's `load` (each (B,)) where the caller computed it beforehand."""
         return ScaraAt(self, q, self.load(payload) if load is None else load)
@@ -262,9 +274,9 @@ class ScaraAt:
     """`ScaraTerms` at joints q (B, 3) with a payload (kg, float or (B,)); the interface of
     `rbfn.robots.backend.Terms`. What several terms share (M's entries) is computed once."""
 
-    def __init__(self, terms: ScaraTerms, q: torch.Tensor, load: tuple) -> None:
+    def __init__(self, terms: ScaraTerms, q: torch.Tensor, load: ScaraLoad) -> None:
         self.terms, self.q = terms, q
-        p1, p2, p3, m3, self.m3g = load
+        p1, p2, p3, m3, self.m3g = load.p1, load.p2, load.p3, load.m3, load.m3g
         ms, cs, gs = terms.scales
         if terms.scales == (1.0, 1.0, 1.0):
             self.m_co, self.c_co, self.g3 = (p1, p2, p3, m3), (0.0, p2, 0.0, 0.0), -self.m3g
