@@ -273,6 +273,16 @@ def test_docs_never_name_issue_numbers():
         assert not re.search(r"(?<![\w&])#\d+\b", _split(text)[1]), f"{_rel(page)} mentions an issue number"
 
 
+def test_the_controllers_table_is_the_registrys():
+    """docs/control.md's table of controllers is rbfn.config.BASE_CONTROLLERS, row for row."""
+    from rbfn.config import BASE_CONTROLLERS
+
+    text = (ROOT / "docs" / "control.md").read_text(encoding="utf-8")
+    table = text.split("| `control.controllers` (n joints) |", 1)[1].split("\n\n", 1)[0]
+    rows = re.findall(r"^\| `(\w+)` \| (.*) \|$", table, re.M)
+    assert rows == list(BASE_CONTROLLERS.items())
+
+
 def test_the_network_methods_table_is_the_registrys():
     """docs/control.md's table of adaptive controllers is rbfn.config.NETWORK_METHODS, row for row."""
     from rbfn.config import NETWORK_METHODS

@@ -43,8 +43,15 @@ class Trajectory(Choice):  # the desired joint path of the closed loop
     sinusoid = "sinusoid"
 
 
-# Controllers by name; the adaptive RBFN is ADAPTIVE + one of NETWORK_METHODS (arbfn_aco, ...).
-BASE_CONTROLLERS = ("pd", "ctc", "smc", "smc_obs", "smc_exact")
+# The controllers by name, with what each is (docs/control.md's table); the adaptive RBFN is
+# ADAPTIVE + one of NETWORK_METHODS (arbfn_aco, ...). `rbfn.control.controllers` builds each.
+BASE_CONTROLLERS: dict[str, str] = {
+    "pd": "PD on the joint error, Kp e + Kd de (no model)",
+    "ctc": "computed torque on the nominal model",
+    "smc": "sliding mode: M_hat qr'' + C_hat qr' + G_hat + K s + epsilon sgn(s), s = de + Lambda e",
+    "smc_obs": "`smc` + a generalized-momentum disturbance observer",
+    "smc_exact": "the perfect-knowledge ceiling: `smc`'s feedback with every force known exactly",
+}
 ADAPTIVE = "arbfn_"
 
 
@@ -401,7 +408,7 @@ class ControlConfig:
                 name in BASE_CONTROLLERS or name in arbfn,
                 f"{key}.controllers",
                 name,
-                f"choose from {list(BASE_CONTROLLERS + tuple(arbfn))}",
+                f"choose from {[*BASE_CONTROLLERS, *arbfn]}",
             )
         _need(
             len(set(self.controllers)) == len(self.controllers),

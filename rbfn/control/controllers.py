@@ -24,10 +24,15 @@ The torque gains K, epsilon, pd_kp, pd_kd and gamma act on joint j times `joint_
 by orders of magnitude. Every controller is called once per control period with the period's
 Reference and its state (`SlidingState`: observer and weights, per environment). Running several
 controllers as one batch is `rbfn.control.batch`'s business, not the laws'.
+
+Why one module of over 500 lines: every controller and its builder (`make_controller`, one
+entry per name of `rbfn.config.BASE_CONTROLLERS`), which share the sliding-mode law, its state and
+the nominal model.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import torch
@@ -489,34 +494,70 @@ def make_controller(
     and adaptation rate (None: 1). `law`: the adaptive network's (`control.network.law`):
     `tracking`, features h (T, M) and dW/dt = Gamma h s^T from `w0`; `two_phase` (`TwoPhase`),
     features [h^T W0, h^T V, h^T V - Y] (T, 3n) and the inertia `schedule`."""
-    if name == "pd":
-        return PD(gains, dt, model, joint_scale)
-    if model is None and name != "smc_exact":
-        raise ValueError(f"controller {name!r} needs the nominal model (model=rbfn.control.models.NominalModel)")
-    if name == "ctc":
-        return ComputedTorque(gains, dt, model, joint_scale)
-    if name == "smc":
-        return SlidingMode(gains, dt, model, joint_scale=joint_scale, rates=rates)
-    if name == "smc_obs":
-        return SlidingMode(gains, dt, model, observer=True, joint_scale=joint_scale, rates=rates)
-    if name == "smc_exact":
-        if plant is None:
-            raise ValueError("controller 'smc_exact' needs the plant (it knows every force exactly)")
-        return ExactSliding(gains, dt, plant, joint_scale)
-    if name == ADAPTIVE.rstrip("_") or network_method(name) is not None:  # arbfn, arbfn_<method>
-        if features is None:
-            raise ValueError(f"controller {name!r} needs RBF features (T, M)")
-        if law == "two_phase":
-            assert model is not None  # checked above: every controller but pd and smc_exact has one
-            if schedule is None:
-                raise ValueError(f"controller {name!r} under law 'two_phase' needs the inertia schedule")
-            return TwoPhase(gains, dt, model, features, schedule, joint_scale=joint_scale)
-        if law != "tracking":
-            raise ValueError(f"unknown adaptive law {law!r}; choose 'two_phase' or 'tracking'")
-        return SlidingMode(
-            gains, dt, model, observer=observer, features=features, w0=w0, joint_scale=joint_scale, rates=rates
+    spec = _Spec(name, gains, dt, model, features, w0, observer, joint_scale, plant, rates, law, schedule)
+    build = _BUILDERS.get(name) or (_adaptive if name == ADAPTIVE.rstrip("_") or network_method(name) else None)
+    if build is None:
+        raise ValueError(
+            f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
+            f"{ADAPTIVE}<{'|'.join(NETWORK_METHODS)}>"
         )
-    raise ValueError(
-        f"unknown controller {name!r}; choose one of {list(BASE_CONTROLLERS)} or "
-        f"{ADAPTIVE}<{'|'.join(NETWORK_METHODS)}>"
+    if model is None and name not in ("pd", "smc_exact"):
+        raise ValueError(f"controller {name!r} needs the nominal model (model=rbfn.control.models.NominalModel)")
+    return build(spec)
+
+
+class _Spec(NamedTuple):
+    """`make_controller`'s arguments, as each builder takes them."""
+
+    name: str
+    gains: Gains
+    dt: float
+    model: Any
+    features: torch.Tensor | None
+    w0: torch.Tensor | None
+    observer: bool
+    joint_scale: torch.Tensor | None
+    plant: Any
+    rates: JointRates | None
+    law: str
+    schedule: InertiaSchedule | None
+
+
+def _exact(s: _Spec) -> Controller:
+    if s.plant is None:
+        raise ValueError("controller 'smc_exact' needs the plant (it knows every force exactly)")
+    return ExactSliding(s.gains, s.dt, s.plant, s.joint_scale)
+
+
+def _adaptive(s: _Spec) -> Controller:
+    """arbfn and arbfn_<method>: the adaptive network under its law (`control.network.law`)."""
+    if s.features is None:
+        raise ValueError(f"controller {s.name!r} needs RBF features (T, M)")
+    if s.law == "two_phase":
+        if s.schedule is None:
+            raise ValueError(f"controller {s.name!r} under law 'two_phase' needs the inertia schedule")
+        return TwoPhase(s.gains, s.dt, s.model, s.features, s.schedule, joint_scale=s.joint_scale)
+    if s.law != "tracking":
+        raise ValueError(f"unknown adaptive law {s.law!r}; choose 'two_phase' or 'tracking'")
+    return SlidingMode(
+        s.gains,
+        s.dt,
+        s.model,
+        observer=s.observer,
+        features=s.features,
+        w0=s.w0,
+        joint_scale=s.joint_scale,
+        rates=s.rates,
     )
+
+
+# Each controller of rbfn.config.BASE_CONTROLLERS (its names, and docs/control.md's table), built
+# from make_controller's arguments; the adaptive network is `_adaptive`.
+_BUILDERS: dict[str, Callable[[_Spec], Controller]] = {
+    "pd": lambda s: PD(s.gains, s.dt, s.model, s.joint_scale),
+    "ctc": lambda s: ComputedTorque(s.gains, s.dt, s.model, s.joint_scale),
+    "smc": lambda s: SlidingMode(s.gains, s.dt, s.model, joint_scale=s.joint_scale, rates=s.rates),
+    "smc_obs": lambda s: SlidingMode(s.gains, s.dt, s.model, observer=True, joint_scale=s.joint_scale, rates=s.rates),
+    "smc_exact": _exact,
+}
+assert set(_BUILDERS) == set(BASE_CONTROLLERS), "each rbfn.config.BASE_CONTROLLERS name needs its builder here"
