@@ -21,8 +21,8 @@ def random_centers(z: torch.Tensor, m: int, generator: torch.Generator) -> torch
 
 
 # Largest N * M * d (summed over restarts) k-means runs restarts for; above it fewer restarts, at
-# least one. At the UR5's N = 20000, M = 2000, d = 9 one restart took 12 s on one core against
-# 116 s for ten, and three restarts ended at the same inertia as one.
+# least one. At the UR5's N = 20000, M = 2000, d = 9 one restart costs about a tenth of ten, and
+# three restarts ended at the same inertia as one.
 KMEANS_WORK_MAX = 2e8
 
 

@@ -6,6 +6,9 @@ holds the SHA-256 of the archive, so any changed byte is caught before unpicklin
 still a plain torch.save archive that `torch.load(path, weights_only=True)` reads. Reading
 checks everything evaluation relies on (robot entry, shapes, finite weights) up front, so a bad
 file fails with a message naming it instead of deep inside evaluation.
+
+Why one module of over 500 lines: a checkpoint's writing, sealing and every check on reading
+it sit together, so what a reader relies on is checked where it is written.
 """
 
 from __future__ import annotations

@@ -35,6 +35,9 @@ one with exit status 1. A stop signal (Ctrl-C's SIGINT, SIGTERM, SIGHUP) ends it
 what was written (nothing, unless the signal came while the finished files were being renamed) and
 exit status 128 + the signal's number (130 for SIGINT), even where torch's exporter swallowed the
 KeyboardInterrupt (`rbfn.files.signals_raised`).
+
+Why one module of over 500 lines: the ONNX and .pt2 exports share their metadata, checksums,
+base-yaw handling and polish graph, and each is written and read back by the same code.
 """
 
 from __future__ import annotations

@@ -228,7 +228,7 @@ def _ant_system(t: _Task) -> _Chosen:
 # FULL_FLOPS floating-point operations, the colony searches a few global width quantities instead
 # of every coordinate (see `_acor_reduced`), or, where the mini-batch refinement follows and
 # trains every width from the same start, skips itself; otherwise everything (as the SCARA's: its M = 80
-# colony costs about 6e10, the UR5's M = 200 one 2.6e12, which took 9 minutes).
+# colony costs about 6e10, the UR5's M = 200 one 2.6e12, about 40 times as much).
 FULL_SEARCH_MAX = 2048
 FULL_FLOPS = 2e11
 # Floating-point operations the reduced colony may spend on its fit objective (about a minute

@@ -17,6 +17,9 @@ ranges over its URDF limits. `converged` is True where the final error is within
 `tol_deg`. With `restarts`, the targets that did not converge are tried again from random joints
 in the box, as a sampling IK would, so only the hard few pay for it. Runs where torch and the
 robot model are available; deployed exports hold the network alone.
+
+Why one module of over 500 lines: the damped-least-squares step, its line search, the box
+clamp, the restarts and the nearest-solution choice are one algorithm over one state.
 """
 
 from __future__ import annotations

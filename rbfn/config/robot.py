@@ -65,7 +65,7 @@ class RobotConfig:
     chart_centers: int = 300  # workspace=full: centres of each chart's network (rbfn.num_centers: the box's)
     chart_samples: int = 3000  # workspace=full: training samples drawn a chart, on average (a sixth validate)
     # workspace=full: refine each chart's centres as `centers.refine` says (false: the charts skip the
-    # refinement, ~100 s a UR5 chart against ~2-8 s for its selection and fit)
+    # refinement, which costs a UR5 chart over ten times its selection and fit)
     chart_refine: bool = False
 
     def check(self, key: str = "robot") -> None:

@@ -33,6 +33,9 @@ warned of (`warn_if_singular`).
 kind), `derive_train` / `derive_evaluate` apply both to a whole config: rbfn.studies.training and
 rbfn.studies.evaluation call them before any check. Robots without `robot.derive` (the presets)
 pass through unchanged.
+
+Why one module of over 500 lines: every key robot=urdf derives, each rule beside the ones it
+depends on (home, box, payload), so the log reads in the order the keys are chosen.
 """
 
 from __future__ import annotations
@@ -183,12 +186,8 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     unchanged when it does not ask to derive (`cfg.derive` false)."""
     if not cfg.derive:
         return cfg
-
-    def said(key: str, value: Any, why: str) -> None:
-        log.info("robot.%s = %s (%s)", key, value, why)
-
     name = cfg.name or urdf_name
-    said("name", name, "given" if cfg.name else "the URDF's <robot name>")
+    _said("name", name, "given" if cfg.name else "the URDF's <robot name>")
     unknown = [j for j in cfg.locked if j not in arm.joint_names]
     if unknown:
         raise ValueError(
@@ -198,23 +197,7 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
     joints = [arm.joint_names[i] for i in free]
     log.info("free joints = %s (the chain to %r less robot.locked %s)", joints, cfg.end_link, dict(cfg.locked))
 
-    target = cfg.target
-    if target is None:
-        if len(joints) < 3:
-            raise ValueError(
-                f"robot.target=null: the chain to {cfg.end_link!r} has {len(joints)} free joint(s) {joints}, "
-                "too few to span positions (3) or poses (6); choose a link further out with robot.end_link, "
-                "or give robot.target=position"
-            )
-        # 4 or 5 free joints span no more than 3 of a position's dof without redundancy: their IK
-        # answers the poses the arm reaches (a 5-D or 4-D set of the 6-D poses), one joint vector each
-        target = Target.pose if len(joints) >= 4 else Target.position
-        why = {3: "position (3 dof)", 6: "pose (6 dof)", 7: "pose (6 dof) and one joint as an input"}.get(
-            len(joints), f"pose: the poses the arm reaches ({len(joints)} of their 6 dof)"
-        )
-        said("target", str(target), f"{len(joints)} free joints: {why}")
-    else:
-        said("target", str(target), "given")
+    target = _target(cfg, joints)
     if cfg.redundancy and cfg.redundancy not in joints:
         raise ValueError(f"robot.redundancy={cfg.redundancy!r} is not allowed: allowed are the free joints {joints}")
     pick_redundancy = target == Target.pose and len(joints) == 7 and not cfg.redundancy
@@ -235,7 +218,7 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         # base (rbfn.yaw): it stays an output
         base = trial_robot.base_yaw_sign() != 0
         redundancy = joints[int(scores[int(base) :].argmax()) + int(base)]
-        said(
+        _said(
             "redundancy",
             redundancy,
             "7 free joints for a 6-dof pose: the joint whose value, given, leaves the other six best conditioned "
@@ -246,43 +229,24 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         trial = replace(cfg, name=name, target=target, home=home, joint_low=low, joint_high=high, redundancy=redundancy)
         home, why = conditioned_home(load_robot(trial), lo, hi, torch.tensor(home), cfg.box_halfwidth)
         low, high = _box(torch.tensor(home, dtype=torch.float64), lo, hi, cfg.box_halfwidth)
-        said("home", [round(v, 4) for v in home], why)
-        said(
+        _said("home", [round(v, 4) for v in home], why)
+        _said(
             "joint_low, joint_high",
             f"{[round(v, 4) for v in low]}, {[round(v, 4) for v in high]}",
             f"home +- robot.box_halfwidth={cfg.box_halfwidth:g}, clipped to the URDF limits",
         )
 
     gravity = GRAVITY if cfg.gravity is None else cfg.gravity
-    said("gravity", gravity, "given" if cfg.gravity is not None else "standard gravity, m/s^2")
+    _said("gravity", gravity, "given" if cfg.gravity is not None else "standard gravity, m/s^2")
 
-    payload = cfg.rated_payload
-    if payload < 0 and arm.problems:  # no meaningful gravity torques to bound it by
-        payload = 0.0
-        said("rated_payload", "0 kg", "not derived: the URDF's inertials are unusable for dynamics (above)")
-    elif payload < 0:
-        full = torch.zeros(arm.n, dtype=torch.float64)
-        for j, v in cfg.locked.items():
-            full[arm.joint_names.index(j)] = v
-        full = full.repeat(BOX_SAMPLES + 1, 1)
-        full[:, free] = torch.cat([torch.tensor([home], dtype=torch.float64), _samples(low, high)])
-        try:
-            payload, why = _home_or_box_payload(arm, full)
-        except ValueError as e:  # no effort limits (effort="0"): the IK needs none, the control part a mass
-            payload = 0.0
-            said("rated_payload", "0 kg", "not derived")
-            log.warning("%s; the IK needs none and trains; evaluate.py's control cases then carry no payload", e)
-        else:
-            said("rated_payload", f"{payload:g} kg", why)
-            if payload == 0:
-                log.warning("robot.rated_payload = 0 kg: the arm's own weight at home takes over half an effort limit")
-    else:
-        said("rated_payload", f"{payload:g} kg", "given")
+    payload = _rated_payload(cfg, arm, free, home, low, high)
 
     rate = CONTROL_RATE if cfg.control_rate is None else cfg.control_rate
-    said("control_rate", f"{rate:g} Hz", "given" if cfg.control_rate is not None else "typical, for the realistic loop")
+    _said(
+        "control_rate", f"{rate:g} Hz", "given" if cfg.control_rate is not None else "typical, for the realistic loop"
+    )
     counts = list(cfg.encoder_counts) or [float(ENCODER_COUNTS)] * arm.n
-    said(
+    _said(
         "encoder_counts",
         f"{counts[0]:.0f} x {len(counts)}" if len(set(counts)) == 1 else counts,
         "given" if cfg.encoder_counts else "2^20 per revolution (per metre, prismatic) on every joint: typical",
@@ -300,6 +264,64 @@ def derive_robot(cfg: RobotConfig, arm: Arm, urdf_name: str) -> RobotConfig:
         control_rate=rate,
         encoder_counts=counts,
     )
+
+
+def _said(key: str, value: Any, why: str) -> None:
+    """One derived key's log line: its value and why."""
+    log.info("robot.%s = %s (%s)", key, value, why)
+
+
+def _target(cfg: RobotConfig, joints: list[str]) -> Target:
+    """robot.target: given, or by the count of free `joints` (3: position; 4 and more: pose)."""
+    target = cfg.target
+    if target is None:
+        if len(joints) < 3:
+            raise ValueError(
+                f"robot.target=null: the chain to {cfg.end_link!r} has {len(joints)} free joint(s) {joints}, "
+                "too few to span positions (3) or poses (6); choose a link further out with robot.end_link, "
+                "or give robot.target=position"
+            )
+        # 4 or 5 free joints span no more than 3 of a position's dof without redundancy: their IK
+        # answers the poses the arm reaches (a 5-D or 4-D set of the 6-D poses), one joint vector each
+        target = Target.pose if len(joints) >= 4 else Target.position
+        why = {3: "position (3 dof)", 6: "pose (6 dof)", 7: "pose (6 dof) and one joint as an input"}.get(
+            len(joints), f"pose: the poses the arm reaches ({len(joints)} of their 6 dof)"
+        )
+        _said("target", str(target), f"{len(joints)} free joints: {why}")
+    else:
+        _said("target", str(target), "given")
+    return target
+
+
+def _rated_payload(
+    cfg: RobotConfig, arm: Arm, free: list[int], home: list[float], low: list[float], high: list[float]
+) -> float:
+    """robot.rated_payload (kg): given, or the largest the arm holds at home and over the box
+    (`_home_or_box_payload`); 0 where the URDF's inertials or effort limits are unusable."""
+    payload = cfg.rated_payload
+    if payload < 0 and arm.problems:  # no meaningful gravity torques to bound it by
+        payload = 0.0
+        _said("rated_payload", "0 kg", "not derived: the URDF's inertials are unusable for dynamics (above)")
+    elif payload < 0:
+        full = torch.zeros(arm.n, dtype=torch.float64)
+        for j, v in cfg.locked.items():
+            full[arm.joint_names.index(j)] = v
+        full = full.repeat(BOX_SAMPLES + 1, 1)
+        full[:, free] = torch.cat([torch.tensor([home], dtype=torch.float64), _samples(low, high)])
+        try:
+            payload, why = _home_or_box_payload(arm, full)
+        except ValueError as e:  # no effort limits (effort="0"): the IK needs none, the control part a mass
+            payload = 0.0
+            _said("rated_payload", "0 kg", "not derived")
+            log.warning("%s; the IK needs none and trains; evaluate.py's control cases then carry no payload", e)
+        else:
+            _said("rated_payload", f"{payload:g} kg", why)
+            if payload == 0:
+                log.warning("robot.rated_payload = 0 kg: the arm's own weight at home takes over half an effort limit")
+    else:
+        _said("rated_payload", f"{payload:g} kg", "given")
+
+    return payload
 
 
 def _home_and_box(

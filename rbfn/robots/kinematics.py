@@ -17,6 +17,9 @@ the kinematics here (`parse_urdf`), the dynamics of `rbfn.robots.dynamics` and M
 `rbfn.robots.mjcf`: lxml without loading a DTD, external entities or anything from the network,
 with libxml2's limits on entity expansion (a "billion laughs" document is refused); meshes and
 other referenced files (`package://...`) are never opened.
+
+Why one module of over 500 lines: it is the one place that reads URDF text (the safe
+parser every robot module uses) and the float64 chain built from it.
 """
 
 from __future__ import annotations

@@ -7,12 +7,14 @@ import copy
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from ..checkpoint import model_from_checkpoint, save_sealed
 from ..config import GainsConfig, OnlineConfig
-from ..control.task_space import check_online, path_name, run_online
+from ..control.task_space import OnlineRun, check_online, path_name, run_online
+from ..layer import RBFNetwork
 from .plots import online_figure, robot_label
 from .rundir import write_figure, write_summary
 
@@ -83,40 +85,66 @@ def evaluate_online(
         for j, row in enumerate(out["sweep"]):
             row.update({f"task_rot_err_deg_rms_{k}": v[j] for k, v in rot.items()})
     if writer is not None:
-        stride = max(1, round(0.01 / cfg.dt))
-        for k in range(0, t.shape[0], stride):
-            step = int(round(float(t[k]) * 1000))  # ms
-            for name, err in (
-                ("adapted", r.err_adapt),
-                ("no_adapt", r.err_frozen),
-                ("analytic_nominal", r.err_analytic),
-            ):
-                writer.add_scalar(f"online/task_err_mm/{name}", float(err[k, i]), step)
+        _write_curves(writer, r, i, cfg.dt)
         write_summary(writer, "online/summary", out)
     if out_dir is not None:
-        fig = online_figure(
-            t.cpu().numpy(),
-            r.err_adapt[:, i].cpu().numpy(),
-            r.err_frozen[:, i].cpu().numpy(),
-            r.err_analytic[:, i].cpu().numpy(),
-            r.t_update.cpu().numpy(),
-            r.dw[:, i].cpu().numpy(),
-            robot=robot,
-            learner=str(cfg.learner),
-            path=path,
-            link_error=sizes[i],
-        )
-        write_figure(fig, out_dir / "online_task_error.png", 110, writer, "figures/online_task_error")
-        if cfg.save_checkpoint:
-            adapted = copy.deepcopy(net)
-            adapted.set_output_weights(r.weights[i].to(net.centers.dtype))
-            new = dict(ckpt)
-            new["state_dict"] = {k: v.cpu() for k, v in adapted.state_dict().items()}
-            new["metrics"] = {**ckpt.get("metrics", {}), "online": {k: v for k, v in out.items() if k != "sweep"}}
-            save_sealed(out_dir / "checkpoint_online.pt", new)
-            out["checkpoint"] = str(out_dir / "checkpoint_online.pt")
+        _write_outputs(out_dir, ckpt, net, r, i, cfg=cfg, out=out, writer=writer, robot=robot, path=path)
     log.info("%s", online_table(out))
     return out
+
+
+def _write_curves(writer: Any, r: OnlineRun, i: int, dt: float) -> None:
+    """The task-space error (mm) of row i's adapted, frozen and nominal IK against time (step: ms),
+    every 10 ms (a point every `dt` s where that is coarser)."""
+    stride = max(1, round(0.01 / dt))
+    for k in range(0, r.t.shape[0], stride):
+        step = int(round(float(r.t[k]) * 1000))  # ms
+        for name, err in (
+            ("adapted", r.err_adapt),
+            ("no_adapt", r.err_frozen),
+            ("analytic_nominal", r.err_analytic),
+        ):
+            writer.add_scalar(f"online/task_err_mm/{name}", float(err[k, i]), step)
+
+
+def _write_outputs(
+    out_dir: Path,
+    ckpt: dict,
+    net: RBFNetwork,
+    r: OnlineRun,
+    i: int,
+    *,
+    cfg: OnlineConfig,
+    out: dict,
+    writer: Any,
+    robot: str,
+    path: str,
+) -> None:
+    """online_task_error.png of row i and, with `cfg.save_checkpoint`, checkpoint_online.pt: the
+    checkpoint with row i's adapted weights and the metrics `out` (its path added to `out`)."""
+    sizes = list(cfg.sizes)
+    t = r.t
+    fig = online_figure(
+        t.cpu().numpy(),
+        r.err_adapt[:, i].cpu().numpy(),
+        r.err_frozen[:, i].cpu().numpy(),
+        r.err_analytic[:, i].cpu().numpy(),
+        r.t_update.cpu().numpy(),
+        r.dw[:, i].cpu().numpy(),
+        robot=robot,
+        learner=str(cfg.learner),
+        path=path,
+        link_error=sizes[i],
+    )
+    write_figure(fig, out_dir / "online_task_error.png", 110, writer, "figures/online_task_error")
+    if cfg.save_checkpoint:
+        adapted = copy.deepcopy(net)
+        adapted.set_output_weights(r.weights[i].to(net.centers.dtype))
+        new = dict(ckpt)
+        new["state_dict"] = {k: v.cpu() for k, v in adapted.state_dict().items()}
+        new["metrics"] = {**ckpt.get("metrics", {}), "online": {k: v for k, v in out.items() if k != "sweep"}}
+        save_sealed(out_dir / "checkpoint_online.pt", new)
+        out["checkpoint"] = str(out_dir / "checkpoint_online.pt")
 
 
 def online_table(m: dict) -> str:

@@ -24,6 +24,9 @@ key that is not swept or values it does not take, an output that is a directory 
 without --force) is a one-line error, exit status 2, and nothing is written. The outputs are
 written all or none: each to a temporary file beside it, renamed over the old one once every
 output is written; an earlier summary.png this summary does not draw is removed with them.
+
+Why one module of over 500 lines: it is one command, from reading a sweep's jobs and telling
+their failures apart to the tables, the figure and writing them all or none.
 """
 
 from __future__ import annotations
@@ -601,7 +604,8 @@ def _compare_pair(p: argparse.ArgumentParser, spec: str, jobs) -> tuple[str, str
     return key, *pair
 
 
-def main(argv: list[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
+    """The command line of `main`."""
     p = argparse.ArgumentParser(
         prog="python -m rbfn.studies.summarize",
         description=__doc__.splitlines()[0],
@@ -644,6 +648,11 @@ def main(argv: list[str] | None = None) -> None:
         help="write even over write-protected outputs or into a write-protected directory (replaced "
         "files keep their mode)",
     )
+    return p
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = _parser()
     a = p.parse_args(argv)
     if not a.sweep_dir.is_dir():
         fail(p, f"SWEEP_DIR {a.sweep_dir}: " + ("is not a directory" if a.sweep_dir.exists() else "no such directory"))
