@@ -283,6 +283,15 @@ def test_the_controllers_table_is_the_registrys():
     assert rows == list(BASE_CONTROLLERS.items())
 
 
+def test_the_centres_table_names_every_preset():
+    """docs/concepts.md's table of the `centers` presets is rbfn.config.SELECTORS, in order."""
+    from rbfn.config import SELECTORS
+
+    text = (ROOT / "docs" / "concepts.md").read_text(encoding="utf-8")
+    section = text.split("## 2. Centres and widths", 1)[1].split("\n## ", 1)[0]
+    assert re.findall(r"^\| `(\w+)`(?: \(default\))? \|", section, re.M) == list(SELECTORS)
+
+
 def test_the_network_methods_table_is_the_registrys():
     """docs/control.md's table of adaptive controllers is rbfn.config.NETWORK_METHODS, row for row."""
     from rbfn.config import NETWORK_METHODS
