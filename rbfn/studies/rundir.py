@@ -27,6 +27,7 @@ import json
 import logging
 import math
 import os
+import re
 import shutil
 import struct
 import sys
@@ -111,7 +112,7 @@ class RunDir:
     _entered: ClassVar[dict[str, RunDir]] = {}  # real path -> the RunDir that took it, in this process
 
     def __init__(self, path: str | Path, fresh: bool = False, own: bool = False, tidy: bool = False) -> None:
-        self.path = Path(path)
+        self.path = self._named = Path(path)
         self._fresh, self._own, self._tidy = fresh, own, tidy
         self._fd: int | None = None
 
@@ -129,13 +130,17 @@ class RunDir:
         return self
 
     def relabel(self, label: str) -> None:
-        """A clock-named directory (`fresh`) renamed NAME_label, so that TensorBoard, which names a
-        run by its directory, tells the runs of different robots apart (entered as NAME_label_1,
-        ... where NAME_label is taken). The lock moves with it; a directory the user named is kept."""
+        """A clock-named directory (`fresh`; NAME, or the NAME_1, ... it took) renamed NAME_label, so
+        that TensorBoard, which names a run by its directory, tells the runs of different robots
+        apart (NAME_label_1, ... where NAME_label is taken). The lock moves with it; a directory the user named is kept.
+        Characters other than letters, digits, '.', '_' and '-' in `label` (a URDF's robot name may
+        hold any) become '-'."""
+        label = re.sub(r"[^A-Za-z0-9._-]", "-", label).strip(".")
         if not self._fresh or self._fd is None or not label:
             return
         for n in range(10_000):
-            path = self.path.with_name(f"{self.path.name}_{label}" + (f"_{n}" if n else ""))
+            # after the clock's name, not a numbered sibling's: NAME_label, then NAME_label_1, ...
+            path = self._named.with_name(f"{self._named.name}_{label}" + (f"_{n}" if n else ""))
             try:
                 path.mkdir()  # claimed: another process's mkdir of this name now fails
             except FileExistsError:

@@ -65,6 +65,12 @@ def test_a_clock_named_directory_is_labelled_with_its_robot_and_keeps_its_lock(t
         finally:
             os.close(fd)
     assert not (tmp_path / "12-00-00_ur5_1").exists()  # tidied: empty, made for the run
+    with RunDir(named, fresh=True, tidy=True) as run:  # a URDF's own name, whatever it holds
+        assert relabel(named, "my arm/v2") == tmp_path / "12-00-00_my-arm-v2" == run.path
+    named.mkdir()
+    with held_elsewhere(named), RunDir(named, fresh=True, tidy=True) as run:  # the clock's name taken
+        assert run.path == tmp_path / "12-00-00_1"
+        assert relabel(run.path, "scara") == tmp_path / "12-00-00_scara" == run.path  # numbered after
     mine = tmp_path / "my_run"
     with RunDir(mine) as run:
         assert relabel(mine, "ur5") == mine == run.path
