@@ -466,8 +466,8 @@ def _same_layout(new: torch.Tensor, old: torch.Tensor) -> torch.Tensor:
     return torch.empty_strided(old.shape, old.stride(), dtype=new.dtype, device=new.device).copy_(new)
 
 
-def _rows(periods: Any, sl: slice) -> Any:
-    """The periods `sl` of every input (views)."""
+def _rows(periods: Any, sl: slice | tuple[int, ...]) -> Any:
+    """The periods `sl` of every input, or one period's (one step's) with an index (views)."""
     return map_tensors(lambda x: x[sl], periods)
 
 
@@ -528,7 +528,7 @@ def make_real_chunk(
             # Control, told what the last period applied.
             ref = Reference(periods.ref.q_d[k], periods.ref.qd_d[k], periods.ref.qdd_d[k])
             h = None if periods.h is None else periods.h[k]
-            forces = _forces(controller, same_kind(periods.load, [c[k, 0] for c in periods.load]), periods.dist[k, 0])
+            forces = _forces(controller, _rows(periods.load, (k, 0)), periods.dist[k, 0])
             cmd, cstate = controller.torque(
                 ref, q_hat, qd_hat, cstate, h=h, alpha=periods.alpha[k], applied=act.applied, forces=forces
             )
@@ -556,7 +556,7 @@ def make_real_chunk(
                     u,
                     periods.dist[k, j],
                     dt,
-                    same_kind(periods.load, [c[k, j] for c in periods.load]),
+                    _rows(periods.load, (k, j)),
                     integrator,
                 )
             taus.append(u)

@@ -32,6 +32,7 @@ import shutil
 import struct
 import sys
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any, ClassVar, cast
@@ -108,8 +109,7 @@ class RunDir:
     directory this process holds already is entered without another lock or check.
     """
 
-    _held: ClassVar[dict[str, int]] = {}  # real path -> descriptor holding its lock, in this process
-    _entered: ClassVar[dict[str, RunDir]] = {}  # real path -> the RunDir that took it, in this process
+    _held: ClassVar[dict[str, RunDir]] = {}  # real path -> the RunDir holding its lock, in this process
 
     def __init__(self, path: str | Path, fresh: bool = False, own: bool = False, tidy: bool = False) -> None:
         self.path = self._named = Path(path)
@@ -125,8 +125,7 @@ class RunDir:
                     f"hydra.run.dir={self.path}: {up} is a file, not a directory; give this run another hydra.run.dir"
                 )
         self.path, self._fd = self._take_fresh() if self._fresh else self._take(self.path)
-        RunDir._held[os.path.realpath(self.path)] = self._fd
-        RunDir._entered[os.path.realpath(self.path)] = self
+        RunDir._held[os.path.realpath(self.path)] = self
         return self
 
     def relabel(self, label: str) -> None:
@@ -138,20 +137,12 @@ class RunDir:
         label = re.sub(r"[^A-Za-z0-9._-]", "-", label).strip(".")
         if not self._fresh or self._fd is None or not label:
             return
-        for n in range(10_000):
-            # after the clock's name, not a numbered sibling's: NAME_label, then NAME_label_1, ...
-            path = self._named.with_name(f"{self._named.name}_{label}" + (f"_{n}" if n else ""))
-            try:
-                path.mkdir()  # claimed: another process's mkdir of this name now fails
-            except FileExistsError:
-                continue
-            os.rename(self.path, path)  # onto the empty directory just made, which it replaces
-            break
-        else:
+        # after the clock's name, not a numbered sibling's: NAME_label, then NAME_label_1, ...
+        path = next(_claimed(self._named.with_name(f"{self._named.name}_{label}"), 0), None)
+        if path is None:
             return
-        old = os.path.realpath(self.path)
-        RunDir._held[os.path.realpath(path)] = RunDir._held.pop(old)
-        RunDir._entered[os.path.realpath(path)] = RunDir._entered.pop(old)
+        os.rename(self.path, path)  # onto the empty directory just claimed, which it replaces
+        RunDir._held[os.path.realpath(path)] = RunDir._held.pop(os.path.realpath(self.path))
         for handler in logging.getLogger().handlers:
             if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == self.path:
                 handler.baseFilename = str(path / Path(handler.baseFilename).name)
@@ -185,12 +176,7 @@ class RunDir:
             return self.path, fd
         if fd is not None:
             os.close(fd)
-        for n in range(1, 10_000):
-            path = self.path.with_name(f"{self.path.name}_{n}")
-            try:
-                path.mkdir()
-            except FileExistsError:
-                continue
+        for path in _claimed(self.path, 1):
             fd = _lock(path)
             if fd is not None:
                 return path, fd
@@ -206,17 +192,28 @@ class RunDir:
                 if _is_empty(self.path) and made_since(self.path, _STARTED):
                     self.path.rmdir()  # still under the lock: nobody else is starting in it
         del RunDir._held[os.path.realpath(self.path)]
-        del RunDir._entered[os.path.realpath(self.path)]
         fcntl.flock(self._fd, fcntl.LOCK_UN)
         os.close(self._fd)
         self._fd = None
+
+
+def _claimed(base: Path, first: int) -> Iterator[Path]:
+    """`base` (from `first` = 0), then base_1, base_2, ... up to base_9999: each made here (mkdir),
+    so no other process takes the same one."""
+    for n in range(first, 10_000):
+        path = base.with_name(f"{base.name}_{n}") if n else base
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        yield path
 
 
 def relabel(out_dir: Path, label: str) -> Path:
     """The run directory `out_dir` this process holds, renamed NAME_label where Hydra named it after
     the clock (`RunDir.relabel`: train.py and evaluate.py label theirs with the robot, once it is
     known); returns the directory used from now on."""
-    held = RunDir._entered.get(os.path.realpath(out_dir))
+    held = RunDir._held.get(os.path.realpath(out_dir))
     if held is None:
         return out_dir
     held.relabel(label)
