@@ -9,9 +9,11 @@ lead to a solution of a UR5 pose after the polish) and revolute joints wrap arou
 2. each chart's network learns the poses of the samples within `OVERLAP` times their nearest
    chart's distance, its revolute joints' answers as (cos q, sin q) (no wrap to learn), its
    centres chosen as configured (`rbfn.select`: ACO, k-means, ...);
-3. a target is answered by every chart (`ChartedIK.answers`: joints (B, K, n) and each chart's
-   closeness, its nearest centre's distance in cover radii); the solver ranks and polishes the
-   best of them (`rbfn.solver.IKSolver`).
+3. every chart answers a target (`ChartedIK.answers`: joints (B, K, n) and each chart's
+   closeness, its nearest centre's distance in cover radii), or one chart a target
+   (`chart_answers`), the charts ranked by a cheaper closeness (`ranked`: to a summary of 32
+   centres a chart); the solver polishes them in that order until one converges
+   (`rbfn.solver.IKSolver`).
 
 Measured on the UR5 (2 000 poses over the whole range, 64 charts of 300 k-means centres, 5 steps
 polished): polishing every chart's answer solves 99.9 %; the best answer by forward kinematics
@@ -61,6 +63,8 @@ OVERLAP = 1.15  # a sample trains every chart within this factor of its nearest 
 CHART_STREAM = 901  # the random stream of the charts' training joints (rbfn.data.stream)
 BLOCK_ELEMENTS = 1 << 20  # (charts, rows, centres) Gaussians a block of `ChartedIK.answers` (8 MB in float64)
 FAR_CENTRE = 1e3  # where padding centres sit (scaled units: no input comes near)
+GATE_CENTRES = 32  # a chart's centres summarised by this many for `ChartedIK.ranked` (measured below)
+GATE_LLOYD = 10  # Lloyd iterations of that summary (from farthest-point seeds)
 # `ChartedIK._stacked`'s parts, in its order (a frozen copy's buffers are stacked_<name>).
 _STACKED = ("offsets", "scales", "centres", "widths", "heads", "biases", "tails", "covers")
 
@@ -139,6 +143,7 @@ class ChartedIK(nn.Module):
         self.register_buffer("high", high.clone().to(centres.dtype))
         self.turns = [bool(t) for t in revolute]  # `revolute` as a list: decoded without data-dependent indexing
         self.frozen_dtype: torch.dtype | None = None  # set by `frozen`: the dtype of its stacked parameters
+        self.gate: torch.Tensor | None = None  # set by `frozen`: `_gate_matrix`, in its dtype
 
     @property
     def num_charts(self) -> int:
@@ -186,7 +191,66 @@ class ChartedIK(nn.Module):
         for name, t in zip(_STACKED, model._stacked(dtype)):
             model.register_buffer(f"stacked_{name}", t)
         model.frozen_dtype = dtype
+        model.gate = model._gate_matrix().to(dtype)
         return model
+
+    def _gate_centres(self) -> torch.Tensor:
+        """(K, G, d): each chart's centres summarised by G = `GATE_CENTRES` (k-means of them, in its
+        scaled input units; a chart of fewer centres keeps its own, the rest padded far)."""
+        nets: list[RBFNetwork] = list(self.nets)  # type: ignore[arg-type]
+        g = min(GATE_CENTRES, max(net.num_centers for net in nets))
+        out = []
+        for net in nets:
+            c = net.centers.detach()
+            s = summarise(c, g) if c.shape[0] > g else c
+            out.append(torch.cat([s, s.new_full((g - s.shape[0], s.shape[1]), FAR_CENTRE)]))
+        return torch.stack(out)
+
+    def ranked(self, x: torch.Tensor, t: int) -> torch.Tensor:
+        """(B, t) the indices of the t charts nearest inputs x (B, d), nearest first: each chart's
+        distance to the input, over its cover radius, measured to `_gate_centres`' summary of its
+        centres instead of to every centre (a tenth of the work of `answers`' closeness, in one
+        matrix product). Measured on 4 000 whole-range poses (test stream of seed 1, 64 charts of
+        300 centres, 5 steps): the first chart in this order polishes to a solution for 73.4 % of
+        UR5 poses and 66.3 % of Panda poses (by every centre: 75.4 % and 71.8 %); the charts tried
+        until one converges, 1.55 and 2.15 a pose (1.51 and 1.93). A `frozen` copy's."""
+        if self.gate is None:
+            raise RuntimeError("ChartedIK.ranked runs on a frozen copy (ChartedIK.frozen)")
+        f = self.first._feat(self.first._inputs(x)).to(self.gate.dtype)
+        d2 = torch.cat([f.square(), f, torch.ones_like(f[:, :1])], -1) @ self.gate  # (B, K G)
+        k = self.num_charts
+        return d2.reshape(f.shape[0], k, self.gate.shape[1] // k).amin(-1).topk(min(t, k), dim=1, largest=False).indices
+
+    def _gate_matrix(self) -> torch.Tensor:
+        """(2 d + 1, K G): the squared distances of inputs' features f (B, d) to every chart's
+        `_gate_centres`, over the square of its cover radius, as one product [f^2, f, 1] @ this
+        (each chart scales f its own way: |(f - o) / s - g|^2 = sum f^2 / s^2 - 2 f (o / s + g) / s +
+        (o / s + g)^2)."""
+        p = self._stacked(torch.float64)
+        off, sc, cover = p[0], p[1], p[7]  # (K, d), (K, d), (K,)
+        g = self._gate_centres().to(torch.float64)  # (K, G, d)
+        u = (off / sc)[:, None] + g  # (K, G, d)
+        inv = (1.0 / sc)[:, None].expand_as(u)  # (K, G, d)
+        c2 = cover.square()[:, None, None]
+        rows = [inv.square() / c2, -2.0 * u * inv / c2, (u.square().sum(-1, keepdim=True)) / c2]
+        return torch.cat(rows, -1).reshape(-1, 2 * g.shape[-1] + 1).T.contiguous()
+
+    def chart_answers(self, x: torch.Tensor, charts: torch.Tensor) -> torch.Tensor:
+        """Joints (B, n) within `low`..`high`: for each input x[i] (B, d), chart charts[i]'s answer
+        (the rows grouped by chart, one network evaluation a chart). A `frozen` copy's."""
+        f = self.first._feat(self.first._inputs(x))
+        p = self._stacked(f.dtype)
+        order = charts.argsort()
+        counts = torch.bincount(charts, minlength=self.num_charts).tolist()
+        out = f.new_empty(x.shape[0], self.out_features)
+        start = 0
+        for k, c in enumerate(counts):
+            if c:
+                rows = order[start : start + c]
+                one = tuple(None if t is None else t[k : k + 1] for t in p)
+                out[rows] = self._answer_rows(f[rows], one)[0][:, 0]
+                start += c
+        return out
 
     def _answer_rows(self, f: torch.Tensor, p: tuple) -> tuple[torch.Tensor, torch.Tensor]:
         """`answers` for input features f (B, d) in one piece, from `_stacked`'s parameters p."""
@@ -237,6 +301,26 @@ class ChartedIK(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.answers(x)[0]
+
+
+def summarise(points: torch.Tensor, g: int) -> torch.Tensor:
+    """g centres (g, d) of points (N, d), N > g: farthest-point seeds (the first nearest the mean)
+    refined by `GATE_LLOYD` Lloyd iterations (k-means). Written here rather than scikit-learn's
+    KMeans: it summarises the 64 charts of a UR5 network in about 20 ms, where KMeans takes about
+    1 s, paid on every solver's load."""
+    d = (points - points.mean(0)).norm(dim=1)
+    idx = [int(d.argmin())]
+    d = (points - points[idx[0]]).norm(dim=1)
+    for _ in range(g - 1):
+        idx.append(int(d.argmax()))
+        d = torch.minimum(d, (points - points[idx[-1]]).norm(dim=1))
+    c = points[idx].clone()
+    for _ in range(GATE_LLOYD):
+        near = torch.cdist(points, c).argmin(1)
+        sums = torch.zeros_like(c).index_add_(0, near, points)
+        n = torch.bincount(near, minlength=g).to(points.dtype)
+        c = torch.where(n[:, None] > 0, sums / n.clamp(min=1)[:, None], c)
+    return c
 
 
 def chart_config(cfg: TrainConfig) -> TrainConfig:

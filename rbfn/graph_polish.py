@@ -1,8 +1,9 @@
 """The polish in a graph: a charted network's answers made exact inside the exported model.
 
 A charted network's raw answers are seeds, tens of mm off (`rbfn.charts`); the torch solver
-(`rbfn.solver.IKSolver`) ranks them by forward kinematics and polishes the best. `GraphPolish`
-does the same in plain tensor operations that torch.export and the ONNX exporter take, so that an
+(`rbfn.solver.IKSolver`) polishes its charts' answers in turn, nearest first, each target until one
+converges. A static graph cannot stop rows early, so `GraphPolish` polishes a fixed set on every
+row instead, in plain tensor operations that torch.export and the ONNX exporter take, so that an
 exported charted network answers exact joints and a flag that means what it says (the polish
 converged within the tolerances), with onnxruntime alone:
 
@@ -10,10 +11,11 @@ converged within the tolerances), with onnxruntime alone:
 2. the best `WIDE` polished `FIRST_STEPS` damped-least-squares steps, the best `NARROW` of them the
    remaining steps (`CHARTED_ITERATIONS` in all on each answer's path), the nearest kept.
 
-It is the solver's staged polish (`IKSolver._charted_first`) without what a static graph cannot
-do cheaply: the rows are never split, so the line search and the re-solve without joints held at
-a limit run on every row (masked where the solver takes a subset), and there is no fallback to
-every chart for the few targets the ranking misses (the solver's last stage). The robot's
+This was the solver's staged polish before it took the charts in turn (measured there: the same
+targets solved, at 2.9x the rate on the UR5). In the graph the rows are never split, so the line
+search and the re-solve without joints held at a limit run on every row (masked where the solver
+takes a subset), and there is no fallback to every chart for the few targets the ranking misses
+(the solver's last round). The robot's
 kinematics are `rbfn.robots.kinematics.compose` on the chain's frames, held as constants; the
 linear solve is a Cholesky factorisation written out (the ONNX exporter has no solve).
 """
@@ -30,16 +32,22 @@ from .robots.robot import Robot, rotation_error_deg
 from .solver import (
     CHARTED_ERROR_DAMPING,
     CHARTED_ITERATIONS,
-    FIRST_STEPS,
-    NARROW,
     PRESELECT,
     PROGRESS,
     STEP_SCALES,
-    WIDE,
     IKSolver,
 )
 
 __all__ = ["GraphPolish", "graph_polish"]
+
+# The staged polish: of the PRESELECT charts whose centres lie nearest a target, ranked by forward
+# kinematics, the WIDE best take FIRST_STEPS steps, the NARROW best after them the rest. Measured on
+# the UR5 over the whole joint range (64 charts, 5 steps): polishing the best 1 / 2 / 4 / 8 ranked
+# answers all 5 steps solves 80.5 / 92.0 / 98.2 / 99.5 %, the staged (8 x 2 steps, then 2 x 3) 98.6 %
+# for 22 steps a target instead of 40 (every chart: 99.9 %).
+WIDE = 4
+FIRST_STEPS = 2
+NARROW = 2
 
 FULL = STEP_SCALES.index(1.0)  # the full step among the line search's multiples
 RETRY = 8  # the answers ranked after the first WIDE, polished on every row for the targets those miss

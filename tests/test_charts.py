@@ -9,7 +9,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from rbfn.charts import ChartedIK, decode, embed, save_charts, train_charts
+from rbfn.charts import GATE_CENTRES, ChartedIK, decode, embed, save_charts, summarise, train_charts
 from rbfn.checkpoint import check_charts, load_model, read_checkpoint
 from rbfn.data import full_range_split
 from rbfn.layer import RBFNetwork
@@ -130,6 +130,38 @@ def test_frozen_copy_answers_as_the_model_does(charted):
     assert torch.equal(q, q2) and torch.equal(close, close2)
     q3, _ = frozen.answer_rows(x)
     assert torch.allclose(q3, q, atol=1e-12)
+
+
+def test_ranked_orders_the_charts_by_their_summarised_centres_and_chart_answers_are_theirs(charted):
+    """`ranked`'s one product gives each chart's distance to its summary centres over its cover
+    radius, as computed directly; `chart_answers` is the asked chart's column of `answers`."""
+    _, robot, model = charted
+    x = full_range_split(robot, 60, 9).x
+    frozen = model.frozen(torch.float64)
+    summary = frozen._gate_centres()
+    direct = []
+    for k, net in enumerate(frozen.nets):
+        z = (net._feat(x) - net.offset) / net.scale
+        direct.append(torch.cdist(z, summary[k]).amin(-1) / net.cover_radius)
+    want = torch.stack(direct, -1).argsort(1)
+    assert torch.equal(frozen.ranked(x, 8), want) and torch.equal(frozen.ranked(x, 3), want[:, :3])
+    assert frozen.ranked(x[:0], 3).shape == (0, 3)
+    charts = torch.arange(60) % 8
+    q, _ = frozen.answers(x)
+    assert torch.allclose(frozen.chart_answers(x, charts), q[torch.arange(60), charts], atol=1e-12)
+    with pytest.raises(RuntimeError, match="frozen copy"):
+        model.ranked(x, 3)
+
+
+def test_summarise_covers_the_points_better_than_a_random_subset():
+    g = torch.Generator().manual_seed(0)
+    points = torch.cat([torch.randn(100, 3, generator=g, dtype=torch.float64) + 10 * i for i in range(4)])
+    c = summarise(points, GATE_CENTRES)
+    assert c.shape == (GATE_CENTRES, 3) and torch.equal(c, summarise(points, GATE_CENTRES))
+    inertia = lambda centres: float(torch.cdist(points, centres).amin(1).square().mean())  # noqa: E731
+    subsets = [points[torch.randperm(400, generator=g)[:GATE_CENTRES]] for _ in range(20)]
+    assert inertia(c) < 0.8 * min(inertia(s) for s in subsets)
+    assert set(torch.cdist(c, points).argmin(1).div(100, rounding_mode="floor").tolist()) == {0, 1, 2, 3}
 
 
 def test_the_export_command_reads_a_charted_checkpoint(charted, tmp_path):

@@ -88,6 +88,21 @@ def test_polish_converges_and_stays_in_the_box(ur5_run):
         solver.solve(split.x, iterations=-1)
 
 
+def test_a_settling_polish_stops_each_target_once_it_converges(ur5_run):
+    """`settle`: targets already within the tolerances come back as they were; the rest take the
+    steps, and every one flagged converged is within the tolerances by forward kinematics."""
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, robot = _targets(100, seed=6)
+    start = torch.cat([split.q[:50], solver.network(split.x[50:])[0]])
+    q, ok = solver._polish(start, split.x, 5, settle=True)
+    assert torch.equal(q[:50], start[:50]) and bool(ok[:50].all())
+    assert not torch.equal(q[50:], start[50:])
+    pos, rot = robot.errors(q[ok], split.x[ok])
+    assert float(pos.max()) <= 0.1 and float(rot.max()) <= 0.1
+    q_all, ok_all = solver._polish(start, split.x, 5)
+    assert int(ok.sum()) >= int(ok_all.sum()) - 2 and not torch.equal(q_all[:50], start[:50])
+
+
 def test_restarts_rescue_the_targets_the_polish_leaves(ur5_run):
     """One step from the network leaves many targets; restarts from random joints in the box
     reach them without leaving the box or touching the targets already solved."""
