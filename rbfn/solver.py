@@ -409,7 +409,9 @@ class IKSolver:
         x = x.to(dtype=torch.float64, device=dev)
         near_q = None if near is None else self._near(near, b, dev)
         model = self._answering()
-        if near_q is None:
+        if isinstance(model, ChartedIK):  # the whole batch at once: its rounds polish in blocks
+            q, ok, d = self._charted_first(model, x, near_q, iterations)
+        elif near_q is None:
             q, ok, d = row_blocks(lambda xb: self._first(model, xb, None, iterations), rows, x)
         else:
             q, ok, d = row_blocks(lambda xb, nb: self._first(model, xb, nb, iterations), rows, x, near_q)
@@ -472,12 +474,10 @@ class IKSolver:
     def _first(
         self, model: RBFNetwork, x: torch.Tensor, near_q: torch.Tensor | None, iterations: int
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """`solve` before its restarts, for one block of targets x (B, 3 or 7) float64 (and `near`'s
+        """`solve` before its restarts for a box network, one block of targets x (B, 3 or 7) float64 (and `near`'s
         joints (B, n)): (joints (B, n), converged (B,), the base turn (B,) rad) from the float64
         network `model`."""
         b, dev = x.shape[0], x.device
-        if isinstance(model, ChartedIK):
-            return self._charted_first(model, x, near_q, iterations)
         q, d, first = self._network(x, model)
         if near_q is None:
             q, ok = self._polish(q, x, iterations, first)
@@ -533,52 +533,48 @@ class IKSolver:
     def _charted_first(
         self, model: ChartedIK, x: torch.Tensor, near_q: torch.Tensor | None, iterations: int
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """`_first` for a charted network: the charts in turn, nearest first (`ChartedIK.ranked`).
-        With `near`, it is polished first; the targets it does not reach, or all without it, take
-        their nearest chart's answer, then the targets still unreached their next 2 charts', then 4,
-        ... (`IN_TURN`), and the last few (or all after those rounds) every chart's. Each answer is
+        """`_first` for a charted network, on the whole batch (each round's polish in blocks of
+        `block_rows` answers): the charts in turn, nearest first (`ChartedIK.ranked`). With `near`,
+        it is polished first; the targets it does not reach, or all without it, take their nearest
+        chart's answer, then the targets still unreached their next 2 charts', then 4, ...
+        (`IN_TURN`), and the last few (or all after those rounds) every chart's. Each answer is
         polished `iterations` steps, a target stopping once it converges (`_polish`'s `settle`). The
         answer: `near`'s where it converged, else the first chart's that did (its whole turns nearest
         `near`), else the one nearest the target. So a target pays for the charts it needs: measured
         on the UR5 (64 charts, whole-range poses), 73 % converge from the first chart, and a pose
         polishes about 1.5 chart answers (the staged polish this replaced polished 14 answer steps a
         pose, the best 4 of 16 ranked by forward kinematics 2 steps and the best 2 of them 3 more)."""
-        b, dev = x.shape[0], x.device
+        b, dev, rows = x.shape[0], x.device, self.block_rows
         low, high = self.low.to(dev), self.high.to(dev)
         q = torch.zeros(b, low.shape[0], dtype=torch.float64, device=dev)
         ok = torch.zeros(b, dtype=torch.bool, device=dev)
         miss = torch.full((b,), torch.inf, dtype=torch.float64, device=dev)  # the best unconverged answer's cost
         todo = torch.arange(b, device=dev)
         if near_q is not None:
-            q, ok = self._polish(near_q.clamp(low, high), x, iterations, settle=True)
+            start = near_q.clamp(low, high)
+            q, ok = row_blocks(lambda sb, xb: self._polish(sb, xb, iterations, settle=True), rows, start, x)
             todo = (~ok).nonzero().squeeze(-1)
-            miss[todo] = self._cost(q[todo], x[todo])
-        order = model.ranked(x[todo], sum(IN_TURN))
+            miss[todo] = row_blocks(self._cost, rows, q[todo], x[todo])
+        order = row_blocks(lambda xb: model.ranked(xb, sum(IN_TURN)), rows, x[todo])
         k, at = model.num_charts, 0
-
-        def attempt(xs: torch.Tensor, charts: torch.Tensor, ref: torch.Tensor | None = None):
-            return self._attempt(model, xs, charts, ref, iterations)
-
         for width in (*IN_TURN, k):
             if not todo.numel():
                 break
             width = min(width, order.shape[1] - at)
-            if width < 1 or todo.numel() <= FEW:  # every chart at once
-                width, charts = k, torch.arange(k, device=dev).repeat(todo.numel())
-            else:
-                charts = order[:, at : at + width].reshape(-1)
-            xs = x[todo].repeat_interleave(width, 0)
+            every = width < 1 or todo.numel() <= FEW  # every chart at once
+            charts = torch.arange(k, device=dev).expand(todo.numel(), k) if every else order[:, at : at + width]
+            per = max(1, rows // charts.shape[1])  # targets a block: at most `block_rows` answers polished at once
             if near_q is None:
-                qs, oks, cost = row_blocks(attempt, self.block_rows, xs, charts)
+                qs, oks, cost = row_blocks(
+                    lambda xb, cb: self._attempt(model, xb, cb, None, iterations), per, x[todo], charts
+                )
             else:
                 qs, oks, cost = row_blocks(
-                    attempt, self.block_rows, xs, charts, near_q[todo].repeat_interleave(width, 0)
+                    lambda xb, cb, nb: self._attempt(model, xb, cb, nb, iterations), per, x[todo], charts, near_q[todo]
                 )
-            pick = torch.arange(todo.numel(), device=dev) * width + cost.reshape(-1, width).argmin(1)
-            qs, oks, cost = qs[pick], oks[pick], cost[pick]
             better = cost < miss[todo]
             q[todo[better]], miss[todo[better]], ok[todo[oks]] = qs[better], cost[better], True
-            if width == k:
+            if every:
                 break
             todo, order, at = todo[~oks], order[~oks], at + width
         return q, ok, torch.zeros(b, dtype=torch.float64, device=dev)
@@ -586,16 +582,20 @@ class IKSolver:
     def _attempt(
         self, model: ChartedIK, x: torch.Tensor, charts: torch.Tensor, ref: torch.Tensor | None, iterations: int
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Chart charts[i]'s answer to target x[i] (B, d), polished `iterations` steps, its whole turns
-        nearest ref[i] (B, n) where given: (joints (B, n), converged (B,), cost (B,): -inf where
-        converged, else `_cost`)."""
-        seeds = self._asked(model.chart_answers(x, charts).to(x.dtype), x)
-        q, ok = self._polish(seeds, x, iterations, settle=True)
+        """For targets x (T, d), the answers of charts[i] (T, W) polished `iterations` steps (each
+        stopping once converged), their whole turns nearest ref[i] (T, n) where given; of each
+        target's W, the first converged, else the nearest the target: (joints (T, n), converged
+        (T,), cost (T,): -inf where converged, else `_cost`)."""
+        t, w = charts.shape
+        xs = x.repeat_interleave(w, 0)
+        seeds = self._asked(model.chart_answers(xs, charts.reshape(-1)).to(x.dtype), xs)
+        q, ok = self._polish(seeds, xs, iterations, settle=True)
         if ref is not None:
-            q = self._turned(q, ref)
-        cost = torch.full((x.shape[0],), -torch.inf, dtype=torch.float64, device=x.device)
-        cost[~ok] = self._cost(q[~ok], x[~ok])
-        return q, ok, cost
+            q = self._turned(q, ref.repeat_interleave(w, 0))
+        cost = torch.full((t * w,), -torch.inf, dtype=torch.float64, device=x.device)
+        cost[~ok] = self._cost(q[~ok], xs[~ok])
+        pick = torch.arange(t, device=x.device) * w + cost.reshape(t, w).argmin(1)
+        return q[pick], ok[pick], cost[pick]
 
     def _turned(self, q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
         """Joints q (..., n) with each revolute joint moved by the whole turns that bring it nearest
