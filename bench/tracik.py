@@ -5,14 +5,15 @@ forward kinematics) and its solves per second. Two pose sets: FK images of joint
 checkpoint's trained box, and of joints drawn over the free joints' whole URDF range
 (`rbfn.data.full_range_split`, evaluation stream of seed 0), where every branch occurs.
 
-    python -m bench.tracik CHECKPOINT [--n 10000] [--iterations K] [--tracik-n 1000] [--timeout 0.02]
+    python -m bench.tracik CHECKPOINT [--n 10000] [--iterations K] [--restarts R] [--tracik-n 1000] [--timeout 0.02]
 
 TRAC-IK runs in its Speed mode (its first solution within `--timeout` s, wall time, so the
 machine must be quiet), seeded with the middle of the joint limits; held joints (`robot.locked`)
 are held by limits equal to their value. A redundant network (`robot.redundancy`) is given the
 sampled joint's value, as a caller passing `near` would. Our solver runs the whole batch at once
 (`--n` targets, median of `--repeats` timed runs); TRAC-IK solves `--tracik-n` of them one at a
-time. Prints one JSON line per row, and the table.
+time (our row's `success_on_tracik_poses`: ours on those same poses). Prints one JSON line per
+row, and the table.
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("checkpoint")
     p.add_argument("--n", type=int, default=10000, help="targets our solver takes in one batch")
     p.add_argument("--iterations", type=int, default=None, help="polish steps (default: the solver's)")
+    p.add_argument("--restarts", type=int, default=0, help="rounds of random restarts for the targets left (solve's)")
     p.add_argument("--tracik-n", type=int, default=1000, help="of them, solved one at a time by TRAC-IK")
     p.add_argument("--timeout", type=float, default=0.02, help="TRAC-IK's wall-time limit a pose, s")
     p.add_argument("--repeats", type=int, default=3)
@@ -100,8 +102,11 @@ def main(argv: list[str] | None = None) -> None:
         ("whole joint range", full_range_split(robot, args.n, 0, evaluation=True)),
     ):
         x, value = robot.split_inputs(split.x)
-        ours = polish_row(solver, x, args.iterations, repeats=args.repeats, redundancy=value)
+        ours = polish_row(solver, x, args.iterations, args.restarts, repeats=args.repeats, redundancy=value)
         theirs = tracik_row(robot, split.x[: args.tracik_n], args.timeout)
+        m = args.tracik_n
+        same = solver.solve(x[:m], args.iterations, args.restarts, redundancy=None if value is None else value[:m])[1]
+        ours["success_on_tracik_poses"] = float(same.double().mean())
         for row in (ours, theirs):
             row.update(poses=name, threads=args.threads)
             rows.append(row)

@@ -538,8 +538,9 @@ class IKSolver:
         it is polished first; the targets it does not reach, or all without it, take their nearest
         chart's answer, then the targets still unreached their next 2 charts', then 4, ...
         (`IN_TURN`), and the last few (or all after those rounds) every chart's. Each answer is
-        polished `iterations` steps, a target stopping once it converges (`_polish`'s `settle`). The
-        answer: `near`'s where it converged, else the first chart's that did (its whole turns nearest
+        polished `iterations` steps, a target stopping once it converges (`_polish`'s `settle`); the
+        targets none reached polish their nearest answer `iterations` steps more. The answer:
+        `near`'s where it converged, else the first chart's that did (its whole turns nearest
         `near`), else the one nearest the target. So a target pays for the charts it needs: measured
         on the UR5 (64 charts, whole-range poses), 73 % converge from the first chart, and a pose
         polishes about 1.5 chart answers (the staged polish this replaced polished 14 answer steps a
@@ -577,6 +578,13 @@ class IKSolver:
             if every:
                 break
             todo, order, at = todo[~oks], order[~oks], at + width
+        # The targets no answer reached: the nearest answer `iterations` steps more (near a singular
+        # configuration the last tenth of a millimetre can take them)
+        rest = (~ok).nonzero().squeeze(-1)
+        if rest.numel():
+            q_r, ok_r = row_blocks(lambda sb, xb: self._polish(sb, xb, iterations, settle=True), rows, q[rest], x[rest])
+            keep = ok_r | (row_blocks(self._cost, rows, q_r, x[rest]) < miss[rest])
+            q[rest[keep]], ok[rest] = q_r[keep], ok_r
         return q, ok, torch.zeros(b, dtype=torch.float64, device=dev)
 
     def _attempt(
