@@ -73,6 +73,7 @@ PRESELECT = 16
 # the UR5, each solving as many; FEW = 32 within 1 % of 8.
 IN_TURN = (1, 2, 4, 8, 16)
 FEW = 8
+UNCONVERGED = 1e9  # `IKSolver._rank`'s offset of an unconverged answer (a converged one ranks below it)
 SOLVE_ALL_ITERATIONS = 5
 CHARTED_ITERATIONS = 5  # solve's default steps for a charted network (3 steps: 93.9 % of UR5 poses)
 # solve_all: answers this close in (cos q, sin q) are one solution. Measured on 300 UR5 poses: 1e-3 counted
@@ -534,31 +535,35 @@ class IKSolver:
         self, model: ChartedIK, x: torch.Tensor, near_q: torch.Tensor | None, iterations: int
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """`_first` for a charted network, on the whole batch (each round's polish in blocks of
-        `block_rows` answers): the charts in turn, nearest first (`ChartedIK.ranked`). With `near`,
-        it is polished first; the targets it does not reach, or all without it, take their nearest
-        chart's answer, then the targets still unreached their next 2 charts', then 4, ...
-        (`IN_TURN`), and the last few (or all after those rounds) every chart's. Each answer is
-        polished `iterations` steps, a target stopping once it converges (`_polish`'s `settle`); the
-        targets none reached polish their nearest answer `iterations` steps more. The answer:
-        `near`'s where it converged, else the first chart's that did (its whole turns nearest
-        `near`), else the one nearest the target. So a target pays for the charts it needs: measured
-        on the UR5 (64 charts, whole-range poses), 73 % converge from the first chart, and a pose
-        polishes about 1.5 chart answers (the staged polish this replaced polished 14 answer steps a
-        pose, the best 4 of 16 ranked by forward kinematics 2 steps and the best 2 of them 3 more)."""
+        `block_rows` answers): the charts in turn, nearest first (`ChartedIK.ranked`). Without
+        `near`, every target takes its nearest chart's answer, the targets still unreached their
+        next 2 charts', then 4, ... (`IN_TURN`), and the last few (or all after those rounds) every
+        chart's; the first that converges is the answer. With `near`, it is polished first and is
+        the answer where it converges; the few targets it does not reach try every chart at once,
+        and the converged answer nearest `near` (its whole turns nearest it) is theirs. Each answer
+        is polished `iterations` steps, a target stopping once it converges (`_polish`'s `settle`);
+        the targets none reached polish their nearest answer `iterations` steps more, and keep the
+        answer nearest the target. So a target pays for the charts it needs: measured on the UR5
+        (64 charts, whole-range poses), 73 % converge from the first chart, and a pose polishes
+        about 1.5 chart answers (the staged polish this replaced polished 14 answer steps a pose,
+        the best 4 of 16 ranked by forward kinematics 2 steps and the best 2 of them 3 more)."""
         b, dev, rows = x.shape[0], x.device, self.block_rows
         low, high = self.low.to(dev), self.high.to(dev)
         q = torch.zeros(b, low.shape[0], dtype=torch.float64, device=dev)
         ok = torch.zeros(b, dtype=torch.bool, device=dev)
-        miss = torch.full((b,), torch.inf, dtype=torch.float64, device=dev)  # the best unconverged answer's cost
+        # the best answer's rank (`_rank`): below UNCONVERGED where it converged
+        miss = torch.full((b,), torch.inf, dtype=torch.float64, device=dev)
         todo = torch.arange(b, device=dev)
+        rounds: tuple[int, ...] = IN_TURN
         if near_q is not None:
             start = near_q.clamp(low, high)
             q, ok = row_blocks(lambda sb, xb: self._polish(sb, xb, iterations, settle=True), rows, start, x)
             todo = (~ok).nonzero().squeeze(-1)
-            miss[todo] = row_blocks(self._cost, rows, q[todo], x[todo])
-        order = row_blocks(lambda xb: model.ranked(xb, sum(IN_TURN)), rows, x[todo])
+            miss[todo] = UNCONVERGED + row_blocks(self._cost, rows, q[todo], x[todo])
+            rounds = ()  # the few `near` does not reach: every chart, the converged answer nearest `near`
+        order = row_blocks(lambda xb: model.ranked(xb, sum(rounds)), rows, x[todo])
         k, at = model.num_charts, 0
-        for width in (*IN_TURN, k):
+        for width in (*rounds, k):
             if not todo.numel():
                 break
             width = min(width, order.shape[1] - at)
@@ -583,7 +588,7 @@ class IKSolver:
         rest = (~ok).nonzero().squeeze(-1)
         if rest.numel():
             q_r, ok_r = row_blocks(lambda sb, xb: self._polish(sb, xb, iterations, settle=True), rows, q[rest], x[rest])
-            keep = ok_r | (row_blocks(self._cost, rows, q_r, x[rest]) < miss[rest])
+            keep = ok_r | (UNCONVERGED + row_blocks(self._cost, rows, q_r, x[rest]) < miss[rest])
             q[rest[keep]], ok[rest] = q_r[keep], ok_r
         return q, ok, torch.zeros(b, dtype=torch.float64, device=dev)
 
@@ -592,18 +597,28 @@ class IKSolver:
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """For targets x (T, d), the answers of charts[i] (T, W) polished `iterations` steps (each
         stopping once converged), their whole turns nearest ref[i] (T, n) where given; of each
-        target's W, the first converged, else the nearest the target: (joints (T, n), converged
-        (T,), cost (T,): -inf where converged, else `_cost`)."""
+        target's W, the best by `_rank`: (joints (T, n), converged (T,), its rank (T,))."""
         t, w = charts.shape
         xs = x.repeat_interleave(w, 0)
         seeds = self._asked(model.chart_answers(xs, charts.reshape(-1)).to(x.dtype), xs)
         q, ok = self._polish(seeds, xs, iterations, settle=True)
         if ref is not None:
             q = self._turned(q, ref.repeat_interleave(w, 0))
-        cost = torch.full((t * w,), -torch.inf, dtype=torch.float64, device=x.device)
-        cost[~ok] = self._cost(q[~ok], xs[~ok])
-        pick = torch.arange(t, device=x.device) * w + cost.reshape(t, w).argmin(1)
-        return q[pick], ok[pick], cost[pick]
+        rank = self._rank(q, ok, xs, None if ref is None else ref.repeat_interleave(w, 0))
+        pick = torch.arange(t, device=x.device) * w + rank.reshape(t, w).argmin(1)
+        return q[pick], ok[pick], rank[pick]
+
+    def _rank(self, q: torch.Tensor, ok: torch.Tensor, x: torch.Tensor, ref: torch.Tensor | None) -> torch.Tensor:
+        """(B,) how answers q (B, n) with converged ok (B,) to targets x rank, lowest best: a
+        converged answer its distance to ref (B, n) (each joint's change over its range's width, as
+        `_pick`), or 0 without ref (so the first converged wins a tie); an unconverged one
+        UNCONVERGED plus its `_cost` (the nearest the target)."""
+        rank = torch.zeros(q.shape[0], dtype=torch.float64, device=q.device)
+        if ref is not None:
+            width = (self.box_high - self.box_low).to(q.device, torch.float64)
+            rank[ok] = ((q[ok] - ref[ok]) / width).norm(dim=-1)
+        rank[~ok] = UNCONVERGED + self._cost(q[~ok], x[~ok])
+        return rank
 
     def _turned(self, q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
         """Joints q (..., n) with each revolute joint moved by the whole turns that bring it nearest

@@ -114,6 +114,25 @@ def test_near_keeps_the_answer_on_the_current_branch_and_turn(charted):
     assert float((q - near).abs().max()) < 1e-3
 
 
+def test_where_near_does_not_converge_the_answer_is_the_converged_one_nearest_it(charted):
+    """The targets `near` itself does not reach try every chart: the answer is no farther from
+    `near` than the one `solve` without it gives, brought its whole turns nearest `near`."""
+    _, robot, model = charted
+    split = full_range_split(robot, 100, 11)
+    solver = _solver(robot, model)
+    far = full_range_split(robot, 100, 12).q  # joints of other poses: mostly too far to polish in 5 steps
+    q, ok = solver.solve(split.x, near=far)
+    alone, ok_alone = solver.solve(split.x)
+    _, near_ok = solver._polish(far.clamp(solver.low, solver.high), split.x, 5, settle=True)
+    rows = (~near_ok & ok_alone).nonzero().squeeze(-1)
+    assert rows.numel() > 20 and bool(ok[rows].all())
+    width = solver.box_high - solver.box_low
+    d = ((q[rows] - far[rows]) / width).norm(dim=-1)
+    d_alone = ((solver._turned(alone[rows], far[rows]) - far[rows]) / width).norm(dim=-1)
+    # (to the polish's stopping point: each stops once within the tolerances, where its batch left it)
+    assert bool((d <= d_alone + 5e-3).all()) and float(d.mean()) < float(d_alone.mean())
+
+
 def test_charted_checkpoint_round_trips_through_load_solver(charted, tmp_path):
     _, robot, model = charted
     path = tmp_path / "charts.pt"
