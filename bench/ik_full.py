@@ -14,7 +14,7 @@ which `python -m bench.tracik DIR/charts.pt` and `rbfn.load_solver` read). Test 
 `rbfn.data.evaluation_split`, beside them). Rows, one thread, the machine quiet:
 
 - raw: the best-ranked chart's answer (`IKSolver.network`), its median position and rotation error;
-- polished: `IKSolver.solve` (the staged polish, `CHARTED_ITERATIONS` steps an answer, no
+- polished: `IKSolver.solve` (the charts in turn, `CHARTED_ITERATIONS` steps an answer, no
   restarts) on the whole batch: success within 0.1 mm and 0.1 deg, solves per second (median of
   `--repeats`), answers outside the URDF limits;
 - all: `IKSolver.solve_all` on `--all-n` poses: distinct solutions a pose; with eaik, the share of

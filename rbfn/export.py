@@ -162,7 +162,7 @@ class DeployedPoseIK(DeployedIK):
 class DeployedCharts(nn.Module):
     """A charted network (`rbfn.charts.ChartedIK`, robot.workspace=full) with its polish, in float32:
     positions (B, 3) -> (joints (B, n): the best answer polished (`rbfn.graph_polish.GraphPolish`,
-    the solver's staged polish in the graph), within the URDF limits; in_workspace (B,): that
+    a fixed set of answers polished on every row), within the URDF limits; in_workspace (B,): that
     polish converged within the tolerances (0.1 mm, 0.1 deg); answers (B, K, n): every chart's raw
     answer, for a caller who picks another (the one nearest its current joints, say) and polishes
     it; closeness (B, K): each chart's nearest centre's distance over its cover radius, below 1

@@ -138,7 +138,7 @@ def charted_metrics(model: ChartedIK, robot: Robot, box: Split, full: Split) -> 
     (`test_` keys) and on poses over the whole joint range `full` (`test_full_range_` keys): the
     best-ranked chart's raw position and rotation error medians (`pos_err_mm_median`,
     `rot_err_deg_median`), the polished success within 0.1 mm / 0.1 deg (`polished_success_rate`,
-    `IKSolver.solve`'s staged polish, `polish_iterations` steps an answer), the share of whole-range
+    `IKSolver.solve`: the charts in turn, `polish_iterations` steps an answer), the share of whole-range
     poses the exported flag marks inside (`test_full_range_in_workspace`: the graph's own polish,
     `rbfn.graph_polish`, converged) and the solver's success among them
     (`test_full_range_success_in_workspace`), and the distinct solutions `IKSolver.solve_all` finds
