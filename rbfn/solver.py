@@ -68,10 +68,13 @@ PRESELECT = 16
 # next IN_TURN[i] charts (nearest first) at once in round i, while more than FEW of them remain; the rest
 # try every chart at once (a few targets, many charts: one batched polish instead of one small one a
 # chart). Measured on the UR5 and the Panda (64 charts, 10 000 poses of the test stream of seed 1, not
-# the evaluation stream): (1, 2, 4, 8, 16) 10 174 and 5 719 solves/s, (1, 2, 4, 8) 9 991 and 5 504,
-# (1, 1, 2, 4, 8) 9 516 and 5 617, (1, 2, 4) 9 225 and 4 202, one chart a round up to 8 about 7 550 on
-# the UR5, each solving as many; FEW = 32 within 1 % of 8.
-IN_TURN = (1, 2, 4, 8, 16)
+# the evaluation stream), each solving as many: with the rounds in blocks of 4 096 targets, (1, 2, 4,
+# 8, 16) 10 174 and 5 719 solves/s, (1, 2, 4, 8) 9 991 and 5 504, (1, 1, 2, 4, 8) 9 516 and 5 617,
+# (1, 2, 4) 9 225 and 4 202, one chart a round up to 8 about 7 550 on the UR5, FEW = 32 within 1 % of
+# 8; with the rounds over the whole batch (as now), (1, 1, 2, 4, 8, 16) 3-9 % above (1, 2, 4, 8, 16) on
+# the UR5, the Panda and the KR10 (12 018 / 11 040, 5 998 / 5 620, 11 377 / 11 091; median of 9), one
+# chart a round up to 12 below both.
+IN_TURN = (1, 1, 2, 4, 8, 16)
 FEW = 8
 UNCONVERGED = 1e9  # `IKSolver._rank`'s offset of an unconverged answer (a converged one ranks below it)
 SOLVE_ALL_ITERATIONS = 5
@@ -537,7 +540,7 @@ class IKSolver:
         """`_first` for a charted network, on the whole batch (each round's polish in blocks of
         `block_rows` answers): the charts in turn, nearest first (`ChartedIK.ranked`). Without
         `near`, every target takes its nearest chart's answer, the targets still unreached their
-        next 2 charts', then 4, ... (`IN_TURN`), and the last few (or all after those rounds) every
+        next chart's, then the next 2, 4, ... (`IN_TURN`), and the last few (or all after those rounds) every
         chart's; the first that converges is the answer. With `near`, it is polished first and is
         the answer where it converges; the few targets it does not reach try every chart at once,
         and the converged answer nearest `near` (its whole turns nearest it) is theirs. Each answer
