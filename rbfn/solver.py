@@ -382,10 +382,11 @@ class IKSolver:
         trained box (turned with the target; generator seeded by `seed`); a target keeps the first
         start that converges.
 
-        Any B: the targets are solved in blocks of `block_rows` (each target's answer is its own,
-        so the blocks give what one whole batch gives); what the call holds for the whole batch
-        is a few float64 numbers a target (`WHOLE_BATCH_VALUES`), checked against the memory
-        available before any work where B is above one block.
+        Any B: the targets are solved in blocks of `block_rows` (a charted network's rounds polish
+        in blocks of `block_rows` answers; each target's answer is its own, so the blocks give what
+        one whole batch gives); what the call holds for the whole batch is a few float64 numbers a
+        target (`WHOLE_BATCH_VALUES`, and a charted network's order of the charts), checked against
+        the memory available before any work where B is above one block.
         """
         if iterations is None:
             iterations = self.default_iterations
@@ -401,13 +402,15 @@ class IKSolver:
             raise ValueError(f"IKSolver.block_rows={rows!r} is not allowed: use a positive integer (targets a block)")
         if b > rows:
             n = len(self.robot.joint_names)
+            order = sum(IN_TURN) if self.charted else 0  # a charted solve's charts a target, in turn (int64)
             check_fits(
                 "targets",
                 tuple(x.shape),
-                b * (x.shape[1] + WHOLE_BATCH_VALUES * n) * FLOAT64,
+                b * (2 * x.shape[1] + WHOLE_BATCH_VALUES * n + order) * FLOAT64,
                 str(dev),
-                f"the targets in float64 and the answers, {WHOLE_BATCH_VALUES} float64 joint vectors a target; "
-                f"the polish itself runs in blocks of {rows} targets",
+                f"the targets in float64 (and a copy), the answers, {WHOLE_BATCH_VALUES} float64 joint vectors a "
+                f"target{f', and the order of {order} charts' if order else ''}; the polish itself runs in blocks "
+                f"of {rows} targets",
                 advice="solve fewer targets a call",
             )
         x = x.to(dtype=torch.float64, device=dev)
