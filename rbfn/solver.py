@@ -65,15 +65,17 @@ CHARTED_ERROR_DAMPING = 0.01  # load_solver's for a charted network: its seeds c
 # nearest a target, the best by forward kinematics.
 PRESELECT = 16
 # The charted solve's charts in turn (`IKSolver._charted_first`): the targets not yet reached try their
-# next IN_TURN[i] charts (nearest first) at once in round i, while more than FEW of them remain; the rest
-# try every chart at once (a few targets, many charts: one batched polish instead of one small one a
-# chart). Measured on the UR5 and the Panda (64 charts, 10 000 poses of the test stream of seed 1, not
-# the evaluation stream), each solving as many: with the rounds in blocks of 4 096 targets, (1, 2, 4,
-# 8, 16) 10 174 and 5 719 solves/s, (1, 2, 4, 8) 9 991 and 5 504, (1, 1, 2, 4, 8) 9 516 and 5 617,
-# (1, 2, 4) 9 225 and 4 202, one chart a round up to 8 about 7 550 on the UR5, FEW = 32 within 1 % of
-# 8; with the rounds over the whole batch (as now), (1, 1, 2, 4, 8, 16) 3-9 % above (1, 2, 4, 8, 16) on
-# the UR5, the Panda and the KR10 (12 018 / 11 040, 5 998 / 5 620, 11 377 / 11 091; median of 9), one
-# chart a round up to 12 below both.
+# next IN_TURN[i] charts (nearest first) at once in round i, while more than FEW of them remain after
+# the first round; the rest try every chart not yet tried at once (a few targets, many charts: one
+# batched polish instead of one small one a chart; a single target solved alone, 1.15x the time in
+# turn through every round, 2.2x with every chart from the start, measured on the UR5). Measured on
+# the UR5 and the Panda (64 charts, 10 000 poses of the test stream of seed 1, not the evaluation
+# stream), each solving as many: with the rounds in blocks of 4 096 targets, (1, 2, 4, 8, 16) 10 174
+# and 5 719 solves/s, (1, 2, 4, 8) 9 991 and 5 504, (1, 1, 2, 4, 8) 9 516 and 5 617, (1, 2, 4) 9 225
+# and 4 202, one chart a round up to 8 about 7 550 on the UR5, FEW = 32 within 1 % of 8; with the
+# rounds over the whole batch (as now), (1, 1, 2, 4, 8, 16) 3-9 % above (1, 2, 4, 8, 16) on the UR5,
+# the Panda and the KR10 (12 018 / 11 040, 5 998 / 5 620, 11 377 / 11 091; median of 9), one chart a
+# round up to 12 below both.
 IN_TURN = (1, 1, 2, 4, 8, 16)
 FEW = 8
 UNCONVERGED = 1e9  # `IKSolver._rank`'s offset of an unconverged answer (a converged one ranks below it)
@@ -100,6 +102,13 @@ def _positive(name: str, v, zero: bool = False) -> float:
     if not (finite(v) and (v >= 0 if zero else v > 0)):
         raise ValueError(f"{name}={v!r} is not allowed: use a finite number {'>= 0' if zero else '> 0'}")
     return float(v)
+
+
+def _untried(tried: torch.Tensor, k: int) -> torch.Tensor:
+    """(T, k - t) the chart indices of 0 .. k - 1 not in each row of tried (T, t) (distinct), in
+    increasing order."""
+    left = torch.ones(tried.shape[0], k, dtype=torch.bool, device=tried.device).scatter_(1, tried, False)
+    return left.to(torch.int8).argsort(dim=1, descending=True, stable=True)[:, : k - tried.shape[1]]
 
 
 class IKSolver:
@@ -543,16 +552,17 @@ class IKSolver:
         """`_first` for a charted network, on the whole batch (each round's polish in blocks of
         `block_rows` answers): the charts in turn, nearest first (`ChartedIK.ranked`). Without
         `near`, every target takes its nearest chart's answer, the targets still unreached their
-        next chart's, then the next 2, 4, ... (`IN_TURN`), and the last few (or all after those rounds) every
-        chart's; the first that converges is the answer. With `near`, it is polished first and is
-        the answer where it converges; the few targets it does not reach try every chart at once,
-        and the converged answer nearest `near` (its whole turns nearest it) is theirs. Each answer
-        is polished `iterations` steps, a target stopping once it converges (`_polish`'s `settle`);
-        the targets none reached polish their nearest answer `iterations` steps more, and keep the
-        answer nearest the target. So a target pays for the charts it needs: measured on the UR5
-        (64 charts, whole-range poses), 73 % converge from the first chart, and a pose polishes
-        about 1.5 chart answers (the staged polish this replaced polished 14 answer steps a pose,
-        the best 4 of 16 ranked by forward kinematics 2 steps and the best 2 of them 3 more)."""
+        next chart's, then the next 2, 4, ... (`IN_TURN`), and the last few (or all after those
+        rounds) every chart not yet tried; the first that converges is the answer. With `near`, it
+        is polished first and is the answer where it converges; the few targets it does not reach
+        try every chart at once, and the converged answer nearest `near` (its whole turns nearest
+        it) is theirs. Each answer is polished `iterations` steps, a target stopping once it
+        converges (`_polish`'s `settle`); the targets none reached polish their nearest answer
+        `iterations` steps more, and keep the answer nearest the target. So a target pays for the
+        charts it needs: measured on the UR5 (64 charts, whole-range poses), 73 % converge from the
+        first chart, and a pose polishes about 1.5 chart answers (the staged polish this replaced
+        polished 14 answer steps a pose, the best 4 of 16 ranked by forward kinematics 2 steps and
+        the best 2 of them 3 more)."""
         b, dev, rows = x.shape[0], x.device, self.block_rows
         low, high = self.low.to(dev), self.high.to(dev)
         q = torch.zeros(b, low.shape[0], dtype=torch.float64, device=dev)
@@ -573,8 +583,10 @@ class IKSolver:
             if not todo.numel():
                 break
             width = min(width, order.shape[1] - at)
-            every = width < 1 or todo.numel() <= FEW  # every chart at once
-            charts = torch.arange(k, device=dev).expand(todo.numel(), k) if every else order[:, at : at + width]
+            every = width < 1 or (at > 0 and todo.numel() <= FEW)  # every chart not yet tried, at once
+            if every and at >= k:
+                break
+            charts = _untried(order[:, :at], k) if every else order[:, at : at + width]
             per = max(1, rows // charts.shape[1])  # targets a block: at most `block_rows` answers polished at once
             if near_q is None:
                 qs, oks, cost = row_blocks(

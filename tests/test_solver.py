@@ -103,6 +103,14 @@ def test_a_settling_polish_stops_each_target_once_it_converges(ur5_run):
     assert int(ok.sum()) >= int(ok_all.sum()) - 2 and not torch.equal(q_all[:50], start[:50])
 
 
+def test_the_last_round_tries_only_the_charts_not_yet_tried():
+    from rbfn.solver import _untried
+
+    tried = torch.tensor([[3, 1], [0, 4]])
+    assert torch.equal(_untried(tried, 5), torch.tensor([[0, 2, 4], [1, 2, 3]]))
+    assert torch.equal(_untried(tried[:, :0], 3), torch.tensor([[0, 1, 2], [0, 1, 2]]))
+
+
 def test_restarts_rescue_the_targets_the_polish_leaves(ur5_run):
     """One step from the network leaves many targets; restarts from random joints in the box
     reach them without leaving the box or touching the targets already solved."""
