@@ -19,7 +19,9 @@ in the box, as a sampling IK would, so only the hard few pay for it. Runs where 
 robot model are available; deployed exports hold the network alone.
 
 Why one module of over 500 lines: the damped-least-squares step, its line search, the box
-clamp, the restarts and the nearest-solution choice are one algorithm over one state.
+clamp, the restarts, a charted network's charts in turn and the nearest-solution choice are one
+algorithm over one state (the solver's tolerances, joint range and robot), each part calling the
+step and the same ranking of answers (`_rank`).
 """
 
 from __future__ import annotations
@@ -383,9 +385,9 @@ class IKSolver:
         answers, the one nearest `near` (the first joint, where targets are turned around the base,
         by the whole turn nearest it); distance: each joint's change divided by the width of its
         trained range, so radians and metres count alike. For a charted network, `near` polished
-        is the answer where it converges, else the first chart's answer that does, its whole turns
-        nearest `near`. Solving a path point by point with the previous answer as `near` keeps it
-        on its branch.
+        is the answer where it converges, else the converged one nearest `near` of every chart's
+        answers, its whole turns nearest `near`. Solving a path point by point with the previous
+        answer as `near` keeps it on its branch.
         restarts: for the targets not converged after `iterations` steps from the network's answer,
         up to this many rounds of `restart_iterations` steps from joints drawn uniformly in the
         trained box (turned with the target; generator seeded by `seed`); a target keeps the first
@@ -508,20 +510,14 @@ class IKSolver:
         return q, ok, d
 
     def _pick(
-        self, cands: torch.Tensor, ok: torch.Tensor, x: torch.Tensor, near_q: torch.Tensor | None
+        self, cands: torch.Tensor, ok: torch.Tensor, x: torch.Tensor, near_q: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Of candidate answers cands (B, C, n) with converged ok (B, C) to targets x (B, d): the
-        converged one nearest `near_q` (B, n) (each joint's change over its range's width), or
-        without it the converged one nearest the target; where none converged, the nearest the
-        target. (joints (B, n), converged (B,)); ties: the first."""
+        """Of candidate answers cands (B, C, n) with converged ok (B, C) to targets x (B, d), the
+        best by `_rank`: the converged one nearest `near_q` (B, n), where none converged the
+        nearest the target. (joints (B, n), converged (B,)); ties: the first."""
         b, c, n = cands.shape
-        miss = self._cost(cands.reshape(-1, n), x.repeat_interleave(c, 0)).reshape(b, c)
-        if near_q is not None:
-            width = (self.box_high - self.box_low).to(cands.device, torch.float64)
-            miss_ok = ((cands - near_q[:, None]) / width).norm(dim=-1)
-        else:
-            miss_ok = miss
-        pick = torch.where(ok, miss_ok, 1e9 + miss).argmin(1)
+        rep = lambda t: t.repeat_interleave(c, 0)  # noqa: E731
+        pick = self._rank(cands.reshape(-1, n), ok.reshape(-1), rep(x), rep(near_q)).reshape(b, c).argmin(1)
         rows = torch.arange(b, device=cands.device)
         return cands[rows, pick], ok[rows, pick]
 
@@ -588,14 +584,14 @@ class IKSolver:
                 break
             charts = _untried(order[:, :at], k) if every else order[:, at : at + width]
             per = max(1, rows // charts.shape[1])  # targets a block: at most `block_rows` answers polished at once
-            if near_q is None:
-                qs, oks, cost = row_blocks(
-                    lambda xb, cb: self._attempt(model, xb, cb, None, iterations), per, x[todo], charts
-                )
-            else:
-                qs, oks, cost = row_blocks(
-                    lambda xb, cb, nb: self._attempt(model, xb, cb, nb, iterations), per, x[todo], charts, near_q[todo]
-                )
+            near_rows = () if near_q is None else (near_q[todo],)
+            qs, oks, cost = row_blocks(
+                lambda xb, cb, *nb: self._attempt(model, xb, cb, nb[0] if nb else None, iterations),
+                per,
+                x[todo],
+                charts,
+                *near_rows,
+            )
             better = cost < miss[todo]
             q[todo[better]], miss[todo[better]], ok[todo[oks]] = qs[better], cost[better], True
             if every:
@@ -628,9 +624,9 @@ class IKSolver:
 
     def _rank(self, q: torch.Tensor, ok: torch.Tensor, x: torch.Tensor, ref: torch.Tensor | None) -> torch.Tensor:
         """(B,) how answers q (B, n) with converged ok (B,) to targets x rank, lowest best: a
-        converged answer its distance to ref (B, n) (each joint's change over its range's width, as
-        `_pick`), or 0 without ref (so the first converged wins a tie); an unconverged one
-        UNCONVERGED plus its `_cost` (the nearest the target)."""
+        converged answer its distance to ref (B, n) (each joint's change over its range's width, so
+        radians and metres count alike), or 0 without ref (so the first converged wins a tie); an
+        unconverged one UNCONVERGED plus its `_cost` (the nearest the target)."""
         rank = torch.zeros(q.shape[0], dtype=torch.float64, device=q.device)
         if ref is not None:
             width = (self.box_high - self.box_low).to(q.device, torch.float64)
