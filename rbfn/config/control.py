@@ -23,6 +23,12 @@ class NetworkLaw(Choice):  # how the adaptive controller's network learns (rbfn.
     tracking = "tracking"
 
 
+class Feedforward(Choice):  # the joints the two-phase law feeds the network's predicted torque forward on
+    chosen = "chosen"
+    on = "on"
+    off = "off"
+
+
 class Integrator(Choice):
     rk4 = "rk4"
     euler = "euler"  # semi-implicit
@@ -262,6 +268,10 @@ class NetworkConfig:
     # ideal one or where objective is closed_loop
     law: Optional[NetworkLaw] = None
     conditions: int = 6
+    # two_phase: the joints on which the law adds the network's predicted torque. chosen: per joint,
+    # whichever of on and off tracks better in the closed loop on `tune`'s scenarios (never the
+    # evaluation's); on: every joint; off: none (the network then only estimates the payload)
+    feedforward: Feedforward = Feedforward.chosen
     aco: ACOConfig = field(default_factory=ACOConfig)
     tune: TuneConfig = field(default_factory=TuneConfig)
 

@@ -20,6 +20,7 @@ from ..config import (
     PILOT_STRIDE,
     ControlConfig,
     Dtype,
+    Feedforward,
     GainsConfig,
     LoopConfig,
     NetworkConfig,
@@ -56,7 +57,7 @@ from .simulator import (
     simulate,
 )
 from .trajectory import Reference
-from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, tune_network, tuning_scenarios
+from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, run_scenarios, tune_network, tuning_scenarios
 
 __all__ = [
     "ControlRun",
@@ -87,6 +88,7 @@ class ControlRun:
     select_seconds: float | None = None  # the network's centre selection (arbfn_*)
     basis: PayloadBasis | None = None  # phase 1's fit (arbfn_* under the two-phase law)
     tuned: Tuned | None = None  # the closed-loop tuning (arbfn_aco, _random, _cmaes; arbfn_kmeans: its cost)
+    feedforward: list[float] | None = None  # the two-phase law's: 1 or 0 per joint (control.network.feedforward)
 
 
 @dataclass
@@ -104,6 +106,7 @@ class ControlComparison:
     # every search and its confirmation
     phase_one_payloads: list[float] | None = None  # kg: the two-phase law's phase 1 conditions, where it ran
     phase_one_seconds: float = 0.0  # wall time of phase 1's calibration runs
+    feedforward_seconds: float = 0.0  # wall time of choosing the joints the network feeds forward on
     pick_and_place: PickedAndPlaced | None = None  # control.pick_and_place's run, where it ran
     network: NetworkConfig | None = None  # control.network as it ran: its law and objective resolved
 
@@ -159,6 +162,7 @@ def compare_controllers(
             select_seconds=nw.select_seconds.get(name),
             basis=nw.bases.get(network_method(name) or ""),
             tuned=nw.tuned.get(name),
+            feedforward=_listed(nw.feedforward.get(network_method(name) or "")),
         )
     picked = _pick_and_place_run(c, nw, runs) if c.cfg.pick_and_place.picks else None
     if nw.cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
@@ -179,6 +183,7 @@ def compare_controllers(
         tuning_seconds=nw.tuning_seconds,
         phase_one_payloads=nw.conditions if nw.bases else None,
         phase_one_seconds=nw.phase_one_seconds,
+        feedforward_seconds=nw.feedforward_seconds,
         pick_and_place=picked,
         network=c.cfg.network,
     )
@@ -266,6 +271,8 @@ class _Networks:
     pilot: tuple[torch.Tensor, torch.Tensor] | None = None
     tuning_seconds: float = 0.0
     phase_one_seconds: float = 0.0
+    feedforward: dict[str, torch.Tensor] = field(default_factory=dict)  # by method: (n,) 1 or 0 per joint
+    feedforward_seconds: float = 0.0
 
 
 def _networks(c: _Context) -> _Networks:
@@ -306,7 +313,49 @@ def _networks(c: _Context) -> _Networks:
         else:
             net = _static(c, nw, method)
         nw.made[name], nw.select_seconds[name] = net, net.seconds
+    if c.two_phase and nw.made:
+        nw.feedforward = _feedforward(c, nw)
     return nw
+
+
+def _feedforward(c: _Context, nw: _Networks) -> dict[str, torch.Tensor]:
+    """Per method, the joints (n,) on which the two-phase law adds the network's predicted torque
+    (`control.network.feedforward`): every joint (on), none (off), or (chosen) where the law with
+    it tracks better than without it, per joint, in the closed loop on the tuning's scenarios
+    (never the evaluation's): the geometric mean over the scenarios of the RMS ratio below 1. Both
+    laws of every method run in one batch; a method whose law with it diverges keeps none."""
+    n, mode = c.setup.n, c.cfg.network.feedforward
+    methods = sorted({cast(str, network_method(name)) for name in nw.made})
+    if mode != Feedforward.chosen:
+        return {m: torch.full((n,), 1.0 if mode == Feedforward.on else 0.0) for m in methods}
+    c.stage("choosing the joints the network feeds forward on")
+    t0 = time.perf_counter()
+    scenarios, sc, ref = _tuning_episode(c)
+    ref = ref.to(**c.kw)
+    x = desired_states(ref, acceleration=True).double().cpu()
+    own = model_payload_torque(c.model, ref).double().cpu()
+    ones, zeros = torch.ones(n, **c.kw), torch.zeros(n, **c.kw)
+    features = {m: nw.bases[m].outputs(nw.nets[m].features(x), own).to(**c.kw) for m in methods}
+    s = scenarios.payloads.shape[0]
+    loop = None if c.real is None else replace(c.real, noise_envs=s, seed=scenarios.noise_seed)
+    chosen: dict[str, torch.Tensor] = {}
+    pending = list(methods)
+    while pending:
+        laws = [_make(c, nw, f"arbfn_{m}", features[m], None, mask) for m in pending for mask in (ones, zeros)]
+        try:
+            rms, _ = run_scenarios(
+                c.setup.plant, Stacked(laws, [s] * len(laws)), len(laws), scenarios, sc, ref, loop,
+                compile=c.cfg.compile, aot=c.aot,
+            )  # fmt: skip
+        except SimulationDiverged as e:  # that method takes the other law on every joint
+            i, without = divmod(e.environment // s, 2)
+            chosen[pending.pop(i)] = torch.full((n,), float(without))
+            continue
+        ratio = (rms[0::2] / rms[1::2].clamp_min(1e-15)).log().mean(1).exp()  # (methods, n): with / without
+        chosen.update({m: (ratio[i] < 1.0).double() for i, m in enumerate(pending)})
+        pending = []
+    nw.feedforward_seconds = time.perf_counter() - t0
+    return chosen
 
 
 def _pilot(c: _Context, nw: _Networks) -> tuple[torch.Tensor, torch.Tensor]:
@@ -364,30 +413,44 @@ def _along(c: _Context, nw: _Networks, ref: Reference, b: int) -> Stacked:
     elif nw.made:
         x = desired_states(ref)
     for name in c.cfg.controllers:
-        features = w0 = None
+        features = w0 = feedforward = None
         if name in nw.made:
-            net = nw.made[name]
+            net, method = nw.made[name], cast(str, network_method(name))
             if c.two_phase:
-                features = nw.bases[cast(str, network_method(name))].outputs(net.features(x), own).to(**c.kw)
+                features = nw.bases[method].outputs(net.features(x), own).to(**c.kw)
+                feedforward = nw.feedforward[method].to(**c.kw)
             else:
                 features, w0 = net.features(x), net.w0
-        controllers.append(
-            make_controller(
-                name,
-                c.gains,
-                c.period,
-                model=c.model,
-                features=features,
-                w0=w0,
-                observer=c.cfg.network.observer,
-                joint_scale=c.factors.scale,
-                plant=c.setup.plant,
-                rates=c.factors.rates,
-                law=str(c.cfg.network.law),
-                schedule=nw.schedule,
-            )
-        )
+        controllers.append(_make(c, nw, name, features, w0, feedforward))
     return Stacked(controllers, [b] * len(controllers))
+
+
+def _make(
+    c: _Context,
+    nw: _Networks,
+    name: str,
+    features: torch.Tensor | None = None,
+    w0: torch.Tensor | None = None,
+    feedforward: torch.Tensor | None = None,
+):
+    """Controller `name` as this comparison builds it: its gains, period, nominal model, factors
+    and law, with an adaptive network's `features` along the reference, initial weights `w0` and
+    the joints it feeds forward on (`make_controller`)."""
+    return make_controller(
+        name,
+        c.gains,
+        c.period,
+        model=c.model,
+        features=features,
+        w0=w0,
+        observer=c.cfg.network.observer,
+        joint_scale=c.factors.scale,
+        plant=c.setup.plant,
+        rates=c.factors.rates,
+        law=str(c.cfg.network.law),
+        schedule=nw.schedule,
+        feedforward=feedforward,
+    )
 
 
 def _run_all(
@@ -448,27 +511,13 @@ def _closed_loop_cost(
     `full_length`, as long as the evaluation's, its payload window: the confirmation), in the same
     loop, at the same gains, factors and adaptation rate, from the `twin`'s initial weights, with
     the `pilot` run's (inputs, residuals) as its warm start."""
-    cfg, setup, loop = c.cfg, c.setup, c.loop
-    tune, plant = cfg.network.tune, setup.plant
-    amplitude = [float(plant.dist)] * setup.n if isinstance(plant.dist, (int, float)) else list(plant.dist)
-    scenarios = tuning_scenarios(
-        tune,
-        rated_payload=setup.rated_payload,
-        disturbance=amplitude,
-        eval_payloads=list(setup.payloads),
-        eval_freq=cfg.disturbance_freq,
-        eval_noise_seed=loop.noise_seed if loop is not None else 0,
-    )
-    duration, on, off = tune.episode(cfg.duration, cfg.payload_on, cfg.payload_off)
-    if full_length:
-        duration, on, off = cfg.duration, cfg.payload_on, cfg.payload_off
-    sc = Scenario(duration, cfg.dt, cfg.integrator, on, off)
-    sc.validate()
+    cfg, tune = c.cfg, c.cfg.network.tune
     like = pilot[0]
-    ref = Reference(*setup.trajectory(sc.times(torch.float64))).to(dtype=like.dtype, device=like.device)
+    scenarios, sc, ref = _tuning_episode(c, full_length)
+    ref = ref.to(dtype=like.dtype, device=like.device)
     x, y = pilot[0].double().cpu(), pilot[1].double().cpu()
     return ClosedLoopCost(
-        plant=plant,
+        plant=c.setup.plant,
         model=c.model,
         gains=c.gains,
         twin=twin,
@@ -484,6 +533,35 @@ def _closed_loop_cost(
         compile=cfg.compile,
         aot=ahead_of_time(cfg.aot, like.device, cfg.compile),
     )
+
+
+def _listed(t: torch.Tensor | None) -> list[float] | None:
+    return None if t is None else t.tolist()
+
+
+def _tuning_episode(c: _Context, full_length: bool = False) -> tuple[TuneScenarios, Scenario, Reference]:
+    """The closed-loop tuning's scenarios (`tuning_scenarios`: never the evaluation's payloads,
+    disturbance frequency or noise seed), its episode (with `full_length`, as long as the
+    evaluation's, its payload window; errors measured after its first 0.5 s, or in its second half
+    if it is shorter than 1 s) and the desired trajectory along it (float64, CPU)."""
+    cfg, setup, loop = c.cfg, c.setup, c.loop
+    tune, plant = cfg.network.tune, setup.plant
+    amplitude = [float(plant.dist)] * setup.n if isinstance(plant.dist, (int, float)) else list(plant.dist)
+    scenarios = tuning_scenarios(
+        tune,
+        rated_payload=setup.rated_payload,
+        disturbance=amplitude,
+        eval_payloads=list(setup.payloads),
+        eval_freq=cfg.disturbance_freq,
+        eval_noise_seed=loop.noise_seed if loop is not None else 0,
+    )
+    duration, on, off = tune.episode(cfg.duration, cfg.payload_on, cfg.payload_off)
+    if full_length:
+        duration, on, off = cfg.duration, cfg.payload_on, cfg.payload_off
+    sc = Scenario(duration, cfg.dt, cfg.integrator, on, off)
+    sc = replace(sc, metrics_after=min(sc.metrics_after, duration / 2))  # an episode shorter than 1 s: its second half
+    sc.validate()
+    return scenarios, sc, Reference(*setup.trajectory(sc.times(torch.float64)))
 
 
 def gap_closure(smc: dict, run: dict, exact: dict) -> list[float]:

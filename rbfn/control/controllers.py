@@ -381,7 +381,10 @@ class TwoPhase(Controller):
         tau = M_hat(m_hat) qr'' + C_hat(m_hat) qr' + G_hat(m_hat) + g K s + eps sat(s)
               + h^T W0 + m_hat (h^T V - Y) + d_hat.
 
-    The controller is not told the payload: the rating bounds m_hat, as it bounds the design."""
+    The controller is not told the payload: the rating bounds m_hat, as it bounds the design.
+    `feedforward` (n,), 1 or 0 per joint (None: every joint 1), keeps or drops the network's terms
+    h^T W0 + m_hat (h^T V - Y) in tau on that joint (`control.network.feedforward`); the estimate
+    uses the network on every joint either way."""
 
     def __init__(
         self,
@@ -391,9 +394,10 @@ class TwoPhase(Controller):
         features: torch.Tensor,
         schedule: InertiaSchedule,
         joint_scale: torch.Tensor | None = None,
+        feedforward: torch.Tensor | None = None,
     ) -> None:
         super().__init__(gains, dt, model, joint_scale)
-        self.features, self.schedule = features, schedule
+        self.features, self.schedule, self.feedforward = features, schedule, feedforward
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> TwoPhaseState:
         z = torch.zeros_like(q0)
@@ -449,7 +453,10 @@ class TwoPhase(Controller):
         unit = torch.ones_like(q[0]) if self.scale is None else self.scale.to(q)
         factor = observer_factor(self.gains, unit * growth, inertia)
         d_hat = g.observer_gain * factor * (integral + law.p0 - at.m_times(qd))
-        tau = tau_m + resid0 + m[:, None] * beyond + d_hat
+        predicted = resid0 + m[:, None] * beyond
+        if self.feedforward is not None:
+            predicted = predicted * self.feedforward.to(q)
+        tau = tau_m + predicted + d_hat
         beta = at.momentum_rate()
         if applied is None:  # the ideal loop: this period's nominal share acts as commanded
             integral = integral + dt * (tau_m + beta)
@@ -486,6 +493,7 @@ def make_controller(
     rates: JointRates | None = None,
     law: str = "tracking",
     schedule: InertiaSchedule | None = None,
+    feedforward: torch.Tensor | None = None,
 ) -> Controller:
     """Controller by name: pd, ctc, smc, smc_obs, smc_exact (needs the `plant`), or arbfn* (needs
     `features`). `model`: the nominal model (`rbfn.control.models.NominalModel`; all but pd and
@@ -493,8 +501,9 @@ def make_controller(
     factor of the torque gains; `rates`: per-joint factors of the sliding-mode law's observer gain
     and adaptation rate (None: 1). `law`: the adaptive network's (`control.network.law`):
     `tracking`, features h (T, M) and dW/dt = Gamma h s^T from `w0`; `two_phase` (`TwoPhase`),
-    features [h^T W0, h^T V, h^T V - Y] (T, 3n) and the inertia `schedule`."""
-    spec = _Spec(name, gains, dt, model, features, w0, observer, joint_scale, plant, rates, law, schedule)
+    features [h^T W0, h^T V, h^T V - Y] (T, 3n), the inertia `schedule` and the joints it feeds
+    the network's torque forward on (`feedforward` (n,), None: every joint)."""
+    spec = _Spec(name, gains, dt, model, features, w0, observer, joint_scale, plant, rates, law, schedule, feedforward)
     build = _BUILDERS.get(name) or (_adaptive if name == ADAPTIVE.rstrip("_") or network_method(name) else None)
     if build is None:
         raise ValueError(
@@ -521,6 +530,7 @@ class _Spec(NamedTuple):
     rates: JointRates | None
     law: str
     schedule: InertiaSchedule | None
+    feedforward: torch.Tensor | None
 
 
 def _exact(s: _Spec) -> Controller:
@@ -536,7 +546,9 @@ def _adaptive(s: _Spec) -> Controller:
     if s.law == "two_phase":
         if s.schedule is None:
             raise ValueError(f"controller {s.name!r} under law 'two_phase' needs the inertia schedule")
-        return TwoPhase(s.gains, s.dt, s.model, s.features, s.schedule, joint_scale=s.joint_scale)
+        return TwoPhase(
+            s.gains, s.dt, s.model, s.features, s.schedule, joint_scale=s.joint_scale, feedforward=s.feedforward
+        )
     if s.law != "tracking":
         raise ValueError(f"unknown adaptive law {s.law!r}; choose 'two_phase' or 'tracking'")
     return SlidingMode(

@@ -49,7 +49,7 @@ from .network import ControlNet, desired_states
 from .simulator import Plant, Scenario, SimulationDiverged, metric_tensors, simulate
 from .trajectory import Reference
 
-__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed"]
+__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed", "run_scenarios"]
 MAX_DRAWS = 1000  # redraws of a scenario value that falls on an evaluation case before giving up
 
 
@@ -258,29 +258,49 @@ class ClosedLoopCost:
     def _run(self, ctrl, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         """RMS error (k, S, n) and share of periods at the torque limit (k, S, n) of `ctrl` driving
         k blocks of the S scenarios."""
-        sc, s = self.scenarios, self.s
-        b = k * s
-        plant = self.plant.varied(
-            sc.amplitude.repeat(k, 1).to(**self.kw), sc.freq.repeat(k).to(**self.kw), sc.phase.repeat(k).to(**self.kw)
+        return run_scenarios(
+            self.plant, ctrl, k, self.scenarios, self.scenario, self.ref, self.loop, compile=self.compile, aot=self.aot
         )
-        q0 = self.ref.q_d[:1].expand(b, self.n).clone()
-        qd0 = self.ref.qd_d[:1].expand(b, self.n).clone()
-        roll = simulate(
-            plant,
-            ctrl,
-            self.scenario,
-            self.ref,
-            q0=q0,
-            qd0=qd0,
-            payload=sc.payloads.repeat(k).to(**self.kw),
-            compile=self.compile,
-            aot=self.aot,
-            loop=self.loop,
-        )
-        q_des = self.ref.q_d if self.loop is None else self.ref.q_d[:: self.loop.substeps][: roll.t.shape[0]]
-        rms = metric_tensors(roll, q_des, self.scenario)["rms_err"].double().cpu().reshape(k, s, self.n)
-        sat = torch.zeros_like(rms) if roll.saturated is None else roll.saturated.double().cpu().reshape(k, s, self.n)
-        return rms, sat
+
+
+def run_scenarios(
+    plant: Plant,
+    ctrl: Any,
+    k: int,
+    scenarios: TuneScenarios,
+    scenario: Scenario,
+    ref: Reference,
+    loop: RealLoop | None,
+    *,
+    compile: bool = False,
+    aot: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """RMS error (k, S, n) and share of periods at the torque limit (k, S, n) of `ctrl` driving k
+    blocks of the S `scenarios` (each block its payloads, disturbances and noise), along `ref`
+    over `scenario`'s episode, in `loop` (None: ideal; its noise shared by the blocks:
+    `noise_envs` S). Raises SimulationDiverged naming the environment."""
+    s, n = scenarios.payloads.shape[0], ref.q_d.shape[1]
+    kw: dict[str, Any] = {"dtype": ref.q_d.dtype, "device": ref.q_d.device}
+    b = k * s
+    varied = plant.varied(
+        scenarios.amplitude.repeat(k, 1).to(**kw), scenarios.freq.repeat(k).to(**kw), scenarios.phase.repeat(k).to(**kw)
+    )
+    roll = simulate(
+        varied,
+        ctrl,
+        scenario,
+        ref,
+        q0=ref.q_d[:1].expand(b, n).clone(),
+        qd0=ref.qd_d[:1].expand(b, n).clone(),
+        payload=scenarios.payloads.repeat(k).to(**kw),
+        compile=compile,
+        aot=aot,
+        loop=loop,
+    )
+    q_des = ref.q_d if loop is None else ref.q_d[:: loop.substeps][: roll.t.shape[0]]
+    rms = metric_tensors(roll, q_des, scenario)["rms_err"].double().cpu().reshape(k, s, n)
+    sat = torch.zeros_like(rms) if roll.saturated is None else roll.saturated.double().cpu().reshape(k, s, n)
+    return rms, sat
 
 
 @dataclass

@@ -74,6 +74,12 @@ def evaluate_control(
             "seconds": res.phase_one_seconds,  # its calibration runs (each network's selection: select_seconds)
             "fit_error": {n: b.fit_error.tolist() for n, b in bases.items()},
         }
+        # the joints each network feeds its predicted torque forward on (control.network.feedforward)
+        info["feedforward"] = {
+            "mode": str(net.feedforward) if net is not None else None,
+            "joints": {n: r.feedforward for n, r in res.runs.items() if r.feedforward is not None},
+            "seconds": res.feedforward_seconds,  # the closed-loop choice on the tuning's scenarios (mode chosen)
+        }
     picked = res.pick_and_place
     if picked is not None:  # metrics.json's case pick_and_place: what was carried when
         info["pick_and_place"] = {

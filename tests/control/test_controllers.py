@@ -66,6 +66,31 @@ def test_the_estimate_finds_the_payload_the_law_is_not_told(held):
     assert worst < 0.1, worst  # stable from the first period, the payload unknown
 
 
+def test_feedforward_drops_the_networks_torque_on_the_joints_it_names():
+    """With a joint's feedforward 0 the law's first command lacks exactly the network's predicted
+    torque h^T W0 + m_hat (h^T V - Y) there; the other joints' commands are unchanged."""
+    gains = GainsConfig(inertia_scaling=True)
+    rob = control_robot(RobotConfig(), ControlConfig())
+    model = rob.nominal_model(0.0, model_scales(gains))
+    g = torch.Generator().manual_seed(3)
+    feats = torch.randn(4, 9, generator=g, **KW)  # [h^T W0, h^T V, h^T V - Y], n = 3
+    q, qd = torch.tensor([[0.3, -0.2, 0.1]], **KW), torch.tensor([[0.1, 0.2, -0.1]], **KW)
+    ref = Reference(q[0] + 0.01, qd[0], torch.zeros(3, **KW))
+
+    def command(feedforward):
+        ctrl = make_controller(
+            "arbfn_kmeans", gains, 1e-3, model=model, features=feats, law="two_phase",
+            schedule=rob.inertia_schedule(gains), feedforward=feedforward,
+        )  # fmt: skip
+        state = ctrl.init_state(q, qd)
+        return ctrl.torque(ref, q, qd, state, h=feats[0], alpha=torch.tensor(0.0, **KW))[0][0]
+
+    every, some = command(None), command(torch.tensor([1.0, 0.0, 1.0], **KW))
+    predicted = feats[0, :3] + float(model.payload) * feats[0, 6:]
+    assert torch.allclose(every - some, torch.tensor([0.0, 1.0, 0.0], **KW) * predicted, atol=1e-12)
+    assert torch.equal(command(torch.ones(3, **KW)), every)
+
+
 def test_observer_factor_is_the_feedback_bandwidth_over_the_observers():
     gains = GainsConfig(K=50.0, observer_gain=100.0)
     f = observer_factor(gains, torch.tensor([1.0, 2.0]), torch.tensor([[0.1, 4.0], [1.0, 1.0]]))

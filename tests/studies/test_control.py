@@ -12,7 +12,9 @@ from rbfn.config import (
     ACOConfig,
     ACORConfig,
     ControlConfig,
+    Feedforward,
     GainsConfig,
+    LoopConfig,
     NetworkConfig,
     NetworkLaw,
     NetworkObjective,
@@ -92,6 +94,38 @@ def test_the_two_phase_law_beats_the_observer_at_an_unknown_payload():
     assert res.runs["smc_obs"].basis is None
     obs, law = res.runs["smc_obs"].metrics["10kg"]["rms_err"], res.runs["arbfn_kmeans"].metrics["10kg"]["rms_err"]
     assert all(a < o for a, o in zip(law, obs)), (law, obs)
+
+
+def test_the_closed_loop_chooses_the_joints_the_network_feeds_forward_on(tmp_path):
+    """control.network.feedforward: chosen runs the law with and without the network's torque on
+    the tuning's scenarios and keeps it per joint where it tracks better; on and off keep it on
+    every joint or none, and off leaves the law as the one without it."""
+    tune = TuneConfig(scenarios=2, duration=1.0)
+    net = NetworkConfig(
+        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3, tune=tune
+    )
+    loop = LoopConfig(  # the SCARA's realistic loop: 500 Hz, one period of delay, noise, a 50 Hz velocity filter
+        name="realistic", control_rate=500.0, actuation_delay=1, position_noise=1e-5, velocity_cutoff=50.0
+    )
+    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    gains = GainsConfig(observer_gain=25.0, gamma=200.0, dead_zone=0.012, inertia_scaling=True, phase_margin=30.0)
+    runs = {}
+    for mode in Feedforward:
+        c = replace(cfg, network=replace(cfg.network, feedforward=mode))
+        with SummaryWriter(str(tmp_path / str(mode))) as writer:
+            out = evaluate_control(c, gains, device="cpu", writer=writer, out_dir=tmp_path, loop=loop, parallel=False)
+        runs[mode] = out
+        info = out["control_info"]["feedforward"]
+        joints = info["joints"]["arbfn_kmeans"]
+        assert info["mode"] == str(mode) and len(joints) == 3 and set(joints) <= {0.0, 1.0}
+        if mode != Feedforward.chosen:
+            assert joints == [1.0 if mode == Feedforward.on else 0.0] * 3 and info["seconds"] < 0.1
+    chosen = runs[Feedforward.chosen]["control_info"]["feedforward"]["joints"]["arbfn_kmeans"]
+    for j, keep in enumerate(chosen):  # the chosen law's joint tracks as the law it took on that joint
+        same = runs[Feedforward.on if keep else Feedforward.off]["control"]["arbfn_kmeans"]["0kg"]["rms_err"][j]
+        assert runs[Feedforward.chosen]["control"]["arbfn_kmeans"]["0kg"]["rms_err"][j] == pytest.approx(same, rel=0.2)
+    off, on = (runs[m]["control"]["arbfn_kmeans"]["10kg"]["rms_err"] for m in (Feedforward.off, Feedforward.on))
+    assert off != on
 
 
 def test_a_pick_and_place_run_is_a_case_of_every_controller(tmp_path):
