@@ -16,6 +16,7 @@ from typing import Any, cast
 import torch
 
 from ..config import (
+    ADAPTIVE,
     CLOSED_LOOP_SEARCHES,
     PILOT_STRIDE,
     ControlConfig,
@@ -323,7 +324,8 @@ def _feedforward(c: _Context, nw: _Networks) -> dict[str, torch.Tensor]:
     (`control.network.feedforward`): every joint (on), none (off), or (chosen) where the law with
     it tracks better than without it, per joint, in the closed loop on the tuning's scenarios
     (never the evaluation's): the geometric mean over the scenarios of the RMS ratio below 1. Both
-    laws of every method run in one batch; a method whose law with it diverges keeps none."""
+    laws of every method run in one batch; a method one of whose laws diverges takes the other on
+    every joint."""
     n, mode = c.setup.n, c.cfg.network.feedforward
     methods = sorted({cast(str, network_method(name)) for name in nw.made})
     if mode != Feedforward.chosen:
@@ -341,7 +343,7 @@ def _feedforward(c: _Context, nw: _Networks) -> dict[str, torch.Tensor]:
     chosen: dict[str, torch.Tensor] = {}
     pending = list(methods)
     while pending:
-        laws = [_make(c, nw, f"arbfn_{m}", features[m], None, mask) for m in pending for mask in (ones, zeros)]
+        laws = [_make(c, nw, ADAPTIVE + m, features[m], None, mask) for m in pending for mask in (ones, zeros)]
         try:
             rms, _ = run_scenarios(
                 c.setup.plant, Stacked(laws, [s] * len(laws)), len(laws), scenarios, sc, ref, loop,
