@@ -334,10 +334,8 @@ def _feedforward(c: _Context, nw: _Networks) -> dict[str, torch.Tensor]:
     t0 = time.perf_counter()
     scenarios, sc, ref = _tuning_episode(c)
     ref = ref.to(**c.kw)
-    x = desired_states(ref, acceleration=True).double().cpu()
-    own = model_payload_torque(c.model, ref).double().cpu()
     ones, zeros = torch.ones(n, **c.kw), torch.zeros(n, **c.kw)
-    features = {m: nw.bases[m].outputs(nw.nets[m].features(x), own).to(**c.kw) for m in methods}
+    features = _two_phase_features(c, nw, ref, methods)
     s = scenarios.payloads.shape[0]
     loop = None if c.real is None else replace(c.real, noise_envs=s, seed=scenarios.noise_seed)
     chosen: dict[str, torch.Tensor] = {}
@@ -409,9 +407,8 @@ def _along(c: _Context, nw: _Networks, ref: Reference, b: int) -> Stacked:
     """Every controller along `ref`, stacked, each on b environments (an adaptive network's
     features are the reference's)."""
     controllers = []
-    if nw.made and c.two_phase:  # the reference's desired states and the model's torque per kg, once
-        x = desired_states(ref, acceleration=True).double().cpu()
-        own = model_payload_torque(c.model, ref).double().cpu()
+    if nw.made and c.two_phase:
+        phase_two = _two_phase_features(c, nw, ref, {cast(str, network_method(name)) for name in nw.made})
     elif nw.made:
         x = desired_states(ref)
     for name in c.cfg.controllers:
@@ -419,12 +416,19 @@ def _along(c: _Context, nw: _Networks, ref: Reference, b: int) -> Stacked:
         if name in nw.made:
             net, method = nw.made[name], cast(str, network_method(name))
             if c.two_phase:
-                features = nw.bases[method].outputs(net.features(x), own).to(**c.kw)
-                feedforward = nw.feedforward[method].to(**c.kw)
+                features, feedforward = phase_two[method], nw.feedforward[method].to(**c.kw)
             else:
                 features, w0 = net.features(x), net.w0
         controllers.append(_make(c, nw, name, features, w0, feedforward))
     return Stacked(controllers, [b] * len(controllers))
+
+
+def _two_phase_features(c: _Context, nw: _Networks, ref: Reference, methods) -> dict[str, torch.Tensor]:
+    """Per method, what the two-phase law is given along `ref` (`PayloadBasis.outputs`, (T, 3n)):
+    the reference's desired states and the model's torque per kg computed once for every method."""
+    x = desired_states(ref, acceleration=True).double().cpu()
+    own = model_payload_torque(c.model, ref).double().cpu()
+    return {m: nw.bases[m].outputs(nw.nets[m].features(x), own).to(**c.kw) for m in methods}
 
 
 def _make(
