@@ -76,12 +76,15 @@ def test_every_part_end_to_end(ckpt, tmp_path, monkeypatch):
         assert all(set(c) == keys and all(len(v) == 3 for v in c.values()) for c in cases.values())
     info = on_disk["control_info"]
     assert set(info) == {
-        "loop", "network", "gains", "select_seconds", "sim_seconds", "torque_limits", "phase_one", "feedforward"
+        "loop", "network", "gains", "select_seconds", "sim_seconds", "torque_limits", "phase_one", "feedforward",
+        "estimate_rate", "feedback_growth",
     }  # fmt: skip
     assert info["loop"]["name"] == "realistic"
     assert info["network"] == {"law": "two_phase", "objective": "fit"}  # the realistic loop's
     assert info["phase_one"]["payloads"][0] == 0.0 and info["phase_one"]["seconds"] > 0
     assert info["feedforward"]["mode"] == "chosen" and info["feedforward"]["seconds"] > 0
+    assert info["estimate_rate"]["chosen"]["arbfn_kmeans"] in [0.05 * f for f in info["estimate_rate"]["factors"]]
+    assert info["feedback_growth"]["chosen"]["arbfn_kmeans"] in [1.5 * f for f in info["feedback_growth"]["factors"]]
     assert on_disk["control_info"]["torque_limits"] == [100.0, 100.0, 500.0]  # the SCARA's URDF efforts
     assert on_disk["online"]["task_err_mm_rms_last_2s"] < on_disk["online"]["task_err_mm_rms_no_adapt"]
     for name in (

@@ -189,6 +189,11 @@ class TuneConfig:
     max_offset: float = 1.0  # a centre moves at most this far per coordinate (standardised units)
     max_width_factor: float = 4.0  # each log-width factor and the common one within [1 / factor, factor]
     saturation_penalty: float = 1.0  # cost per joint-share of time at the torque limit (realistic loop)
+    # the two-phase law's choice (control.network.estimate_rate_factors, ...) takes no candidate a joint
+    # of which is at its torque limit, in any scenario, for longer than this share of the evaluation's
+    # episode (control.duration; a payload's arrival and removal saturate for about as long in either
+    # episode), where another candidate stays within it
+    saturation_limit: float = 0.01
 
     def episode(self, duration: float, payload_on: float, payload_off: float) -> tuple[float, float, float]:
         """(episode, payload on, payload off) in s for an evaluation of `duration` s whose payload
@@ -211,10 +216,11 @@ class TuneConfig:
             _need(v is None or finite(v), f"{key}.{k}", v, "must be a finite number of seconds or null (derived)")
         d, on, off = self.episode(duration, *window)
         _need(
-            0.5 < d < duration,
+            0 < d < duration,
             f"{key}.duration",
             self.duration if self.duration is not None else f"null (derived: {d:g})",
-            f"must exceed 0.5 s (errors are measured after 0.5 s) and be shorter than control.duration={duration}",
+            f"must be > 0 s (errors are measured after 0.5 s, or over the second half of an episode shorter "
+            f"than 1 s) and shorter than control.duration={duration}",
         )
         _need(
             0 <= on < off <= d,
@@ -247,6 +253,12 @@ class TuneConfig:
             self.saturation_penalty,
             "must be >= 0",
         )
+        _need(
+            finite(self.saturation_limit) and 0 <= self.saturation_limit <= 1,
+            f"{key}.saturation_limit",
+            self.saturation_limit,
+            "must be a share of periods in [0, 1]",
+        )
 
 
 @dataclass
@@ -272,6 +284,13 @@ class NetworkConfig:
     # whichever of on and off tracks better in the closed loop on `tune`'s scenarios (never the
     # evaluation's); on: every joint; off: none (the network then only estimates the payload)
     feedforward: Feedforward = Feedforward.chosen
+    # two_phase: the payload estimate's rates tried, factors of gains.estimate_rate (each in (0, 1]),
+    # then the feedback's growths, factors of gains.feedback_growth (each >= 1 / gains.feedback_growth);
+    # with more than one, the cheapest in the closed loop on `tune`'s scenarios under the tuning's
+    # cost (never the evaluation's); one: that value, no run. A payload heavy against the arm wants a
+    # fast estimate and more growth, a light one a quiet estimate (a disturbance leaks into it)
+    estimate_rate_factors: list[float] = field(default_factory=lambda: [1.0, 0.3, 0.1, 0.03])
+    feedback_growth_factors: list[float] = field(default_factory=lambda: [1.0, 1.5, 2.0])
     aco: ACOConfig = field(default_factory=ACOConfig)
     tune: TuneConfig = field(default_factory=TuneConfig)
 
@@ -307,6 +326,20 @@ class NetworkConfig:
         _need(self.num_centers >= 1, f"{key}.num_centers", self.num_centers, "must be >= 1")
         _need(self.conditions >= 2, f"{key}.conditions", self.conditions, "must be >= 2 (a direction needs two)")
         _seed(f"{key}.seed", self.seed)
+        factors = list(self.estimate_rate_factors)
+        _need(
+            len(factors) >= 1 and all(finite(f) and 0 < f <= 1 for f in factors),
+            f"{key}.estimate_rate_factors",
+            factors,
+            "a non-empty list of factors of gains.estimate_rate, each in (0, 1]",
+        )
+        growths = list(self.feedback_growth_factors)
+        _need(
+            len(growths) >= 1 and all(finite(f) and f > 0 for f in growths),
+            f"{key}.feedback_growth_factors",
+            growths,
+            "a non-empty list of positive factors of gains.feedback_growth (each growth must stay >= 1)",
+        )
         if self.law == NetworkLaw.two_phase:
             _need(
                 self.objective != NetworkObjective.closed_loop,
@@ -332,6 +365,8 @@ class NetworkConfig:
                     f"it searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective}; "
                     f"{key}.law=tracking makes it the default)",
                 )
+            if self.law == NetworkLaw.two_phase and any(network_method(name) for name in controllers):
+                self.tune.check(f"{key}.tune", duration, window)  # the law's settings are chosen on its scenarios
             return
         if "arbfn_aco" in controllers:
             _need(

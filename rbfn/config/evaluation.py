@@ -43,6 +43,14 @@ class EvalConfig:
         if self.control.enabled:
             self.control.check(realistic=not self.loop.ideal)
             self.gains.check()
+            growths = [self.gains.feedback_growth * f for f in self.control.network.feedback_growth_factors]
+            _need(
+                min(growths) >= 1,
+                "control.network.feedback_growth_factors",
+                list(self.control.network.feedback_growth_factors),
+                f"each times gains.feedback_growth={self.gains.feedback_growth:g} must be >= 1 "
+                "(a growth below 1 would shrink the feedback)",
+            )
             self.loop.check(self.control.dt)
         if self.online.enabled:
             self.online.check()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, cast
+from typing import Any, NamedTuple, cast
 
 import torch
 
@@ -29,6 +29,7 @@ from ..config import (
     NetworkObjective,
     Objective,
     RobotConfig,
+    TuneConfig,
     network_method,
 )
 from ..progress import Progress
@@ -62,6 +63,7 @@ from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, run_scenari
 
 __all__ = [
     "ControlRun",
+    "LawSettings",
     "ControlComparison",
     "PickedAndPlaced",
     "PICK_AND_PLACE",
@@ -89,7 +91,7 @@ class ControlRun:
     select_seconds: float | None = None  # the network's centre selection (arbfn_*)
     basis: PayloadBasis | None = None  # phase 1's fit (arbfn_* under the two-phase law)
     tuned: Tuned | None = None  # the closed-loop tuning (arbfn_aco, _random, _cmaes; arbfn_kmeans: its cost)
-    feedforward: list[float] | None = None  # the two-phase law's: 1 or 0 per joint (control.network.feedforward)
+    settings: LawSettings | None = None  # the two-phase law's, as chosen (control.network.feedforward, ...)
 
 
 @dataclass
@@ -107,7 +109,7 @@ class ControlComparison:
     # every search and its confirmation
     phase_one_payloads: list[float] | None = None  # kg: the two-phase law's phase 1 conditions, where it ran
     phase_one_seconds: float = 0.0  # wall time of phase 1's calibration runs
-    feedforward_seconds: float = 0.0  # wall time of choosing the joints the network feeds forward on
+    choice_seconds: float = 0.0  # wall time of choosing the two-phase law's settings (LawSettings)
     pick_and_place: PickedAndPlaced | None = None  # control.pick_and_place's run, where it ran
     network: NetworkConfig | None = None  # control.network as it ran: its law and objective resolved
 
@@ -163,7 +165,7 @@ def compare_controllers(
             select_seconds=nw.select_seconds.get(name),
             basis=nw.bases.get(network_method(name) or ""),
             tuned=nw.tuned.get(name),
-            feedforward=_listed(nw.feedforward.get(network_method(name) or "")),
+            settings=nw.settings.get(network_method(name) or ""),
         )
     picked = _pick_and_place_run(c, nw, runs) if c.cfg.pick_and_place.picks else None
     if nw.cost is not None and "arbfn_kmeans" in runs:  # the twin on the tuning's scenarios, beside the searches
@@ -184,7 +186,7 @@ def compare_controllers(
         tuning_seconds=nw.tuning_seconds,
         phase_one_payloads=nw.conditions if nw.bases else None,
         phase_one_seconds=nw.phase_one_seconds,
-        feedforward_seconds=nw.feedforward_seconds,
+        choice_seconds=nw.choice_seconds,
         pick_and_place=picked,
         network=c.cfg.network,
     )
@@ -272,8 +274,8 @@ class _Networks:
     pilot: tuple[torch.Tensor, torch.Tensor] | None = None
     tuning_seconds: float = 0.0
     phase_one_seconds: float = 0.0
-    feedforward: dict[str, torch.Tensor] = field(default_factory=dict)  # by method: (n,) 1 or 0 per joint
-    feedforward_seconds: float = 0.0
+    settings: dict[str, LawSettings] = field(default_factory=dict)  # by method: the two-phase law's, as chosen
+    choice_seconds: float = 0.0
 
 
 def _networks(c: _Context) -> _Networks:
@@ -315,47 +317,124 @@ def _networks(c: _Context) -> _Networks:
             net = _static(c, nw, method)
         nw.made[name], nw.select_seconds[name] = net, net.seconds
     if c.two_phase and nw.made:
-        nw.feedforward = _feedforward(c, nw)
+        _choose(c, nw)
     return nw
 
 
-def _feedforward(c: _Context, nw: _Networks) -> dict[str, torch.Tensor]:
-    """Per method, the joints (n,) on which the two-phase law adds the network's predicted torque
-    (`control.network.feedforward`): every joint (on), none (off), or (chosen) where the law with
-    it tracks better than without it, per joint, in the closed loop on the tuning's scenarios
-    (never the evaluation's): the geometric mean over the scenarios of the RMS ratio below 1. Both
-    laws of every method run in one batch; a method one of whose laws diverges takes the other on
-    every joint."""
-    n, mode = c.setup.n, c.cfg.network.feedforward
+class LawSettings(NamedTuple):
+    """The two-phase law's settings a comparison chooses per method (`_choose`): the joints it adds
+    the network's predicted torque on (n,) 1 or 0 each, its payload estimate's step per control
+    period (`gains.estimate_rate`) and the most its feedback may grow (`gains.feedback_growth`)."""
+
+    feedforward: torch.Tensor
+    estimate_rate: float
+    feedback_growth: float
+
+
+class _Tried(NamedTuple):
+    """A candidate's settings and its RMS error and share of periods at the torque limit (S, n) on
+    the tuning's scenarios."""
+
+    settings: LawSettings
+    rms: torch.Tensor
+    sat: torch.Tensor
+
+
+def _choose(c: _Context, nw: _Networks) -> None:
+    """The two-phase law's settings per method (`LawSettings`, into `nw.settings`), chosen in the
+    closed loop on the tuning's scenarios (never the evaluation's), in two batched runs.
+
+    First the payload estimate's rate, `gains.estimate_rate` times each of
+    `control.network.estimate_rate_factors`, with the joints the network's torque is added on
+    (`control.network.feedforward`: every joint (on), none (off), or (chosen), at each rate, per
+    joint where the law with it tracks better than without it: the geometric mean over the
+    scenarios of the RMS ratio below 1); then, at that rate and on those joints, the feedback's
+    growth, `gains.feedback_growth` times each of `control.network.feedback_growth_factors`. Each
+    time the cheapest candidate under the tuning's cost (`rbfn.control.tuning`: the mean over the
+    scenarios of sum_j rms_j / rms_j(smc) + saturation_penalty sum_j sat_j) wins among those no
+    joint of which is at its torque limit, in any scenario, for longer than `tune.saturation_limit`
+    of the evaluation's episode (among all where none is), the first listed on a tie. A candidate whose run diverges is
+    dropped and the rest run again (at its rate the other way of adding the torque takes every
+    joint); a method none of whose candidates ran keeps the first rate and growth without the
+    network's torque."""
+    n, network, gains = c.setup.n, c.cfg.network, c.gains
     methods = sorted({cast(str, network_method(name)) for name in nw.made})
-    if mode != Feedforward.chosen:
-        return {m: torch.full((n,), 1.0 if mode == Feedforward.on else 0.0) for m in methods}
-    c.stage("choosing the joints the network feeds forward on")
+    rates = [gains.estimate_rate * f for f in network.estimate_rate_factors]
+    growths = [gains.feedback_growth * f for f in network.feedback_growth_factors]
+    fixed = torch.full((n,), 1.0 if network.feedforward == Feedforward.on else 0.0)
+    masks = [torch.ones(n), torch.zeros(n)] if network.feedforward == Feedforward.chosen else [fixed]
+    nw.settings = {m: LawSettings(fixed.clone(), rates[0], growths[0]) for m in methods}  # without a run
+    if len(rates) == len(masks) == len(growths) == 1:
+        return
+    c.stage(
+        f"choosing the two-phase law's settings: {len(rates)} estimate rates, {len(masks)} ways to feed "
+        f"forward, {len(growths)} growths"
+    )
     t0 = time.perf_counter()
     scenarios, sc, ref = _tuning_episode(c)
     ref = ref.to(**c.kw)
-    ones, zeros = torch.ones(n, **c.kw), torch.zeros(n, **c.kw)
     features = _two_phase_features(c, nw, ref, methods)
     s = scenarios.payloads.shape[0]
     loop = None if c.real is None else replace(c.real, noise_envs=s, seed=scenarios.noise_seed)
-    chosen: dict[str, torch.Tensor] = {}
-    pending = list(methods)
-    while pending:
-        laws = [_make(c, nw, ADAPTIVE + m, features[m], None, mask) for m in pending for mask in (ones, zeros)]
-        try:
-            rms, _ = run_scenarios(
-                c.setup.plant, Stacked(laws, [s] * len(laws)), len(laws), scenarios, sc, ref, loop,
-                compile=c.cfg.compile, aot=c.aot,
-            )  # fmt: skip
-        except SimulationDiverged as e:  # that method takes the other law on every joint
-            i, without = divmod(e.environment // s, 2)
-            chosen[pending.pop(i)] = torch.full((n,), float(without))
-            continue
-        ratio = (rms[0::2] / rms[1::2].clamp_min(1e-15)).log().mean(1).exp()  # (methods, n): with / without
-        chosen.update({m: (ratio[i] < 1.0).double() for i, m in enumerate(pending)})
-        pending = []
-    nw.feedforward_seconds = time.perf_counter() - t0
-    return chosen
+
+    def run(laws: list[tuple[str, LawSettings]], smc: bool) -> tuple[dict[int, _Tried], torch.Tensor | None]:
+        """Each law that ran, by its index in `laws`, and (`smc`) smc's RMS (S, n) beside them."""
+        alive = list(range(len(laws)))
+        while alive:
+            ctrls = [_make(c, nw, ADAPTIVE + laws[i][0], features[laws[i][0]], None, laws[i][1]) for i in alive]
+            ctrls = ([_make(c, nw, "smc")] if smc else []) + ctrls
+            try:
+                rms, sat = run_scenarios(
+                    c.setup.plant, Stacked(ctrls, [s] * len(ctrls)), len(ctrls), scenarios, sc, ref, loop,
+                    compile=c.cfg.compile, aot=c.aot,
+                )  # fmt: skip
+            except SimulationDiverged as e:
+                if smc and e.environment < s:
+                    raise  # smc itself
+                alive.pop(e.environment // s - int(smc))
+                continue
+            k = int(smc)
+            tried = {i: _Tried(laws[i][1], rms[k + j], sat[k + j]) for j, i in enumerate(alive)}
+            return tried, (rms[0] if smc else None)
+        return {}, None
+
+    first = [(m, r, k) for m in methods for r in range(len(rates)) for k in range(len(masks))]
+    tried, smc_rms = run([(m, LawSettings(masks[k], rates[r], growths[0])) for m, r, k in first], smc=True)
+    assert smc_rms is not None
+    reference = smc_rms.clamp_min(1e-12)
+    tune, scale = network.tune, sc.duration / c.cfg.duration
+
+    chosen: dict[str, _Tried] = {}
+    for m in methods:
+        candidates = []
+        for r, rate in enumerate(rates):
+            ways = [tried[i] for i, law in enumerate(first) if law[:2] == (m, r) and i in tried]
+            if len(ways) == 2:  # chosen: per joint, with it (the first) where it beats without it
+                on, off = ways
+                keep = (on.rms / off.rms.clamp_min(1e-15)).log().mean(0).exp() < 1.0
+                settings = LawSettings(keep.double(), rate, growths[0])
+                ways = [_Tried(settings, torch.where(keep, on.rms, off.rms), torch.where(keep, on.sat, off.sat))]
+            candidates += ways[:1]
+        if candidates:
+            chosen[m] = _cheapest(candidates, reference, tune, scale)
+    second = [(m, chosen[m].settings._replace(feedback_growth=g)) for m in chosen for g in growths[1:]]
+    grown, _ = run(second, smc=False) if second else ({}, None)
+    for m, t in chosen.items():
+        others = [grown[i] for i, (name, _) in enumerate(second) if name == m and i in grown]
+        nw.settings[m] = _cheapest([t, *others], reference, tune, scale).settings
+    nw.choice_seconds = time.perf_counter() - t0
+
+
+def _cheapest(candidates: list[_Tried], reference: torch.Tensor, tune: TuneConfig, scale: float = 1.0) -> _Tried:
+    """The candidate of least tuning cost (the mean over scenarios of sum_j rms_j / reference_j +
+    saturation_penalty sum_j sat_j; `reference` (S, n) smc's RMS) among those no joint of which is
+    at its torque limit for more than `tune.saturation_limit` of any scenario, its share of
+    periods times `scale` (the tuning episode's length over the evaluation's: a transient's
+    seconds at the limit as a share of the evaluation; among all, where none is within); the
+    first on a tie."""
+    cost = [float(((t.rms / reference).sum(-1) + tune.saturation_penalty * t.sat.sum(-1)).mean()) for t in candidates]
+    within = [i for i, t in enumerate(candidates) if float(t.sat.max()) * scale <= tune.saturation_limit]
+    return candidates[min(within or range(len(candidates)), key=lambda i: cost[i])]
 
 
 def _pilot(c: _Context, nw: _Networks) -> tuple[torch.Tensor, torch.Tensor]:
@@ -412,14 +491,14 @@ def _along(c: _Context, nw: _Networks, ref: Reference, b: int) -> Stacked:
     elif nw.made:
         x = desired_states(ref)
     for name in c.cfg.controllers:
-        features = w0 = feedforward = None
+        features = w0 = settings = None
         if name in nw.made:
             net, method = nw.made[name], cast(str, network_method(name))
             if c.two_phase:
-                features, feedforward = phase_two[method], nw.feedforward[method].to(**c.kw)
+                features, settings = phase_two[method], nw.settings[method]
             else:
                 features, w0 = net.features(x), net.w0
-        controllers.append(_make(c, nw, name, features, w0, feedforward))
+        controllers.append(_make(c, nw, name, features, w0, settings))
     return Stacked(controllers, [b] * len(controllers))
 
 
@@ -437,14 +516,17 @@ def _make(
     name: str,
     features: torch.Tensor | None = None,
     w0: torch.Tensor | None = None,
-    feedforward: torch.Tensor | None = None,
+    settings: LawSettings | None = None,
 ):
     """Controller `name` as this comparison builds it: its gains, period, nominal model, factors
     and law, with an adaptive network's `features` along the reference, initial weights `w0` and
-    the joints it feeds forward on (`make_controller`)."""
+    the two-phase law's `settings` (None: the gains', the network's torque on every joint)."""
+    gains = c.gains
+    if settings is not None:
+        gains = replace(gains, estimate_rate=settings.estimate_rate, feedback_growth=settings.feedback_growth)
     return make_controller(
         name,
-        c.gains,
+        gains,
         c.period,
         model=c.model,
         features=features,
@@ -455,7 +537,7 @@ def _make(
         rates=c.factors.rates,
         law=str(c.cfg.network.law),
         schedule=nw.schedule,
-        feedforward=feedforward,
+        feedforward=None if settings is None else settings.feedforward.to(**c.kw),
     )
 
 
@@ -539,10 +621,6 @@ def _closed_loop_cost(
         compile=cfg.compile,
         aot=ahead_of_time(cfg.aot, like.device, cfg.compile),
     )
-
-
-def _listed(t: torch.Tensor | None) -> list[float] | None:
-    return None if t is None else t.tolist()
 
 
 def _tuning_episode(c: _Context, full_length: bool = False) -> tuple[TuneScenarios, Scenario, Reference]:

@@ -74,11 +74,23 @@ def evaluate_control(
             "seconds": res.phase_one_seconds,  # its calibration runs (each network's selection: select_seconds)
             "fit_error": {n: b.fit_error.tolist() for n, b in bases.items()},
         }
-        # the joints each network feeds its predicted torque forward on (control.network.feedforward)
+        # the two-phase law's settings, as the closed loop chose them on the tuning's scenarios: the
+        # joints each network feeds its predicted torque forward on (control.network.feedforward),
+        # the payload estimate's step per control period and the feedback's most growth (each a
+        # factor of its gain: control.network.estimate_rate_factors, feedback_growth_factors)
+        chosen = {n: r.settings for n, r in res.runs.items() if r.settings is not None}
         info["feedforward"] = {
             "mode": str(net.feedforward) if net is not None else None,
-            "joints": {n: r.feedforward for n, r in res.runs.items() if r.feedforward is not None},
-            "seconds": res.feedforward_seconds,  # the closed-loop choice on the tuning's scenarios (mode chosen)
+            "joints": {n: st.feedforward.tolist() for n, st in chosen.items()},
+            "seconds": res.choice_seconds,  # the whole choice, every setting
+        }
+        info["estimate_rate"] = {
+            "factors": list(net.estimate_rate_factors) if net is not None else None,
+            "chosen": {n: st.estimate_rate for n, st in chosen.items()},
+        }
+        info["feedback_growth"] = {
+            "factors": list(net.feedback_growth_factors) if net is not None else None,
+            "chosen": {n: st.feedback_growth for n, st in chosen.items()},
         }
     picked = res.pick_and_place
     if picked is not None:  # metrics.json's case pick_and_place: what was carried when

@@ -110,8 +110,11 @@ def test_the_closed_loop_chooses_the_joints_the_network_feeds_forward_on(tmp_pat
     cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
     gains = GainsConfig(observer_gain=25.0, gamma=200.0, dead_zone=0.012, inertia_scaling=True, phase_margin=30.0)
     runs = {}
-    for mode in Feedforward:
-        c = replace(cfg, network=replace(cfg.network, feedforward=mode))
+    for mode in Feedforward:  # one estimate rate and growth: on and off need no run
+        c = replace(
+            cfg,
+            network=replace(cfg.network, feedforward=mode, estimate_rate_factors=[1.0], feedback_growth_factors=[1.0]),
+        )
         with SummaryWriter(str(tmp_path / str(mode))) as writer:
             out = evaluate_control(c, gains, device="cpu", writer=writer, out_dir=tmp_path, loop=loop, parallel=False)
         runs[mode] = out
@@ -126,6 +129,65 @@ def test_the_closed_loop_chooses_the_joints_the_network_feeds_forward_on(tmp_pat
         assert runs[Feedforward.chosen]["control"]["arbfn_kmeans"]["0kg"]["rms_err"][j] == pytest.approx(same, rel=0.2)
     off, on = (runs[m]["control"]["arbfn_kmeans"]["10kg"]["rms_err"] for m in (Feedforward.off, Feedforward.on))
     assert off != on
+
+
+def _two_phase_realistic(tmp_path, rates, growths):
+    """The two-phase law without the network's torque, in the SCARA's realistic loop, with its
+    payload estimate's rate and its feedback's growth chosen among gains' times `rates` and
+    `growths`: metrics.json's dict."""
+    net = NetworkConfig(
+        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
+        tune=TuneConfig(scenarios=2, duration=1.0), feedforward=Feedforward.off,
+        estimate_rate_factors=rates, feedback_growth_factors=growths,
+    )  # fmt: skip
+    loop = LoopConfig(
+        name="realistic", control_rate=500.0, actuation_delay=1, position_noise=1e-5, velocity_cutoff=50.0
+    )
+    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    gains = GainsConfig(observer_gain=25.0, gamma=200.0, dead_zone=0.012, inertia_scaling=True, phase_margin=30.0)
+    with SummaryWriter(str(tmp_path / f"{rates}-{growths}")) as writer:
+        return evaluate_control(cfg, gains, device="cpu", writer=writer, out_dir=tmp_path, loop=loop, parallel=False)
+
+
+def test_the_closed_loop_chooses_the_estimates_rate_and_the_feedbacks_growth(tmp_path):
+    """control.network.estimate_rate_factors and feedback_growth_factors: with two each, the
+    closed loop on the tuning's scenarios picks one of each, which control_info records and the
+    evaluation runs at (it tracks exactly as the law given those alone); the other pair tracks
+    differently or diverges."""
+    chosen = _two_phase_realistic(tmp_path, [1.0, 0.5], [1.0, 2.0])
+    info = chosen["control_info"]
+    assert info["estimate_rate"]["factors"] == [1.0, 0.5] and info["feedback_growth"]["factors"] == [1.0, 2.0]
+    assert info["feedforward"]["seconds"] > 0
+    rate, growth = info["estimate_rate"]["chosen"]["arbfn_kmeans"], info["feedback_growth"]["chosen"]["arbfn_kmeans"]
+    rate_factor, growth_factor = round(rate / 0.05, 6), round(growth / 1.5, 6)  # the gains' defaults
+    assert rate_factor in (1.0, 0.5) and growth_factor in (1.0, 2.0)
+    alone = _two_phase_realistic(tmp_path, [rate_factor], [growth_factor])
+    assert alone["control_info"]["feedforward"]["seconds"] < 0.1  # one of each, feedforward off: no run
+    assert alone["control_info"]["estimate_rate"]["chosen"]["arbfn_kmeans"] == pytest.approx(rate)
+    assert chosen["control"]["arbfn_kmeans"] == alone["control"]["arbfn_kmeans"]
+    try:  # the pair not chosen: in this short episode it may not survive the payload
+        other = _two_phase_realistic(tmp_path, [1.5 - rate_factor], [3.0 - growth_factor])
+    except SimulationDiverged:
+        return
+    assert other["control"]["arbfn_kmeans"]["10kg"]["rms_err"] != chosen["control"]["arbfn_kmeans"]["10kg"]["rms_err"]
+
+
+def test_the_choice_takes_the_cheapest_candidate_within_the_saturation_limit():
+    """The choice's rule: the least tuning cost among candidates within `saturation_limit`; where
+    none is, the least cost among all; the first on a tie."""
+    from rbfn.control.comparison import LawSettings, _cheapest, _Tried
+
+    reference = torch.ones(2, 3)
+
+    def cand(err, sat):
+        return _Tried(LawSettings(torch.zeros(3), err, 1.0), torch.full((2, 3), err), torch.full((2, 3), sat))
+
+    tune = TuneConfig(saturation_limit=0.01)
+    assert _cheapest([cand(0.2, 0.0), cand(0.1, 0.02), cand(0.3, 0.0)], reference, tune).settings.estimate_rate == 0.2
+    assert _cheapest([cand(0.2, 0.05), cand(0.1, 0.02)], reference, tune).settings.estimate_rate == 0.1
+    assert _cheapest([cand(0.2, 0.0), cand(0.2, 0.0)], reference, tune) is not None
+    loose = TuneConfig(saturation_limit=1.0, saturation_penalty=1.0)  # saturation only costs: 3 x 0.3 < 3 x (0.1 + 0.5)
+    assert _cheapest([cand(0.3, 0.0), cand(0.1, 0.5)], reference, loose).settings.estimate_rate == 0.3
 
 
 def test_a_pick_and_place_run_is_a_case_of_every_controller(tmp_path):
@@ -187,6 +249,13 @@ def test_cluster_controller_does_not_change_the_shared_aco_config():
             "control.network.objective='closed_loop'.*searches the tracking law's network",
         ),
         ({"network": NetworkConfig(conditions=1)}, "control.network.conditions=1"),
+        ({"network": NetworkConfig(estimate_rate_factors=[])}, r"control.network.estimate_rate_factors=\[\]"),
+        ({"network": NetworkConfig(estimate_rate_factors=[1.0, 2.0])}, r"estimate_rate_factors=\[1.0, 2.0\].*\(0, 1\]"),
+        ({"network": NetworkConfig(feedback_growth_factors=[0.0])}, r"feedback_growth_factors=\[0.0\]"),
+        (
+            {"network": NetworkConfig(tune=TuneConfig(saturation_limit=2.0))},
+            "control.network.tune.saturation_limit=2.0",
+        ),
         ({"pick_and_place": PickAndPlaceConfig(picks=-1)}, "control.pick_and_place.picks=-1"),
         ({"pick_and_place": PickAndPlaceConfig(picks=3, duration=1.0)}, "control.pick_and_place.duration=1.0"),
     ],
