@@ -342,7 +342,9 @@ class _Tried(NamedTuple):
 
 def _choose(c: _Context, nw: _Networks) -> None:
     """The two-phase law's settings per method (`LawSettings`, into `nw.settings`), chosen in the
-    closed loop on the tuning's scenarios (never the evaluation's), in two batched runs.
+    closed loop on the tuning's scenarios (never the evaluation's) and one more, the heaviest of
+    them carrying the heaviest payload the design allows (1.25 x the rated one), in two batched
+    runs.
 
     First the payload estimate's rate, `gains.estimate_rate` times each of
     `control.network.estimate_rate_factors`, with the joints the network's torque is added on
@@ -372,6 +374,8 @@ def _choose(c: _Context, nw: _Networks) -> None:
     )
     t0 = time.perf_counter()
     scenarios, sc, ref = _tuning_episode(c)
+    assert nw.schedule is not None
+    scenarios = scenarios.with_payload(nw.schedule.high)  # the settings must hold up to the design's bound
     ref = ref.to(**c.kw)
     features = _two_phase_features(c, nw, ref, methods)
     s = scenarios.payloads.shape[0]

@@ -65,6 +65,17 @@ class TuneScenarios:
     phase: torch.Tensor
     noise_seed: int
 
+    def with_payload(self, kg: float) -> TuneScenarios:
+        """These scenarios and one more: the heaviest one's disturbance, carrying `kg`."""
+        i = int(self.payloads.argmax())
+        return TuneScenarios(
+            torch.cat([self.payloads, self.payloads.new_tensor([kg])]),
+            torch.cat([self.amplitude, self.amplitude[i : i + 1]]),
+            torch.cat([self.freq, self.freq[i : i + 1]]),
+            torch.cat([self.phase, self.phase[i : i + 1]]),
+            self.noise_seed,
+        )
+
     def listed(self) -> dict[str, Any]:
         """As plain lists, for metrics.json."""
         return {
