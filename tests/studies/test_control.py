@@ -172,6 +172,33 @@ def test_the_closed_loop_chooses_the_estimates_rate_and_the_feedbacks_growth(tmp
     assert other["control"]["arbfn_kmeans"]["10kg"]["rms_err"] != chosen["control"]["arbfn_kmeans"]["10kg"]["rms_err"]
 
 
+def test_a_candidate_that_diverges_in_the_choice_is_dropped_and_the_rest_run_again(tmp_path, monkeypatch):
+    """The choice's first run raises SimulationDiverged in the first law's environments (the
+    network's torque on every joint): the rest run again without it, and the law without the
+    torque takes every joint."""
+    import rbfn.control.comparison as comparison
+
+    real, calls = comparison.run_scenarios, []
+
+    def diverging(plant, ctrl, k, scenarios, *args, **kw):
+        calls.append(k)
+        if len(calls) == 1:  # smc is block 0: the first law's first environment is the next block's
+            raise SimulationDiverged("diverged (a test's)", environment=scenarios.payloads.shape[0])
+        return real(plant, ctrl, k, scenarios, *args, **kw)
+
+    monkeypatch.setattr(comparison, "run_scenarios", diverging)
+    net = NetworkConfig(
+        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
+        tune=TuneConfig(scenarios=2, duration=1.0), estimate_rate_factors=[1.0], feedback_growth_factors=[1.0],
+    )  # fmt: skip
+    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    res = compare_controllers(cfg, GainsConfig(), "cpu")
+    assert calls == [3, 2]  # smc and the law with and without the torque; then without the first
+    settings = res.runs["arbfn_kmeans"].settings
+    assert settings is not None and (settings.estimate_rate, settings.feedback_growth) == (0.05, 1.5)
+    assert settings.feedforward.tolist() == [0.0, 0.0, 0.0]
+
+
 def test_the_choice_takes_the_cheapest_candidate_within_the_saturation_limit():
     """The choice's rule: the least tuning cost among candidates within `saturation_limit`; where
     none is, the least cost among all; the first on a tie."""
