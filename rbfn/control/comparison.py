@@ -404,7 +404,9 @@ def _choose(c: _Context, nw: _Networks) -> None:
 
     first = [(m, r, k) for m in methods for r in range(len(rates)) for k in range(len(masks))]
     tried, smc_rms = run([(m, LawSettings(masks[k], rates[r], growths[0])) for m, r, k in first], smc=True)
-    assert smc_rms is not None
+    if smc_rms is None:  # every candidate diverged: each method keeps the defaults above
+        nw.choice_seconds = time.perf_counter() - t0
+        return
     reference = smc_rms.clamp_min(1e-12)
     tune, scale = network.tune, sc.duration / c.cfg.duration
 
