@@ -59,7 +59,16 @@ from .simulator import (
     simulate,
 )
 from .trajectory import Reference
-from .tuning import ClosedLoopCost, Tuned, TuneScenarios, confirmed, run_scenarios, tune_network, tuning_scenarios
+from .tuning import (
+    ClosedLoopCost,
+    Tuned,
+    TuneScenarios,
+    confirmed,
+    run_scenarios,
+    tune_network,
+    tuning_cost,
+    tuning_scenarios,
+)
 
 __all__ = [
     "ControlRun",
@@ -438,7 +447,7 @@ def _cheapest(candidates: list[_Tried], reference: torch.Tensor, tune: TuneConfi
     periods times `scale` (the tuning episode's length over the evaluation's: a transient's
     seconds at the limit as a share of the evaluation; among all, where none is within); the
     first on a tie."""
-    cost = [float(((t.rms / reference).sum(-1) + tune.saturation_penalty * t.sat.sum(-1)).mean()) for t in candidates]
+    cost = [float(tuning_cost(t.rms, t.sat, reference, tune.saturation_penalty)) for t in candidates]
     within = [i for i, t in enumerate(candidates) if float(t.sat.max()) * scale <= tune.saturation_limit]
     return candidates[min(within or range(len(candidates)), key=lambda i: cost[i])]
 

@@ -49,8 +49,24 @@ from .network import ControlNet, desired_states
 from .simulator import Plant, Scenario, SimulationDiverged, metric_tensors, simulate
 from .trajectory import Reference
 
-__all__ = ["TuneScenarios", "Tuned", "tuning_scenarios", "ClosedLoopCost", "tune_network", "confirmed", "run_scenarios"]
+__all__ = [
+    "TuneScenarios",
+    "Tuned",
+    "tuning_scenarios",
+    "tuning_cost",
+    "ClosedLoopCost",
+    "tune_network",
+    "confirmed",
+    "run_scenarios",
+]
 MAX_DRAWS = 1000  # redraws of a scenario value that falls on an evaluation case before giving up
+
+
+def tuning_cost(rms: torch.Tensor, sat: torch.Tensor, smc_rms: torch.Tensor, penalty: float) -> torch.Tensor:
+    """The tuning's cost (the module docstring) of runs with RMS error and share of periods at the
+    torque limit `rms`, `sat` (..., S, n) on S scenarios where smc's RMS is `smc_rms` (S, n): the
+    mean over the scenarios of sum_j rms_j / rms_j(smc) + penalty sum_j sat_j, shape (...)."""
+    return ((rms / smc_rms).sum(-1) + penalty * sat.sum(-1)).mean(-1)
 
 
 @dataclass
@@ -261,8 +277,7 @@ class ClosedLoopCost:
             except SimulationDiverged as e:
                 alive.pop(e.environment // self.s)  # that candidate's cost stays inf; run the others again
                 continue
-            ratio = (rms / self.smc_rms).sum(-1) + self.tune.saturation_penalty * sat.sum(-1)  # (K', S)
-            cost[idx] = ratio.mean(-1)
+            cost[idx] = tuning_cost(rms, sat, self.smc_rms, self.tune.saturation_penalty)
             break
         return cost
 
