@@ -23,12 +23,11 @@ linear solve is a Cholesky factorisation written out (the ONNX exporter has no s
 from __future__ import annotations
 
 import torch
-from pytorch_kinematics import transforms as tf
 from torch import nn
 
 from .robots.backend import spd_solve
 from .robots.kinematics import _Step, _steps, compose
-from .robots.robot import Robot, rotation_error_deg
+from .robots.robot import Robot, rotation_error_deg, rotation_vector
 from .solver import (
     CHARTED_ERROR_DAMPING,
     CHARTED_ITERATIONS,
@@ -36,6 +35,7 @@ from .solver import (
     PROGRESS,
     STEP_SCALES,
     IKSolver,
+    goals,
 )
 
 __all__ = ["GraphPolish", "graph_polish"]
@@ -53,15 +53,6 @@ FULL = STEP_SCALES.index(1.0)  # the full step among the line search's multiples
 RETRY = 8  # the answers ranked after the first WIDE, polished on every row for the targets those miss
 
 
-def _rotation_vector(r: torch.Tensor) -> torch.Tensor:
-    """Rotation vectors (B, 3) (axis times angle, rad) of rotation matrices r (B, 3, 3), from their
-    skew part (2 sin(angle) axis); at half a turn, where that vanishes, they shrink to it."""
-    v = torch.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], -1)
-    sin2 = v.norm(dim=-1)  # 2 sin(angle)
-    angle = torch.atan2(sin2, r.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
-    return v * torch.where(sin2 > 1e-6, angle / sin2.clamp(min=1e-6), torch.full_like(sin2, 0.5))[:, None]
-
-
 class GraphPolish(nn.Module):
     """The staged polish of a charted network's answers for `robot`, as a graph (module docstring):
     `forward(seeds (B, K, n), closeness (B, K), targets x (B, 3, 7 or 8))` -> (joints (B, n),
@@ -77,7 +68,7 @@ class GraphPolish(nn.Module):
         steps = _steps(robot.chain)
         self.frames = [(st.kind, st.joint) for st in steps]
         for i, st in enumerate(steps):  # one buffer a frame's part: the graph takes them as constants
-            for name in ("rot", "offset", "axis", "outer", "cross"):
+            for name in ("rot", "offset"):
                 self.register_buffer(f"frame{i}_{name}", getattr(st, name).float())
         self.register_buffer("held", robot.full_joints(robot.low[None].double())[0].float())  # locked values
         self.free = [int(i) for i in robot.free]
@@ -100,21 +91,13 @@ class GraphPolish(nn.Module):
                        range(self.chain_joints)]  # fmt: skip
             th = torch.stack(columns, -1)
         steps = [
-            _Step(getattr(self, f"frame{i}_rot"), getattr(self, f"frame{i}_offset"), kind, joint,
-                  *(getattr(self, f"frame{i}_{name}") for name in ("axis", "outer", "cross")))
+            _Step(getattr(self, f"frame{i}_rot"), getattr(self, f"frame{i}_offset"), kind, joint)
             for i, (kind, joint) in enumerate(self.frames)
-        ]  # fmt: skip
+        ]
         rot, pos, jac = compose(steps, th, jacobian)
         if jac is not None:
             jac = jac[:, : 6 if self.pose else 3][:, :, self.free]
         return rot, pos, jac
-
-    def _goal(self, x: torch.Tensor) -> torch.Tensor:
-        """The targets the polish compares with, once per call: (B, 3) positions, or (B, 12) the
-        position and the rotation matrix of a pose target (B, 7 or 8), row by row."""
-        if not self.pose:
-            return x[:, :3]
-        return torch.cat([x[:, :3], tf.quaternion_to_matrix(x[:, 3:7]).reshape(-1, 9)], -1)
 
     def _errors(self, q: torch.Tensor, goal: torch.Tensor):
         """(task error e (B, 3 or 6), Jacobian (B, 3 or 6, n), cost (B,)) at joints q (B, n)."""
@@ -124,20 +107,20 @@ class GraphPolish(nn.Module):
 
     def _error(self, rot: torch.Tensor, pos: torch.Tensor, goal: torch.Tensor):
         """(task error e (B, 3 or 6), position error (B,) mm, rotation error (B,) deg or None) of end
-        links at rot (B, 3, 3), pos (B, 3) against `_goal` rows."""
+        links at rot (B, 3, 3), pos (B, 3) against `goals` rows."""
         e = goal[:, :3] - pos
         mm = e.norm(dim=-1) * 1000.0
         if not self.pose:
             return e, mm, None
         r = goal[:, 3:].reshape(-1, 3, 3)
-        return torch.cat([e, _rotation_vector(r @ rot.transpose(-1, -2))], -1), mm, rotation_error_deg(rot, r)
+        return torch.cat([e, rotation_vector(r @ rot.transpose(-1, -2))], -1), mm, rotation_error_deg(rot, r)
 
     def _tolerances(self, mm: torch.Tensor, deg: torch.Tensor | None) -> torch.Tensor:
         """Errors in tolerances (B,): mm / tol_mm + deg / tol_deg."""
         return mm / self.tol_mm + (deg / self.tol_deg if deg is not None else 0.0)
 
     def cost(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """Errors (B,) of joints q (B, n) against `_goal` rows, in tolerances (forward kinematics only)."""
+        """Errors (B,) of joints q (B, n) against `goals` rows, in tolerances (forward kinematics only)."""
         rot, pos, _ = self._kinematics(q, False)
         return self._tolerances(*self._error(rot, pos, goal)[1:])
 
@@ -146,7 +129,7 @@ class GraphPolish(nn.Module):
         return (jac.transpose(-1, -2) @ spd_solve(a + lam[:, None, None] * eye, e)[:, :, None])[:, :, 0]
 
     def polish(self, q: torch.Tensor, goal: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward `_goal` rows: the
+        """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward `goals` rows: the
         solver's damped least squares, its line search and its re-solve without joints held at a
         limit (`IKSolver._polish`), on every row."""
         low, high = self.low.to(q), self.high.to(q)
@@ -174,7 +157,7 @@ class GraphPolish(nn.Module):
         if self.redundant is not None:  # the redundant joint at the value asked
             r = self.redundant
             seeds = torch.cat([seeds[..., :r], x[:, None, -1:].expand(b, k, 1), seeds[..., r + 1 :]], -1)
-        goal = self._goal(x)
+        goal = goals(x, self.pose)
         t = min(PRESELECT, k)
         idx = closeness.topk(t, dim=1, largest=False).indices
         ranked = seeds.gather(1, idx[..., None].expand(b, t, n))
@@ -194,13 +177,13 @@ class GraphPolish(nn.Module):
         return q, ok if deg is None else ok & (deg <= self.tol_deg)
 
     def _polished(self, q: torch.Tensor, goal: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """`polish` of joints q (B, T, n) toward `_goal` rows (B, ...): (joints (B, T, n), cost (B, T))."""
+        """`polish` of joints q (B, T, n) toward `goals` rows (B, ...): (joints (B, T, n), cost (B, T))."""
         b, t, n = q.shape
         q, cost = self.polish(q.reshape(-1, n), goal.repeat_interleave(t, 0), iterations)
         return q.reshape(b, t, n), cost.reshape(b, t)
 
     def _costs(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """`cost` of joints q (B, T, n) against `_goal` rows (B, ...): (B, T)."""
+        """`cost` of joints q (B, T, n) against `goals` rows (B, ...): (B, T)."""
         b, t, n = q.shape
         return self.cost(q.reshape(-1, n), goal.repeat_interleave(t, 0)).reshape(b, t)
 

@@ -39,7 +39,7 @@ from .config import Target, finite, validate_device
 from .layer import RBFNetwork, row_blocks
 from .memory import FLOAT64, check_fits
 from .robots.kinematics import joint_limits
-from .robots.robot import Robot, robot_from_record
+from .robots.robot import Robot, robot_from_record, rotation_error_deg, rotation_vector
 from .yaw import answer as yaw_answer, base_yaw as yaw_of, nearest_turn
 
 __all__ = [
@@ -92,6 +92,14 @@ BLOCK_ROWS = 4096  # targets a block of `IKSolver.solve`: its Jacobians, chains,
 # trials take up to 6 KB a target on the SCARA and 28 KB on the UR5 (measured), so a block holds at most ~120 MB
 WHOLE_BATCH_VALUES = 8  # float64 joint vectors a target `solve` holds for the whole batch at most
 # (answers, `near`, restarts' starts and answers, indices and masks), besides the targets
+
+
+def goals(x: torch.Tensor, pose: bool) -> torch.Tensor:
+    """Targets x (B, 3, 7 or 8) as the polish compares with them, once a polish: positions (B, 3)
+    m, and for pose targets (`pose`) the rotation matrix's rows after them (B, 12)."""
+    if not pose:
+        return x[:, :3]
+    return torch.cat([x[:, :3], tf.quaternion_to_matrix(x[:, 3:7]).reshape(-1, 9)], -1)
 
 
 def _count(name: str, v) -> int:
@@ -184,20 +192,28 @@ class IKSolver:
         `DEFAULT_ITERATIONS`."""
         return CHARTED_ITERATIONS if self.charted else DEFAULT_ITERATIONS
 
-    def _errors(self, q: torch.Tensor, x: torch.Tensor):
-        """Task error e (B, 3 or 6), Jacobian J (B, 3 or 6, n), position error (B,) m, rotation (B,) rad."""
+    def _goals(self, x: torch.Tensor) -> torch.Tensor:
+        """`goals` of targets x for this solver's robot."""
+        return goals(x, self.pose_target)
+
+    def _errors(self, q: torch.Tensor, goal: torch.Tensor):
+        """Task error e (B, 3 or 6), Jacobian J (B, 3 or 6, n), position error (B,) m, rotation (B,)
+        rad of joints q (B, n) against `goals` rows (B, 3 or 12)."""
         jac, pose = self.robot.jacobian(q, with_pose=True)
-        e_pos = x[:, :3] - pose[:, :3, 3]
+        e_pos = goal[:, :3] - pose[:, :3, 3]
         if not self.pose_target:
             return e_pos, jac, e_pos.norm(dim=-1), None
-        r_err = tf.quaternion_to_matrix(x[:, 3:7]) @ pose[:, :3, :3].transpose(-1, -2)
-        e_rot = tf.matrix_to_axis_angle(r_err)  # (B, 3), world frame
+        e_rot = rotation_vector(goal[:, 3:].reshape(-1, 3, 3) @ pose[:, :3, :3].transpose(-1, -2))  # world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
-    def _cost(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """Error (B,) of joints q (B, n) against targets x in tolerances: mm / tol_mm + deg / tol_deg."""
-        pos, rot = self.robot.errors(q, x)
-        return pos / self.tol_mm + (rot / self.tol_deg if rot is not None else 0.0)
+    def _cost(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Error (B,) of joints q (B, n) against `goals` rows (B, 3 or 12) in tolerances: mm / tol_mm +
+        deg / tol_deg (forward kinematics only)."""
+        pose = self.robot.pose(q)
+        cost = (pose[:, :3, 3] - goal[:, :3]).norm(dim=-1) * (1000.0 / self.tol_mm)
+        if not self.pose_target:
+            return cost
+        return cost + rotation_error_deg(pose[:, :3, :3], goal[:, 3:].reshape(-1, 3, 3)) / self.tol_deg
 
     def _polish(
         self,
@@ -210,13 +226,14 @@ class IKSolver:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """`iterations` damped-least-squares steps (`_step`) from joints q (B, n) toward targets x
         (`hold`: a joint index the steps leave where it is); (joints, converged (B,)). `first`:
-        `_errors(q, x)` where already computed. `settle`: a target stops once converged (the steps
-        left go to the others; its answer is then within the tolerances, not as near as the steps
-        would bring it), so a batch costs the steps its targets need, not `iterations` each."""
-        state = first if first is not None else self._errors(q, x)
+        `_errors(q, goals(x))` where already computed. `settle`: a target stops once converged (the
+        steps left go to the others; its answer is then within the tolerances, not as near as the
+        steps would bring it), so a batch costs the steps its targets need, not `iterations` each."""
+        goal = self._goals(x)
+        state = first if first is not None else self._errors(q, goal)
         if not settle:
             for _ in range(iterations):
-                q, state = self._step(q, x, state, hold)
+                q, state = self._step(q, goal, state, hold)
             return q, self._converged(state)
         q, ok = q.clone(), torch.zeros(q.shape[0], dtype=torch.bool, device=q.device)
         active = torch.arange(q.shape[0], device=q.device)
@@ -227,7 +244,7 @@ class IKSolver:
                 break
             if bool(done.any()):
                 active, state = active[~done], tuple(None if t is None else t[~done] for t in state)
-            q_a, state = self._step(q[active], x[active], state, hold)
+            q_a, state = self._step(q[active], goal[active], state, hold)
             q[active] = q_a
         return q, ok
 
@@ -239,9 +256,9 @@ class IKSolver:
             ok &= torch.rad2deg(rot) <= self.tol_deg
         return ok
 
-    def _step(self, q: torch.Tensor, x: torch.Tensor, state: tuple, hold: int | None) -> tuple[torch.Tensor, tuple]:
-        """One damped-least-squares step from joints q (B, n) toward targets x, `state` being
-        `_errors(q, x)`: (the joints after it, `_errors` there).
+    def _step(self, q: torch.Tensor, goal: torch.Tensor, state: tuple, hold: int | None) -> tuple[torch.Tensor, tuple]:
+        """One damped-least-squares step from joints q (B, n) toward `goals` rows, `state` being
+        `_errors(q, goal)`: (the joints after it, `_errors` there).
 
         dq = J^T (J J^T + lambda I)^-1 e, lambda = damping + error_damping |e|^2, shortened to at
         most `max_step` per joint. Where the full step leaves more than PROGRESS of the error (mm /
@@ -275,20 +292,20 @@ class IKSolver:
         full = (q + dq).clamp(low, high)
         # The error after the step comes with the next step's Jacobian (it costs about what forward
         # kinematics alone does), so a step is one Jacobian, not a Jacobian and a pose.
-        after = self._errors(full, x)
+        after = self._errors(full, goal)
         slow = (self._tolerances(after) > PROGRESS * self._tolerances(state)).nonzero().squeeze(-1)
         if slow.numel():
             m, n = slow.numel(), q.shape[1]
             trials = (q[slow, None] + scales[None, :, None] * dq[slow, None]).clamp(low, high).reshape(m * s, n)
-            cost = self._cost(trials, x[slow].repeat_interleave(s, 0))
+            cost = self._cost(trials, goal[slow].repeat_interleave(s, 0))
             full[slow] = trials[torch.arange(m, device=q.device) * s + cost.reshape(m, s).argmin(-1)]
-            self._refresh(after, slow, full, x)
+            self._refresh(after, slow, full, goal)
         return full, after
 
-    def _refresh(self, errors: tuple, rows: torch.Tensor, q: torch.Tensor, x: torch.Tensor) -> None:
-        """`errors` (`_errors`' tuple for joints q (B, n) and targets x) recomputed in place at `rows`
+    def _refresh(self, errors: tuple, rows: torch.Tensor, q: torch.Tensor, goal: torch.Tensor) -> None:
+        """`errors` (`_errors`' tuple for joints q (B, n) and `goals` rows) recomputed in place at `rows`
         (indices), where q changed."""
-        for part, new in zip(errors, self._errors(q[rows], x[rows])):
+        for part, new in zip(errors, self._errors(q[rows], goal[rows])):
             if part is not None and new is not None:
                 part[rows] = new
 
@@ -326,19 +343,20 @@ class IKSolver:
         # The answer as trained where it is close; the targets it misses by more than FAR tolerances
         # (outside the trained yaw range, or at its edge) try the base turns, picked by forward kinematics.
         # The errors come with the Jacobian, the polish's first.
-        e, jac, pos, rot = self._errors(q, x)
+        goal = self._goals(x)
+        e, jac, pos, rot = self._errors(q, goal)
         cost = self._tolerances((e, jac, pos, rot))
         far = (cost > FAR).nonzero().squeeze(-1)
         if far.numel():
-            xf, k = x[far], self.yaw.candidates
+            xf, gf, k = x[far], goal[far], self.yaw.candidates
             plain = lambda z: (model(z), torch.ones(z.shape[0], dtype=torch.bool, device=z.device))  # noqa: E731
-            q_f, _, d_f = yaw_answer(self.yaw, plain, xf, score=lambda qs: self._cost(qs, xf.repeat(k, 1)))
+            q_f, _, d_f = yaw_answer(self.yaw, plain, xf, score=lambda qs: self._cost(qs, gf.repeat(k, 1)))
             q_f = q_f.clamp(low, high)
-            better = self._cost(q_f, xf) < cost[far]
+            better = self._cost(q_f, gf) < cost[far]
             rows = far[better]
             q[rows], d[rows] = q_f[better], d_f[better]
             if rows.numel():
-                self._refresh((e, jac, pos, rot), rows, q, x)
+                self._refresh((e, jac, pos, rot), rows, q, goal)
         return q, d, (e, jac, pos, rot)
 
     def _near(self, near, b: int, device) -> torch.Tensor:
@@ -531,7 +549,7 @@ class IKSolver:
         t = min(PRESELECT, k)
         idx = close.topk(t, dim=1, largest=False).indices
         seeds = q.gather(1, idx[..., None].expand(-1, -1, n))
-        cost = self._cost(seeds.reshape(-1, n), x.repeat_interleave(t, 0)).reshape(b, t)
+        cost = self._cost(seeds.reshape(-1, n), self._goals(x).repeat_interleave(t, 0)).reshape(b, t)
         return seeds.gather(1, cost.argsort(1)[..., None].expand(-1, -1, n)), q
 
     def _asked(self, q: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -571,7 +589,7 @@ class IKSolver:
             start = near_q.clamp(low, high)
             q, ok = row_blocks(lambda sb, xb: self._polish(sb, xb, iterations, settle=True), rows, start, x)
             todo = (~ok).nonzero().squeeze(-1)
-            miss[todo] = UNCONVERGED + row_blocks(self._cost, rows, q[todo], x[todo])
+            miss[todo] = UNCONVERGED + row_blocks(self._cost, rows, q[todo], self._goals(x[todo]))
             rounds = ()  # the few `near` does not reach: every chart, the converged answer nearest `near`
         order = row_blocks(lambda xb: model.ranked(xb, sum(rounds)), rows, x[todo])
         k, at = model.num_charts, 0
@@ -602,7 +620,7 @@ class IKSolver:
         rest = (~ok).nonzero().squeeze(-1)
         if rest.numel():
             q_r, ok_r = row_blocks(lambda sb, xb: self._polish(sb, xb, iterations, settle=True), rows, q[rest], x[rest])
-            keep = ok_r | (UNCONVERGED + row_blocks(self._cost, rows, q_r, x[rest]) < miss[rest])
+            keep = ok_r | (UNCONVERGED + row_blocks(self._cost, rows, q_r, self._goals(x[rest])) < miss[rest])
             q[rest[keep]], ok[rest] = q_r[keep], ok_r
         return q, ok, torch.zeros(b, dtype=torch.float64, device=dev)
 
@@ -631,7 +649,7 @@ class IKSolver:
         if ref is not None:
             width = (self.box_high - self.box_low).to(q.device, torch.float64)
             rank[ok] = ((q[ok] - ref[ok]) / width).norm(dim=-1)
-        rank[~ok] = UNCONVERGED + self._cost(q[~ok], x[~ok])
+        rank[~ok] = UNCONVERGED + self._cost(q[~ok], self._goals(x[~ok]))
         return rank
 
     def _turned(self, q: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:

@@ -29,6 +29,7 @@ import torch
 
 from .backend import Friction, Scaled, christoffel_momentum_rate, forward_dynamics, spd_solve
 from .dynamics import Arm, Payload
+from .kinematics import axis_frame
 from .spatial import Spatial
 
 __all__ = ["ArmTerms", "Config", "Motion"]
@@ -97,17 +98,6 @@ def _prefix_sum(x: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def _frame_to(axis: torch.Tensor) -> torch.Tensor:
-    """A rotation (3, 3) float64 whose z column is the unit vector `axis`."""
-    z = axis / axis.norm()
-    trial = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
-    if abs(float(z[0])) > 0.9:
-        trial = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)
-    x = trial - trial.dot(z) * z
-    x = x / x.norm()
-    return torch.stack([x, torch.linalg.cross(z, x), z], 1)
-
-
 class PointMass(NamedTuple):
     """A payload as a URDF arm's terms take it (`ArmTerms.load`): a point mass, kg (float or any
     shape), at the payload link (`rbfn.robots.dynamics`)."""
@@ -132,7 +122,7 @@ class ArmTerms:
             md, n = self.arm.model, self.n
             # Body frame i turned by Q_i (z column = joint axis): R'_i = R'_{i-1} R0'_i Rz(q_i) with
             # R0'_i = Q_{i-1}^T R0_i Q_i, t0'_i = Q_{i-1}^T t0_i; body constants seen from the turned frame.
-            qs = [_frame_to(a) for a in md.axis]
+            qs = [axis_frame(a) for a in md.axis]
             prev = [torch.eye(3, dtype=torch.float64), *qs[:-1]]
             rot0 = torch.stack([p.T @ md.placement[i, :3, :3] @ qs[i] for i, p in enumerate(prev)])
             t0 = torch.stack([p.T @ md.placement[i, :3, 3] for i, p in enumerate(prev)])

@@ -37,6 +37,7 @@ __all__ = [
     "pose_targets",
     "unit_quaternions",
     "rotation_error_deg",
+    "rotation_vector",
 ]
 
 
@@ -62,6 +63,26 @@ def rotation_error_deg(r_hat: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
         / 2.0
     )
     return torch.rad2deg(torch.atan2(sin, cos))
+
+
+def rotation_vector(r: torch.Tensor) -> torch.Tensor:
+    """Rotation vectors (B, 3), the axis times the angle (rad, in [0, pi]), of rotation matrices r
+    (B, 3, 3): the matrix logarithm. Below a quarter turn from the skew part r - r^T = 2 sin(angle)
+    [axis]x; beyond it from the symmetric part (r + r^T) / 2 - cos(angle) I = (1 - cos(angle)) axis
+    axis^T (its column of the largest diagonal, signed like the skew part), which keeps the axis at
+    half a turn. No data-dependent branches (the exporters take it)."""
+    v = torch.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], -1)
+    cos = 0.5 * (r.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
+    sin2 = v.norm(dim=-1)  # 2 sin(angle)
+    angle = torch.atan2(sin2, 2.0 * cos)
+    near = v * torch.where(sin2 > 1e-12, angle / sin2.clamp(min=1e-12), torch.full_like(sin2, 0.5))[:, None]
+    eye = torch.eye(3, dtype=r.dtype, device=r.device)
+    sym = 0.5 * (r + r.transpose(-1, -2)) - cos[:, None, None] * eye
+    k = sym.diagonal(dim1=-2, dim2=-1).argmax(-1)
+    col = sym.gather(2, k[:, None, None].expand(-1, 3, 1))[:, :, 0]  # (1 - cos) axis_k axis
+    axis = col / col.norm(dim=-1, keepdim=True).clamp(min=torch.finfo(r.dtype).tiny)
+    axis = torch.where((axis * v).sum(-1, keepdim=True) < 0.0, -axis, axis)
+    return torch.where((cos < 0.0)[:, None], axis * angle[:, None], near)
 
 
 @dataclass
