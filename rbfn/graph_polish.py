@@ -67,9 +67,8 @@ class GraphPolish(nn.Module):
         super().__init__()
         steps = _steps(robot.chain)
         self.frames = [(st.kind, st.joint) for st in steps]
-        for i, st in enumerate(steps):  # one buffer a frame's part: the graph takes them as constants
-            for name in ("rot", "offset"):
-                self.register_buffer(f"frame{i}_{name}", getattr(st, name).float())
+        for i, st in enumerate(steps):  # one buffer a frame: the graph takes them as constants
+            self.register_buffer(f"frame{i}_move", st.move.float())
         self.register_buffer("held", robot.full_joints(robot.low[None].double())[0].float())  # locked values
         self.free = [int(i) for i in robot.free]
         self.chain_joints = int(self.held.shape[0])
@@ -90,10 +89,7 @@ class GraphPolish(nn.Module):
             columns = [q[:, self.free.index(j)] if j in self.free else self.held[j].expand(q.shape[0]) for j in
                        range(self.chain_joints)]  # fmt: skip
             th = torch.stack(columns, -1)
-        steps = [
-            _Step(getattr(self, f"frame{i}_rot"), getattr(self, f"frame{i}_offset"), kind, joint)
-            for i, (kind, joint) in enumerate(self.frames)
-        ]
+        steps = [_Step(getattr(self, f"frame{i}_move"), kind, joint) for i, (kind, joint) in enumerate(self.frames)]
         rot, pos, jac = compose(steps, th, jacobian)
         if jac is not None:
             jac = jac[:, : 6 if self.pose else 3][:, :, self.free]

@@ -54,6 +54,7 @@ __all__ = [
 DEFAULT_ITERATIONS = 3
 MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the polish converges in a few)
 STEP_SCALES = (2.0, 1.4, 1.0, 0.6, 0.3)  # the line search's multiples of a step (measured on the UR5)
+SEARCHED = tuple(a for a in STEP_SCALES if a != 1.0)  # those it computes: the full step's error is known
 # lambda's error-dependent part, lambda = damping + c |e|^2 (e: position in m, rotation in rad), off by
 # default. Measured on UR5 poses over the whole joint range (5 % of them with sigma_min of J below 0.004,
 # mostly at the wrist singularity), from the exact joints moved uniformly by up to 0.05 / 0.2 rad a joint:
@@ -267,11 +268,11 @@ class IKSolver:
         Newton step overshoots (the first step from a far network answer multiplied the error
         threefold); the search takes the shorter step there and the longer one where the error is
         curved the other way. A step costs one Jacobian (its pose gives the error after the step, and
-        the next step's Jacobian), plus len(STEP_SCALES) forward kinematics and a Jacobian for the few
-        rows searched."""
+        the next step's Jacobian), plus a forward kinematics a multiple other than 1 for the rows
+        searched, and a Jacobian for those of them a shorter or longer step moves."""
         low, high = self.low.to(q.device), self.high.to(q.device)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=torch.float64, device=q.device)
-        scales = torch.tensor(STEP_SCALES, dtype=torch.float64, device=q.device)
+        scales = torch.tensor(SEARCHED, dtype=torch.float64, device=q.device)
         s = scales.shape[0]
         e, jac = state[0], state[1]
         if hold is not None:
@@ -294,12 +295,14 @@ class IKSolver:
         # kinematics alone does), so a step is one Jacobian, not a Jacobian and a pose.
         after = self._errors(full, goal)
         slow = (self._tolerances(after) > PROGRESS * self._tolerances(state)).nonzero().squeeze(-1)
-        if slow.numel():
+        if slow.numel():  # the full step's error is `after`'s; the other multiples by forward kinematics
             m, n = slow.numel(), q.shape[1]
-            trials = (q[slow, None] + scales[None, :, None] * dq[slow, None]).clamp(low, high).reshape(m * s, n)
-            cost = self._cost(trials, goal[slow].repeat_interleave(s, 0))
-            full[slow] = trials[torch.arange(m, device=q.device) * s + cost.reshape(m, s).argmin(-1)]
-            self._refresh(after, slow, full, goal)
+            trials = (q[slow, None] + scales[None, :, None] * dq[slow, None]).clamp(low, high)  # (m, s, n)
+            cost = self._cost(trials.reshape(m * s, n), goal[slow].repeat_interleave(s, 0)).reshape(m, s)
+            best = torch.cat([cost, self._tolerances(after)[slow, None]], 1).argmin(-1)
+            moved = (best < s).nonzero().squeeze(-1)
+            full[slow[moved]] = trials[moved, best[moved]]
+            self._refresh(after, slow[moved], full, goal)
         return full, after
 
     def _refresh(self, errors: tuple, rows: torch.Tensor, q: torch.Tensor, goal: torch.Tensor) -> None:

@@ -414,12 +414,11 @@ def load_serial_chain(
 
 class _Step(NamedTuple):
     """One frame of a serial chain in turned frames (each joint's frame turned so that its axis is
-    z, as `axis_frame` turns it): the fixed transform from the parent's turned frame (rotation
-    (3, 3), offset (3,)), then its joint about or along z: kind (0 fixed, 1 revolute, 2 prismatic)
-    and its index among the chain's joints."""
+    z, as `axis_frame` turns it): the fixed transform from the parent's turned frame, rotation F
+    (3, 3) and offset o (3,), as `move` = [F^T; o^T] (4, 3), then its joint about or along z: kind
+    (0 fixed, 1 revolute, 2 prismatic) and its index among the chain's joints."""
 
-    rot: torch.Tensor
-    offset: torch.Tensor
+    move: torch.Tensor
     kind: int
     joint: int
 
@@ -469,13 +468,13 @@ def _steps(chain: pk.SerialChain) -> list[_Step]:
         if not kind:
             continue
         q = axis_frame(axis)
-        steps.append(_Step(pending[:3, :3] @ q, pending[:3, 3].clone(), kind, index))
+        steps.append(_Step(torch.cat([(pending[:3, :3] @ q).T, pending[None, :3, 3]]), kind, index))
         pending = torch.eye(4, dtype=torch.float64)
         pending[:3, :3] = q.T
     if not steps or not torch.equal(pending, torch.eye(4, dtype=torch.float64)):
-        steps.append(_Step(pending[:3, :3], pending[:3, 3].clone(), 0, -1))
+        steps.append(_Step(torch.cat([pending[:3, :3].T, pending[None, :3, 3]]), 0, -1))
     kw: dict[str, Any] = {"dtype": chain.dtype, "device": chain.device}
-    steps = [st._replace(rot=st.rot.to(**kw), offset=st.offset.to(**kw)) for st in steps]
+    steps = [st._replace(move=st.move.to(**kw)) for st in steps]
     _STEPS[chain] = (chain.dtype, chain.device, steps)
     return steps
 
@@ -511,7 +510,7 @@ def compose(steps: Sequence[_Step], th: torch.Tensor, jacobian: bool):
     pos = th.new_zeros(3, b)
     axes: dict[int, tuple[int, torch.Tensor, torch.Tensor]] = {}  # joint -> (kind, axis (3, B), origin (3, B))
     for st in steps:
-        moved = torch.cat([st.rot.T, st.offset[None]]) @ cols.reshape(3, 3 * b)  # (4, 3 B)
+        moved = st.move @ cols.reshape(3, 3 * b)  # (4, 3 B): the columns times F, then R o
         pos = pos + moved[3].reshape(3, b)
         cols = moved[:3].reshape(3, 3, b)
         if st.kind == 0:

@@ -78,8 +78,9 @@ def rotation_vector(r: torch.Tensor) -> torch.Tensor:
     near = v * torch.where(sin2 > 1e-12, angle / sin2.clamp(min=1e-12), torch.full_like(sin2, 0.5))[:, None]
     eye = torch.eye(3, dtype=r.dtype, device=r.device)
     sym = 0.5 * (r + r.transpose(-1, -2)) - cos[:, None, None] * eye
-    k = sym.diagonal(dim1=-2, dim2=-1).argmax(-1)
-    col = sym.gather(2, k[:, None, None].expand(-1, 3, 1))[:, :, 0]  # (1 - cos) axis_k axis
+    d0, d1, d2 = sym.diagonal(dim1=-2, dim2=-1).unbind(-1)
+    c0, c1, c2 = sym.unbind(-1)  # column k: (1 - cos) axis_k axis; the largest diagonal's
+    col = torch.where(((d0 >= d1) & (d0 >= d2))[:, None], c0, torch.where((d1 >= d2)[:, None], c1, c2))
     axis = col / col.norm(dim=-1, keepdim=True).clamp(min=torch.finfo(r.dtype).tiny)
     axis = torch.where((axis * v).sum(-1, keepdim=True) < 0.0, -axis, axis)
     return torch.where((cos < 0.0)[:, None], axis * angle[:, None], near)
