@@ -3,23 +3,26 @@ comparison: B = controllers x payload cases).
 
 `Stacked` splits the environments into blocks, one per controller; consecutive sliding-mode
 controllers that share gains, time step, model and joint scale run as one `SlidingModeBatch`,
-which evaluates the model once for all their environments. The laws themselves
+which evaluates the model once for all their environments, and consecutive two-phase controllers
+that differ only in their settings and features as one `TwoPhaseBatch`. The laws themselves
 (`rbfn.control.controllers`) know nothing of batching: a batch hands the sliding-mode law each
-environment's own features (B, M) and observer gain (B, 1).
+environment's own features (B, M) and observer gain (B, 1), the two-phase law each environment's
+features (B, 3n) and settings.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import cast
 
 import torch
 
 from .aot import same_kind
-from .controllers import Controller, Forces, Reference, SlidingMode, SlidingState
+from .controllers import Controller, Forces, Reference, SlidingMode, SlidingState, TwoPhase, TwoPhaseState
 from .loop import Applied
 
-__all__ = ["Stacked", "SlidingModeBatch"]
+__all__ = ["Stacked", "SlidingModeBatch", "TwoPhaseBatch"]
 
 
 class SlidingModeBatch(SlidingMode):
@@ -96,10 +99,63 @@ class SlidingModeBatch(SlidingMode):
         return super().torque(ref, q, qd, state, h=own, alpha=alpha, applied=applied)
 
 
+class TwoPhaseBatch(TwoPhase):
+    """Two-phase controllers that share gains (but the estimate's rate and the feedback's growth),
+    time step, model, inertia schedule and joint scale as one controller of sum(sizes) environments
+    (part i drives the i-th block of sizes[i]), each environment with its part's settings
+    (`TwoPhase.settings`) and features: the parts' (T, 3n) side by side (T, 3n parts), of which an
+    environment reads its own part's columns. The choice of the law's settings
+    (`rbfn.control.comparison`) runs its candidates this way, one graph instead of one a candidate."""
+
+    def __init__(self, parts: list[TwoPhase], sizes: list[int]) -> None:
+        first = parts[0]
+        super().__init__(
+            first.gains,
+            first.dt,
+            first.model,
+            torch.cat([p.features for p in parts], -1),
+            first.schedule,
+            joint_scale=first.scale,
+        )
+        self.members = list(zip(parts, sizes))
+        width, n = first.features.shape[-1], first.schedule.base.shape[-1]
+        part = torch.arange(len(parts)).repeat_interleave(torch.tensor(sizes))  # (B,) each environment's part
+        self.columns = part[:, None] * width + torch.arange(width)  # (B, 3n) its features' columns
+        rate, cap, ff = zip(*(p.settings() for p in parts))
+        self.estimate_rates = torch.tensor(rate, dtype=torch.float64)[part]  # (B,)
+        self.growth_caps = torch.tensor(cap, dtype=torch.float64)[part, None]  # (B, 1)
+        ones = torch.ones(n, dtype=torch.float64)
+        self.feedforwards = torch.stack([ones if f is None else f.to(ones) for f in ff])[part]  # (B, n)
+
+    def settings(
+        self, like: torch.Tensor | None = None
+    ) -> tuple[float | torch.Tensor, float | torch.Tensor, torch.Tensor | None]:
+        return tuple(
+            t if like is None else t.to(like) for t in (self.estimate_rates, self.growth_caps, self.feedforwards)
+        )  # type: ignore[return-value]
+
+    def torque(
+        self,
+        ref: Reference,
+        q: torch.Tensor,
+        qd: torch.Tensor,
+        state: TwoPhaseState,
+        *,
+        h: torch.Tensor | None = None,
+        alpha: torch.Tensor | None = None,
+        applied: Applied | None = None,
+        forces: Forces | None = None,
+    ) -> tuple[torch.Tensor, TwoPhaseState]:
+        assert h is not None  # the parts' outputs side by side (3n parts,): each environment its own
+        own = h[self.columns.to(h.device)]
+        return super().torque(ref, q, qd, state, h=own, alpha=alpha, applied=applied, forces=forces)
+
+
 class Stacked(Controller):
     """Several controllers as one batch: controller i drives the i-th block of `sizes[i]`
     environments. Consecutive sliding-mode controllers that share gains, time step, model and
-    joint scale run as one `SlidingModeBatch`. Its features are the units' side by side
+    joint scale run as one `SlidingModeBatch`, consecutive two-phase ones that differ only in
+    their settings and features as one `TwoPhaseBatch`. Its features are the units' side by side
     (T, sum M_i), its adaptation steps one column per unit (T, K), its state a tuple of the units'
     states; the reference (each (n,)) is every environment's."""
 
@@ -113,10 +169,7 @@ class Stacked(Controller):
                 runs[-1].append((c, size))
             else:
                 runs.append([(c, size)])
-        self.units = [
-            r[0][0] if len(r) == 1 else SlidingModeBatch([cast(SlidingMode, c) for c, _ in r], [s for _, s in r])
-            for r in runs
-        ]
+        self.units = [r[0][0] if len(r) == 1 else _batch(r) for r in runs]
         self.unit_sizes = [sum(s for _, s in r) for r in runs]
         self.needs_forces = any(c.needs_forces for c in self.units)
         feats = [c.features for c in self.units if c.features is not None]
@@ -176,14 +229,42 @@ class Stacked(Controller):
         return torch.cat([c.share(st, x) for c, st, x in zip(self.units, state, like.split(self.unit_sizes))])
 
 
+def _batch(run: list[tuple[Controller, int]]) -> Controller:
+    """Controllers `_batchable` one after the other as one."""
+    sizes = [s for _, s in run]
+    if type(run[0][0]) is TwoPhase:
+        return TwoPhaseBatch([cast(TwoPhase, c) for c, _ in run], sizes)
+    return SlidingModeBatch([cast(SlidingMode, c) for c, _ in run], sizes)
+
+
+def _settled(c: TwoPhase):
+    """c's gains with the settings a `TwoPhaseBatch` gives each environment set aside."""
+    return replace(c.gains, estimate_rate=0.0, feedback_growth=1.0)
+
+
 def _batchable(a: Controller, b: Controller) -> bool:
-    """Whether sliding-mode controllers a and b can run as one: equal gains, time step, joint
-    scale, joint rates and nominal model."""
-    if type(a) is not SlidingMode or type(b) is not SlidingMode or a.gains != b.gains or a.dt != b.dt:
+    """Whether controllers a and b can run as one: sliding-mode controllers with equal gains, time
+    step, joint scale, joint rates and nominal model; two-phase ones with equal gains but the
+    estimate's rate and the feedback's growth, time step, joint scale, nominal model, inertia
+    schedule and features' width."""
+    if type(a) is not type(b) or type(a) not in (SlidingMode, TwoPhase) or a.dt != b.dt:
         return False
     same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
+    same_model = a.model is b.model or a.model == b.model  # (NominalModel: the same dynamics, factors and payload)
+    if isinstance(a, TwoPhase) and isinstance(b, TwoPhase):
+        sa, sb = a.schedule, b.schedule
+        same_schedule = sa is sb or (
+            sa.high == sb.high and torch.equal(sa.base, sb.base) and torch.equal(sa.per_kg, sb.per_kg)
+        )
+        return (
+            _settled(a) == _settled(b)  # the estimate's rate and the feedback's growth: each environment's own
+            and same_schedule
+            and a.features.shape[-1] == b.features.shape[-1]
+            and same_scale
+            and same_model
+        )
+    assert isinstance(a, SlidingMode) and isinstance(b, SlidingMode)
     same_rates = a.rates is b.rates or (
         a.rates is not None and b.rates is not None and all(map(torch.equal, a.rates, b.rates))
     )
-    same_model = a.model is b.model or a.model == b.model  # (NominalModel: the same dynamics, factors and payload)
-    return same_scale and same_rates and same_model
+    return a.gains == b.gains and same_scale and same_rates and same_model

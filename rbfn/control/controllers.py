@@ -386,6 +386,8 @@ class TwoPhase(Controller):
     h^T W0 + m_hat (h^T V - Y) in tau on that joint (`control.network.feedforward`); the estimate
     uses the network on every joint either way."""
 
+    features: torch.Tensor
+
     def __init__(
         self,
         gains: Gains,
@@ -410,6 +412,16 @@ class TwoPhase(Controller):
         assert state.law.share is not None
         return state.law.share
 
+    def settings(
+        self, like: torch.Tensor | None = None
+    ) -> tuple[float | torch.Tensor, float | torch.Tensor, torch.Tensor | None]:
+        """(the estimate's step `gains.estimate_rate`, the feedback's most growth
+        `gains.feedback_growth`, the feedforward joints (n,) or None: every joint), tensors as
+        `like`'s dtype and device; a batch of such controllers (`rbfn.control.batch.TwoPhaseBatch`)
+        gives them per environment, (B,), (B, 1) and (B, n)."""
+        ff = self.feedforward
+        return self.gains.estimate_rate, self.gains.feedback_growth, ff if ff is None or like is None else ff.to(like)
+
     def _inertia(self, m: torch.Tensor | float, like: torch.Tensor) -> torch.Tensor:
         """M_jj(m) = base_j + per_kg_j m at payloads m (B, 1) or one payload: (B, n) or (n,)."""
         return self.schedule.base.to(like) + self.schedule.per_kg.to(like) * m
@@ -431,6 +443,7 @@ class TwoPhase(Controller):
         assert h is not None  # the network's outputs along the reference
         g, dt, n = self.gains, self.dt, q.shape[-1]
         law, e_integral, e_p0, e_beta, d_e, m = state
+        rate, cap, feedforward = self.settings(q)
         resid0, phi, beyond = h[..., :n], h[..., n : 2 * n], h[..., 2 * n :]
         e, de = ref.q_d - q, ref.qd_d - qd
         s = de + g.Lambda * e
@@ -442,7 +455,7 @@ class TwoPhase(Controller):
         # a payload's arrival and lags its removal) and where the diagonal understates the coupled
         # joints' dynamics: uncapped, the feedback saturated.
         inertia = self._inertia(m[:, None], q)  # M_jj(m_hat) (B, n)
-        growth = (inertia / self._inertia(float(self.model.payload), q)).clamp(max=g.feedback_growth)
+        growth = (inertia / self._inertia(float(self.model.payload), q)).clamp(max=cap)
         tau_m = tau_m + self._scaled(g.K) * growth * s + self._scaled(g.epsilon) * robust
         # The law's observer on the model carrying the estimate: its gain min(1, K s_j / (K_o M_jj))
         # with the feedback's gain and the inertia grown alike (the unloaded joint's rate).
@@ -454,8 +467,8 @@ class TwoPhase(Controller):
         factor = observer_factor(self.gains, unit * growth, inertia)
         d_hat = g.observer_gain * factor * (integral + law.p0 - at.m_times(qd))
         predicted = resid0 + m[:, None] * beyond
-        if self.feedforward is not None:
-            predicted = predicted * self.feedforward.to(q)
+        if feedforward is not None:
+            predicted = predicted * feedforward
         tau = tau_m + predicted + d_hat
         beta = at.momentum_rate()
         if applied is None:  # the ideal loop: this period's nominal share acts as commanded
@@ -474,7 +487,7 @@ class TwoPhase(Controller):
         err = d_e + share - resid0 - m[:, None] * phi
         num = (phi * weight * err).sum(-1)
         den = (phi * phi * weight).sum(-1) + 1e-3 * weight.sum()
-        m = (m + g.estimate_rate * num / den).clamp(0.0, self.schedule.high)
+        m = (m + rate * num / den).clamp(0.0, self.schedule.high)
         law = SlidingState(d_hat, integral, law.p0, None, beta, share)
         return tau, TwoPhaseState(law, e_integral, e_p0, e_beta, d_e, m)
 
