@@ -130,9 +130,10 @@ class TwoPhaseBatch(TwoPhase):
     def settings(
         self, like: torch.Tensor | None = None
     ) -> tuple[float | torch.Tensor, float | torch.Tensor, torch.Tensor | None]:
-        return tuple(
-            t if like is None else t.to(like) for t in (self.estimate_rates, self.growth_caps, self.feedforwards)
-        )  # type: ignore[return-value]
+        rates, caps, ff = self.estimate_rates, self.growth_caps, self.feedforwards
+        if like is not None:
+            rates, caps, ff = rates.to(like), caps.to(like), ff.to(like)
+        return rates, caps, ff
 
     def torque(
         self,
