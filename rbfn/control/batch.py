@@ -103,37 +103,37 @@ class TwoPhaseBatch(TwoPhase):
     """Two-phase controllers that share gains (but the estimate's rate and the feedback's growth),
     time step, model, inertia schedule and joint scale as one controller of sum(sizes) environments
     (part i drives the i-th block of sizes[i]), each environment with its part's settings
-    (`TwoPhase.settings`) and features: the parts' (T, 3n) side by side (T, 3n parts), of which an
-    environment reads its own part's columns. The choice of the law's settings
-    (`rbfn.control.comparison`) runs its candidates this way, one graph instead of one a candidate."""
+    (`TwoPhase.settings`, carried in its state: `TwoPhaseState.settings`) and features: the parts'
+    (T, 3n) side by side (T, 3n parts), of which an environment reads its own part's columns. The
+    choice of the law's settings (`rbfn.control.comparison`) runs its candidates this way: one
+    graph for all of them, and, compiled, one package for any candidates of the same count."""
 
     def __init__(self, parts: list[TwoPhase], sizes: list[int]) -> None:
         first = parts[0]
         super().__init__(
-            first.gains,
+            _settled(first),
             first.dt,
             first.model,
             torch.cat([p.features for p in parts], -1),
             first.schedule,
             joint_scale=first.scale,
         )
-        self.members = list(zip(parts, sizes))
         width, n = first.features.shape[-1], first.schedule.base.shape[-1]
         part = torch.arange(len(parts)).repeat_interleave(torch.tensor(sizes))  # (B,) each environment's part
         self.columns = part[:, None] * width + torch.arange(width)  # (B, 3n) its features' columns
         rate, cap, ff = zip(*(p.settings() for p in parts))
-        self.estimate_rates = torch.tensor(rate, dtype=torch.float64)[part]  # (B,)
-        self.growth_caps = torch.tensor(cap, dtype=torch.float64)[part, None]  # (B, 1)
         ones = torch.ones(n, dtype=torch.float64)
-        self.feedforwards = torch.stack([ones if f is None else f.to(ones) for f in ff])[part]  # (B, n)
+        # Private: the state carries them (`init_state`), so a compiled package's key leaves them out
+        # and one package serves any candidates of the same shapes.
+        self._settings = (
+            torch.tensor(rate, dtype=torch.float64)[part],  # (B,)
+            torch.tensor(cap, dtype=torch.float64)[part, None],  # (B, 1)
+            torch.stack([ones if f is None else f.to(ones) for f in ff])[part],  # (B, n)
+        )
 
-    def settings(
-        self, like: torch.Tensor | None = None
-    ) -> tuple[float | torch.Tensor, float | torch.Tensor, torch.Tensor | None]:
-        rates, caps, ff = self.estimate_rates, self.growth_caps, self.feedforwards
-        if like is not None:
-            rates, caps, ff = rates.to(like), caps.to(like), ff.to(like)
-        return rates, caps, ff
+    def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> TwoPhaseState:
+        rate, cap, ff = (t.to(q0) for t in self._settings)
+        return super().init_state(q0, qd0)._replace(settings=(rate, cap, ff))
 
     def torque(
         self,
@@ -163,9 +163,10 @@ class Stacked(Controller):
     def __init__(self, controllers: list[Controller], sizes: list[int]) -> None:
         if len(controllers) != len(sizes) or not controllers:
             raise ValueError(f"need one batch size per controller, got {len(sizes)} for {len(controllers)}")
-        self.parts, self.sizes = list(controllers), list(sizes)
+        # The controllers themselves are not kept: the units are what runs (and, compiled, what a
+        # package's key reads; a `TwoPhaseBatch` keeps its parts' settings for its state only).
         runs: list[list[tuple[Controller, int]]] = []
-        for c, size in zip(self.parts, self.sizes):
+        for c, size in zip(controllers, sizes):
             if runs and _batchable(runs[-1][-1][0], c):
                 runs[-1].append((c, size))
             else:

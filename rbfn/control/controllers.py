@@ -341,8 +341,11 @@ class TwoPhaseState(NamedTuple):
     """`TwoPhase`'s state, per environment: the sliding-mode law's (`SlidingState`, its w unused)
     on the model carrying the estimate; the estimator's momentum observer, on the nominal model:
     its integral (B, n), initial momentum (B, n), last momentum rate (B, n) and estimate d_e (B, n)
-    of what the nominal model misses less the command's share; and the payload estimate m_hat (B,)
-    kg. N m (N), N m s (N s)."""
+    of what the nominal model misses less the command's share; the payload estimate m_hat (B,)
+    kg; and, in a batch of such laws (`rbfn.control.batch.TwoPhaseBatch`), each environment's
+    settings (`TwoPhase.settings`: rate (B,), growth cap (B, 1), feedforward (B, n)), carried
+    unchanged, so that a compiled package takes them as inputs (None: the controller's own).
+    N m (N), N m s (N s)."""
 
     law: SlidingState
     e_integral: torch.Tensor
@@ -350,6 +353,7 @@ class TwoPhaseState(NamedTuple):
     e_beta: torch.Tensor
     d_e: torch.Tensor
     m_hat: torch.Tensor
+    settings: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
 
 
 class TwoPhase(Controller):
@@ -412,15 +416,12 @@ class TwoPhase(Controller):
         assert state.law.share is not None
         return state.law.share
 
-    def settings(
-        self, like: torch.Tensor | None = None
-    ) -> tuple[float | torch.Tensor, float | torch.Tensor, torch.Tensor | None]:
+    def settings(self) -> tuple[float, float, torch.Tensor | None]:
         """(the estimate's step `gains.estimate_rate`, the feedback's most growth
-        `gains.feedback_growth`, the feedforward joints (n,) or None: every joint), tensors as
-        `like`'s dtype and device; a batch of such controllers (`rbfn.control.batch.TwoPhaseBatch`)
-        gives them per environment, (B,), (B, 1) and (B, n)."""
-        ff = self.feedforward
-        return self.gains.estimate_rate, self.gains.feedback_growth, ff if ff is None or like is None else ff.to(like)
+        `gains.feedback_growth`, the feedforward joints (n,) or None: every joint); a batch of
+        such controllers (`rbfn.control.batch.TwoPhaseBatch`) carries them per environment in
+        its state (`TwoPhaseState.settings`)."""
+        return self.gains.estimate_rate, self.gains.feedback_growth, self.feedforward
 
     def _inertia(self, m: torch.Tensor | float, like: torch.Tensor) -> torch.Tensor:
         """M_jj(m) = base_j + per_kg_j m at payloads m (B, 1) or one payload: (B, n) or (n,)."""
@@ -442,8 +443,8 @@ class TwoPhase(Controller):
         per environment (B, 3n); alpha unused (the estimate's step is `gains.estimate_rate`)."""
         assert h is not None  # the network's outputs along the reference
         g, dt, n = self.gains, self.dt, q.shape[-1]
-        law, e_integral, e_p0, e_beta, d_e, m = state
-        rate, cap, feedforward = self.settings(q)
+        law, e_integral, e_p0, e_beta, d_e, m, _ = state
+        rate, cap, feedforward = self.settings() if state.settings is None else state.settings
         resid0, phi, beyond = h[..., :n], h[..., n : 2 * n], h[..., 2 * n :]
         e, de = ref.q_d - q, ref.qd_d - qd
         s = de + g.Lambda * e
@@ -468,7 +469,7 @@ class TwoPhase(Controller):
         d_hat = g.observer_gain * factor * (integral + law.p0 - at.m_times(qd))
         predicted = resid0 + m[:, None] * beyond
         if feedforward is not None:
-            predicted = predicted * feedforward
+            predicted = predicted * feedforward.to(q)
         tau = tau_m + predicted + d_hat
         beta = at.momentum_rate()
         if applied is None:  # the ideal loop: this period's nominal share acts as commanded
@@ -489,7 +490,7 @@ class TwoPhase(Controller):
         den = (phi * phi * weight).sum(-1) + 1e-3 * weight.sum()
         m = (m + rate * num / den).clamp(0.0, self.schedule.high)
         law = SlidingState(d_hat, integral, law.p0, None, beta, share)
-        return tau, TwoPhaseState(law, e_integral, e_p0, e_beta, d_e, m)
+        return tau, TwoPhaseState(law, e_integral, e_p0, e_beta, d_e, m, state.settings)
 
 
 def make_controller(

@@ -1,5 +1,6 @@
 """Controllers batched as one: a batch of two-phase controllers does what each does alone."""
 
+import pytest
 import torch
 
 from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
@@ -62,3 +63,40 @@ def test_two_phase_controllers_of_other_gains_or_schedules_are_not_batched():
     assert len(Stacked([a, _two_phase(Gains(K=7.0), dt, feats, schedule)], [1, 1]).units) == 2
     assert len(Stacked([a, _two_phase(Gains(), dt, feats, other)], [1, 1]).units) == 2
     assert len(Stacked([a, _two_phase(Gains(estimate_rate=0.01), dt, feats, schedule)], [1, 1]).units) == 1
+
+
+@pytest.mark.slow
+def test_a_compiled_two_phase_batch_takes_its_settings_as_inputs(tmp_path, monkeypatch, caplog):
+    """The settings ride in the state, so one package serves candidates of the same shapes, and
+    each run of it equals its own eager run (the settings are not baked into the package)."""
+    import shutil
+
+    from rbfn.control.aot import fingerprint
+
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
+    monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
+    sc = Scenario(duration=0.02, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
+    ref = paper_trajectory(sc.times())
+    plant = Plant(ScaraTerms())
+    pay = torch.tensor([0.0, 15.0], **KW).repeat(2)
+    q0, qd0 = ref.q_d[:1].expand(4, 3).clone(), ref.qd_d[:1].expand(4, 3).clone()
+    schedule = InertiaSchedule(torch.tensor([2.0, 0.5, 20.0], **KW), torch.tensor([0.6, 0.16, 1.0], **KW), 25.0)
+    feats = torch.randn(sc.steps + 1, 9, generator=torch.Generator().manual_seed(2), **KW) * 5.0
+
+    def batch(rate: float, growth: float, ff: list[float], k: float = 10.0) -> Stacked:
+        other = Gains(inertia_scaling=True, estimate_rate=rate, feedback_growth=growth, K=k)
+        first = _two_phase(Gains(inertia_scaling=True, K=k), sc.dt, feats, schedule)
+        return Stacked([first, _two_phase(other, sc.dt, feats * 0.5, schedule, torch.tensor(ff, **KW))], [2, 2])
+
+    a, b = batch(0.005, 3.0, [1.0, 0.0, 1.0]), batch(0.2, 1.2, [0.0, 1.0, 0.0])
+    assert len(a.units) == 1
+    key = lambda c: fingerprint(c, skip=("features",))  # noqa: E731  (chunk_key's view of a controller)
+    assert key(a) == key(b) and key(a) != key(batch(0.005, 3.0, [1.0, 0.0, 1.0], k=12.0))
+    with caplog.at_level("INFO", logger="rbfn.control.simulator"):
+        runs = [simulate(plant, c, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4, aot=True) for c in (a, b)]
+    assert sum("compiling the closed-loop step" in r.message for r in caplog.records) == 1
+    for c, run in zip((a, b), runs):
+        eager = simulate(plant, c, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4)
+        assert torch.allclose(run.tau, eager.tau, rtol=0, atol=1e-8)
+    assert not torch.allclose(runs[0].tau[:, 2:], runs[1].tau[:, 2:], atol=1e-6)
