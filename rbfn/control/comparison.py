@@ -433,10 +433,11 @@ def _choose(c: _Context, nw: _Networks) -> None:
         if candidates:
             chosen[m] = _cheapest(candidates, reference, tune, scale)
     second = [(m, chosen[m].settings._replace(feedback_growth=g)) for m in chosen for g in growths[1:]]
-    # As the first run's batch (smc beside, the last law repeated up to its count): compiled, the
-    # first run's package serves it (a package's key holds the shapes, not the laws' settings).
-    padded = second + second[-1:] * (len(first) - len(second))
-    grown, _ = run(padded, smc=True) if second else ({}, None)
+    # Compiled, as the first run's batch (smc beside, the last law repeated up to its count), so
+    # that the first run's package serves it (its key holds the shapes, not the laws' settings):
+    # on the UR5 a package is about 150 s to build, the repeats about 3 s a run.
+    padded = second + second[-1:] * (len(first) - len(second)) if c.aot else second
+    grown, _ = run(padded, smc=c.aot) if second else ({}, None)
     for m, t in chosen.items():
         others = [grown[i] for i, (name, _) in enumerate(second) if name == m and i in grown]  # not the repeats
         nw.settings[m] = _cheapest([t, *others], reference, tune, scale).settings
