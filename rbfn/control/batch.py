@@ -121,6 +121,7 @@ class TwoPhaseBatch(TwoPhase):
         width, n = first.features.shape[-1], first.schedule.base.shape[-1]
         part = torch.arange(len(parts)).repeat_interleave(torch.tensor(sizes))  # (B,) each environment's part
         self.columns = part[:, None] * width + torch.arange(width)  # (B, 3n) its features' columns
+        self._columns: dict[torch.device, torch.Tensor] = {}  # `columns` on each device a run used
         rate, cap, ff = zip(*(p.settings() for p in parts))
         ones = torch.ones(n, dtype=torch.float64)
         # Private: the state carries them (`init_state`), so a compiled package's key leaves them out
@@ -135,21 +136,13 @@ class TwoPhaseBatch(TwoPhase):
         rate, cap, ff = (t.to(q0) for t in self._settings)
         return super().init_state(q0, qd0)._replace(settings=(rate, cap, ff))
 
-    def torque(
-        self,
-        ref: Reference,
-        q: torch.Tensor,
-        qd: torch.Tensor,
-        state: TwoPhaseState,
-        *,
-        h: torch.Tensor | None = None,
-        alpha: torch.Tensor | None = None,
-        applied: Applied | None = None,
-        forces: Forces | None = None,
-    ) -> tuple[torch.Tensor, TwoPhaseState]:
-        assert h is not None  # the parts' outputs side by side (3n parts,): each environment its own
-        own = h[self.columns.to(h.device)]
-        return super().torque(ref, q, qd, state, h=own, alpha=alpha, applied=applied, forces=forces)
+    def torque(self, ref: Reference, q: torch.Tensor, qd: torch.Tensor, state: TwoPhaseState, *, h=None, **kw):
+        """`TwoPhase.torque`, each environment given its own part's columns of h (3n parts,)."""
+        assert h is not None
+        cols = self._columns.get(h.device)
+        if cols is None:  # once a device, not once a period
+            cols = self._columns[h.device] = self.columns.to(h.device)
+        return super().torque(ref, q, qd, state, h=h[cols], **kw)
 
 
 class Stacked(Controller):

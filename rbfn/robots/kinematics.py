@@ -527,10 +527,10 @@ def compose(steps: Sequence[_Step], th: torch.Tensor, jacobian: bool):
     if not jacobian:
         return rot, pos_b, None
     zero = th.new_zeros(3, b)
-    kinds = [axes.get(j, (0, zero, zero))[0] for j in range(n)]
-    z = torch.stack([axes.get(j, (0, zero, zero))[1] for j in range(n)], 1)  # (3, n, B)
+    kinds, zs, origins = zip(*(axes.get(j, (0, zero, zero)) for j in range(n)))  # a joint without a frame: 0
+    z = torch.stack(zs, 1)  # (3, n, B)
     if any(k == 1 for k in kinds):
-        d = pos[:, None] - torch.stack([axes.get(j, (0, zero, zero))[2] for j in range(n)], 1)
+        d = pos[:, None] - torch.stack(origins, 1)
         lin = torch.stack([z[1] * d[2] - z[2] * d[1], z[2] * d[0] - z[0] * d[2], z[0] * d[1] - z[1] * d[0]])
     else:
         lin = z
