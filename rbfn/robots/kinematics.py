@@ -424,7 +424,7 @@ class _Step(NamedTuple):
 
 
 FK_BLOCK = 4096  # rows a block of `forward_kinematics_pose` and `jacobian_and_pose`
-_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # chain -> (dtype, device, steps)
+_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # chain -> {(dtype, device): steps}
 
 
 def axis_frame(axis: torch.Tensor) -> torch.Tensor:
@@ -439,15 +439,16 @@ def axis_frame(axis: torch.Tensor) -> torch.Tensor:
     return torch.stack([x, torch.linalg.cross(z, x), z], 1)
 
 
-def _steps(chain: pk.SerialChain) -> list[_Step]:
-    """The chain's frames root -> end link as `_Step`s in its dtype and on its device (cached per
-    chain, rebuilt when it moves): runs of fixed frames folded into the next, each joint's frame
+def _steps(chain: pk.SerialChain, dtype: torch.dtype | None = None) -> list[_Step]:
+    """The chain's frames root -> end link as `_Step`s in `dtype` (None: the chain's) and on its
+    device (cached per chain, dtype and device): runs of fixed frames folded into the next, each joint's frame
     turned by Q = `axis_frame(axis)` (T = F Q Rz(q) Q^T F' ... : the fixed transform before a joint
     takes Q on its right, the one after it Q^T on its left), and a last fixed step that turns the
     end link's frame back."""
-    hit = _STEPS.get(chain)
-    if hit is not None and hit[0] == chain.dtype and hit[1] == chain.device:
-        return hit[2]
+    key = (dtype or chain.dtype, chain.device)
+    hit = _STEPS.setdefault(chain, {}).get(key)
+    if hit is not None:
+        return hit
     names = chain.get_joint_parameter_names()
     eye = torch.eye(4, dtype=torch.float64)
 
@@ -473,9 +474,9 @@ def _steps(chain: pk.SerialChain) -> list[_Step]:
         pending[:3, :3] = q.T
     if not steps or not torch.equal(pending, torch.eye(4, dtype=torch.float64)):
         steps.append(_Step(torch.cat([pending[:3, :3].T, pending[None, :3, 3]]), 0, -1))
-    kw: dict[str, Any] = {"dtype": chain.dtype, "device": chain.device}
+    kw: dict[str, Any] = {"dtype": key[0], "device": key[1]}
     steps = [st._replace(move=st.move.to(**kw)) for st in steps]
-    _STEPS[chain] = (chain.dtype, chain.device, steps)
+    _STEPS[chain][key] = steps
     return steps
 
 

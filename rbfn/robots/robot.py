@@ -13,6 +13,7 @@ import reprlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import pytorch_kinematics as pk
 import torch
@@ -20,6 +21,8 @@ from pytorch_kinematics import transforms as tf
 
 from ..config import RobotConfig, Target, finite
 from .kinematics import (
+    _steps,
+    compose,
     forward_kinematics_pose,
     jacobian_and_pose,
     joint_limits,
@@ -29,6 +32,7 @@ from .kinematics import (
 )
 
 __all__ = [
+    "Frame",
     "check_ik_is_function",
     "Robot",
     "check_joint_values",
@@ -84,6 +88,15 @@ def rotation_vector(r: torch.Tensor) -> torch.Tensor:
     axis = col / col.norm(dim=-1, keepdim=True).clamp(min=torch.finfo(r.dtype).tiny)
     axis = torch.where((axis * v).sum(-1, keepdim=True) < 0.0, -axis, axis)
     return torch.where((cos < 0.0)[:, None], axis * angle[:, None], near)
+
+
+class Frame(NamedTuple):
+    """The end link at a batch of joints (`Robot.frame`): rotations (B, 3, 3), positions (B, 3) m,
+    and where asked the task Jacobian (B, 3 or 6, n) over the free joints (else None)."""
+
+    rot: torch.Tensor
+    pos: torch.Tensor
+    jac: torch.Tensor | None
 
 
 @dataclass
@@ -170,6 +183,17 @@ class Robot:
         jac, pose = jacobian_and_pose(self.chain, self.full_joints(q))
         jac = jac[:, :, self.free] if self.target == Target.pose else jac[:, :3, self.free]
         return (jac, pose) if with_pose else jac
+
+    def frame(self, q: torch.Tensor, jacobian: bool = False) -> Frame:
+        """`Frame` at the free joints q (B, n), in q's dtype (float32 or float64): `pose` and
+        `jacobian` without the 4 x 4 poses or blocks (the polish's form, a block of rows at a time)."""
+        th = self.full_joints(q) if self.locked else q
+        rot, pos, jac = compose(_steps(self.chain, q.dtype), th, jacobian)
+        if jac is not None:
+            jac = jac[:, : 6 if self.target == Target.pose else 3]
+            if self.locked:
+                jac = jac[:, :, self.free]
+        return Frame(rot, pos, jac)
 
     def errors(self, q_hat: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(position error (B,) in mm, rotation error (B,) in degrees or None for position targets)
