@@ -9,6 +9,7 @@ URDF's order along the chain; `locked` joints are held at their values.
 
 from __future__ import annotations
 
+import math
 import reprlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -57,16 +58,11 @@ def pose_targets(pose: torch.Tensor) -> torch.Tensor:
 
 
 def rotation_error_deg(r_hat: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
-    """Angle (B,) in degrees of the rotation between rotation matrices r_hat and r (B, 3, 3)."""
-    d = r_hat.transpose(-1, -2) @ r
-    cos = (d.diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0) / 2.0
-    sin = (
-        torch.stack([d[..., 2, 1] - d[..., 1, 2], d[..., 0, 2] - d[..., 2, 0], d[..., 1, 0] - d[..., 0, 1]], -1).norm(
-            dim=-1
-        )
-        / 2.0
-    )
-    return torch.rad2deg(torch.atan2(sin, cos))
+    """Angle (B,) in degrees of the rotation between rotation matrices r_hat and r (B, 3, 3), from
+    their chordal distance |r_hat - r|_F = 2 sqrt(2) sin(angle / 2): elementwise, no product of
+    the matrices (as exact as the angle from that product's trace and skew part, to rounding)."""
+    chord = (r_hat - r).square().sum((-1, -2)).sqrt() / (2.0 * math.sqrt(2.0))
+    return torch.rad2deg(2.0 * torch.asin(chord.clamp(max=1.0)))
 
 
 def rotation_vector(r: torch.Tensor) -> torch.Tensor:
@@ -193,7 +189,7 @@ class Robot:
             jac = jac[:, : 6 if self.target == Target.pose else 3]
             if self.locked:
                 jac = jac[:, :, self.free]
-        return Frame(rot, pos, jac)
+        return Frame(rot.contiguous(), pos.contiguous(), jac)  # (reductions over a batch-last view are slow)
 
     def errors(self, q_hat: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(position error (B,) in mm, rotation error (B,) in degrees or None for position targets)
