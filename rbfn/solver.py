@@ -54,10 +54,12 @@ __all__ = [
 DEFAULT_ITERATIONS = 3
 MAX_ITERATIONS = 1000  # per call and per restart: a guard against typos (the polish converges in a few)
 STEP_SCALES = (2.0, 1.4, 1.0, 0.6, 0.3)  # the line search's multiples of a step (measured on the UR5)
-# The solver's line search tries two besides the full step: the longer where the full step reduced the
-# error too little, the shorter where it made it worse (the exported graph, without branches, tries all).
-# Against trying all four: half the forward kinematics, 8-15 % more solves/s on the UR5, Panda and iiwa
-# (3 % on the KR10), as many solved within one pose in 10 000 (test stream of seed 3 and evaluation stream).
+# A charted solve's line search tries two besides the full step: the longer where the full step reduced
+# the error too little, the shorter where it made it worse. Against trying all four: half the forward
+# kinematics, 8-15 % more solves/s on the UR5, Panda and iiwa (3 % on the KR10), as many solved within one
+# pose in 10 000 (test stream of seed 3 and evaluation stream): a target its chart misses tries the next.
+# A box network's 3 steps are all it has: it tries all four (two: UR5 box 99.27 -> 99.18 %), as does the
+# exported graph (no branches).
 LONGER, SHORTER = STEP_SCALES[:2], STEP_SCALES[3:]
 # lambda's error-dependent part, lambda = damping + c |e|^2 (e: position in m, rotation in rad), off by
 # default. Measured on UR5 poses over the whole joint range (5 % of them with sigma_min of J below 0.004,
@@ -295,17 +297,18 @@ class IKSolver:
         dq = J^T (J J^T + lambda I)^-1 e, lambda = damping + error_damping |e|^2, shortened to at
         most `max_step` per joint. Where the full step leaves more than PROGRESS of the error (mm /
         tol_mm + deg / tol_deg), a line search: q + a dq for a in SHORTER where the full step made
-        the error worse, in LONGER where it reduced it too little (each within the polish's joint
-        range), the one nearest the target kept. Near a singular configuration the full Gauss-
+        the error worse, in LONGER where it reduced it too little (a box network: in both), each
+        within the polish's joint range, the one nearest the target kept. Near a singular configuration the full Gauss-
         Newton step overshoots (the first step from a far network answer multiplied the error
         threefold); the search takes the shorter step there and the longer one where the error is
         curved the other way. A step costs one Jacobian (its pose gives the error after the step, and
-        the next step's Jacobian), plus two forward kinematics for the rows searched, and a Jacobian
-        for those of them a shorter or longer step moves."""
+        the next step's Jacobian), plus two forward kinematics (a box network: four) for the rows
+        searched, and a Jacobian for those of them a shorter or longer step moves."""
         low, high = self.low.to(q.device), self.high.to(q.device)
         low, high = low.to(q.dtype), high.to(q.dtype)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=q.dtype, device=q.device)
         longer, shorter = (torch.tensor(a, dtype=q.dtype, device=q.device) for a in (LONGER, SHORTER))
+        every = torch.cat([longer, shorter])
         e, jac = state[0], state[1]
         if hold is not None:
             jac = jac.clone()
@@ -335,8 +338,11 @@ class IKSolver:
         now, before = self._tolerances(after), self._tolerances(state)
         slow = (now > PROGRESS * before).nonzero().squeeze(-1)
         if slow.numel():  # the full step's error is `after`'s; the other multiples by forward kinematics
-            m, n, s = slow.numel(), q.shape[1], len(LONGER)
-            scales = torch.where((now[slow] > before[slow])[:, None], shorter, longer)  # (m, s)
+            if self.charted:
+                scales = torch.where((now[slow] > before[slow])[:, None], shorter, longer)  # (m, s)
+            else:
+                scales = every.expand(slow.numel(), -1)
+            m, n, s = slow.numel(), q.shape[1], scales.shape[1]
             trials = (q[slow, None] + scales[:, :, None] * dq[slow, None]).clamp(low, high)  # (m, s, n)
             cost = self._cost(trials.reshape(m * s, n), goal[slow].repeat_interleave(s, 0)).reshape(m, s)
             best = torch.cat([cost, self._tolerances(after)[slow, None]], 1).argmin(-1)
