@@ -103,6 +103,28 @@ def test_a_settling_polish_stops_each_target_once_it_converges(ur5_run):
     assert int(ok.sum()) >= int(ok_all.sum()) - 2 and not torch.equal(q_all[:50], start[:50])
 
 
+def test_a_settling_polish_gives_up_on_answers_still_far_after_its_give_up_step(ur5_run, monkeypatch):
+    """Targets far out of reach (positions 5 m away) stop stepping after `GIVE_UP_STEP` steps of a
+    longer settling polish; a polish of no more steps than that, or one that does not settle, takes
+    them all."""
+    import rbfn.solver as solver_module
+
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, _ = _targets(20, seed=7)
+    far = split.x.clone()
+    far[:, :3] += 5.0
+    start = solver.network(split.x)[0]
+    steps = []
+    step = solver._step
+    monkeypatch.setattr(solver, "_step", lambda q, *a: steps.append(q.shape[0]) or step(q, *a))
+    _, ok = solver._polish(start, far, 10, settle=True)
+    assert steps == [20] * solver_module.GIVE_UP_STEP and not bool(ok.any())
+    steps.clear()
+    solver._polish(start, far, solver_module.GIVE_UP_STEP, settle=True)
+    solver._polish(start, far, 4)
+    assert steps == [20] * (solver_module.GIVE_UP_STEP + 4)
+
+
 def test_the_last_round_tries_only_the_charts_not_yet_tried():
     from rbfn.solver import _untried
 
