@@ -298,12 +298,13 @@ class IKSolver:
         most `max_step` per joint. Where the full step leaves more than PROGRESS of the error (mm /
         tol_mm + deg / tol_deg), a line search: q + a dq for a in SHORTER where the full step made
         the error worse, in LONGER where it reduced it too little (a box network: in both), each
-        within the polish's joint range, the one nearest the target kept. Near a singular configuration the full Gauss-
-        Newton step overshoots (the first step from a far network answer multiplied the error
-        threefold); the search takes the shorter step there and the longer one where the error is
-        curved the other way. A step costs one Jacobian (its pose gives the error after the step, and
-        the next step's Jacobian), plus two forward kinematics (a box network: four) for the rows
-        searched, and a Jacobian for those of them a shorter or longer step moves."""
+        within the polish's joint range, the one nearest the target kept. Near a singular
+        configuration the full Gauss-Newton step overshoots (the first step from a far network
+        answer multiplied the error threefold); the search takes the shorter step there and the
+        longer one where the error is curved the other way. A step costs one Jacobian (its pose
+        gives the error after the step, and the next step's Jacobian), plus two forward kinematics
+        (a box network: four) for the rows searched, and a Jacobian for those of them a shorter or
+        longer step moves."""
         low, high = self.low.to(q.device), self.high.to(q.device)
         low, high = low.to(q.dtype), high.to(q.dtype)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=q.dtype, device=q.device)
@@ -437,7 +438,8 @@ class IKSolver:
         near=None,
         redundancy=None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math).
+        """Joints (B, n) float64 and converged (B,) bool for targets (B, 3) or (B, 7) (float64 math;
+        a charted network's polish in `POLISH_DTYPE`, every answer then checked in float64).
 
         iterations: polish steps on each answer's path; None: `DEFAULT_ITERATIONS` (3), or for a
         charted network (`rbfn.charts`) `CHARTED_ITERATIONS` (5: its seeds are farther).
@@ -625,7 +627,8 @@ class IKSolver:
         charts it needs: measured on the UR5 (64 charts, whole-range poses), 73 % converge from the
         first chart, and a pose polishes about 1.5 chart answers (the staged polish this replaced
         polished 14 answer steps a pose, the best 4 of 16 ranked by forward kinematics 2 steps and
-        the best 2 of them 3 more)."""
+        the best 2 of them 3 more). The polish runs in `POLISH_DTYPE`; the answers come back in
+        float64, checked there, the few float32 left short of the tolerances polished again."""
         x64, x = x, x.to(POLISH_DTYPE)
         near_q = None if near_q is None else near_q.to(POLISH_DTYPE)
         b, dev, rows = x.shape[0], x.device, self.block_rows
