@@ -228,14 +228,18 @@ class IKSolver:
         e_rot = rotation_vector(goal[:, 3:].reshape(-1, 3, 3) @ rot.transpose(-1, -2))  # world frame
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
+    def _pose_errors(self, q: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(position error (B,) mm, rotation error (B,) deg or None) of joints q (B, n) against `goals`
+        rows (B, 3 or 12), by forward kinematics only."""
+        rot, pos, _ = self.robot.frame(q)
+        mm = (pos - goal[:, :3]).norm(dim=-1) * 1000.0
+        return mm, rotation_error_deg(rot, goal[:, 3:].reshape(-1, 3, 3)) if self.pose_target else None
+
     def _cost(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Error (B,) of joints q (B, n) against `goals` rows (B, 3 or 12) in tolerances: mm / tol_mm +
         deg / tol_deg (forward kinematics only)."""
-        rot, pos, _ = self.robot.frame(q)
-        cost = (pos - goal[:, :3]).norm(dim=-1) * (1000.0 / self.tol_mm)
-        if not self.pose_target:
-            return cost
-        return cost + rotation_error_deg(rot, goal[:, 3:].reshape(-1, 3, 3)) / self.tol_deg
+        mm, deg = self._pose_errors(q, goal)
+        return mm / self.tol_mm + (deg / self.tol_deg if deg is not None else 0.0)
 
     def _polish(
         self,
@@ -276,11 +280,8 @@ class IKSolver:
 
     def _reached(self, q: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """(B,) bool: joints q (B, n) within `tol_mm` and `tol_deg` of `goals` rows (forward kinematics only)."""
-        rot, pos, _ = self.robot.frame(q)
-        ok = (pos - goal[:, :3]).norm(dim=-1) * 1000.0 <= self.tol_mm
-        if self.pose_target:
-            ok &= rotation_error_deg(rot, goal[:, 3:].reshape(-1, 3, 3)) <= self.tol_deg
-        return ok
+        mm, deg = self._pose_errors(q, goal)
+        return mm <= self.tol_mm if deg is None else (mm <= self.tol_mm) & (deg <= self.tol_deg)
 
     def _converged(self, errors: tuple) -> torch.Tensor:
         """(B,) bool: `_errors`' position and rotation errors within `tol_mm` and `tol_deg`."""
@@ -305,11 +306,8 @@ class IKSolver:
         gives the error after the step, and the next step's Jacobian), plus two forward kinematics
         (a box network: four) for the rows searched, and a Jacobian for those of them a shorter or
         longer step moves."""
-        low, high = self.low.to(q.device), self.high.to(q.device)
-        low, high = low.to(q.dtype), high.to(q.dtype)
+        low, high = self.low.to(q.device, q.dtype), self.high.to(q.device, q.dtype)
         eye = torch.eye(3 if not self.pose_target else 6, dtype=q.dtype, device=q.device)
-        longer, shorter = (torch.tensor(a, dtype=q.dtype, device=q.device) for a in (LONGER, SHORTER))
-        every = torch.cat([longer, shorter])
         e, jac = state[0], state[1]
         if hold is not None:
             jac = jac.clone()
@@ -339,10 +337,11 @@ class IKSolver:
         now, before = self._tolerances(after), self._tolerances(state)
         slow = (now > PROGRESS * before).nonzero().squeeze(-1)
         if slow.numel():  # the full step's error is `after`'s; the other multiples by forward kinematics
-            if self.charted:
-                scales = torch.where((now[slow] > before[slow])[:, None], shorter, longer)  # (m, s)
+            if self.charted:  # (m, s)
+                worse = (now[slow] > before[slow])[:, None]
+                scales = torch.where(worse, q.new_tensor(SHORTER), q.new_tensor(LONGER))
             else:
-                scales = every.expand(slow.numel(), -1)
+                scales = q.new_tensor(LONGER + SHORTER).expand(slow.numel(), -1)
             m, n, s = slow.numel(), q.shape[1], scales.shape[1]
             trials = (q[slow, None] + scales[:, :, None] * dq[slow, None]).clamp(low, high)  # (m, s, n)
             cost = self._cost(trials.reshape(m * s, n), goal[slow].repeat_interleave(s, 0)).reshape(m, s)

@@ -172,24 +172,23 @@ class Robot:
         pose = self.pose(q)
         return pose_targets(pose) if self.target == Target.pose else pose[:, :3, 3]
 
-    def jacobian(self, q: torch.Tensor, with_pose: bool = False):
+    def jacobian(self, q: torch.Tensor) -> torch.Tensor:
         """Task Jacobian (B, 3 or 6, n) at the free joints q (B, n), root frame: the end link's
-        linear velocity (m per rad or m of joint) and, for pose targets, its angular velocity below;
-        with `with_pose`, (Jacobian, end-link poses (B, 4, 4))."""
-        jac, pose = jacobian_and_pose(self.chain, self.full_joints(q))
-        jac = jac[:, :, self.free] if self.target == Target.pose else jac[:, :3, self.free]
-        return (jac, pose) if with_pose else jac
+        linear velocity (m per rad or m of joint) and, for pose targets, its angular velocity below."""
+        return self._task(jacobian_and_pose(self.chain, self.full_joints(q))[0]).contiguous()
+
+    def _task(self, jac: torch.Tensor) -> torch.Tensor:
+        """The task's rows (3 or 6) and the free joints' columns of a chain's geometric Jacobian (B, 6, n_chain)."""
+        jac = jac[:, : 6 if self.target == Target.pose else 3]
+        return jac[:, :, self.free] if self.locked else jac
 
     def frame(self, q: torch.Tensor, jacobian: bool = False) -> Frame:
         """`Frame` at the free joints q (B, n), in q's dtype (float32 or float64): `pose` and
         `jacobian` without the 4 x 4 poses or blocks (the polish's form, a block of rows at a time)."""
         th = self.full_joints(q) if self.locked else q
         rot, pos, jac = compose(_steps(self.chain, q.dtype), th, jacobian)
-        if jac is not None:
-            jac = jac[:, : 6 if self.target == Target.pose else 3]
-            if self.locked:
-                jac = jac[:, :, self.free]
-        return Frame(rot.contiguous(), pos.contiguous(), jac)  # (reductions over a batch-last view are slow)
+        # contiguous: reductions over a batch-last view are slow
+        return Frame(rot.contiguous(), pos.contiguous(), None if jac is None else self._task(jac))
 
     def errors(self, q_hat: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(position error (B,) in mm, rotation error (B,) in degrees or None for position targets)

@@ -87,7 +87,7 @@ def test_frame_is_the_pose_and_task_jacobian_in_the_joints_dtype(name, locked):
     robot = load_robot(compose_config("train", f"robot={name}", *locked).robot)
     g = torch.Generator().manual_seed(3)
     q = robot.low + (robot.high - robot.low) * torch.rand(64, len(robot.joint_names), generator=g, dtype=torch.float64)
-    jac, pose = robot.jacobian(q, with_pose=True)
+    jac, pose = robot.jacobian(q), robot.pose(q)
     for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 1e-5)):
         frame = robot.frame(q.to(dtype), jacobian=True)
         assert frame.rot.dtype == frame.pos.dtype == frame.jac.dtype == dtype
