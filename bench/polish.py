@@ -42,7 +42,7 @@ def rate_row(method: str, n: int, seconds: float, ok: torch.Tensor) -> dict:
 def polish_row(solver, x: torch.Tensor, iterations: int | None, restarts: int = 0, repeats: int = 5, **solve) -> dict:
     """Queries/s and success of `solver.solve(x, iterations, restarts, **solve)` (median of
     `repeats` runs; `solve`: its other keywords, e.g. a redundant joint's `redundancy`)."""
-    t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts, **solve), repeats)
+    t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts, **solve), repeats, str(x.device))
     _, ok = solver.solve(x, iterations, restarts, **solve)
     more = f", up to {restarts} restarts of the rest" if restarts else ""
     steps = iterations if iterations is not None else solver.default_iterations

@@ -1,6 +1,7 @@
 """The default (realistic) closed loop's speed: one scenario of `smc_obs` as evaluate.py configures
 it for --robot (loop=realistic, the robot's realistic gains, float64, half the rated payload
-inside the window), at B environments, eager or compiled ahead of time (`control.aot`), against
+inside the window), at B environments on --device, eager, torch.compile'd in the process
+(`compile`) or compiled ahead of time (`aot`, `control.aot`), against
 a plain numpy RK4 loop (the SCARA) and MuJoCo's single-environment rate of the same URDF (arms).
 
     python -m bench.realistic_loop --robot scara --batches 1 --modes eager,aot --duration 10
@@ -23,10 +24,10 @@ import time
 
 import torch
 
-from bench.timing import median_seconds
+from bench.timing import median_seconds, sync
 
 
-def setup(robot: str, b: int, duration: float) -> dict:
+def setup(robot: str, b: int, duration: float, device: str = "cpu") -> dict:
     """evaluate.py's closed loop for `robot`: the arguments of `simulate` (smc_obs, loop=realistic)."""
     from bench.tuning_time import evaluation_config
     from rbfn.control.controllers import make_controller
@@ -38,12 +39,12 @@ def setup(robot: str, b: int, duration: float) -> dict:
 
     cfg = evaluation_config(robot, [])
     c, gains = cfg.control, cfg.gains
-    kw: dict = {"dtype": torch.float64, "device": "cpu"}
+    kw: dict = {"dtype": torch.float64, "device": device}
     rob = control_robot(cfg.robot, c)
     on, off = c.payload_on * duration / c.duration, c.payload_off * duration / c.duration
     sc = Scenario(duration, c.dt, str(c.integrator), on, off, 0.0)
     ref = Reference(*rob.trajectory(sc.times(torch.float64))).to(**kw)
-    effort = torch.tensor(rob.effort if rob.effort is not None else [float("inf")] * rob.n)
+    effort = torch.tensor(rob.effort if rob.effort is not None else [float("inf")] * rob.n, device=device)
     loop = real_loop(cfg.loop, sc.dt, rob.prismatic, effort, rob.joint_scale(**kw))
     assert loop is not None, "evaluate.py's default loop is the realistic one"
     factors = rob.gain_factors(gains, loop, dt=sc.dt, **kw)
@@ -63,22 +64,25 @@ def setup(robot: str, b: int, duration: float) -> dict:
     }
 
 
-def row(robot: str, mode: str, b: int, duration: float, chunk: int, repeats: int) -> dict:
+def row(robot: str, mode: str, b: int, duration: float, chunk: int, repeats: int, device: str = "cpu") -> dict:
     from rbfn.control.simulator import simulate
 
-    args = setup(robot, b, duration)
-    kw = {"aot": mode == "aot", "chunk": chunk}
+    args = setup(robot, b, duration, device)
+    kw = {"aot": mode == "aot", "compile": mode == "compile", "chunk": chunk}
+    sync(device)
     t0 = time.perf_counter()
     first = simulate(**args, **kw)
+    sync(device)
     out: dict = {
         "robot": robot,
         "mode": mode,
         "B": b,
+        "device": device,
         "chunk": chunk or "default",
         "duration": duration,
         "first_s": round(time.perf_counter() - t0, 3),
     }
-    t, _ = median_seconds(lambda: simulate(**args, **kw), repeats, warmup=0)
+    t, _ = median_seconds(lambda: simulate(**args, **kw), repeats, device, warmup=0)
     steps = args["scenario"].steps
     out.update(run_s=round(t, 4), env_steps_per_s=round(b * steps / t))
     if mode != "eager":
@@ -104,13 +108,19 @@ def main() -> None:
     p.add_argument("--duration", type=float, default=10.0)
     p.add_argument("--chunk", type=int, default=0, help="periods per call (0: 100 eager, the backend's compiled)")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--device", default="cpu", help="where the closed loop runs (MuJoCo and numpy on the CPU)")
     a = p.parse_args()
+    bad = sorted(set(a.modes.split(",")) - {"eager", "compile", "aot"})
+    if bad:
+        p.error(f"--modes {a.modes!r}: {', '.join(bad)} unknown; use eager, compile and aot, comma-separated")
     torch.set_num_threads(1)
     info = {"threads": torch.get_num_threads(), "load_average": os.getloadavg(), "torch": torch.__version__}
+    if a.device != "cpu":
+        info["gpu"] = torch.cuda.get_device_name(torch.device(a.device))
     print(json.dumps(info), flush=True)
     for b in [int(x) for x in a.batches.split(",")]:
         for mode in a.modes.split(","):
-            print(json.dumps(row(a.robot, mode, b, a.duration, a.chunk, a.repeats)), flush=True)
+            print(json.dumps(row(a.robot, mode, b, a.duration, a.chunk, a.repeats, a.device)), flush=True)
     if a.robot == "scara":
         from bench.simulator import numpy_rk4_row
 

@@ -6,6 +6,7 @@ checkpoint's trained box, and of joints drawn over the free joints' whole URDF r
 (`rbfn.data.full_range_split`, evaluation stream of seed 0), where every branch occurs.
 
     python -m bench.tracik CHECKPOINT [--n 10000] [--iterations K] [--restarts R] [--tracik-n 1000] [--timeout 0.02]
+                          [--device cuda]   # our solver on a GPU, TRAC-IK on the CPU
 
 TRAC-IK runs in its Speed mode (its first solution within `--timeout` s, wall time, so the
 machine must be quiet), seeded with the middle of the joint limits; held joints (`robot.locked`)
@@ -72,7 +73,7 @@ def tracik_row(robot, x: torch.Tensor, timeout: float) -> dict:
         out = np.asarray(pytracik.ik(solver, seed, p[0], p[1], p[2], p[4], p[5], p[6], p[3]))
         answers[i] = out[1:] if out[0] > 0 else np.nan
     seconds = time.perf_counter() - t0
-    q = torch.from_numpy(answers)[:, robot.free]
+    q = torch.from_numpy(answers).to(x.device)[:, robot.free]
     found = ~torch.isnan(q).any(-1)
     pos, rot = robot.errors(torch.nan_to_num(q), x)
     ok = found & (pos <= 0.1) & (rot <= 0.1)
@@ -89,13 +90,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--timeout", type=float, default=0.02, help="TRAC-IK's wall-time limit a pose, s")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--device", default="cpu", help="where our solver runs (TRAC-IK runs on the CPU)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    solver = load_solver(args.checkpoint)
+    solver = load_solver(args.checkpoint, device=args.device)
     robot = solver.robot
     if robot.target != "pose":
         raise SystemExit("bench.tracik compares pose IK: this checkpoint's targets are positions")
-    print(json.dumps({"machine": machine_info("cpu", args.threads)}))
+    print(json.dumps({"machine": machine_info(args.device, args.threads)}))
     rows = []
     for name, split in (
         ("trained box", evaluation_split(robot, args.n, 0)),
@@ -108,7 +110,7 @@ def main(argv: list[str] | None = None) -> None:
         same = solver.solve(x[:m], args.iterations, args.restarts, redundancy=None if value is None else value[:m])[1]
         ours["success_on_tracik_poses"] = float(same.double().mean())
         for row in (ours, theirs):
-            row.update(poses=name, threads=args.threads)
+            row.update(poses=name, threads=args.threads, device=args.device if row is ours else "cpu")
             rows.append(row)
             print(json.dumps(row), flush=True)
         print(f"# {name}: {ours['queries_per_s'] / theirs['queries_per_s']:.2f}x TRAC-IK's solves/s")
