@@ -14,6 +14,7 @@ written atomically; the directory is $ACO_RBFN_CACHE/aot, default ~/.cache/aco-r
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import enum
 import functools
@@ -33,12 +34,72 @@ import torch
 # name, not a documented API. The package's call spec is serialised in this module's format.
 import torch.utils._pytree as pytree
 
-__all__ = ["ahead_of_time", "cache_dir", "fingerprint", "chunk_key", "aot_chunk", "serializable", "map_tensors"]
+__all__ = [
+    "ahead_of_time",
+    "cache_dir",
+    "fingerprint",
+    "chunk_key",
+    "aot_chunk",
+    "Package",
+    "serializable",
+    "map_tensors",
+    "rebuilder",
+]
 
 _SOURCES = ("control", "robots")  # packages whose code the chunk runs
 
 
 ENV = "ACO_RBFN_AOT"  # what `auto` means: 1 compiled ahead of time, 0 eager; unset: by device
+
+# A package of one environment keeps its temporaries in arrays on the C++ stack, not on the heap:
+# at B = 1 the UR5's period made 394 heap allocations, which took most of its time (4.3x faster
+# so; bench.realistic_loop, docs/benchmarks.md). AOTInductor does so only where every temporary
+# has a static shape, their total is under its cap (100 kB: the UR5's period holds 65 kB at
+# B = 1) and the graph calls no op outside the generated code (the chain's running sums are
+# written as additions when compiled for this: rbfn.robots.arm_terms). With more environments the
+# option is off: over the cap it would fall back to the heap, and such a package (UR5, B = 64)
+# crashed at its first call in torch 2.13.
+STACK_ENVS = 1
+STACK_CONFIGS = {"aot_inductor.allow_stack_allocation": True}
+
+
+def _stack_configs(envs: int) -> dict:
+    """Inductor's options for a package of `envs` environments (`_cpu_wrapper` builds by them)."""
+    return STACK_CONFIGS if envs <= STACK_ENVS and _wrappers() is not None else {}
+
+
+def _wrappers() -> tuple[Any, type, type] | None:
+    """Inductor's table of code generators by device and its two CPU wrapper generators (heap,
+    stack), or None where this torch lacks them."""
+    try:
+        from torch._inductor.codegen import common
+        from torch._inductor.codegen.cpp_wrapper_cpu import CppWrapperCpu
+        from torch._inductor.codegen.cpp_wrapper_cpu_array_ref import CppWrapperCpuArrayRef
+    except ImportError:
+        return None
+    if not hasattr(common, "device_codegens") or not hasattr(common, "init_backend_registration"):
+        return None
+    return common, CppWrapperCpu, CppWrapperCpuArrayRef
+
+
+@contextlib.contextmanager
+def _cpu_wrapper(configs: dict) -> Iterator[None]:
+    """Build with the CPU wrapper generator that `configs` asks for. Inductor registers it once
+    per process, by the stack option's value at the first build (torch 2.13): unchosen, a package of
+    many environments built after one of one environment took the stack's generator, and crashed."""
+    found = _wrappers()
+    if found is None:
+        yield
+        return
+    common, heap, stack = found
+    common.init_backend_registration()
+    before = common.device_codegens["cpu"]
+    chosen = stack if configs.get("aot_inductor.allow_stack_allocation") else heap
+    common.device_codegens["cpu"] = dataclasses.replace(before, cpp_wrapper_codegen=chosen)
+    try:
+        yield
+    finally:
+        common.device_codegens["cpu"] = before
 
 
 def ahead_of_time(setting: Any, device: torch.device | str, compile: bool = False) -> bool:
@@ -158,10 +219,10 @@ class _Chunk(torch.nn.Module):
         return self.run(loop, periods)
 
 
-def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None] | None = None) -> Callable:
+def aot_chunk(run: Callable, key: str, example: tuple, envs: int, log: Callable[[str], None] | None = None) -> Callable:
     """`run` (a `make_chunk` function) as the AOTInductor package cached under `key`, built from
-    the `example` arguments (loop, periods) on a miss (minutes); returns a function with run's
-    signature."""
+    the `example` arguments (loop, periods) of `envs` environments on a miss (minutes); returns a
+    function with run's signature."""
     path = cache_dir() / f"chunk-{key}.pt2"
     if not path.is_file():
         with warnings.catch_warnings():
@@ -169,12 +230,13 @@ def aot_chunk(run: Callable, key: str, example: tuple, log: Callable[[str], None
             # when it pickles the program's input spec, and `torch._prims_common.check`'s).
             warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
             warnings.filterwarnings("ignore", message=r".*_prims_common\.check.*deprecated", category=FutureWarning)
-            _build(run, path, example, log)
+            _build(run, path, example, _stack_configs(envs), log)
     return _load(path)
 
 
-def _build(run: Callable, path: Path, example: tuple, log: Callable[[str], None] | None) -> None:
-    """Export `run` at `example` and write its AOTInductor package to `path` atomically."""
+def _build(run: Callable, path: Path, example: tuple, configs: dict, log: Callable[[str], None] | None) -> None:
+    """Export `run` at `example` and write its AOTInductor package, built with Inductor's
+    `configs`, to `path` atomically."""
     if log:
         log(f"compiling the closed-loop step ahead of time into {path} (a minute or two, once per configuration)")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -193,7 +255,8 @@ def _build(run: Callable, path: Path, example: tuple, log: Callable[[str], None]
     level = lowering.level
     lowering.setLevel(logging.ERROR)
     try:
-        torch._inductor.aoti_compile_and_package(program, package_path=tmp)
+        with _cpu_wrapper(configs):
+            torch._inductor.aoti_compile_and_package(program, package_path=tmp, inductor_configs=dict(configs))
         os.replace(tmp, path)
     finally:
         lowering.setLevel(level)
@@ -201,8 +264,25 @@ def _build(run: Callable, path: Path, example: tuple, log: Callable[[str], None]
             os.unlink(tmp)
 
 
+class Package:
+    """A loaded package: called with the chunk's arguments it returns the chunk's output tree;
+    `flat` takes and returns the tensors alone, in pytree's leaf order, for a caller that keeps
+    them flat between chunks (`rbfn.control.simulator.run_chunks`), and `out_spec` is the
+    output's structure."""
+
+    def __init__(self, loader: Any, out_spec: pytree.TreeSpec) -> None:
+        self.flat: Callable[[list[torch.Tensor]], list[torch.Tensor]] = loader.boxed_run
+        self.out_spec = out_spec
+        self._rebuild = rebuilder(out_spec)
+
+    def __call__(self, *args: Any) -> Any:
+        flat: list[torch.Tensor] = []
+        map_tensors(flat.append, args)  # in pytree's leaf order
+        return self._rebuild(iter(self.flat(flat)))
+
+
 def _load(path: Path) -> Callable:
-    """The package at `path` as a function of the chunk's arguments.
+    """The package at `path` as a function of the chunk's arguments (a `Package`).
 
     Through torch's package loader directly where this torch has it: torch's own
     `aoti_load_package` first imports the compiler and probes the CPU's vector extensions in
@@ -213,15 +293,7 @@ def _load(path: Path) -> Callable:
         out_spec = pytree.treespec_loads(loader.get_call_spec()[1])
     except (AttributeError, TypeError, RuntimeError):
         return torch._inductor.aoti_load_package(str(path))
-
-    rebuild = _rebuilder(out_spec)
-
-    def run(*args):
-        flat: list[torch.Tensor] = []
-        map_tensors(flat.append, args)  # in pytree's leaf order
-        return rebuild(iter(loader.boxed_run(flat)))
-
-    return run
+    return Package(loader, out_spec)
 
 
 # A package of one short chunk runs in a few hundred microseconds: pytree's generic flatten and
@@ -248,11 +320,11 @@ def map_tensors(fn: Callable[..., Any], tree: Any, *others: Any) -> Any:
     return pytree.tree_map(lambda x, *o: fn(x, *o) if isinstance(x, torch.Tensor) else x, tree, *others)
 
 
-def _rebuilder(spec: pytree.TreeSpec) -> Callable[[Iterator[Any]], Any]:
+def rebuilder(spec: pytree.TreeSpec) -> Callable[[Iterator[Any]], Any]:
     """A function of an iterator over leaves that builds `spec`'s tree from them."""
     if spec.is_leaf():
         return next
-    kids = [_rebuilder(c) for c in spec.children()]
+    kids = [rebuilder(c) for c in spec.children()]
     kind = spec.type
     if kind is tuple:
         return lambda it: tuple([k(it) for k in kids])

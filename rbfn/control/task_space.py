@@ -361,7 +361,7 @@ def run_online(
     run = make_chunk(plant, ctrl, cfg.dt, "rk4", every)
     if aot and n >= every:  # compiled ahead of time, cached on disk
         example = (loop, rows(slice(0, every)))
-        run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", every, example), example, log.info)
+        run = aot_chunk(run, chunk_key(plant, ctrl, cfg.dt, "rk4", every, example), example, b, log.info)
     try:
         _, rec = run_chunks(
             run,

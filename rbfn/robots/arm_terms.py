@@ -80,6 +80,8 @@ def _rotate_const(rot: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 def _suffix_sum(x: torch.Tensor) -> torch.Tensor:
     """sum_{k >= i} x_k along the body dimension 0."""
+    if torch.compiler.is_compiling():
+        return _unrolled_sum(x, reverse=True)
     if x.shape[-1] < WIDE:
         return x.flip(0).cumsum(0).flip(0)
     out = x.clone()
@@ -90,12 +92,25 @@ def _suffix_sum(x: torch.Tensor) -> torch.Tensor:
 
 def _prefix_sum(x: torch.Tensor) -> torch.Tensor:
     """sum_{k <= i} x_k along the body dimension 0."""
+    if torch.compiler.is_compiling():
+        return _unrolled_sum(x, reverse=False)
     if x.shape[-1] < WIDE:
         return x.cumsum(0)
     out = x.clone()
     for i in range(1, x.shape[0]):
         out[i] += out[i - 1]
     return out
+
+
+def _unrolled_sum(x: torch.Tensor, reverse: bool) -> torch.Tensor:
+    """The running sum along dim 0 as one addition per body: traced, it fuses with its neighbours,
+    where a compiled cumsum is a call out of the generated code (89 a period on the UR5)."""
+    parts = list(x.unbind(0))
+    order = range(len(parts) - 2, -1, -1) if reverse else range(1, len(parts))
+    step = 1 if reverse else -1
+    for i in order:
+        parts[i] = parts[i] + parts[i + step]
+    return torch.stack(parts)
 
 
 class PointMass(NamedTuple):

@@ -7,7 +7,7 @@ import torch
 import torch.utils._pytree as pytree
 
 from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
-from rbfn.control.aot import ENV, _rebuilder, ahead_of_time, fingerprint, map_tensors
+from rbfn.control.aot import ENV, ahead_of_time, fingerprint, map_tensors, rebuilder
 from rbfn.control.batch import Stacked
 from rbfn.control.controllers import Gains, SlidingState
 from rbfn.control.models import NominalModel
@@ -66,14 +66,14 @@ def test_a_package_output_is_rebuilt_without_pytree_for_the_loops_own_types(monk
     map_tensors(flat.append, tree)
     leaves, spec = pytree.tree_flatten(tree)
     assert [id(x) for x in flat] == [id(x) for x in leaves if x is not None]  # its inputs: the tensors
-    rebuild = _rebuilder(pytree.treespec_loads(pytree.treespec_dumps(spec)))  # as a package stores it
+    rebuild = rebuilder(pytree.treespec_loads(pytree.treespec_dumps(spec)))  # as a package stores it
     monkeypatch.setattr(pytree.TreeSpec, "unflatten", lambda *a: pytest.fail("pytree's unflatten was used"))
     out = rebuild(iter(leaves))  # the package's outputs: a tensor or None per leaf
     assert type(out[0]) is Loop and type(out[0].controller[0]) is SlidingState and out[0].controller[1] is None
     assert all(a is b for a, b in zip(pytree.tree_leaves(out), pytree.tree_leaves(tree)))
     monkeypatch.undo()
     other = {"a": t[0], "b": (t[1],)}  # a dict: pytree's
-    assert _rebuilder(pytree.tree_flatten(other)[1])(iter([t[0], t[1]])) == other
+    assert rebuilder(pytree.tree_flatten(other)[1])(iter([t[0], t[1]])) == other
 
 
 def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
@@ -112,11 +112,14 @@ def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
     if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
         pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
     monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
-    sc = Scenario(duration=0.02, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
+    # 22 steps: five chunks of 4 run flat through the package, the last 2 eagerly
+    sc = Scenario(duration=0.022, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     ctrl = make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL)
-    pay = torch.tensor([0.0, 10.0], dtype=torch.float64)
-    q0, qd0 = ref.q_d[:1].expand(2, 3).clone(), ref.qd_d[:1].expand(2, 3).clone()
+    # One environment: the package keeps its temporaries on the stack (STACK_ENVS; more environments
+    # are compiled by tests/control/test_batch.py).
+    pay = torch.tensor([10.0], dtype=torch.float64)
+    q0, qd0 = ref.q_d[:1].expand(1, 3).clone(), ref.qd_d[:1].expand(1, 3).clone()
     eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4)
     with caplog.at_level("INFO", logger="rbfn.control.simulator"):
         first = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4, aot=True)
@@ -130,3 +133,24 @@ def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
     assert torch.allclose(first.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(first.tau, eager.tau, rtol=0, atol=1e-8)
     assert not torch.equal(again.q, first.q)
+
+
+@pytest.mark.slow
+def test_the_realistic_loop_compiled_ahead_of_time_equals_eager(tmp_path, monkeypatch):
+    """evaluate.py's loop (the SCARA's realistic one, smc_obs) at B = 1 and 2, its chunks through
+    the package's flat interface and a shorter last one eagerly, against the eager run."""
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
+    from bench.realistic_loop import setup
+
+    monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
+    # One environment (its package keeps its temporaries on the stack), then two, built after it in
+    # the same process (on the heap: Inductor's choice of wrapper must not carry over).
+    for b in (1, 2):
+        args = setup("scara", b, 0.05)  # 25 periods: 12 chunks of 2, then 1
+        eager = simulate(**args)
+        aot = simulate(**args, aot=True)
+        assert torch.allclose(aot.q, eager.q, rtol=0, atol=1e-12)
+        assert torch.allclose(aot.tau, eager.tau, rtol=0, atol=1e-8)
+        assert torch.equal(aot.saturated, eager.saturated)
+    assert len(list((tmp_path / "aot").glob("chunk-*.pt2"))) == 2
