@@ -109,48 +109,28 @@ def test_chunk_data_flatten_to_tensors_and_their_spec_serialises():
 
 @pytest.mark.slow
 def test_aot_run_equals_eager_and_is_built_once(tmp_path, monkeypatch, caplog):
-    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
-        pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
-    monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
-    # 22 steps: five chunks of 4 run flat through the package, the last 2 eagerly
-    sc = Scenario(duration=0.022, payload_on=0.005, payload_off=0.015, integrator="euler", metrics_after=0.0)
-    ref = paper_trajectory(sc.times())
-    ctrl = make_controller("smc_obs", Gains(), sc.dt, model=SCARA_MODEL)
-    # One environment: the package keeps its temporaries on the stack (STACK_ENVS; more environments
-    # are compiled by tests/control/test_batch.py).
-    pay = torch.tensor([10.0], dtype=torch.float64)
-    q0, qd0 = ref.q_d[:1].expand(1, 3).clone(), ref.qd_d[:1].expand(1, 3).clone()
-    eager = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4)
-    with caplog.at_level("INFO", logger="rbfn.control.simulator"):
-        first = simulate(Plant(ScaraTerms()), ctrl, sc, ref, q0=q0, qd0=qd0, payload=pay, chunk=4, aot=True)
-        (pkg,) = (tmp_path / "aot").glob("chunk-*.pt2")
-        built = pkg.stat().st_mtime_ns
-        again = simulate(
-            Plant(ScaraTerms()), ctrl, sc, ref, q0=q0 + 1e-3, qd0=qd0, payload=pay, chunk=4, aot=True
-        )  # other values
-    assert sum("compiling the closed-loop step" in r.message for r in caplog.records) == 1
-    assert pkg.stat().st_mtime_ns == built and len(list((tmp_path / "aot").iterdir())) == 1
-    assert torch.allclose(first.q, eager.q, rtol=0, atol=1e-12)
-    assert torch.allclose(first.tau, eager.tau, rtol=0, atol=1e-8)
-    assert not torch.equal(again.q, first.q)
-
-
-@pytest.mark.slow
-def test_the_realistic_loop_compiled_ahead_of_time_equals_eager(tmp_path, monkeypatch):
-    """evaluate.py's loop (the SCARA's realistic one, smc_obs) at B = 1 and 2, its chunks through
-    the package's flat interface and a shorter last one eagerly, against the eager run."""
+    """evaluate.py's loop (the SCARA's realistic one, smc_obs) compiled ahead of time: its chunks
+    run through the package's flat interface and a shorter last one eagerly, equal to the eager
+    run; a package is built once and serves other values. One environment (its package keeps its
+    temporaries on the stack), then two, built after it in the same process (on the heap:
+    Inductor's choice of wrapper must not carry over)."""
     if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
         pytest.skip("AOTInductor's CPU backend needs a C++ compiler")
     from bench.realistic_loop import setup
 
     monkeypatch.setenv("ACO_RBFN_CACHE", str(tmp_path))
-    # One environment (its package keeps its temporaries on the stack), then two, built after it in
-    # the same process (on the heap: Inductor's choice of wrapper must not carry over).
-    for b in (1, 2):
-        args = setup("scara", b, 0.05)  # 25 periods: 12 chunks of 2, then 1
-        eager = simulate(**args)
-        aot = simulate(**args, aot=True)
-        assert torch.allclose(aot.q, eager.q, rtol=0, atol=1e-12)
-        assert torch.allclose(aot.tau, eager.tau, rtol=0, atol=1e-8)
-        assert torch.equal(aot.saturated, eager.saturated)
+    with caplog.at_level("INFO", logger="rbfn.control.simulator"):
+        for b in (1, 2):
+            args = setup("scara", b, 0.05)  # 25 periods: 12 chunks of 2, then 1
+            eager = simulate(**args)
+            aot = simulate(**args, aot=True)
+            assert torch.allclose(aot.q, eager.q, rtol=0, atol=1e-12)
+            assert torch.allclose(aot.tau, eager.tau, rtol=0, atol=1e-8)
+            assert torch.equal(aot.saturated, eager.saturated)
+            if b == 1:
+                (pkg,) = (tmp_path / "aot").glob("chunk-*.pt2")
+                built = pkg.stat().st_mtime_ns
+                again = simulate(**{**args, "q0": args["q0"] + 1e-3}, aot=True)  # other values
+                assert pkg.stat().st_mtime_ns == built and not torch.equal(again.q, aot.q)
+    assert sum("compiling the closed-loop step" in r.message for r in caplog.records) == 2
     assert len(list((tmp_path / "aot").glob("chunk-*.pt2"))) == 2
