@@ -229,8 +229,8 @@ class IKSolver:
         return torch.cat([e_pos, e_rot], -1), jac, e_pos.norm(dim=-1), e_rot.norm(dim=-1)
 
     def _pose_errors(self, q: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """(position error (B,) mm, rotation error (B,) deg or None) of joints q (B, n) against `goals`
-        rows (B, 3 or 12), by forward kinematics only."""
+        """(position error (B,) mm, rotation error (B,) deg or None) of joints q (B, n) against
+        `goals` rows (B, 3 or 12), by forward kinematics only."""
         rot, pos, _ = self.robot.frame(q)
         mm = (pos - goal[:, :3]).norm(dim=-1) * 1000.0
         return mm, rotation_error_deg(rot, goal[:, 3:].reshape(-1, 3, 3)) if self.pose_target else None
@@ -345,7 +345,7 @@ class IKSolver:
             m, n, s = slow.numel(), q.shape[1], scales.shape[1]
             trials = (q[slow, None] + scales[:, :, None] * dq[slow, None]).clamp(low, high)  # (m, s, n)
             cost = self._cost(trials.reshape(m * s, n), goal[slow].repeat_interleave(s, 0)).reshape(m, s)
-            best = torch.cat([cost, self._tolerances(after)[slow, None]], 1).argmin(-1)
+            best = torch.cat([cost, now[slow, None]], 1).argmin(-1)
             moved = (best < s).nonzero().squeeze(-1)
             full[slow[moved]] = trials[moved, best[moved]]
             self._refresh(after, slow[moved], full, goal)

@@ -60,44 +60,39 @@ ENV = "ACO_RBFN_AOT"  # what `auto` means: 1 compiled ahead of time, 0 eager; un
 # option is off: over the cap it would fall back to the heap, and such a package (UR5, B = 64)
 # crashed at its first call in torch 2.13.
 STACK_ENVS = 1
-STACK_CONFIGS = {"aot_inductor.allow_stack_allocation": True}
 
 
-def _stack_configs(envs: int) -> dict:
-    """Inductor's options for a package of `envs` environments (`_cpu_wrapper` builds by them)."""
-    return STACK_CONFIGS if envs <= STACK_ENVS and _wrappers() is not None else {}
-
-
-def _wrappers() -> tuple[Any, type, type] | None:
-    """Inductor's table of code generators by device and its two CPU wrapper generators (heap,
-    stack), or None where this torch lacks them."""
+def _wrappers() -> tuple[Any, type] | None:
+    """Inductor's table of code generators by device and its stack-allocating CPU wrapper
+    generator, or None where this torch lacks them."""
     try:
         from torch._inductor.codegen import common
-        from torch._inductor.codegen.cpp_wrapper_cpu import CppWrapperCpu
         from torch._inductor.codegen.cpp_wrapper_cpu_array_ref import CppWrapperCpuArrayRef
     except ImportError:
         return None
     if not hasattr(common, "device_codegens") or not hasattr(common, "init_backend_registration"):
         return None
-    return common, CppWrapperCpu, CppWrapperCpuArrayRef
+    return common, CppWrapperCpuArrayRef
 
 
 @contextlib.contextmanager
-def _cpu_wrapper(configs: dict) -> Iterator[None]:
-    """Build with the CPU wrapper generator that `configs` asks for. Inductor registers it once
-    per process, by the stack option's value at the first build (torch 2.13): unchosen, a package of
-    many environments built after one of one environment took the stack's generator, and crashed."""
-    found = _wrappers()
+def _cpu_wrapper(stack: bool) -> Iterator[dict]:
+    """Inductor's options for a build, temporaries on the stack or not, with the CPU wrapper
+    generator they need registered for its duration. Inductor registers that generator once per
+    process, by the stack option's value at the first build (torch 2.13): unchosen, a package of
+    many environments built after one of one environment took the stack's generator, and crashed.
+    Registered first here, outside any build's options, the generator otherwise is the heap's.
+    Where this torch lacks these internals, the option stays off."""
+    found = _wrappers() if stack else None
     if found is None:
-        yield
+        yield {}
         return
-    common, heap, stack = found
+    common, on_stack = found
     common.init_backend_registration()
     before = common.device_codegens["cpu"]
-    chosen = stack if configs.get("aot_inductor.allow_stack_allocation") else heap
-    common.device_codegens["cpu"] = dataclasses.replace(before, cpp_wrapper_codegen=chosen)
+    common.device_codegens["cpu"] = dataclasses.replace(before, cpp_wrapper_codegen=on_stack)
     try:
-        yield
+        yield {"aot_inductor.allow_stack_allocation": True}
     finally:
         common.device_codegens["cpu"] = before
 
@@ -230,13 +225,13 @@ def aot_chunk(run: Callable, key: str, example: tuple, envs: int, log: Callable[
             # when it pickles the program's input spec, and `torch._prims_common.check`'s).
             warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
             warnings.filterwarnings("ignore", message=r".*_prims_common\.check.*deprecated", category=FutureWarning)
-            _build(run, path, example, _stack_configs(envs), log)
+            _build(run, path, example, envs <= STACK_ENVS, log)
     return _load(path)
 
 
-def _build(run: Callable, path: Path, example: tuple, configs: dict, log: Callable[[str], None] | None) -> None:
-    """Export `run` at `example` and write its AOTInductor package, built with Inductor's
-    `configs`, to `path` atomically."""
+def _build(run: Callable, path: Path, example: tuple, stack: bool, log: Callable[[str], None] | None) -> None:
+    """Export `run` at `example` and write its AOTInductor package to `path` atomically, its
+    temporaries on the stack with `stack` (`_cpu_wrapper`)."""
     if log:
         log(f"compiling the closed-loop step ahead of time into {path} (a minute or two, once per configuration)")
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -255,8 +250,8 @@ def _build(run: Callable, path: Path, example: tuple, configs: dict, log: Callab
     level = lowering.level
     lowering.setLevel(logging.ERROR)
     try:
-        with _cpu_wrapper(configs):
-            torch._inductor.aoti_compile_and_package(program, package_path=tmp, inductor_configs=dict(configs))
+        with _cpu_wrapper(stack) as configs:
+            torch._inductor.aoti_compile_and_package(program, package_path=tmp, inductor_configs=configs)
         os.replace(tmp, path)
     finally:
         lowering.setLevel(level)

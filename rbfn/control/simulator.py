@@ -492,7 +492,7 @@ def _run_flat(
     nl = loop_spec.num_leaves
     rebuild = rebuilder(loop_spec)
     keep: list[int] = []  # the output's state leaves that are tensors
-    restride: list[int] = []
+    restride: list[tuple[int, int]] = []  # (output leaf, state tensor) pairs whose strides differ
     checked = 0
     for k0 in range(0, n, chunk):
         sl = slice(k0, k0 + chunk)
@@ -501,9 +501,9 @@ def _run_flat(
             keep = [i for i in range(nl) if out[i] is not None]
             if len(keep) != len(leaves):
                 raise RuntimeError(f"the package returns {len(keep)} state tensors, the loop holds {len(leaves)}")
-            restride = [i for i, o in zip(keep, leaves) if out[i].stride() != o.stride()]
-        for i in restride:
-            out[i] = _same_layout(out[i], leaves[keep.index(i)])
+            restride = [(i, j) for j, i in enumerate(keep) if out[i].stride() != leaves[j].stride()]
+        for i, j in restride:
+            out[i] = _same_layout(out[i], leaves[j])
         leaves = [out[i] for i in keep]
         if out_rows is not None:
             out_rows[0][sl], out_rows[1][sl], out_rows[2][sl] = out[nl], out[nl + 1], out[nl + 2]
