@@ -37,6 +37,25 @@ def _seeded():
     torch.manual_seed(0)
 
 
+@pytest.fixture(autouse=True)
+def _signals_as_they_were():
+    """Every test leaves this process's stop-signal handlers as it found them, and rbfn.studies.stop
+    not stopping: an entry point run in this process installs stop's handlers, and with the suite
+    spread over worker processes any test may follow any other (a part forked with stop's handler
+    can drop a SIGTERM sent before its start-up, which `Beside` re-sends; test_beside's timings
+    assume the default handler where they do not set one)."""
+    import signal
+
+    from rbfn.files import STOP_SIGNALS
+    from rbfn.studies import stop
+
+    before = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    yield
+    for s, handler in before.items():
+        signal.signal(s, handler)
+    stop._stopping = False
+
+
 @pytest.fixture(scope="session")
 def chain():
     return load_serial_chain(scara.URDF_PATH, scara.END_LINK, torch.float64)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import time
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -101,9 +102,13 @@ class Beside:
             return
         if wait:
             self._proc.join(timeout=5.0)
-        if self._proc.is_alive():
+        deadline = time.monotonic() + 5.0
+        while self._proc.is_alive() and time.monotonic() < deadline:
+            # SIGTERM, again every 0.1 s: one that reaches a child just forked, before Python's start-up
+            # in it, is dropped there (the child clears the signals pending at its start); one that comes
+            # during its cleanup is ignored (rbfn.studies.stop)
             self._proc.terminate()
-            self._proc.join(timeout=5.0)
+            self._proc.join(timeout=0.1)
         if self._proc.is_alive():
             self._proc.kill()
         self._proc.join()

@@ -94,6 +94,16 @@ def _stop_children(signum: int) -> None:
         time.sleep(0.02)
 
 
+def _not_stopping() -> None:
+    global _stopping
+    _stopping = False
+
+
+# A process forked while this one was stopping (or after a signal it handled in a test) is not
+# stopping itself: it handles its own first signal.
+os.register_at_fork(after_in_child=_not_stopping)
+
+
 def _on_signal(signum: int, frame) -> None:
     global _stopping
     if _stopping:

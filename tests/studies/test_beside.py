@@ -2,6 +2,7 @@
 errors raised here, and stopped when the caller fails first."""
 
 import os
+import signal
 import time
 
 import pytest
@@ -47,7 +48,26 @@ def test_errors_reach_the_caller_and_a_failing_caller_stops_the_part(tmp_path):
     t0 = time.perf_counter()
     with pytest.raises(RuntimeError, match="caller failed"), Beside(_sleep, str(flag)):
         raise RuntimeError("caller failed")
-    assert time.perf_counter() - t0 < 4.0 and not flag.exists()
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 4.0 and not flag.exists(), (
+        f"the part ran {elapsed:.1f} s after its caller failed ({flag.exists()=})"
+    )
+
+
+@pytest.mark.skipif(not can_fork("cpu"), reason="this machine does not fork, or has one core")
+def test_a_part_forked_by_a_stopping_caller_still_stops_at_sigterm(tmp_path, monkeypatch):
+    """A caller that has handled a stop signal ignores later ones (rbfn.studies.stop); a part it forks
+    handles its own: SIGTERM stops it at once, not after the 5 s its caller waits before killing it."""
+    from rbfn.studies import stop
+
+    signal.signal(signal.SIGTERM, stop._on_signal)  # as an entry point installs it (conftest restores it)
+    monkeypatch.setattr(stop, "_stopping", True)
+    flag = tmp_path / "finished"
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError, match="caller failed"), Beside(_sleep, str(flag)):
+        raise RuntimeError("caller failed")
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 4.0 and not flag.exists(), f"the part ran {elapsed:.1f} s after its caller failed"
 
 
 def test_no_fork_for_cuda_work():
