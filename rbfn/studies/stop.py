@@ -14,11 +14,12 @@ evaluate.py call it first) the first such signal, in the main thread:
    SIGTERM, 130 for SIGINT): every `finally` and context manager's exit runs on the way out, and
    the entry point says so in one line (rbfn.studies.cli.report_stop).
 
-Later signals are ignored (they would cut that cleanup short). A process started by another (a
-forked part, a pool's worker) also asks Linux to send it SIGTERM when its parent ends, however the
-parent ended (PR_SET_PDEATHSIG); a pool's worker stopped by a signal ends once its job's cleanup ran
-(`job`) instead of going back to its pool. A handler some launcher installed (submitit's, under
-SLURM), or a signal the process was started ignoring (nohup), is left as it is.
+Later signals are ignored (they would cut that cleanup short); a process forked from it then
+handles its own first signal. A process started by another (a forked part, a pool's worker) also
+asks Linux to send it SIGTERM when its parent ends, however the parent ended (PR_SET_PDEATHSIG); a
+pool's worker stopped by a signal ends once its job's cleanup ran (`job`) instead of going back to
+its pool. A handler some launcher installed (submitit's, under SLURM), or a signal the process was
+started ignoring (nohup), is left as it is.
 """
 
 from __future__ import annotations
