@@ -9,7 +9,7 @@ converged within the tolerances), with onnxruntime alone:
 
 1. the `PRESELECT` charts whose centres lie nearest the target, ranked by forward kinematics;
 2. the best `WIDE` polished `FIRST_STEPS` damped-least-squares steps, the best `NARROW` of them the
-   remaining steps (`CHARTED_ITERATIONS` in all on each answer's path), the nearest kept.
+   remaining steps (`STEPS` in all on each answer's path), the nearest kept.
 
 This was the solver's staged polish before it took the charts in turn (measured there: the same
 targets solved, at 2.9x the rate on the UR5). In the graph the rows are never split, so the line
@@ -30,7 +30,6 @@ from .robots.kinematics import _Step, _steps, compose
 from .robots.robot import Robot, rotation_error_deg, rotation_vector
 from .solver import (
     CHARTED_ERROR_DAMPING,
-    CHARTED_ITERATIONS,
     PRESELECT,
     PROGRESS,
     STEP_SCALES,
@@ -48,6 +47,9 @@ __all__ = ["GraphPolish", "graph_polish"]
 WIDE = 4
 FIRST_STEPS = 2
 NARROW = 2
+# Steps on each answer's path, each with the line search of the solver's `IKSolver._step` (the solver's
+# charted solve takes one step more without it, `CHARTED_ITERATIONS`: a graph steps every row alike).
+STEPS = 5
 
 FULL = STEP_SCALES.index(1.0)  # the full step among the line search's multiples
 RETRY = 8  # the answers ranked after the first WIDE, polished on every row for the targets those miss
@@ -165,7 +167,7 @@ class GraphPolish(nn.Module):
         q, cost = self._polished(ranked[:, :c], goal, FIRST_STEPS)
         keep = cost[:, :w].argsort(1)[:, : min(NARROW, w)]
         q = torch.cat([q[:, :w].gather(1, keep[..., None].expand(b, keep.shape[1], n)), q[:, w:]], 1)
-        q, cost = self._polished(q, goal, CHARTED_ITERATIONS - FIRST_STEPS)
+        q, cost = self._polished(q, goal, STEPS - FIRST_STEPS)
         q = q.gather(1, cost.argmin(1)[:, None, None].expand(b, 1, n))[:, 0]
         rot, pos, _ = self._kinematics(q, False)
         _, mm, deg = self._error(rot, pos, goal)

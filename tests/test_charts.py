@@ -120,10 +120,10 @@ def test_where_near_does_not_converge_the_answer_is_the_converged_one_nearest_it
     _, robot, model = charted
     split = full_range_split(robot, 100, 11)
     solver = _solver(robot, model)
-    far = full_range_split(robot, 100, 12).q  # joints of other poses: mostly too far to polish in 5 steps
+    far = full_range_split(robot, 100, 12).q  # joints of other poses: mostly too far to polish
     q, ok = solver.solve(split.x, near=far)
     alone, ok_alone = solver.solve(split.x)
-    _, near_ok = solver._polish(far.clamp(solver.low, solver.high), split.x, 5, settle=True)
+    _, near_ok = solver._polish(far.clamp(solver.low, solver.high), split.x, solver.default_iterations, settle=True)
     rows = (~near_ok & ok_alone).nonzero().squeeze(-1)
     assert rows.numel() > 20 and bool(ok[rows].all())
     width = solver.box_high - solver.box_low

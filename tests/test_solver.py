@@ -115,14 +115,41 @@ def test_a_settling_polish_gives_up_on_answers_still_far_after_its_give_up_step(
     far[:, :3] += 5.0
     start = solver.network(split.x)[0]
     steps = []
-    step = solver._step
-    monkeypatch.setattr(solver, "_step", lambda q, *a: steps.append(q.shape[0]) or step(q, *a))
+    direction = solver._direction  # once a step, with or without a line search
+    monkeypatch.setattr(solver, "_direction", lambda q, *a: steps.append(q.shape[0]) or direction(q, *a))
     _, ok = solver._polish(start, far, 10, settle=True)
     assert steps == [20] * solver_module.GIVE_UP_STEP and not bool(ok.any())
     steps.clear()
     solver._polish(start, far, solver_module.GIVE_UP_STEP, settle=True)
     solver._polish(start, far, 4)
     assert steps == [20] * (solver_module.GIVE_UP_STEP + 4)
+
+
+def test_a_settling_step_takes_back_a_step_that_makes_the_error_worse(ur5_run, monkeypatch):
+    """`_trial`: a step that lowers the error is kept (its scale raised again, up to 1); one that
+    raises it is taken back, joints, errors and cost as they were, and its scale cut to
+    `REJECTED_SCALE` of itself."""
+    import rbfn.solver as solver_module
+
+    solver = load_solver(ur5_run[0] / "checkpoint.pt")
+    split, _ = _targets(20, seed=8)
+    q = solver.network(split.x)[0]
+    goal = solver_module.goals(split.x, True)
+    state = solver._errors(q, goal)
+    cost = solver._tolerances(state)
+    scale = torch.full((20,), 0.5, dtype=q.dtype)
+    q1, state1, cost1, scale1 = solver._trial(q, goal, state, cost, scale, None)
+    kept = cost1 < cost
+    assert int(kept.sum()) >= 15  # the network's answers are close: most first steps help
+    assert torch.equal(scale1, torch.where(kept, 1.0, 0.5 * solver_module.REJECTED_SCALE).to(q.dtype))
+    assert torch.equal(cost1[~kept], cost[~kept]) and torch.equal(q1[~kept], q[~kept])
+    assert torch.allclose(cost1, solver._tolerances(solver._errors(q1, goal)))
+    direction = solver._direction
+    monkeypatch.setattr(solver, "_direction", lambda *a: -direction(*a))  # uphill
+    q2, state2, cost2, scale2 = solver._trial(q1, goal, state1, cost1, scale1, None)
+    assert torch.equal(q2, q1) and torch.equal(cost2, cost1)
+    assert all(a is b or torch.equal(a, b) for a, b in zip(state2, state1))
+    assert torch.equal(scale2, scale1 * solver_module.REJECTED_SCALE)
 
 
 def test_the_last_round_tries_only_the_charts_not_yet_tried():

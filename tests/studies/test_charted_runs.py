@@ -15,6 +15,7 @@ import train
 from rbfn import load_model, load_solver
 from rbfn.data import full_range_split
 from rbfn.export import deployed, load_pt2, read_onnx
+from rbfn.solver import CHARTED_ITERATIONS
 
 from ..conftest import ROOT, compose_config
 
@@ -47,7 +48,7 @@ def test_train_writes_the_charted_checkpoint_and_its_figures(full_run):
         "metrics.json",
     ]
     assert json.loads((out / "metrics.json").read_text()) == m
-    assert m["workspace"] == "full" and m["charts"] == 4 and m["polish_iterations"] == 5
+    assert m["workspace"] == "full" and m["charts"] == 4 and m["polish_iterations"] == CHARTED_ITERATIONS
     for key in ("test_polished_success_rate", "test_full_range_polished_success_rate"):
         assert 0 <= m[key] <= 1, key
     assert 0 < m["val_E"] < float("inf")
