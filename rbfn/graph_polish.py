@@ -13,9 +13,10 @@ converged within the tolerances), with onnxruntime alone:
 
 This was the solver's staged polish before it took the charts in turn (measured there: the same
 targets solved, at 2.9x the rate on the UR5). In the graph the rows are never split, so the line
-search and the re-solve without joints held at a limit run on every row (masked where the solver
-takes a subset), and there is no fallback to every chart for the few targets the ranking misses
-(the solver's last round). The robot's
+search (the solver's charted polish takes a worse step back instead, over one step more; the graph
+keeps its fixed `STEPS`, searched) and the re-solve without the joints a step carries past a limit
+run on every row (masked where the solver takes a subset), and there is no fallback to every chart
+for the few targets the ranking misses (the solver's last round). The robot's
 kinematics are `rbfn.robots.kinematics.compose` on the chain's frames, held as constants; the
 linear solve is a Cholesky factorisation written out (the ONNX exporter has no solve).
 """
@@ -126,21 +127,29 @@ class GraphPolish(nn.Module):
         eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
         return (jac.transpose(-1, -2) @ spd_solve(a + lam[:, None, None] * eye, e)[:, :, None])[:, :, 0]
 
+    def _shortened(self, dq: torch.Tensor) -> torch.Tensor:
+        """Steps dq (B, n) scaled down to at most `max_step` on every joint (`IKSolver._shortened`)."""
+        return dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-30)).clamp(max=1.0)
+
     def polish(self, q: torch.Tensor, goal: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
         """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward `goals` rows: the
-        solver's damped least squares, its line search and its re-solve without joints held at a
-        limit (`IKSolver._polish`), on every row."""
+        solver's damped-least-squares step with its joints carried past a limit held there
+        (`IKSolver._direction`) and the line search of `IKSolver._step`, on every row."""
         low, high = self.low.to(q), self.high.to(q)
         scales = torch.tensor(STEP_SCALES, dtype=q.dtype, device=q.device)
         e, cost, jac = self._errors(q, goal)
         b, n, s = q.shape[0], q.shape[1], scales.shape[0]
         for _ in range(iterations):
             lam = self.damping + self.error_damping * e.square().sum(-1)
-            dq = self._step(jac @ jac.transpose(-1, -2), e, lam, jac)
-            held = ((q <= low) & (dq < 0)) | ((q >= high) & (dq > 0))
+            dq = self._shortened(self._step(jac @ jac.transpose(-1, -2), e, lam, jac))
+            # the joints it carries past a limit moved to it, the others taking the error left
+            below, above = q + dq < low, q + dq > high
+            held = below | above
+            to_limit = torch.where(below, low - q, high - q) * held.to(q.dtype)
+            e_h = e - (jac @ to_limit[:, :, None])[:, :, 0]
             jh = jac * (~held)[:, None, :].to(jac.dtype)
-            dq = torch.where(held.any(-1, keepdim=True), self._step(jh @ jh.transpose(-1, -2), e, lam, jh), dq)
-            dq = dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-30)).clamp(max=1.0)
+            dq_h = self._shortened(self._step(jh @ jh.transpose(-1, -2), e_h, lam, jh) + to_limit)
+            dq = torch.where(held.any(-1, keepdim=True), dq_h, dq)
             # The full step and the line search's multiples of it (the full step among them) in one pass
             trials = torch.minimum(torch.maximum(q[:, None] + scales[None, :, None] * dq[:, None], low), high)
             trial_cost = self.cost(trials.reshape(b * s, n), goal.repeat_interleave(s, 0)).reshape(b, s)

