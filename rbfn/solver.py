@@ -65,14 +65,15 @@ LONGER, SHORTER = STEP_SCALES[:2], STEP_SCALES[3:]
 # The charted solve's polish (`IKSolver._trial`) searches no line: a step that makes the error worse is
 # taken back and tried at REJECTED_SCALE of its length at the next step (and after a kept step the
 # scale rises again by as much, up to the full step). Each step is then one Jacobian a row, where the line
-# search added two forward kinematics for the rows searched and a Jacobian for those it moved (UR5: 10.2
-# Jacobians and 7.6 forward kinematics a pose; taken back: 8.3 and 0.5; Panda 15.4 and 13.3 against 12.0
-# and 1.3), for one step more an answer (CHARTED_ITERATIONS 6, was 5). Measured on 10 000 whole-range poses
-# of the test stream of seed 3 (not the evaluation stream): solved 100.00 % of UR5 poses either way and
-# 99.83 % of Panda poses against 99.90 %. Taken back to 0.5 of the step, the fewest Jacobians of 0.2, 0.3
-# and 0.5 (UR5 8.44, 8.34, 8.20 a pose; Panda 12.07, 11.96, 11.66), as many solved; a scale that also grew
-# past the full step where progress was slow converged far less often (first chart, Panda: 45.6 % against
-# 67.9 % in 5 steps).
+# search added two forward kinematics for the rows searched and a Jacobian for those it moved, for one
+# step more an answer (CHARTED_ITERATIONS 6, was 5). Measured on 10 000 whole-range poses of the test
+# stream of seed 3 (not the evaluation stream), Jacobians and forward kinematics a pose: UR5 10.2 and 7.6
+# -> 8.3 and 0.5, Panda 15.4 and 13.3 -> 11.8 and 1.1 (with GIVE_UP_STEP 4 and `_direction`'s joints moved
+# to a limit); solved: UR5 100.00 % either way, Panda 99.93 % against 99.90 % (99.83 % without those two);
+# the solve 1.17-1.30x faster on the UR5, Panda, KR10 and iiwa. Taken back to 0.5 of the step, the fewest
+# Jacobians of 0.2, 0.3 and 0.5 (UR5 8.44, 8.34, 8.20 a pose; Panda 12.07, 11.96, 11.66), as many solved;
+# a scale that also grew past the full step where progress was slow converged far less often (first
+# chart, Panda: 45.6 % against 67.9 % in 5 steps).
 REJECTED_SCALE = 0.5
 # lambda's error-dependent part, lambda = damping + c |e|^2 (e: position in m, rotation in rad), off by
 # default. Measured on UR5 poses over the whole joint range (5 % of them with sigma_min of J below 0.004,
