@@ -8,11 +8,12 @@ damped-least-squares (Levenberg-Marquardt) steps on the robot's own FK and Jacob
 
 Each step solves (J J^T + lambda I) y = e, dq = J^T y for the task error e (position in m, and for
 pose targets the rotation error as an axis-angle vector in rad, root frame; lambda may grow with
-the error, Levenberg-Marquardt's way: `error_damping`), shortens it to
-`max_step` and line-searches it where it makes little progress (a charted network's polish instead
-takes back a step that makes the error worse and tries it shorter: `REJECTED_SCALE`), and clamps the joints to the
-trained box widened by `margin` of its width (inside the URDF limits), so the answer stays on the
-branch the network was trained on. For arms whose first joint turns about the base's vertical
+the error, Levenberg-Marquardt's way: `error_damping`), shortens it to `max_step`, moves the
+joints it would carry past a limit to the limit (the others take the error left), and
+line-searches it where it makes little progress (a charted network's polish instead takes back a
+step that makes the error worse and tries it shorter: `REJECTED_SCALE`); the joints stay within
+the trained box widened by `margin` of its width (inside the URDF limits), so the answer stays on
+the branch the network was trained on. For arms whose first joint turns about the base's vertical
 axis, targets the network misses are turned into its trained range (`rbfn.yaw`) and that joint
 ranges over its URDF limits. `converged` is True where the final error is within `tol_mm` and
 `tol_deg`. With `restarts`, the targets that did not converge are tried again from random joints
