@@ -36,6 +36,7 @@ from .solver import (
     STEP_SCALES,
     IKSolver,
     goals,
+    shortened,
 )
 
 __all__ = ["GraphPolish", "graph_polish"]
@@ -127,10 +128,6 @@ class GraphPolish(nn.Module):
         eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
         return (jac.transpose(-1, -2) @ spd_solve(a + lam[:, None, None] * eye, e)[:, :, None])[:, :, 0]
 
-    def _shortened(self, dq: torch.Tensor) -> torch.Tensor:
-        """Steps dq (B, n) scaled down to at most `max_step` on every joint (`IKSolver._shortened`)."""
-        return dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-30)).clamp(max=1.0)
-
     def polish(self, q: torch.Tensor, goal: torch.Tensor, iterations: int) -> tuple[torch.Tensor, torch.Tensor]:
         """(joints (B, n), their cost (B,)) after `iterations` steps from q (B, n) toward `goals` rows: the
         solver's damped-least-squares step with its joints carried past a limit held there
@@ -141,14 +138,14 @@ class GraphPolish(nn.Module):
         b, n, s = q.shape[0], q.shape[1], scales.shape[0]
         for _ in range(iterations):
             lam = self.damping + self.error_damping * e.square().sum(-1)
-            dq = self._shortened(self._step(jac @ jac.transpose(-1, -2), e, lam, jac))
+            dq = shortened(self.max_step, self._step(jac @ jac.transpose(-1, -2), e, lam, jac))
             # the joints it carries past a limit moved to it, the others taking the error left
             below, above = q + dq < low, q + dq > high
             held = below | above
             to_limit = torch.where(below, low - q, high - q) * held.to(q.dtype)
             e_h = e - (jac @ to_limit[:, :, None])[:, :, 0]
             jh = jac * (~held)[:, None, :].to(jac.dtype)
-            dq_h = self._shortened(self._step(jh @ jh.transpose(-1, -2), e_h, lam, jh) + to_limit)
+            dq_h = shortened(self.max_step, self._step(jh @ jh.transpose(-1, -2), e_h, lam, jh) + to_limit)
             dq = torch.where(held.any(-1, keepdim=True), dq_h, dq)
             # The full step and the line search's multiples of it (the full step among them) in one pass
             trials = torch.minimum(torch.maximum(q[:, None] + scales[None, :, None] * dq[:, None], low), high)

@@ -161,6 +161,13 @@ def _untried(tried: torch.Tensor, k: int) -> torch.Tensor:
     return left.to(torch.int8).argsort(dim=1, descending=True, stable=True)[:, : k - tried.shape[1]]
 
 
+def shortened(max_step: float, dq: torch.Tensor) -> torch.Tensor:
+    """Steps dq (B, n) scaled down, each as a whole, to at most max_step on every joint (rad, or m)
+    (the solver's and the exported graph's; a zero step stays zero)."""
+    tiny = torch.finfo(dq.dtype).tiny
+    return dq * (max_step / dq.abs().amax(-1, keepdim=True).clamp(min=tiny)).clamp(max=1.0)
+
+
 def _least_norm(jl: torch.Tensor, lam: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
     """dq (B, n) = J^T (J J^T + lambda I)^-1 e for Jacobians jl (m, n, B), the batch last, lambda (B,)
     and errors e (B, m): J J^T and J^T y elementwise with the batch last (UR5, 4 096 rows, float32:
@@ -340,7 +347,7 @@ class IKSolver:
         floor = FLOAT32_DAMPING if q.dtype == torch.float32 else 0.0
         lam = max(self.damping, floor) + self.error_damping * e.square().sum(-1)  # (B,)
         jl = jac.permute(1, 2, 0)  # (m, n, B): the batch last, as `compose` gives J
-        dq = self._shortened(_least_norm(jl, lam, e))
+        dq = shortened(self.max_step, _least_norm(jl, lam, e))
         # Joints the step carries past a limit: moved to it, and the error left solved again without
         # them (their columns of J zeroed), so the others take up what they cannot give.
         below, above = q + dq < low, q + dq > high
@@ -351,12 +358,8 @@ class IKSolver:
             to_limit = torch.where(below[rows], low - q[rows], high - q[rows]) * h  # (R, n)
             j = jl[:, :, rows]  # (m, n, R)
             e_h = e[rows] - (j * to_limit.T).sum(1).T
-            dq[rows] = self._shortened(_least_norm(j * (~h).T, lam[rows], e_h) + to_limit)
+            dq[rows] = shortened(self.max_step, _least_norm(j * (~h).T, lam[rows], e_h) + to_limit)
         return dq
-
-    def _shortened(self, dq: torch.Tensor) -> torch.Tensor:
-        """Steps dq (B, n) scaled down (each as a whole) to at most `max_step` on every joint."""
-        return dq * (self.max_step / dq.abs().amax(-1, keepdim=True).clamp(min=1e-300)).clamp(max=1.0)
 
     def _trial(
         self,
