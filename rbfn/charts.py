@@ -102,15 +102,25 @@ def encode(q: torch.Tensor, revolute: torch.Tensor) -> torch.Tensor:
     return torch.cat([q[:, r].cos(), q[:, r].sin(), q[:, ~r]], -1)
 
 
-def decode(y: torch.Tensor, revolute) -> torch.Tensor:
-    """Joints (..., n) from a chart network's outputs (..., 2 r + p) (`encode`'s inverse; angles in
-    (-pi, pi]). `revolute`: (n,) bool, a tensor or a list (a list keeps it traceable: no data-dependent
-    indexing, so the exporters can take it)."""
+def decode(y: torch.Tensor, revolute, middle=None) -> torch.Tensor:
+    """Joints (..., n) from a chart network's outputs (..., 2 r + p) (`encode`'s inverse). A revolute
+    joint's angle lies within half a turn of its `middle` (n,) (rad; a list of floats or a tensor,
+    the prismatic joints' entries unused; None: 0, angles in (-pi, pi]): the middle of its range,
+    so that a range reaching past +-pi (the KUKA KR10's second joint, -190 .. 45 deg; the Panda's
+    sixth, -1 .. 215 deg) decodes onto itself, not onto the other end of the turn. `revolute`: (n,)
+    bool, a tensor or a list (a list keeps it traceable: no data-dependent indexing, so the
+    exporters can take it)."""
     flags = [bool(t) for t in revolute]
     turns = [i for i, t in enumerate(flags) if t]
     slides = [i for i, t in enumerate(flags) if not t]
     k = len(turns)
-    q = torch.cat([torch.atan2(y[..., k : 2 * k], y[..., :k]), y[..., 2 * k :]], -1)  # turns first, then slides
+    cos, sin = y[..., :k], y[..., k : 2 * k]
+    angle = torch.atan2(sin, cos)
+    if middle is not None:  # (cos, sin) turned back by the middle, the angle then from the middle
+        m = torch.as_tensor([float(middle[i]) for i in turns], dtype=y.dtype, device=y.device)
+        cm, sm = m.cos(), m.sin()
+        angle = torch.atan2(sin * cm - cos * sm, cos * cm + sin * sm) + m
+    q = torch.cat([angle, y[..., 2 * k :]], -1)  # turns first, then slides
     order = sorted(range(len(flags)), key=(turns + slides).index)
     return q if order == list(range(len(flags))) else q[..., order]
 
@@ -143,6 +153,8 @@ class ChartedIK(nn.Module):
         self.register_buffer("low", low.clone().to(centres.dtype))
         self.register_buffer("high", high.clone().to(centres.dtype))
         self.turns = [bool(t) for t in revolute]  # `revolute` as a list: decoded without data-dependent indexing
+        # each joint's middle (rad, or m): a revolute joint's answer decoded within half a turn of it
+        self.middles = [0.5 * (float(a) + float(b)) for a, b in zip(low.tolist(), high.tolist())]
         self.frozen_dtype: torch.dtype | None = None  # set by `frozen`: the dtype of its stacked parameters
         self.gate: torch.Tensor | None = None  # set by `frozen`: `_gate_matrix`, in its dtype
 
@@ -283,7 +295,7 @@ class ChartedIK(nn.Module):
         y = torch.baddbmm(bias[:, None], h, head.transpose(1, 2))
         if tail is not None:
             y = y.baddbmm_(z, tail.transpose(1, 2))
-        q = decode(y, self.turns).transpose(0, 1)  # (B, K, n)
+        q = decode(y, self.turns, self.middles).transpose(0, 1)  # (B, K, n)
         return torch.maximum(torch.minimum(q, self.high.to(q)), self.low.to(q)), close
 
     def _stacked(self, dtype: torch.dtype):

@@ -9,7 +9,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from rbfn.charts import GATE_CENTRES, ChartedIK, decode, embed, save_charts, summarise, train_charts
+from rbfn.charts import GATE_CENTRES, ChartedIK, decode, embed, encode, save_charts, summarise, train_charts
 from rbfn.checkpoint import check_charts, load_model, read_checkpoint
 from rbfn.data import full_range_split
 from rbfn.layer import RBFNetwork
@@ -64,6 +64,30 @@ def test_answers_are_each_chart_networks_answer_padded_or_not():
         assert torch.allclose(q[:, k], decode(net(x), revolute), atol=1e-9)
         z = (net._feat(x) - net.offset) / net.scale
         assert torch.allclose(close[:, k], torch.cdist(z, net.centers).amin(-1) / net.cover_radius)
+
+
+def test_an_angle_whose_range_reaches_past_half_a_turn_decodes_onto_that_range():
+    """A revolute joint's range may reach past +-pi (the KUKA KR10's second joint, -190 .. 45 deg; the
+    Panda's sixth, -1 .. 215 deg): decoded within half a turn of its range's middle, every angle of
+    the range comes back as itself; decoded in (-pi, pi], the part past it lands on the other end."""
+    low = torch.tensor([-3.316, -0.0175, -1.0], dtype=torch.float64)
+    high = torch.tensor([0.785, 3.7525, 1.0], dtype=torch.float64)
+    revolute = torch.tensor([True, True, False])
+    q = low + (high - low) * torch.rand(2000, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    y = encode(q, revolute)
+    assert torch.allclose(decode(y, revolute, (0.5 * (low + high)).tolist()), q, atol=1e-12)
+    past = (q[:, :2] < -math.pi) | (q[:, :2] > math.pi)
+    assert past.any() and not torch.isclose(decode(y, revolute)[:, :2], q[:, :2])[past].any()
+    # a chart that answers one joint vector whatever the pose (its head's bias): it comes back as itself
+    net = RBFNetwork(torch.zeros(1, 9, dtype=torch.float64), torch.ones(1, dtype=torch.float64), 5,
+                     inputs=TargetFeatures(pose=True, dtype=torch.float64), tail=False)  # fmt: skip
+    three = torch.tensor([[-3.2, 3.6, 0.5]], dtype=torch.float64)  # past -pi, past pi, a slide
+    with torch.no_grad():
+        net.head.weight.zero_()
+        net.head.bias.copy_(encode(three, revolute)[0])
+    model = ChartedIK([net.requires_grad_(False)], torch.zeros(1, 5), revolute, low, high).double()
+    x = full_range_split(load_robot(compose_config("train", "robot=ur5").robot), 4, 0).x
+    assert torch.allclose(model.answers(x)[0][:, 0], three.expand(4, 3), atol=1e-9)
 
 
 def test_charted_network_solves_whole_range_poses_within_the_limits(charted):
