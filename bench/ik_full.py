@@ -16,11 +16,12 @@ which `python -m bench.tracik DIR/charts.pt` and `rbfn.load_solver` read). Test 
 - raw: the best-ranked chart's answer (`IKSolver.network`), its median position and rotation error;
 - polished: `IKSolver.solve` (the charts in turn, `CHARTED_ITERATIONS` steps an answer, no
   restarts) on the whole batch: success within 0.1 mm and 0.1 deg, solves per second (median of
-  `--repeats`), answers outside the URDF limits;
+  `--repeats`; on the whole range in turns with TRAC-IK, `ratio` the median of the turns' ratios of
+  the rates: `bench.tracik.side_by_side`), answers outside the URDF limits;
 - all: `IKSolver.solve_all` on `--all-n` poses: distinct solutions a pose; with eaik, the share of
   the analytic solutions (those within the URDF limits that our forward kinematics confirms, whole
   turns counted once) that `solve_all` found;
-- TRAC-IK (`bench.tracik.tracik_row`, Speed mode, 20 ms) on the first `--tracik-n` poses.
+- TRAC-IK (`bench.tracik`, Speed mode, 20 ms) on the first `--tracik-n` of the whole-range poses.
 
 Prints one JSON line per row.
 """
@@ -45,7 +46,7 @@ from rbfn.solver import CHARTED_ERROR_DAMPING, CHARTED_ITERATIONS, IKSolver
 
 from .polish import polish_row
 from .timing import machine_info
-from .tracik import tracik_row
+from .tracik import side_by_side
 from .tuning_time import composed
 
 __all__ = ["analytic_solutions", "found_share", "main"]
@@ -145,7 +146,10 @@ def main(argv: list[str] | None = None) -> None:
     print(json.dumps({**head, **raw}))
     for name, split in (("whole joint range", test), ("trained box", evaluation_split(robot, a.n, 0))):
         xs, vs = robot.split_inputs(split.x)
-        row = polish_row(solver, xs, CHARTED_ITERATIONS, repeats=a.repeats, redundancy=vs)
+        if split is test:  # beside TRAC-IK, in turns (`bench.tracik.side_by_side`)
+            row, trac = side_by_side(solver, xs, a.tracik_n, 0.02, a.repeats, CHARTED_ITERATIONS, redundancy=vs)
+        else:
+            row = polish_row(solver, xs, CHARTED_ITERATIONS, repeats=a.repeats, redundancy=vs)
         q, _ = solver.solve(xs, redundancy=vs)
         outside = int((~((q >= solver.low) & (q <= solver.high)).all(-1)).sum())
         print(json.dumps({**head, "row": "polished", "poses": name, **row, "outside_limits": outside}), flush=True)
@@ -159,7 +163,6 @@ def main(argv: list[str] | None = None) -> None:
         row["analytic"] = sum(t.shape[0] for t in theirs) / k
         row["analytic_found"] = found_share(qa, oka, theirs, model.revolute, *full_limits(robot))
     print(json.dumps({**head, **row}), flush=True)
-    trac = tracik_row(robot, test.x[: a.tracik_n], 0.02)
     print(json.dumps({**head, "row": "tracik", "poses": "whole joint range", **trac}), flush=True)
     print(json.dumps({"machine": machine_info("cpu", a.threads)}))
 

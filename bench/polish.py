@@ -25,7 +25,7 @@ from rbfn.data import evaluation_split
 
 from .timing import machine_info, median_seconds, timed
 
-__all__ = ["rate_row", "polish_row", "pk_row"]
+__all__ = ["rate_row", "polish_row", "polish_method", "pk_row"]
 
 
 def rate_row(method: str, n: int, seconds: float, ok: torch.Tensor) -> dict:
@@ -44,9 +44,14 @@ def polish_row(solver, x: torch.Tensor, iterations: int | None, restarts: int = 
     `repeats` runs; `solve`: its other keywords, e.g. a redundant joint's `redundancy`)."""
     t, _ = median_seconds(lambda: solver.solve(x, iterations, restarts, **solve), repeats, str(x.device))
     _, ok = solver.solve(x, iterations, restarts, **solve)
+    return rate_row(polish_method(solver, iterations, restarts), x.shape[0], t, ok)
+
+
+def polish_method(solver, iterations: int | None, restarts: int = 0) -> str:
+    """A row's `method` for `solver.solve(x, iterations, restarts)`."""
     more = f", up to {restarts} restarts of the rest" if restarts else ""
     steps = iterations if iterations is not None else solver.default_iterations
-    return rate_row(f"network + {steps} polish steps{more}", x.shape[0], t, ok)
+    return f"network + {steps} polish steps{more}"
 
 
 def pk_row(solver, x: torch.Tensor, retries: int, max_iterations: int = 50) -> dict:

@@ -216,4 +216,6 @@ def test_ik_full_trains_measures_and_finds_the_analytic_solutions(capsys, tmp_pa
     assert rows[0]["charts"] == 4 and (tmp_path / "charts.pt").is_file()
     assert by["polished"]["outside_limits"] == 0 and 0.0 <= by["polished"]["success"] <= 1.0
     assert by["all"]["analytic"] > 1.0 and 0.0 <= by["all"]["analytic_found"] <= 1.0  # a UR5 pose: up to 8
-    assert by["tracik"]["success"] == 1.0
+    assert by["tracik"]["success"] == 1.0 and by["tracik"]["success_runs"] == [1.0]
+    whole = next(r for r in rows if r.get("row") == "polished" and r["poses"] == "whole joint range")
+    assert len(whole["ratio_runs"]) == 1 and whole["ratio"] == whole["ratio_runs"][0] > 0.0
