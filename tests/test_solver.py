@@ -569,3 +569,22 @@ def test_error_damping_converges_near_the_wrist_singularity_where_gauss_newton_s
     assert rates[0.01] >= 0.99 and rates[0.01] > rates[0.0] + 0.01, rates
     with pytest.raises(ValueError, match=r"error_damping=-1 is not allowed"):
         IKSolver(net, robot, error_damping=-1)
+
+
+@pytest.mark.parametrize("rows", [7, 1500])  # below and from CHOLESKY_ROWS
+def test_the_least_norm_step_is_the_damped_pseudo_inverse_step_either_way(rows):
+    """`_least_norm` gives J^T (J J^T + lambda I)^-1 e as `torch.linalg.solve` does, below
+    `CHOLESKY_ROWS` rows by it and from them by the written-out Cholesky, also where J J^T is
+    singular (a 6 x 5 J) and lambda small."""
+    from rbfn.solver import CHOLESKY_ROWS, _least_norm
+
+    assert 7 < CHOLESKY_ROWS <= 1500
+    g = torch.Generator().manual_seed(0)
+    for n in (5, 6, 7):
+        jac = torch.randn(rows, 6, n, generator=g, dtype=torch.float64)
+        lam = 10.0 ** (-6 * torch.rand(rows, generator=g, dtype=torch.float64) - 2)  # 1e-8 .. 1e-2
+        e = torch.randn(rows, 6, generator=g, dtype=torch.float64)
+        a = jac @ jac.transpose(1, 2) + lam[:, None, None] * torch.eye(6, dtype=torch.float64)
+        want = (jac.transpose(1, 2) @ torch.linalg.solve(a, e.unsqueeze(-1))).squeeze(-1)
+        got = _least_norm(jac.permute(1, 2, 0), lam, e)
+        assert torch.allclose(got, want, rtol=1e-6, atol=1e-6 * float(want.abs().max()))
