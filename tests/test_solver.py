@@ -508,6 +508,29 @@ def test_a_7_joint_arm_keeps_its_redundant_joint_as_an_input(panda7_run):
         solver.model(poses)
 
 
+def test_the_posture_pull_moves_joints_from_their_limits_in_the_null_space(panda7_run):
+    """`_direction(..., posture=True)` at joints that reach their pose already (no error): the step
+    is `_posture`'s pull less what would move the end link, so the end link stays (to first order)
+    while the joints near a limit move away from it, the others hardly."""
+    from rbfn.solver import POSTURE
+
+    out, _, _ = panda7_run
+    solver = load_solver(out / "checkpoint.pt")
+    low, high = solver.low, solver.high
+    q = (low + 0.5 * (high - low)).repeat(3, 1)
+    q[0, 0], q[1, 2], q[2, 4] = high[0] - 0.02, low[2] + 0.02, high[4] - 0.05  # near a limit each
+    goal = solver._goals(solver.robot.targets(q))
+    state = solver._errors(q, goal)
+    assert float(state[0].abs().max()) < 1e-9
+    assert float(solver._direction(q, state, None).abs().max()) < 1e-12  # no error, no pull: no step
+    dq = solver._direction(q, state, None, posture=True)
+    moved = (state[1] @ dq.unsqueeze(-1)).squeeze(-1)  # the end link's velocity J dq
+    assert float(moved.abs().max()) < 1e-3 * float(dq.abs().max())
+    for row, joint, sign in ((0, 0, -1.0), (1, 2, 1.0), (2, 4, -1.0)):
+        assert sign * float(dq[row, joint]) > 1e-3 * POSTURE * float(high[joint] - low[joint])  # back from it
+    assert float(solver._posture(0.5 * (low + high)[None]).abs().max()) < 1e-12  # none in the middle
+
+
 def test_a_network_without_a_redundant_joint_refuses_a_value_for_one(panda_ckpt):
     from rbfn.checkpoint import model_from_checkpoint
     from rbfn.robots.robot import robot_from_record
