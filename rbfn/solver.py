@@ -409,6 +409,8 @@ class IKSolver:
         dq = _least_norm(jl, lam, e)
         if posture:  # z less its part J^T (J J^T + lambda I)^-1 J z that would move the end link
             z = self._posture(q)
+            if hold is not None:
+                z[:, hold] = 0.0
             dq = dq + z - _least_norm(jl, lam, (jl * z.T).sum(1).T)
         dq = shortened(self.max_step, dq)
         # Joints the step carries past a limit: moved to it, and the error left solved again without
