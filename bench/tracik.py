@@ -38,6 +38,8 @@ from .timing import machine_info, timed
 
 __all__ = ["tracik_solver", "tracik_row", "side_by_side", "main"]
 
+_TRACIK = "TRAC-IK (Speed, {:g} ms timeout)"  # its rows' `method`, of the timeout in ms
+
 
 def tracik_solver(robot, timeout: float):
     """pytracik's TRAC_IK for `robot`'s chain (its URDF text, root link -> end link), Speed mode,
@@ -91,9 +93,6 @@ def tracik_row(robot, x: torch.Tensor, timeout: float) -> dict:
     """Solves/s and success of TRAC-IK on targets x (B, 7) (poses), one at a time."""
     seconds, ok = _tracik_run(robot, x, timeout)()
     return rate_row(_TRACIK.format(1000 * timeout), x.shape[0], seconds, ok)
-
-
-_TRACIK = "TRAC-IK (Speed, {:g} ms timeout)"
 
 
 def side_by_side(

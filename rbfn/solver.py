@@ -40,6 +40,7 @@ from .checkpoint import CHARTS_KIND, model_from_checkpoint, read_checkpoint
 from .config import Target, finite, validate_device
 from .layer import RBFNetwork, row_blocks
 from .memory import FLOAT64, check_fits
+from .robots.backend import spd_solve
 from .robots.kinematics import joint_limits
 from .robots.robot import Robot, robot_from_record, rotation_error_deg, rotation_vector
 from .yaw import answer as yaw_answer, base_yaw as yaw_of, nearest_turn
@@ -119,8 +120,8 @@ POLISH_DTYPE = torch.float32
 # many (0, 8, 0), for -1 to +2 %.
 GIVE_UP_STEP = 4
 GIVE_UP = 1000.0
-# `_least_norm` solves J J^T y = e by Cholesky written out with the batch last from this many rows, by
-# `torch.linalg.solve` (batch first) below: one thread, float32, m = 6: 0.6 against 2.1 ms at 4 096
+# `_least_norm` solves J J^T y = e by Cholesky written out (`spd_solve`) with the batch last from this many
+# rows, by `torch.linalg.solve` (batch first) below: one thread, float32, m = 6: 0.6 against 2.1 ms at 4 096
 # rows, 0.8 against 0.3 ms at 512 (a fixed ~110 elementwise operations against LAPACK's per-matrix cost)
 CHOLESKY_ROWS = 1024
 # `IKSolver._posture`'s pull, a share of a joint's half range a step at its limit: the polish from `near`
@@ -185,7 +186,8 @@ def _least_norm(jl: torch.Tensor, lam: torch.Tensor, e: torch.Tensor) -> torch.T
     and errors e (B, m): J J^T and J^T y elementwise with the batch last (UR5, 4 096 rows, float32:
     J J^T 0.2 ms, against 4.0 ms as a batched product of the batch-first view). From `CHOLESKY_ROWS`
     rows, J J^T a sum of n outer products added in place (one thread, 4 096 rows: 0.16 against 0.44
-    ms for n = 6) and the solve `_cholesky_solve`; below them `torch.linalg.solve`."""
+    ms for n = 6) and the solve the written-out Cholesky `rbfn.robots.backend.spd_solve` on its
+    batch-last entries; below them `torch.linalg.solve`."""
     m, n, b = jl.shape
     if b < CHOLESKY_ROWS:
         eye = torch.eye(m, dtype=jl.dtype, device=jl.device)
@@ -193,46 +195,16 @@ def _least_norm(jl: torch.Tensor, lam: torch.Tensor, e: torch.Tensor) -> torch.T
         y = torch.linalg.solve(jjt + lam[:, None, None] * eye, e.unsqueeze(-1)).squeeze(-1)  # (B, m)
         return (jl * y.T[:, None]).sum(0).T
     jl = jl.contiguous()
-    jjt = jl[:, None, 0] * jl[None, :, 0]  # (m, m, B): a sum of n outer products, in place
+    a = jl[:, None, 0] * jl[None, :, 0]  # (m, m, B): J J^T, a sum of n outer products, in place
     for k in range(1, n):
-        jjt.addcmul_(jl[:, None, k], jl[None, :, k])
-    y = _cholesky_solve(jjt, lam, e.T)  # (m, B)
+        a.addcmul_(jl[:, None, k], jl[None, :, k])
+    a.diagonal(dim1=0, dim2=1).add_(lam[:, None])  # + lambda I
+    # the batch-last views: each entry `spd_solve` reads is a contiguous row of B
+    y = spd_solve(a.permute(2, 0, 1), e.T.contiguous().T).T.contiguous()  # (m, B)
     dq = jl[0] * y[0]  # (n, B)
     for i in range(1, m):
         dq.addcmul_(jl[i], y[i])
     return dq.T
-
-
-def _cholesky_solve(a: torch.Tensor, lam: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """y (m, B) solving (a + lambda I) y = b for symmetric positive semi-definite a (m, m, B) (J J^T),
-    lambda (B,), b (m, B), all with the batch last: Cholesky's factor and its two triangular solves
-    written out, one elementwise operation a row vector of B (m = 6: about 110 of them). Each pivot
-    of a + lambda I is at least lambda, so a pivot below it (rounding) is raised to it."""
-    m = a.shape[0]
-    floor = lam.clamp(min=torch.finfo(a.dtype).tiny)
-    low: list[list[torch.Tensor]] = []  # low[i][j], j <= i: the factor L, a + lambda I = L L^T
-    for i in range(m):
-        row: list[torch.Tensor] = []
-        for j in range(i + 1):
-            other = row if j == i else low[j]
-            s = a[i, j] + lam if i == j else a[i, j]
-            for k in range(j):
-                s = s - row[k] * other[k]
-            row.append(s.clamp(min=floor).sqrt() if i == j else s / low[j][j])
-        low.append(row)
-    y: list[torch.Tensor] = []
-    for i in range(m):  # L z = b
-        s = b[i]
-        for k in range(i):
-            s = s - low[i][k] * y[k]
-        y.append(s / low[i][i])
-    x: list[torch.Tensor] = [y[0]] * m
-    for i in reversed(range(m)):  # L^T y = z
-        s = y[i]
-        for k in range(i + 1, m):
-            s = s - low[k][i] * x[k]
-        x[i] = s / low[i][i]
-    return torch.stack(x)
 
 
 class IKSolver:
@@ -601,7 +573,7 @@ class IKSolver:
         trained range, so radians and metres count alike. For a charted network, `near` polished
         is the answer where it converges (where the arm has more joints than its target needs, a
         7-joint arm's pose, each step also pulls the joints from their limits in J's null space,
-        `POSTURE`, so a path solved point by point does not drift along the self-motion into a
+        `POSTURE`, so a path solved point by point drifts less along the self-motion into a
         limit), else the converged one nearest `near` of every chart's answers, its whole turns
         nearest `near`. Solving a path point by point with the previous
         answer as `near` keeps it on its branch.
