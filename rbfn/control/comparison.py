@@ -333,11 +333,15 @@ def _networks(c: _Context) -> _Networks:
 class LawSettings(NamedTuple):
     """The two-phase law's settings a comparison chooses per method (`_choose`): the joints it adds
     the network's predicted torque on (n,) 1 or 0 each, its payload estimate's step per control
-    period (`gains.estimate_rate`) and the most its feedback may grow (`gains.feedback_growth`)."""
+    period (`gains.estimate_rate`) and the most its feedback may grow (`gains.feedback_growth`);
+    under `control.network.feedforward=chosen`, the evidence for the joints: per joint (n,) the
+    geometric mean over the tuning's scenarios of the RMS ratio with the network's torque to
+    without it, at the chosen rate (below 1: the joint takes it; None where nothing was chosen)."""
 
     feedforward: torch.Tensor
     estimate_rate: float
     feedback_growth: float
+    feedforward_ratio: torch.Tensor | None = None
 
 
 class _Tried(NamedTuple):
@@ -426,8 +430,9 @@ def _choose(c: _Context, nw: _Networks) -> None:
             ways = [tried[i] for i, law in enumerate(first) if law[:2] == (m, r) and i in tried]
             if len(ways) == 2:  # chosen: per joint, with it (the first) where it beats without it
                 on, off = ways
-                keep = (on.rms / off.rms.clamp_min(1e-15)).log().mean(0).exp() < 1.0
-                settings = LawSettings(keep.double(), rate, growths[0])
+                ratio = (on.rms / off.rms.clamp_min(1e-15)).log().mean(0).exp()
+                keep = ratio < 1.0
+                settings = LawSettings(keep.double(), rate, growths[0], ratio)
                 ways = [_Tried(settings, torch.where(keep, on.rms, off.rms), torch.where(keep, on.sat, off.sat))]
             candidates += ways[:1]
         if candidates:

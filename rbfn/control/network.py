@@ -147,11 +147,13 @@ def payload_residuals(
 class PayloadBasis(NamedTuple):
     """Phase 1's fit on a network's Gaussians h (M,): the torque the nominal model misses carrying
     m kg is h^T (w0 + m per_kg); w0 (M, n) N m (N), per_kg (M, n) N m (N) per kg; `fit_error`:
-    the relative RMS error of that fit on the held-out rows, per condition (C,)."""
+    the relative RMS error of that fit on the held-out rows, per condition (C,); `joint_error`:
+    the same over every condition, per joint (n,)."""
 
     w0: torch.Tensor
     per_kg: torch.Tensor
     fit_error: torch.Tensor
+    joint_error: torch.Tensor
 
     def outputs(self, h: torch.Tensor, model_per_kg: torch.Tensor) -> torch.Tensor:
         """What `TwoPhase` is given along the reference (T, 3n), for features h (T, M) and the
@@ -190,8 +192,10 @@ def payload_basis(net: ControlNet, x: torch.Tensor, y: torch.Tensor, payloads: l
     per_kg = torch.einsum("c,mcj->mj", dm, w - w.mean(1, keepdim=True)) / dm.square().sum().clamp_min(1e-12)
     w0 = w.mean(1) - m.mean() * per_kg
     pred = torch.einsum("nm,mcj->ncj", h[1::2], w0[:, None] + m[None, :, None] * per_kg[:, None])
-    err = (pred - y[1::2]).square().sum((0, 2)).sqrt() / y[1::2].square().sum((0, 2)).sqrt().clamp_min(1e-12)
-    return PayloadBasis(w0, per_kg, err)
+    miss, held = (pred - y[1::2]).square(), y[1::2].square()
+    err = miss.sum((0, 2)).sqrt() / held.sum((0, 2)).sqrt().clamp_min(1e-12)
+    joint = miss.sum((0, 1)).sqrt() / held.sum((0, 1)).sqrt().clamp_min(1e-12)
+    return PayloadBasis(w0, per_kg, err, joint)
 
 
 def control_network(

@@ -73,6 +73,7 @@ def evaluate_control(
             "payloads": res.phase_one_payloads,
             "seconds": res.phase_one_seconds,  # its calibration runs (each network's selection: select_seconds)
             "fit_error": {n: b.fit_error.tolist() for n, b in bases.items()},
+            "joint_error": {n: b.joint_error.tolist() for n, b in bases.items()},
         }
         # the two-phase law's settings, as the closed loop chose them on the tuning's scenarios: the
         # joints each network feeds its predicted torque forward on (control.network.feedforward),
@@ -82,6 +83,8 @@ def evaluate_control(
         info["feedforward"] = {
             "mode": str(net.feedforward) if net is not None else None,
             "joints": {n: st.feedforward.tolist() for n, st in chosen.items()},
+            # per joint, the RMS with the network's torque over without it on the tuning's scenarios
+            "ratio": {n: st.feedforward_ratio.tolist() for n, st in chosen.items() if st.feedforward_ratio is not None},
             "seconds": res.choice_seconds,  # the whole choice, every setting
         }
         info["estimate_rate"] = {

@@ -37,6 +37,19 @@ def test_the_fit_recovers_weights_affine_in_the_payload():
     pred = torch.stack([h @ (basis.w0 + m * basis.per_kg) for m in payloads], 1)
     assert torch.allclose(pred, y, atol=1e-6 * y.abs().max())
     assert basis.fit_error.shape == (4,) and float(basis.fit_error.max()) < 1e-5
+    assert basis.joint_error.shape == (3,) and float(basis.joint_error.max()) < 1e-5
+
+
+def test_each_joint_has_its_own_fit_error():
+    """A joint whose residual the Gaussians cannot carry (noise) fits badly, the others do not."""
+    net = _net(d=4, m=12, seed=0)
+    g = torch.Generator().manual_seed(2)
+    x = torch.randn(400, 4, generator=g, **KW)
+    w0, per_kg = torch.randn(12, 3, generator=g, **KW), torch.randn(12, 3, generator=g, **KW)
+    y = torch.stack([net.features(x) @ (w0 + m * per_kg) for m in (0.0, 1.0, 2.0)], 1)  # (N, C, n)
+    y[..., 2] = torch.randn(400, 3, generator=g, **KW)
+    basis = payload_basis(net, x, y, [0.0, 1.0, 2.0])
+    assert float(basis.joint_error[:2].max()) < 0.3 and float(basis.joint_error[2]) > 0.8
 
 
 def test_an_arm_rated_for_no_payload_gets_no_payload_direction():

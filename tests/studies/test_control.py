@@ -1,6 +1,7 @@
 """The closed-loop comparison and its outputs; bad control settings stop before any work."""
 
 import json
+import math
 from dataclasses import replace
 
 import pytest
@@ -123,6 +124,9 @@ def test_the_closed_loop_chooses_the_joints_the_network_feeds_forward_on(tmp_pat
         assert info["mode"] == str(mode) and len(joints) == 3 and set(joints) <= {0.0, 1.0}
         if mode != Feedforward.chosen:
             assert joints == [1.0 if mode == Feedforward.on else 0.0] * 3 and info["seconds"] < 0.1
+            assert info["ratio"] == {}  # nothing chosen, no evidence
+        errors = out["control_info"]["phase_one"]["joint_error"]["arbfn_kmeans"]
+        assert len(errors) == 3 and all(0.0 <= e < 1.0 for e in errors)
     chosen = runs[Feedforward.chosen]["control_info"]["feedforward"]["joints"]["arbfn_kmeans"]
     for j, keep in enumerate(chosen):  # the chosen law's joint tracks as the law it took on that joint
         same = runs[Feedforward.on if keep else Feedforward.off]["control"]["arbfn_kmeans"]["0kg"]["rms_err"][j]
@@ -203,6 +207,31 @@ def test_a_candidate_that_diverges_in_the_choice_is_dropped_and_the_rest_run_aga
     settings = res.runs["arbfn_kmeans"].settings
     assert settings is not None and (settings.estimate_rate, settings.feedback_growth) == (0.05, 1.5)
     assert settings.feedforward.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_the_choice_feeds_forward_on_each_joint_where_the_torque_helped(monkeypatch):
+    """Per joint, the network's torque is kept where the geometric mean over the scenarios of the
+    RMS ratio with it to without it is below 1, and that ratio is recorded beside the choice (the
+    runs answer made-up errors: with the torque 0.5x on joint 1, 2x on joint 2, and on joint 3
+    0.8x in one scenario and 1.5x in the other, 1.1x overall)."""
+    import rbfn.control.comparison as comparison
+
+    def made_up(plant, ctrl, k, scenarios, *args, **kw):
+        s = scenarios.payloads.shape[0]
+        with_it = torch.tensor([[0.5, 2.0, 0.8], [0.5, 2.0, 1.5]], dtype=torch.float64).repeat(s // 2 + 1, 1)[:s]
+        rms = torch.stack([torch.ones(s, 3, dtype=torch.float64), with_it, torch.ones(s, 3, dtype=torch.float64)])
+        return rms, torch.zeros_like(rms)  # smc, then the law with and without the torque
+
+    monkeypatch.setattr(comparison, "run_scenarios", made_up)
+    net = NetworkConfig(
+        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
+        tune=TuneConfig(scenarios=1, duration=1.0), estimate_rate_factors=[1.0], feedback_growth_factors=[1.0],
+    )  # fmt: skip
+    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    settings = compare_controllers(cfg, GainsConfig(), "cpu").runs["arbfn_kmeans"].settings
+    assert settings is not None and settings.feedforward.tolist() == [1.0, 0.0, 0.0]
+    assert settings.feedforward_ratio is not None
+    assert settings.feedforward_ratio.tolist() == pytest.approx([0.5, 2.0, math.sqrt(0.8 * 1.5)])
 
 
 def test_where_every_candidate_diverges_in_the_choice_the_law_keeps_its_defaults(monkeypatch):
