@@ -182,6 +182,16 @@ def test_the_closed_loop_chooses_the_estimates_rate_and_the_feedbacks_growth(tmp
     assert default["control"]["arbfn_kmeans"]["10kg"]["rms_err"] != alone["control"]["arbfn_kmeans"]["10kg"]["rms_err"]
 
 
+def _choice_case(scenarios: int, rates: list[float]):
+    """A short SCARA evaluation of arbfn_kmeans under the two-phase law whose choice tries the
+    estimate `rates` (factors) on `scenarios` tuning scenarios of 1 s, at one growth."""
+    net = NetworkConfig(
+        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
+        tune=TuneConfig(scenarios=scenarios, duration=1.0), estimate_rate_factors=rates, feedback_growth_factors=[1.0],
+    )  # fmt: skip
+    return _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+
+
 def test_a_candidate_that_diverges_in_the_choice_is_dropped_and_the_rest_run_again(tmp_path, monkeypatch):
     """The choice's first run raises SimulationDiverged in the first law's environments (the
     network's torque on every joint): the rest run again without it, and the law without the
@@ -197,11 +207,7 @@ def test_a_candidate_that_diverges_in_the_choice_is_dropped_and_the_rest_run_aga
         return real(plant, ctrl, k, scenarios, *args, **kw)
 
     monkeypatch.setattr(comparison, "run_scenarios", diverging)
-    net = NetworkConfig(
-        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
-        tune=TuneConfig(scenarios=2, duration=1.0), estimate_rate_factors=[1.0], feedback_growth_factors=[1.0],
-    )  # fmt: skip
-    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    cfg = _choice_case(scenarios=2, rates=[1.0])
     res = compare_controllers(cfg, GainsConfig(), "cpu")
     assert calls == [3, 2]  # smc and the law with and without the torque; then without the first
     settings = res.runs["arbfn_kmeans"].settings
@@ -223,11 +229,7 @@ def test_the_choice_feeds_forward_on_each_joint_where_the_torque_helped(monkeypa
         return rms, torch.zeros_like(rms)  # smc, then the law with and without the torque
 
     monkeypatch.setattr(comparison, "run_scenarios", made_up)
-    net = NetworkConfig(
-        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
-        tune=TuneConfig(scenarios=1, duration=1.0), estimate_rate_factors=[1.0], feedback_growth_factors=[1.0],
-    )  # fmt: skip
-    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    cfg = _choice_case(scenarios=1, rates=[1.0])
     settings = compare_controllers(cfg, GainsConfig(), "cpu").runs["arbfn_kmeans"].settings
     assert settings is not None and settings.feedforward.tolist() == [1.0, 0.0, 0.0]
     assert settings.feedforward_ratio is not None
@@ -246,11 +248,7 @@ def test_where_every_candidate_diverges_in_the_choice_the_law_keeps_its_defaults
         raise SimulationDiverged("diverged (a test's)", environment=scenarios.payloads.shape[0])
 
     monkeypatch.setattr(comparison, "run_scenarios", diverging)
-    net = NetworkConfig(
-        num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3,
-        tune=TuneConfig(scenarios=2, duration=1.0), estimate_rate_factors=[1.0, 0.5], feedback_growth_factors=[1.0],
-    )  # fmt: skip
-    cfg = _short(controllers=["smc_obs", "arbfn_kmeans"], network=net, duration=2.0, payload_on=0.5, payload_off=1.5)
+    cfg = _choice_case(scenarios=2, rates=[1.0, 0.5])
     res = compare_controllers(cfg, GainsConfig(), "cpu")
     assert calls == [5, 4, 3, 2]  # smc and 2 rates x 2 ways, one fewer each time
     settings = res.runs["arbfn_kmeans"].settings
