@@ -284,6 +284,9 @@ class NetworkConfig:
     # whichever of on and off tracks better in the closed loop on `tune`'s scenarios (never the
     # evaluation's); on: every joint; off: none (the network then only estimates the payload)
     feedforward: Feedforward = Feedforward.chosen
+    # two_phase: compare the measured velocity with the reference's as the realistic loop measures it
+    # (qd_d - lag qdd_d, the lag of its backward difference and velocity filter); false: with qd_d
+    lag_compensation: bool = True
     # two_phase: the payload estimate's rates tried, factors of gains.estimate_rate (each in (0, 1]),
     # then the feedback's growths, factors of gains.feedback_growth (each >= 1 / gains.feedback_growth);
     # with more than one, the cheapest in the closed loop on `tune`'s scenarios under the tuning's

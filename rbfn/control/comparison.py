@@ -36,7 +36,7 @@ from ..progress import Progress
 from .aot import ahead_of_time
 from .batch import Stacked
 from .controllers import InertiaSchedule, Model, make_controller
-from .loop import RealLoop, real_loop
+from .loop import RealLoop, real_loop, velocity_lag
 from .models import model_scales
 from .network import (
     ControlNet,
@@ -562,6 +562,7 @@ def _make(
         law=str(c.cfg.network.law),
         schedule=nw.schedule,
         feedforward=None if settings is None else settings.feedforward.to(**c.kw),
+        velocity_lag=velocity_lag(c.real) if c.cfg.network.lag_compensation else 0.0,
     )
 
 

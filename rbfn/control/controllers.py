@@ -388,7 +388,16 @@ class TwoPhase(Controller):
     The controller is not told the payload: the rating bounds m_hat, as it bounds the design.
     `feedforward` (n,), 1 or 0 per joint (None: every joint 1), keeps or drops the network's terms
     h^T W0 + m_hat (h^T V - Y) in tau on that joint (`control.network.feedforward`); the estimate
-    uses the network on every joint either way."""
+    uses the network on every joint either way.
+
+    `velocity_lag` (s, `rbfn.control.loop.velocity_lag`; `control.network.lag_compensation`): the
+    law compares the measured velocity with the reference's as the loop would measure it,
+    de = qd_d - velocity_lag qdd_d - qd. Compared with qd_d itself, a filtered velocity shows a
+    tracking error of about velocity_lag qdd_d where there is none, and the feedback answers it
+    with a torque (K + M Lambda) velocity_lag qdd_d that acts like extra inertia (the SCARA, 50 Hz
+    filter: about 0.2 M qdd, twice what the nominal model's 0.9 M misses); the observer then has
+    to take back the network's correct prediction of the missing inertia, and the prediction hurt
+    the tracking."""
 
     features: torch.Tensor
 
@@ -401,9 +410,11 @@ class TwoPhase(Controller):
         schedule: InertiaSchedule,
         joint_scale: torch.Tensor | None = None,
         feedforward: torch.Tensor | None = None,
+        velocity_lag: float = 0.0,
     ) -> None:
         super().__init__(gains, dt, model, joint_scale)
         self.features, self.schedule, self.feedforward = features, schedule, feedforward
+        self.velocity_lag = velocity_lag
 
     def init_state(self, q0: torch.Tensor, qd0: torch.Tensor) -> TwoPhaseState:
         z = torch.zeros_like(q0)
@@ -447,6 +458,8 @@ class TwoPhase(Controller):
         rate, cap, feedforward = self.settings() if state.settings is None else state.settings
         resid0, phi, beyond = h[..., :n], h[..., n : 2 * n], h[..., 2 * n :]
         e, de = ref.q_d - q, ref.qd_d - qd
+        if self.velocity_lag:
+            de = de - self.velocity_lag * ref.qdd_d  # the reference's velocity as the loop measures it
         s = de + g.Lambda * e
         at = self.model.at(q, qd, payload=m)  # the model carrying the estimate
         robust = torch.sign(s) if g.robust == Robust.sign else (s / g.boundary).clamp(-1.0, 1.0)
@@ -508,6 +521,7 @@ def make_controller(
     law: str = "tracking",
     schedule: InertiaSchedule | None = None,
     feedforward: torch.Tensor | None = None,
+    velocity_lag: float = 0.0,
 ) -> Controller:
     """Controller by name: pd, ctc, smc, smc_obs, smc_exact (needs the `plant`), or arbfn* (needs
     `features`). `model`: the nominal model (`rbfn.control.models.NominalModel`; all but pd and
@@ -516,8 +530,12 @@ def make_controller(
     and adaptation rate (None: 1). `law`: the adaptive network's (`control.network.law`):
     `tracking`, features h (T, M) and dW/dt = Gamma h s^T from `w0`; `two_phase` (`TwoPhase`),
     features [h^T W0, h^T V, h^T V - Y] (T, 3n), the inertia `schedule` and the joints it feeds
-    the network's torque forward on (`feedforward` (n,), None: every joint)."""
-    spec = _Spec(name, gains, dt, model, features, w0, observer, joint_scale, plant, rates, law, schedule, feedforward)
+    the network's torque forward on (`feedforward` (n,), None: every joint) and the loop's
+    `velocity_lag` it compensates (s, `TwoPhase`)."""
+    spec = _Spec(
+        name, gains, dt, model, features, w0, observer, joint_scale, plant, rates, law, schedule, feedforward,
+        velocity_lag,
+    )  # fmt: skip
     build = _BUILDERS.get(name) or (_adaptive if name == ADAPTIVE.rstrip("_") or network_method(name) else None)
     if build is None:
         raise ValueError(
@@ -545,6 +563,7 @@ class _Spec(NamedTuple):
     law: str
     schedule: InertiaSchedule | None
     feedforward: torch.Tensor | None
+    velocity_lag: float
 
 
 def _exact(s: _Spec) -> Controller:
@@ -561,8 +580,9 @@ def _adaptive(s: _Spec) -> Controller:
         if s.schedule is None:
             raise ValueError(f"controller {s.name!r} under law 'two_phase' needs the inertia schedule")
         return TwoPhase(
-            s.gains, s.dt, s.model, s.features, s.schedule, joint_scale=s.joint_scale, feedforward=s.feedforward
-        )
+            s.gains, s.dt, s.model, s.features, s.schedule, joint_scale=s.joint_scale, feedforward=s.feedforward,
+            velocity_lag=s.velocity_lag,
+        )  # fmt: skip
     if s.law != "tracking":
         raise ValueError(f"unknown adaptive law {s.law!r}; choose 'two_phase' or 'tracking'")
     return SlidingMode(

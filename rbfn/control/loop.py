@@ -33,6 +33,7 @@ __all__ = [
     "quantise",
     "filter_gain",
     "filtered_velocity",
+    "velocity_lag",
     "saturate",
     "integration_limit",
     "STABLE_STEP",
@@ -150,6 +151,18 @@ def filtered_velocity(
     """The next filtered velocity: the finite difference (y - previous) / period of measured
     positions through the first-order filter of `gain` (`filter_gain`)."""
     return velocity + gain * ((y - previous) / period - velocity)
+
+
+def velocity_lag(loop: RealLoop | None) -> float:
+    """How far, s, the velocity the controller measures in `loop` lags the joint's, at frequencies
+    well below the filter's cutoff: half a period for the backward difference and (1 - a) / a
+    periods for the first-order filter of gain a (`filtered_velocity`); 0 in the ideal loop or
+    where the velocity is exact. A reference velocity qd_d compares with the measured one as
+    qd_d - lag qdd_d (to first order in the lag)."""
+    if loop is None or loop.velocity_gain is None:
+        return 0.0
+    a = loop.velocity_gain
+    return loop.period * (0.5 + (1.0 - a) / a)
 
 
 def saturate(tau: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:

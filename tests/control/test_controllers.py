@@ -91,6 +91,34 @@ def test_feedforward_drops_the_networks_torque_on_the_joints_it_names():
     assert torch.equal(command(torch.ones(3, **KW)), every)
 
 
+def test_the_law_compares_the_measured_velocity_with_the_references_as_the_loop_lags_it():
+    """With velocity_lag L the law's velocity error is qd_d - L qdd_d - qd: its first command drops
+    by exactly (M(m_hat) Lambda + K s_j) L qdd_d, the feedback's answer to that much velocity error
+    (epsilon 0, so the robust term stays out of it)."""
+    gains = GainsConfig(inertia_scaling=True, epsilon=0.0)
+    rob = control_robot(RobotConfig(), ControlConfig())
+    model = rob.nominal_model(0.0, model_scales(gains))
+    feats = torch.randn(4, 9, generator=torch.Generator().manual_seed(3), **KW)
+    q, qd = torch.tensor([[0.3, -0.2, 0.1]], **KW), torch.tensor([[0.1, 0.2, -0.1]], **KW)
+    ref = Reference(q[0] + 0.01, qd[0] + 0.02, torch.tensor([1.5, -2.0, 0.7], **KW))
+    scale = rob.joint_scale(**KW)
+
+    def command(lag):
+        ctrl = make_controller(
+            "arbfn_kmeans", gains, 1e-3, model=model, features=feats, law="two_phase",
+            schedule=rob.inertia_schedule(gains), joint_scale=scale, velocity_lag=lag,
+        )  # fmt: skip
+        state = ctrl.init_state(q, qd)
+        return ctrl.torque(ref, q, qd, state, h=feats[0], alpha=torch.tensor(0.0, **KW))[0], state.m_hat
+
+    lag = 3.3e-3
+    (plain, m_hat), (lagged, _) = command(0.0), command(lag)
+    at = model.at(q, qd, payload=m_hat)
+    one = 1.0 if scale is None else scale
+    expected = lag * (at.m_times(gains.Lambda * ref.qdd_d[None]) + gains.K * one * ref.qdd_d)
+    assert torch.allclose(plain - lagged, expected, atol=1e-9)
+
+
 def test_observer_factor_is_the_feedback_bandwidth_over_the_observers():
     gains = GainsConfig(K=50.0, observer_gain=100.0)
     f = observer_factor(gains, torch.tensor([1.0, 2.0]), torch.tensor([[0.1, 4.0], [1.0, 1.0]]))

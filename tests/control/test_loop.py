@@ -11,7 +11,7 @@ import torch
 from rbfn.config import GainsConfig, LoopConfig
 from rbfn.control import Plant, Scenario, make_controller, paper_trajectory, simulate
 from rbfn.control.controllers import Controller
-from rbfn.control.loop import RealLoop, filter_gain, filtered_velocity, quantise, real_loop, saturate
+from rbfn.control.loop import RealLoop, filter_gain, filtered_velocity, quantise, real_loop, saturate, velocity_lag
 from rbfn.control.models import NominalModel
 from rbfn.robots.scara import ScaraTerms
 
@@ -469,3 +469,29 @@ def test_the_compiled_realistic_loop_equals_the_eager_one(tmp_path, monkeypatch)
     eager, compiled = _realistic_scara(1), _realistic_scara(1, compile=True)  # one period per call: the smallest graph
     assert torch.allclose(compiled.q, eager.q, rtol=0, atol=1e-12)
     assert torch.allclose(compiled.tau, eager.tau, rtol=1e-9, atol=1e-9)
+
+
+def test_velocity_lag_is_how_far_the_filtered_velocity_trails_a_slow_motion():
+    """A joint at q = sin(w t), w far below the 50 Hz cutoff, measured every period through the
+    backward difference and the filter: its velocity matches cos(w (t - lag)) to within 0.3 % of
+    w, and trails cos(w t) itself by about w^2 lag."""
+    period, w = 2e-3, 3.0
+    loop = real_loop(
+        LoopConfig(name="realistic", control_rate=1 / period, velocity_cutoff=50.0), 1e-3, [False], torch.ones(1)
+    )
+    assert loop is not None and loop.velocity_gain is not None
+    lag = velocity_lag(loop)
+    assert lag == pytest.approx(period * (0.5 + (1 - loop.velocity_gain) / loop.velocity_gain))
+    t = torch.arange(0, 4.0, period, dtype=torch.float64)
+    y, v = torch.sin(w * t), torch.zeros(())
+    out = []
+    for k in range(1, t.shape[0]):
+        v = filtered_velocity(v, y[k], y[k - 1], period, loop.velocity_gain)
+        out.append(v)
+    measured, late = torch.stack(out)[1000:], t[1:][1000:]  # after the filter's start
+    assert float((measured - w * torch.cos(w * (late - lag))).abs().max()) < 3e-3 * w
+    assert float((measured - w * torch.cos(w * late)).abs().max()) > 0.5 * w * w * lag
+    assert velocity_lag(None) == 0.0
+    assert (
+        velocity_lag(real_loop(LoopConfig(name="realistic", velocity_cutoff=None), 1e-3, [False], torch.ones(1))) == 0.0
+    )
