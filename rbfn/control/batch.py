@@ -117,6 +117,7 @@ class TwoPhaseBatch(TwoPhase):
             torch.cat([p.features for p in parts], -1),
             first.schedule,
             joint_scale=first.scale,
+            velocity_lag=first.velocity_lag,
         )
         width, n = first.features.shape[-1], first.schedule.base.shape[-1]
         part = torch.arange(len(parts)).repeat_interleave(torch.tensor(sizes))  # (B,) each environment's part
@@ -241,7 +242,7 @@ def _batchable(a: Controller, b: Controller) -> bool:
     """Whether controllers a and b can run as one: sliding-mode controllers with equal gains, time
     step, joint scale, joint rates and nominal model; two-phase ones with equal gains but the
     estimate's rate and the feedback's growth, time step, joint scale, nominal model, inertia
-    schedule and features' width."""
+    schedule, velocity lag and features' width."""
     if type(a) is not type(b) or type(a) not in (SlidingMode, TwoPhase) or a.dt != b.dt:
         return False
     same_scale = a.scale is b.scale or (a.scale is not None and b.scale is not None and torch.equal(a.scale, b.scale))
@@ -254,6 +255,7 @@ def _batchable(a: Controller, b: Controller) -> bool:
         return (
             _settled(a) == _settled(b)  # the estimate's rate and the feedback's growth: each environment's own
             and same_schedule
+            and a.velocity_lag == b.velocity_lag
             and a.features.shape[-1] == b.features.shape[-1]
             and same_scale
             and same_model

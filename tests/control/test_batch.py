@@ -12,10 +12,12 @@ KW = {"dtype": torch.float64}
 MODEL = NominalModel(ScaraTerms())
 
 
-def _two_phase(gains: Gains, dt: float, feats: torch.Tensor, schedule: InertiaSchedule, feedforward=None) -> TwoPhase:
+def _two_phase(
+    gains: Gains, dt: float, feats: torch.Tensor, schedule: InertiaSchedule, feedforward=None, lag: float = 3e-3
+) -> TwoPhase:
     ctrl = make_controller(
         "arbfn_x", gains, dt, model=MODEL, features=feats, law="two_phase",
-        schedule=schedule, feedforward=feedforward,
+        schedule=schedule, feedforward=feedforward, velocity_lag=lag,
     )  # fmt: skip
     assert isinstance(ctrl, TwoPhase)
     return ctrl
@@ -24,7 +26,7 @@ def _two_phase(gains: Gains, dt: float, feats: torch.Tensor, schedule: InertiaSc
 def test_two_phase_controllers_batched_equal_their_separate_runs():
     """Two-phase controllers that differ in their estimate's rate, their feedback's growth, their
     feedforward joints and their features run as one `TwoPhaseBatch` (with smc beside them), and
-    each block of the batch is that controller's own run."""
+    each block of the batch is that controller's own run (their velocity lag compensated too)."""
     sc = Scenario(duration=0.3, payload_on=0.05, payload_off=0.25, metrics_after=0.0)
     ref = paper_trajectory(sc.times())
     plant = Plant(ScaraTerms())
@@ -62,6 +64,7 @@ def test_two_phase_controllers_of_other_gains_or_schedules_are_not_batched():
     a = _two_phase(Gains(), dt, feats, schedule)
     assert len(Stacked([a, _two_phase(Gains(K=7.0), dt, feats, schedule)], [1, 1]).units) == 2
     assert len(Stacked([a, _two_phase(Gains(), dt, feats, other)], [1, 1]).units) == 2
+    assert len(Stacked([a, _two_phase(Gains(), dt, feats, schedule, lag=0.0)], [1, 1]).units) == 2
     assert len(Stacked([a, _two_phase(Gains(estimate_rate=0.01), dt, feats, schedule)], [1, 1]).units) == 1
 
 
