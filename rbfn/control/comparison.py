@@ -259,6 +259,12 @@ class _Context:
         """The controllers' time step, s."""
         return self.sc.dt if self.real is None else self.real.period
 
+    @property
+    def velocity_lag(self) -> float:
+        """The two-phase law's compensated velocity lag, s (`control.network.lag_compensation`;
+        0 where it is off or the loop is ideal)."""
+        return velocity_lag(self.real) if self.cfg.network.lag_compensation else 0.0
+
     def stage(self, what: str) -> None:
         """A step of no counted parts, for the progress line."""
         if self.progress is not None:
@@ -562,7 +568,7 @@ def _make(
         law=str(c.cfg.network.law),
         schedule=nw.schedule,
         feedforward=None if settings is None else settings.feedforward.to(**c.kw),
-        velocity_lag=velocity_lag(c.real) if c.cfg.network.lag_compensation else 0.0,
+        velocity_lag=c.velocity_lag,
     )
 
 
