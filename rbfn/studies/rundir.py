@@ -272,7 +272,9 @@ def _after_failure(e: BaseException, path: Path, before: set[str]) -> None:
 def remove_new_empty_parents(path: Path, since: float | None = None) -> None:
     """Remove `path` and its parents, nearest first, while each is an empty directory created at or
     after `since` (default: this process's start), i.e. made for this run (`made_since`); never the
-    working directory or one above it."""
+    working directory or one above it, nor one another process holds (`RunDir`). Each is checked
+    and removed under its lock: a run started in the same second may have made the clock's name
+    again after this one moved off it (`relabel`), and holds it until it moves off in turn."""
     since = _STARTED if since is None else since
     keep = {Path.cwd().resolve(), *Path.cwd().resolve().parents}
     for d in (path, *path.parents):
@@ -280,9 +282,17 @@ def remove_new_empty_parents(path: Path, since: float | None = None) -> None:
         try:
             if not d.exists():
                 continue  # removed already (RunDir's tidy)
-            if d.resolve() in keep or not d.is_dir() or not made_since(d, since) or not _is_empty(d):
+            if d.resolve() in keep or not d.is_dir():
                 return
-            d.rmdir()
+            fd = _lock(d)
+            if fd is None:
+                return  # another process holds it (or removed it just now)
+            try:
+                if not made_since(d, since) or not _is_empty(d):
+                    return
+                d.rmdir()  # under the lock: a process taking it after finds it gone (`_lock`)
+            finally:
+                os.close(fd)
         except OSError:
             return
 

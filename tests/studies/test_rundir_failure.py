@@ -2,6 +2,7 @@
 even the parents Hydra made for hydra.run.dir, when it wrote nothing or only its bookkeeping; its
 results, named in the error, when it wrote some."""
 
+import fcntl
 import os
 import subprocess
 import sys
@@ -93,6 +94,23 @@ def test_only_parents_made_since_the_run_started_are_removed(tmp_path):
     assert sorted(p.name for p in old.iterdir()) == ["kept"]
     remove_new_empty_parents(old / "kept", since)  # empty, but there before the run
     assert (old / "kept").is_dir()
+
+
+def test_a_directory_another_run_holds_is_never_removed(tmp_path):
+    """Two runs started in the same second: the first moves off the clock's name (relabel), the
+    second makes it again and holds it; the first, leaving, removes what it made, but not that."""
+    named = tmp_path / "12-00-00"
+    named.mkdir()
+    (tmp_path / "another run's").mkdir()  # the parent is kept
+    fd = os.open(named, os.O_RDONLY)  # another open file description: another process's lock to this one
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    try:
+        remove_new_empty_parents(named, since=0.0)
+        assert named.is_dir()
+    finally:
+        os.close(fd)
+    remove_new_empty_parents(named, since=0.0)  # free again: removed, as made since `since`
+    assert not named.exists()
 
 
 def _run(*args):
