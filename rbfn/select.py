@@ -1,4 +1,4 @@
-"""Choosing centres and widths: ACO (ACO_R or the paper's Ant System), k-means, random, OLS.
+"""Choosing centres and widths: ACO (ACO_R or the paper's Ant System), k-means, random, OLS, CMA-ES.
 
 `select` works on scaled inputs z and returns centres (M, d) and widths (M,) in the same units,
 with what the search recorded (time, ACO objective per iteration). Widths not searched by the
@@ -150,16 +150,6 @@ def _aco(t: _Task) -> _Chosen:
     return _ant_system(t) if t.cfg.aco.colony == "ant_system" else _acor(t)
 
 
-# The centre selectors by `rbfn.config.Method`, the one list of their names.
-_METHODS: dict[Method, Callable[[_Task], _Chosen]] = {
-    Method.aco: _aco,
-    Method.kmeans: _kmeans,
-    Method.random: _random,
-    Method.ols: _ols,
-}
-assert set(_METHODS) == set(Method), "each rbfn.config.Method needs its selector here"
-
-
 # The colony's subset keeps at least this many rows per design column P (the fit's excess
 # validation error grows as P / rows: about 2 % here), whatever `centers.aco.fit_rows` says.
 ROWS_PER_COLUMN = 50
@@ -236,16 +226,31 @@ FULL_FLOPS = 2e11
 REDUCED_FLOPS = 1e12
 
 
-def _acor(t: _Task) -> _Chosen:
-    """ACO_R over centre coordinates (bounded to the data's box) and widths (per-centre log
-    widths, one log scale of the seed widths, or none: `cfg.aco.acor.search_widths`).
+class _Space(NamedTuple):
+    """What the full searches of centres and widths share (`_acor`, `_cmaes`): the coordinates x
+    (M d centre coordinates, then the width coordinates), their box (lower, upper), the start
+    `seed` (the k-means centres c0 and their validation-tuned widths w0), the seed's spread per
+    coordinate, `unpack` (x (K, D) -> centres (K, M, d), widths (K, M)) and the objective the
+    ants are ranked on (x (K, D) -> (K,)). `too_large`: why the full search costs too much
+    ("" where it does not), with `ranked` the fit objective the reduced search ranks on."""
 
-    The archive is seeded with k-means centres and their validation-tuned widths, plus
-    perturbations of them (so archive members share one centre ordering and the Gaussian
-    sampling compares like with like). Where the full search costs too much (`_too_large`),
-    k-means chooses the centres and the answer's note says why.
-    """
-    cfg, objective, m, max_width, g = t.cfg, t.objective, t.m, t.max_width, t.g
+    lower: torch.Tensor
+    upper: torch.Tensor
+    seed: torch.Tensor
+    spread: torch.Tensor
+    unpack: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+    objective: Callable[[torch.Tensor], torch.Tensor]
+    c0: torch.Tensor
+    w0: torch.Tensor
+    ranked: FitObjective
+    too_large: str
+
+
+def _space(t: _Task) -> _Space:
+    """The full search's coordinates over centre coordinates (bounded to the data's box) and widths
+    (per-centre log widths, one log scale of the seed widths, or none: `cfg.aco.acor.search_widths`),
+    its start at the k-means centres and their widths, and its objective (`cfg.aco.objective`)."""
+    cfg, objective, m, max_width = t.cfg, t.objective, t.m, t.max_width
     a, r = cfg.aco, cfg.aco.acor
     z = objective.z_train
     d = z.shape[1]
@@ -253,13 +258,13 @@ def _acor(t: _Task) -> _Chosen:
     w0 = choose_widths(objective, c0, cfg.width_rule, cfg.width_scale, max_width)
     ranked = colony_objective(objective, m, a.fit_rows, t.seed) if a.objective == "fit" else objective
     full_cost = (r.archive_size + a.ants * a.iterations) * ranked.cost(m)
+    too_large = ""
     if a.objective == "fit" and (m * d > FULL_SEARCH_MAX or full_cost > FULL_FLOPS):
-        why = (
+        too_large = (
             f"M * d = {m * d} > {FULL_SEARCH_MAX}"
             if m * d > FULL_SEARCH_MAX
             else f"its fits would cost {full_cost:.2g} flops > {FULL_FLOPS:.2g}"
         )
-        return _too_large(t, ranked, c0, w0, why)
     lo, hi = z.amin(0), z.amax(0)
     span = float((hi - lo).norm())
     # Width coordinates: M log widths, one log scale of the seed widths, or none.
@@ -290,28 +295,102 @@ def _acor(t: _Task) -> _Chosen:
         def obj(x: torch.Tensor) -> torch.Tensor:
             return cluster_objective(z, unpack(x)[0])
 
-    seed_vec = torch.cat([c0.reshape(-1), w_seed])
     spread = torch.cat(
         [
             (r.init_spread * nearest_widths(c0, k=1)).repeat_interleave(d),
             torch.full((n_w,), r.init_spread, dtype=z.dtype, device=z.device),
         ]
     )
-    noise = torch.randn(r.archive_size - 1, seed_vec.shape[0], dtype=z.dtype, generator=g).to(z.device)
-    init = torch.cat([seed_vec[None], seed_vec + spread * noise])
+    seed = torch.cat([c0.reshape(-1), w_seed]).clamp(lower, upper)
+    return _Space(lower, upper, seed, spread, unpack, obj, c0, w0, ranked, too_large)
+
+
+def _acor(t: _Task) -> _Chosen:
+    """ACO_R over the full search's coordinates (`_space`).
+
+    The archive is seeded with k-means centres and their validation-tuned widths, plus
+    perturbations of them (so archive members share one centre ordering and the Gaussian
+    sampling compares like with like). Where the full search costs too much (`_too_large`),
+    k-means chooses the centres and the answer's note says why.
+    """
+    a, r, g = t.cfg.aco, t.cfg.aco.acor, t.g
+    s = _space(t)
+    if s.too_large:
+        return _too_large(t, s.ranked, s.c0, s.w0, s.too_large)
+    noise = torch.randn(r.archive_size - 1, s.seed.shape[0], dtype=s.seed.dtype, generator=g).to(s.seed.device)
+    init = torch.cat([s.seed[None], s.seed + s.spread * noise])
     colony = ACOR(
         archive_size=r.archive_size,
         ants=a.ants,
         q=r.q,
         xi=r.xi,
         iterations=a.iterations,
-        lower=lower,
-        upper=upper,
+        lower=s.lower,
+        upper=s.upper,
         progress=t.progress,
     )
-    res = colony.minimize(obj, init, generator=g, state=t.resume, on_state=t.on_state)
-    c, w = unpack(res.best[None])
-    return _Chosen(c[0], w[0].clamp(max=max_width), res.best_history, res.mean_history)
+    res = colony.minimize(s.objective, init, generator=g, state=t.resume, on_state=t.on_state)
+    c, w = s.unpack(res.best[None])
+    return _Chosen(c[0], w[0].clamp(max=t.max_width), res.best_history, res.mean_history)
+
+
+def _cmaes(t: _Task) -> _Chosen:
+    """CMA-ES (the cmaes package) over the colony's coordinates, box, start and objective
+    (`_space`), at its budget: archive_size + ants x iterations evaluations of the objective, the
+    start first, then generations of `ants` candidates (at least 2). It searches in units of the
+    start's spread per coordinate (its step size 1 there: the colony's perturbations of its
+    archive) and keeps the best candidate it evaluated, so it is never worse than the start on
+    the objective. Where the full search costs too much it returns k-means' centres and widths,
+    and its note says why. It does not resume a stopped run: it starts again, to the same answer.
+    """
+    import numpy as np
+    from cmaes import CMA
+
+    a, m = t.cfg.aco, t.m
+    s = _space(t)
+    if s.too_large:
+        note = f"CMA-ES skipped itself at M = {m} ({s.too_large}); the centres and widths are k-means'"
+        log.info("CMA-ES: skipped at M = %d (%s)", m, s.too_large)
+        return _Chosen(s.c0, s.w0, [], [], "kmeans", note)
+    unit = s.spread.clamp_min(torch.finfo(s.spread.dtype).tiny).double().cpu()
+    start = s.seed.double().cpu()
+    bounds = torch.stack([(s.lower.double().cpu() - start) / unit, (s.upper.double().cpu() - start) / unit], 1)
+    pop = max(a.ants, 2)
+    generations = (a.acor.archive_size + a.ants * a.iterations - 1) // pop
+
+    def evaluate(y: torch.Tensor) -> torch.Tensor:
+        x = (start + unit * y).to(s.seed).clamp(s.lower, s.upper)
+        v = s.objective(x).double().cpu()
+        return torch.where(torch.isfinite(v), v, torch.full_like(v, math.inf))
+
+    best_x, best_v = s.seed, float(evaluate(torch.zeros(1, start.shape[0], dtype=torch.float64))[0])
+    opt = CMA(mean=np.zeros(start.shape[0]), sigma=1.0, bounds=bounds.numpy(), seed=t.seed, population_size=pop)
+    best, mean = [], []
+    for _ in range(generations):
+        ys = np.stack([opt.ask() for _ in range(pop)])
+        v = evaluate(torch.from_numpy(ys))
+        finite = v[torch.isfinite(v)]
+        worst = float(finite.max()) * 10 if finite.numel() else 1e300  # CMA-ES ranks: a failed fit is worst
+        opt.tell([(y, float(x) if math.isfinite(float(x)) else worst) for y, x in zip(ys, v)])
+        i = int(v.argmin())
+        if float(v[i]) < best_v:
+            best_v = float(v[i])
+            best_x = (start + unit * torch.from_numpy(ys[i])).to(s.seed).clamp(s.lower, s.upper)
+        best.append(best_v)
+        mean.append(float(finite.mean()) if finite.numel() else math.inf)
+    c, w = s.unpack(best_x[None])
+    return _Chosen(c[0], w[0].clamp(max=t.max_width), best, mean)
+
+
+# The centre selectors by `rbfn.config.Method`, the one list of their names.
+_METHODS: dict[Method, Callable[[_Task], _Chosen]] = {
+    Method.aco: _aco,
+    Method.kmeans: _kmeans,
+    Method.random: _random,
+    Method.ols: _ols,
+    Method.cmaes: _cmaes,
+}
+assert set(_METHODS) == set(Method), "each rbfn.config.Method needs its selector here"
 
 
 def _too_large(t: _Task, ranked: FitObjective, c0: torch.Tensor, w0: torch.Tensor, why: str) -> _Chosen:

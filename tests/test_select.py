@@ -20,7 +20,15 @@ def objective(small_data):
 
 
 @pytest.mark.parametrize(
-    "method,colony", [("random", "acor"), ("kmeans", "acor"), ("ols", "acor"), ("aco", "acor"), ("aco", "ant_system")]
+    "method,colony",
+    [
+        ("random", "acor"),
+        ("kmeans", "acor"),
+        ("ols", "acor"),
+        ("aco", "acor"),
+        ("aco", "ant_system"),
+        ("cmaes", "acor"),
+    ],
 )
 def test_every_method_returns_centres_and_positive_widths(objective, method, colony):
     cfg = CentersConfig(method=method)
@@ -29,7 +37,7 @@ def test_every_method_returns_centres_and_positive_widths(objective, method, col
     s = select(cfg, objective, 12, seed=0, max_width=2.0)
     assert s.centers.shape == (12, 3) and s.widths.shape == (12,)
     assert (s.widths > 0).all() and (s.widths <= 2.0).all()
-    if method == "aco":  # one entry per iteration run (the Ant System
+    if method in ("aco", "cmaes"):  # one entry per iteration run (the Ant System
         assert 1 <= len(s.aco_best) <= 5  # stops early once every ant agrees)
         assert s.aco_best == sorted(s.aco_best, reverse=True)  # best-so-far never worsens
 
@@ -45,6 +53,52 @@ def test_acor_is_no_worse_than_its_kmeans_seed(objective):
     # ACO's centres stay inside the training inputs' box.
     z = objective.z_train
     assert ((aco.centers >= z.amin(0)) & (aco.centers <= z.amax(0))).all()
+
+
+def test_cmaes_searches_the_colonys_box_from_its_start_at_its_budget(objective, monkeypatch):
+    """CMA-ES ranks candidates on the colony's objective, within the colony's box, evaluating the
+    colony's budget (archive + ants x iterations, the start first); it keeps the best it saw, so it
+    is never worse than the k-means start, and it moves from it."""
+    import rbfn.select as sel
+
+    calls = []
+    space = sel._space
+
+    def counted(t):
+        s = space(t)
+
+        def obj(x):
+            calls.append(x.clone())
+            return s.objective(x)
+
+        return s._replace(objective=obj)
+
+    monkeypatch.setattr(sel, "_space", counted)
+    cfg = CentersConfig(method="cmaes")
+    cfg.aco.iterations, cfg.aco.ants, cfg.aco.acor.archive_size = 6, 5, 4
+    s = select(cfg, objective, 10, seed=0, max_width=2.0)
+    km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
+    assert sum(len(x) for x in calls) == 1 + 5 * ((4 + 5 * 6 - 1) // 5) <= 4 + 5 * 6
+    assert torch.allclose(calls[0][0, : 10 * 3], km.centers.reshape(-1))  # the start: the k-means seed
+    z = objective.z_train
+    every = torch.cat(calls)[:, : 10 * 3].reshape(-1, 10, 3)
+    assert ((every >= z.amin(0)) & (every <= z.amax(0))).all()
+    e_km = objective(km.centers[None], km.widths[None]).item()
+    e = objective(s.centers[None], s.widths[None]).item()
+    assert e < e_km and s.aco_best[-1] == pytest.approx(e, rel=1e-6)
+    assert (s.chosen_by, s.note) == ("cmaes", "")
+    again = select(cfg, objective, 10, seed=0, max_width=2.0)  # seeded
+    assert torch.equal(again.centers, s.centers) and torch.equal(again.widths, s.widths)
+
+
+def test_cmaes_hands_over_kmeans_where_the_full_search_costs_too_much(objective, monkeypatch):
+    import rbfn.select as sel
+
+    monkeypatch.setattr(sel, "FULL_SEARCH_MAX", 0)
+    km = select(CentersConfig(method="kmeans"), objective, 10, seed=0, max_width=2.0)
+    s = select(CentersConfig(method="cmaes"), objective, 10, seed=0, max_width=2.0)
+    assert torch.equal(s.centers, km.centers) and torch.equal(s.widths, km.widths)
+    assert s.chosen_by == "kmeans" and s.note.startswith("CMA-ES skipped itself at M = 10 (M * d = 30 > 0)")
 
 
 def test_acor_best_is_the_objective_of_what_it_returns(objective):

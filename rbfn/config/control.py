@@ -65,7 +65,7 @@ class NetworkMethod(NamedTuple):
     """One way to choose the adaptive network's centres and widths, the controller arbfn_<name>.
 
     `selector`: the selector (`Method`, `rbfn.select.select`) it runs on the pilot run's or phase
-    1's fit; None where it has its own (`grid`) or searches the closed loop only (`cmaes`).
+    1's fit; None where it has its own (`grid`).
     `cluster`: the colony on k-means' objective instead of the fit. `searches`: it searches the
     closed loop itself under control.network.objective=closed_loop (`rbfn.control.tuning`, which
     implements each such search). `what`: one line for messages and the docs."""
@@ -74,11 +74,6 @@ class NetworkMethod(NamedTuple):
     cluster: bool
     searches: bool
     what: str
-
-    @property
-    def closed_loop_only(self) -> bool:
-        """It has no fit of its own: it searches the closed loop only (cmaes)."""
-        return self.selector is None and self.searches
 
 
 # The one list of network methods: the config's allowed names, the dispatch (rbfn.control.network,
@@ -89,7 +84,12 @@ NETWORK_METHODS: dict[str, NetworkMethod] = {
     "kmeans": NetworkMethod(Method.kmeans, False, False, "k-means: the twin the closed-loop searches start from"),
     "random": NetworkMethod(Method.random, False, True, "random centres; random search on the closed loop"),
     "grid": NetworkMethod(None, False, False, "centres evenly along one period of the reference"),
-    "cmaes": NetworkMethod(None, False, True, "CMA-ES (the cmaes package) on the closed loop only"),
+    "cmaes": NetworkMethod(
+        Method.cmaes,
+        False,
+        True,
+        "CMA-ES (the cmaes package) on the fit; on the closed loop under objective=closed_loop",
+    ),
 }
 CONTROL_CENTER_METHODS = tuple(NETWORK_METHODS)
 # The searches that tune the network on the closed loop itself (control.network.objective=closed_loop).
@@ -359,15 +359,6 @@ class NetworkConfig:
             f"the control network's objective is {key}.objective (closed_loop, fit or cluster); leave this at fit",
         )
         if self.objective != NetworkObjective.closed_loop:
-            for name in controllers:
-                method = NETWORK_METHODS.get(network_method(name) or "")
-                _need(
-                    method is None or not method.closed_loop_only,
-                    "control.controllers",
-                    name,
-                    f"it searches the closed loop only: needs {key}.objective=closed_loop (it is {self.objective}; "
-                    f"{key}.law=tracking makes it the default)",
-                )
             if self.law == NetworkLaw.two_phase and any(network_method(name) for name in controllers):
                 self.tune.check(f"{key}.tune", duration, window)  # the law's settings are chosen on its scenarios
             return

@@ -15,6 +15,7 @@ class Method(Choice):
     kmeans = "kmeans"
     random = "random"
     ols = "ols"
+    cmaes = "cmaes"
 
 
 class Colony(Choice):
@@ -61,7 +62,7 @@ class InputScaling(Choice):
 
 
 # Presets of the `centers` group (conf/centers/NAME.yaml); a label, recorded with every run.
-SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols")
+SELECTORS = ("aco", "aco_paper", "kmeans", "kmeans_refine", "random", "ols", "cmaes")
 # Useful widths, as multiples of a width rule's base (the paper's d_max / sqrt(2M), or the mean
 # distance to the nearest centres): validation chooses among 0.25 .. 64 (rbfn.widths.SCALE_GRID).
 # Below 1/16, a Gaussian is exp(-128) ~ 3e-56 half-way to the next centre: the network is its bias

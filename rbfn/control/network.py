@@ -213,9 +213,8 @@ def control_network(
     data x (N, 2n), y (N, n) sampled every `sample_dt` s; even samples train, odd ones validate
     (widths, ridge, ACO's fit objective). `warm_start` starts the weights at the ridge fit of y."""
     entry = NETWORK_METHODS.get(method)
-    if entry is None or entry.closed_loop_only:
-        allowed = [name for name, e in NETWORK_METHODS.items() if not e.closed_loop_only]
-        raise ValueError(f"unknown centre method {method!r} for a fit; choose one of {allowed}")
+    if entry is None:
+        raise ValueError(f"unknown centre method {method!r} for a fit; choose one of {list(NETWORK_METHODS)}")
     offset, scale = x.mean(0), x.std(0).clamp_min(1e-9)
     z = (x - offset) / scale
     objective = FitObjective(z[0::2], y[0::2], z[1::2], y[1::2], tail=False)

@@ -272,7 +272,6 @@ def test_bad_tuning_settings_are_refused_by_name(change, match):
 @pytest.mark.parametrize(
     "change,match",
     [
-        ({"objective": NetworkObjective.fit}, r"control.controllers='arbfn_cmaes'.*objective=closed_loop"),
         ({"aco": ACOConfig(colony=Colony.ant_system)}, r"control.network.aco.colony='ant_system'.*acor"),
         ({"aco": ACOConfig(objective=Objective.cluster)}, r"control.network.aco.objective='cluster'.*objective"),
     ],

@@ -97,6 +97,20 @@ def test_the_two_phase_law_beats_the_observer_at_an_unknown_payload():
     assert all(a < o for a, o in zip(law, obs)), (law, obs)
 
 
+def test_cmaes_chooses_the_two_phase_basis_on_phase_ones_fit_as_the_colony_does():
+    """Under the two-phase law CMA-ES searches phase 1's fit from k-means' centres at the colony's
+    budget: its own centres, its basis fitted as the others' are, and a stable run."""
+    net = NetworkConfig(num_centers=8, law=NetworkLaw.two_phase, objective=NetworkObjective.fit, conditions=3)
+    net.aco = ACOConfig(iterations=4, ants=6, acor=ACORConfig(archive_size=6))
+    cfg = _short(controllers=["smc", "arbfn_kmeans", "arbfn_cmaes"], network=net, payloads=[10.0])
+    res = compare_controllers(cfg, GainsConfig(inertia_scaling=True))
+    km, cm = res.runs["arbfn_kmeans"], res.runs["arbfn_cmaes"]
+    assert km.basis is not None and cm.basis is not None and cm.basis.w0.shape == (8, 3)
+    assert not torch.equal(km.basis.w0, cm.basis.w0)  # another basis, fitted the same way
+    assert bool(cm.basis.fit_error.isfinite().all()) and cm.select_seconds is not None
+    assert all(math.isfinite(e) for e in cm.metrics["10kg"]["rms_err"])
+
+
 def test_the_closed_loop_chooses_the_joints_the_network_feeds_forward_on(tmp_path):
     """control.network.feedforward: chosen runs the law with and without the network's torque on
     the tuning's scenarios and keeps it per joint where it tracks better; on and off keep it on
