@@ -339,9 +339,13 @@ def _cmaes(t: _Task) -> _Chosen:
     (`_space`), at its budget: archive_size + ants x iterations evaluations of the objective, the
     start first, then generations of `ants` candidates (at least 2). It searches in units of the
     start's spread per coordinate (its step size 1 there: the colony's perturbations of its
-    archive) and keeps the best candidate it evaluated, so it is never worse than the start on
-    the objective. Where the full search costs too much it returns k-means' centres and widths,
-    and its note says why. It does not resume a stopped run: it starts again, to the same answer.
+    archive). A candidate outside the box is ranked at its nearest point in the box, its
+    objective times 1 + its squared distance outside (in those units), and that point is what
+    it keeps: the best it evaluated, never worse than the start on the objective. (The library's
+    own bounds resample each candidate until it falls inside: seconds a generation at the
+    SCARA network's 250 coordinates.) Where the full search costs too much it returns k-means'
+    centres and widths, and its note says why. It does not resume a stopped run: it starts
+    again, to the same answer.
     """
     import numpy as np
     from cmaes import CMA
@@ -354,28 +358,32 @@ def _cmaes(t: _Task) -> _Chosen:
         return _Chosen(s.c0, s.w0, [], [], "kmeans", note)
     unit = s.spread.clamp_min(torch.finfo(s.spread.dtype).tiny).double().cpu()
     start = s.seed.double().cpu()
-    bounds = torch.stack([(s.lower.double().cpu() - start) / unit, (s.upper.double().cpu() - start) / unit], 1)
+    lo, hi = (s.lower.double().cpu() - start) / unit, (s.upper.double().cpu() - start) / unit
     pop = max(a.ants, 2)
     generations = (a.acor.archive_size + a.ants * a.iterations - 1) // pop
 
-    def evaluate(y: torch.Tensor) -> torch.Tensor:
-        x = (start + unit * y).to(s.seed).clamp(s.lower, s.upper)
+    def evaluate(y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The objective (K,) at the box's points nearest to y (K, D), and those points' x."""
+        inside = torch.maximum(torch.minimum(y, hi), lo)
+        x = (start + unit * inside).to(s.seed).clamp(s.lower, s.upper)
         v = s.objective(x).double().cpu()
-        return torch.where(torch.isfinite(v), v, torch.full_like(v, math.inf))
+        return torch.where(torch.isfinite(v), v, torch.full_like(v, math.inf)), x
 
-    best_x, best_v = s.seed, float(evaluate(torch.zeros(1, start.shape[0], dtype=torch.float64))[0])
-    opt = CMA(mean=np.zeros(start.shape[0]), sigma=1.0, bounds=bounds.numpy(), seed=t.seed, population_size=pop)
+    v0, x0 = evaluate(torch.zeros(1, start.shape[0], dtype=torch.float64))
+    best_v, best_x = float(v0[0]), x0[0]
+    opt = CMA(mean=np.zeros(start.shape[0]), sigma=1.0, seed=t.seed, population_size=pop)
     best, mean = [], []
     for _ in range(generations):
-        ys = np.stack([opt.ask() for _ in range(pop)])
-        v = evaluate(torch.from_numpy(ys))
+        ys = torch.from_numpy(np.stack([opt.ask() for _ in range(pop)]))
+        v, x = evaluate(ys)
+        outside = (ys - torch.maximum(torch.minimum(ys, hi), lo)).square().sum(1)
         finite = v[torch.isfinite(v)]
         worst = float(finite.max()) * 10 if finite.numel() else 1e300  # CMA-ES ranks: a failed fit is worst
-        opt.tell([(y, float(x) if math.isfinite(float(x)) else worst) for y, x in zip(ys, v)])
+        ranked = torch.where(torch.isfinite(v), v * (1 + outside), torch.full_like(v, worst))
+        opt.tell(list(zip(ys.numpy(), ranked.tolist())))
         i = int(v.argmin())
         if float(v[i]) < best_v:
-            best_v = float(v[i])
-            best_x = (start + unit * torch.from_numpy(ys[i])).to(s.seed).clamp(s.lower, s.upper)
+            best_v, best_x = float(v[i]), x[i]
         best.append(best_v)
         mean.append(float(finite.mean()) if finite.numel() else math.inf)
     c, w = s.unpack(best_x[None])
