@@ -13,7 +13,7 @@ cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA de
 
 
 @cuda
-@pytest.mark.parametrize("centers", ["aco", "aco_paper", "kmeans_refine", "random", "ols"])
+@pytest.mark.parametrize("centers", ["aco", "aco_paper", "kmeans_refine", "random", "ols", "cmaes"])
 def test_train_on_cuda_matches_cpu(tmp_path, centers):
     over = [
         "data.n_train=400",
