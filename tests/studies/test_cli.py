@@ -220,7 +220,7 @@ def test_ctrl_c_to_train_is_one_line_and_keeps_the_state_to_resume(tmp_path):
         (
             "centers=nonexistent",
             "error: In 'train': Could not find 'centers/nonexistent'; Available options in 'centers': aco, aco_paper, "
-            "kmeans, kmeans_refine, ols, random",
+            "cmaes, kmeans, kmeans_refine, ols, random",
         ),
         ("seed=[1", "error: cannot parse the override 'seed=[1'; quote a value holding spaces"),
         (
