@@ -27,7 +27,7 @@ from .widths import SCALE_GRID, base_widths, nearest_widths, paper_widths
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Selection", "select", "choose_widths", "colony_objective", "visibility"]
+__all__ = ["Selection", "select", "choose_widths", "colony_objective", "visibility", "cma_ranks"]
 
 
 @dataclass
@@ -362,9 +362,9 @@ def _cmaes(t: _Task) -> _Chosen:
     pop = max(a.ants, 2)
     generations = (a.acor.archive_size + a.ants * a.iterations - 1) // pop
 
-    def evaluate(y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The objective (K,) at the box's points nearest to y (K, D), and those points' x."""
-        inside = torch.maximum(torch.minimum(y, hi), lo)
+    def evaluate(inside: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The objective (K,) (inf where not finite) at points `inside` (K, D) of the box, in the
+        search's units, and those points' x."""
         x = (start + unit * inside).to(s.seed).clamp(s.lower, s.upper)
         v = s.objective(x).double().cpu()
         return torch.where(torch.isfinite(v), v, torch.full_like(v, math.inf)), x
@@ -375,12 +375,11 @@ def _cmaes(t: _Task) -> _Chosen:
     best, mean = [], []
     for _ in range(generations):
         ys = torch.from_numpy(np.stack([opt.ask() for _ in range(pop)]))
-        v, x = evaluate(ys)
-        outside = (ys - torch.maximum(torch.minimum(ys, hi), lo)).square().sum(1)
+        inside = torch.maximum(torch.minimum(ys, hi), lo)
+        v, x = evaluate(inside)
+        outside = (ys - inside).square().sum(1)
+        opt.tell(list(zip(ys.numpy(), cma_ranks(v * (1 + outside)).tolist())))
         finite = v[torch.isfinite(v)]
-        worst = float(finite.max()) * 10 if finite.numel() else 1e300  # CMA-ES ranks: a failed fit is worst
-        ranked = torch.where(torch.isfinite(v), v * (1 + outside), torch.full_like(v, worst))
-        opt.tell(list(zip(ys.numpy(), ranked.tolist())))
         i = int(v.argmin())
         if float(v[i]) < best_v:
             best_v, best_x = float(v[i]), x[i]
@@ -388,6 +387,15 @@ def _cmaes(t: _Task) -> _Chosen:
         mean.append(float(finite.mean()) if finite.numel() else math.inf)
     c, w = s.unpack(best_x[None])
     return _Chosen(c[0], w[0].clamp(max=t.max_width), best, mean)
+
+
+def cma_ranks(values: torch.Tensor) -> torch.Tensor:
+    """What CMA-ES is told of candidates' `values` (K,): each non-finite one (a failed fit, a
+    diverged run) replaced by ten times the worst finite one (1e300 where none is finite), so that
+    it ranks last; CMA-ES uses the values only to rank the candidates."""
+    finite = torch.isfinite(values)
+    worst = float(values[finite].max()) * 10 if bool(finite.any()) else 1e300
+    return torch.where(finite, values, torch.full_like(values, worst))
 
 
 # The centre selectors by `rbfn.config.Method`, the one list of their names.

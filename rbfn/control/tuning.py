@@ -43,6 +43,7 @@ from ..config import ADAPTIVE, CLOSED_LOOP_SEARCHES, ACORConfig, TuneConfig
 from ..fit import design_matrix, ridge_fit
 from ..gaussians import gaussian_features
 from ..progress import Progress
+from ..select import cma_ranks
 from .controllers import Gains, JointRates, Model, make_controller
 from .loop import RealLoop
 from .network import ControlNet, desired_states
@@ -481,9 +482,7 @@ def _cmaes(s: _Search) -> None:
     for _ in range(s.tune.iterations):
         xs = [opt.ask() for _ in range(pop)]
         values = s.tally(torch.tensor(np.stack(xs), dtype=torch.float64))
-        finite = values[torch.isfinite(values)]
-        worst = float(finite.max()) * 10 if finite.numel() else 1e6  # CMA-ES ranks: a diverged run is worst
-        opt.tell([(x, float(v) if math.isfinite(float(v)) else worst) for x, v in zip(xs, values)])
+        opt.tell(list(zip(xs, cma_ranks(values).tolist())))  # a diverged run ranks last
 
 
 # Each closed-loop search of rbfn.config.NETWORK_METHODS (searches=True), by its name.
